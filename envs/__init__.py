@@ -1,0 +1,1 @@
+"""The task world: signals, schedules, dynamics, controlled elements and recordings."""

@@ -1,0 +1,159 @@
+"""Argument checks shared by every public entry point.
+
+Each check raises a built-in exception type (``ValueError`` or ``TypeError``) whose
+message names the argument, shows the value found and says what is allowed, so a
+caller can catch ``ValueError`` and a user can fix the call from the message alone.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+def _describe(value: Any) -> str:
+    if isinstance(value, np.ndarray):
+        return f"array of shape {value.shape}"
+    return repr(value)
+
+
+def check_real(name: str, value: Any) -> float:
+    """Return ``value`` as a finite float, or raise naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number, got {_describe(value)}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return value
+
+
+def check_positive(name: str, value: Any, *, allow_zero: bool = False) -> float:
+    """Return ``value`` as a finite float that is > 0 (or >= 0 with ``allow_zero``)."""
+    value = check_real(name, value)
+    if value < 0.0 or (value == 0.0 and not allow_zero):
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name} must be {bound}, got {value!r}")
+    return value
+
+
+def check_range(
+    name: str,
+    value: Any,
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    low_inclusive: bool = True,
+    high_inclusive: bool = True,
+) -> float:
+    """Return ``value`` as a finite float inside the given interval."""
+    value = check_real(name, value)
+    too_low = low is not None and (value < low if low_inclusive else value <= low)
+    too_high = high is not None and (value > high if high_inclusive else value >= high)
+    if too_low or too_high:
+        left = "[" if low_inclusive else "("
+        right = "]" if high_inclusive else ")"
+        low_text = "-inf" if low is None else f"{low:g}"
+        high_text = "inf" if high is None else f"{high:g}"
+        raise ValueError(f"{name} must lie in {left}{low_text}, {high_text}{right}, got {value!r}")
+    return value
+
+
+def check_int(name: str, value: Any, *, minimum: int | None = None) -> int:
+    """Return ``value`` as an int (bools rejected), at least ``minimum`` when given."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name} must be an integer, got {_describe(value)}")
+    value = int(value)
+    if minimum is not None and value < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {value!r}")
+    return value
+
+
+def check_choice(name: str, value: Any, choices: Iterable[str]) -> str:
+    """Return ``value`` if it is one of ``choices``; the error lists them all."""
+    options = tuple(choices)
+    if value not in options:
+        listed = ", ".join(repr(option) for option in options)
+        raise ValueError(f"{name} must be one of {listed}, got {value!r}")
+    return value
+
+
+def check_vector(
+    name: str,
+    value: Any,
+    *,
+    length: int | None = None,
+    min_length: int = 0,
+    allow_nan: bool = False,
+) -> NDArray[np.float64]:
+    """Return ``value`` as a 1-D float64 array with finite entries.
+
+    ``allow_nan`` lets NaN through (dropped samples of a measured signal) while
+    infinities are still rejected.
+    """
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise TypeError(f"{name} must be a 1-D array of numbers, got {_describe(value)}") from error
+    if array.ndim != 1:
+        raise ValueError(f"{name} must be 1-D, got shape {array.shape}")
+    if length is not None and array.shape[0] != length:
+        raise ValueError(f"{name} must have length {length}, got length {array.shape[0]}")
+    if array.shape[0] < min_length:
+        raise ValueError(f"{name} must have at least {min_length} entries, got {array.shape[0]}")
+    bad = ~np.isfinite(array)
+    if allow_nan:
+        bad &= ~np.isnan(array)
+    if bad.any():
+        index = int(np.flatnonzero(bad)[0])
+        kind = "infinite or NaN" if not allow_nan else "infinite"
+        raise ValueError(
+            f"{name} must be finite, found {int(bad.sum())} {kind} value(s), "
+            f"the first at index {index} ({array[index]!r})"
+        )
+    return array
+
+
+def check_matrix(name: str, value: Any, shape: tuple[int | None, ...]) -> NDArray[np.float64]:
+    """Return ``value`` as a finite float64 array of the expected shape (None = any)."""
+    array = np.asarray(value, dtype=np.float64)
+    expected = "(" + ", ".join("n" if s is None else str(s) for s in shape) + ")"
+    if array.ndim != len(shape) or any(
+        want is not None and got != want for got, want in zip(array.shape, shape, strict=True)
+    ):
+        raise ValueError(f"{name} must have shape {expected}, got {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} must be finite, got non-finite entries")
+    return array
+
+
+def reject_unknown(name: str, given: Iterable[str], known: Iterable[str]) -> None:
+    """Raise ``TypeError`` listing keys of ``given`` that are not in ``known``."""
+    known_set = set(known)
+    unknown = sorted(set(given) - known_set)
+    if unknown:
+        raise TypeError(
+            f"{name} got unknown key(s) {', '.join(map(repr, unknown))}; "
+            f"known: {', '.join(map(repr, sorted(known_set)))}"
+        )
+
+
+def check_times(t: Any) -> NDArray[np.float64]:
+    """``t`` as a float64 array of finite times, or a clear error."""
+    try:
+        times = np.asarray(t, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise TypeError(f"t must be a time in s or an array of times, got {t!r}") from error
+    bad = ~np.isfinite(times)
+    if bad.any():
+        flat = bad.ravel()
+        index = int(np.flatnonzero(flat)[0])
+        raise ValueError(
+            f"t must be finite, found {int(flat.sum())} non-finite time(s), "
+            f"the first at flat index {index} ({times.ravel()[index]!r})"
+        )
+    return times

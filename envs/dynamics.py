@@ -1,0 +1,667 @@
+"""Numerical toolkit for linear (parameter-varying) systems with delays.
+
+Everything the other packages need to turn a block diagram into sampled signals:
+
+* :func:`pade` -- Padé approximant of ``exp(-tau s)`` of any order (thesis eq. 4).
+* :func:`tf_to_ccf` -- transfer function to controllable canonical form (thesis eqs.
+  4.6-4.7), batched over leading axes so an LPV model builds all its samples at once.
+* :func:`interconnect` -- block diagram (blocks, summing junctions, external inputs)
+  to one state-space model, batched; exact delays are cut out as delay channels.
+* :func:`discretize` -- exact zero-order-hold discretisation plus the first-order-hold
+  (ramp) input matrix, batched, by one matrix exponential of an augmented matrix.
+* :func:`simulate_lpv` -- compiled stepping of a discrete LPV system whose matrices may
+  change every sample, with delay channels read from a fractional delay line.
+* :class:`DelayLine` -- bounded-memory online delay line with bicubic interpolation
+  of value and derivative (Boer & Kenyon 1998, Appendix).
+
+Conventions: polynomial coefficients in descending powers of ``s`` (as scipy.signal);
+state-space arrays may carry leading batch axes, ``A`` of shape ``(..., n, n)``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numba
+import numpy as np
+import scipy.linalg
+from numpy.typing import ArrayLike, NDArray
+
+from manualcontrol.envs._interpolation import bicubic_weights, interpolate_at
+from manualcontrol.envs._validation import check_int, check_positive
+
+__all__ = [
+    "Block",
+    "DelayChannel",
+    "DelayLine",
+    "Discretization",
+    "StateSpace",
+    "discretize",
+    "frequency_response",
+    "interconnect",
+    "pade",
+    "pade_coefficients",
+    "poly_multiply",
+    "simulate_lpv",
+    "tf_to_ccf",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+# --------------------------------------------------------------------------- Padé
+
+
+def pade_coefficients(order: int) -> FloatArray:
+    """Coefficients ``c_k`` of the order-``m`` Padé delay polynomial, ascending in k.
+
+    Thesis eq. 4: ``exp(-tau s) ≈ Σ c_k (-tau s)^k / Σ c_k (tau s)^k`` with
+    ``c_k = (2m - k)! / (k! (m - k)!)``, here divided by ``c_0 = (2m)!/m!`` so that
+    the constant terms are 1. For m = 3 this is 120, 60, 12, 1 over 120 (Popovici
+    eqs. 40-41).
+    """
+    m = check_int("order", order, minimum=0)
+    raw = [
+        math.factorial(2 * m - k) / (math.factorial(k) * math.factorial(m - k))
+        for k in range(m + 1)
+    ]
+    return np.asarray(raw, dtype=np.float64) / raw[0]
+
+
+def pade(tau: ArrayLike, order: int) -> tuple[FloatArray, FloatArray]:
+    """Numerator and denominator of the Padé approximant of ``exp(-tau s)``.
+
+    Parameters
+    ----------
+    tau
+        Delay in seconds, ``>= 0``; a scalar or an array (batch of delays).
+    order
+        Approximation order ``m >= 0`` (numerator and denominator degree).
+
+    Returns
+    -------
+    num, den
+        Arrays of shape ``(*tau.shape, m + 1)``, descending powers of ``s``, both
+        with constant term 1 (thesis eq. 4). ``den[..., k] = c_{m-k} tau^{m-k}`` and
+        ``num`` is the same with ``-tau``.
+
+    """
+    m = check_int("order", order, minimum=0)
+    tau_array = np.asarray(tau, dtype=np.float64)
+    if not np.all(np.isfinite(tau_array)):
+        raise ValueError(f"tau must be finite, got {tau!r}")
+    if np.any(tau_array < 0.0):
+        raise ValueError(f"tau must be >= 0 (a delay, not a preview), got {tau!r}")
+    c = pade_coefficients(m)
+    powers = np.arange(m, -1, -1)  # descending
+    den = c[powers] * tau_array[..., None] ** powers
+    num = c[powers] * (-tau_array[..., None]) ** powers
+    return num, den
+
+
+# ------------------------------------------------------------------- polynomials
+
+
+def poly_multiply(a: ArrayLike, b: ArrayLike) -> FloatArray:
+    """Product of polynomials in descending powers, batched over leading axes."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    batch = np.broadcast_shapes(a.shape[:-1], b.shape[:-1])
+    out = np.zeros((*batch, a.shape[-1] + b.shape[-1] - 1))
+    for i in range(a.shape[-1]):
+        out[..., i : i + b.shape[-1]] += a[..., i : i + 1] * b
+    return out
+
+
+# ------------------------------------------------------------------ state space
+
+
+@dataclass(frozen=True)
+class StateSpace:
+    """Continuous or discrete linear model ``x' = A x + B u``, ``y = C x + D u``.
+
+    Arrays may carry the same leading batch axes (one model per sample of an LPV
+    trajectory). Shapes: ``A (..., n, n)``, ``B (..., n, m)``, ``C (..., p, n)``,
+    ``D (..., p, m)``.
+    """
+
+    A: FloatArray
+    B: FloatArray
+    C: FloatArray
+    D: FloatArray
+
+    def __post_init__(self) -> None:
+        arrays = {name: np.asarray(getattr(self, name), dtype=np.float64) for name in "ABCD"}
+        for name, array in arrays.items():
+            if array.ndim < 2:
+                raise ValueError(f"{name} must have at least 2 dimensions, got shape {array.shape}")
+            object.__setattr__(self, name, array)
+        n = arrays["A"].shape[-1]
+        m = arrays["B"].shape[-1]
+        p = arrays["C"].shape[-2]
+        expected = {"A": (n, n), "B": (n, m), "C": (p, n), "D": (p, m)}
+        for name, shape in expected.items():
+            if arrays[name].shape[-2:] != shape:
+                raise ValueError(
+                    f"{name} must end in shape {shape} for a model with {n} states, "
+                    f"{m} inputs and {p} outputs, got {arrays[name].shape}"
+                )
+
+    @property
+    def n_states(self) -> int:
+        """Number of states ``n``."""
+        return self.A.shape[-1]
+
+    @property
+    def n_inputs(self) -> int:
+        """Number of inputs ``m``."""
+        return self.B.shape[-1]
+
+    @property
+    def n_outputs(self) -> int:
+        """Number of outputs ``p``."""
+        return self.C.shape[-2]
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        """Leading axes shared by the matrices (``()`` for one model)."""
+        return np.broadcast_shapes(
+            self.A.shape[:-2], self.B.shape[:-2], self.C.shape[:-2], self.D.shape[:-2]
+        )
+
+
+def tf_to_ccf(num: ArrayLike, den: ArrayLike) -> StateSpace:
+    """Controllable canonical form of ``num(s)/den(s)`` (thesis eqs. 4.6-4.7).
+
+    For ``(b_{n-1} s^{n-1} + ... + b_0)/(s^n + a_{n-1} s^{n-1} + ... + a_0)`` the
+    realisation is the companion matrix with last row ``-a_0 ... -a_{n-1}``,
+    ``B = [0 ... 0 1]^T`` and ``C = [b_0 ... b_{n-1}]``; a proper (biproper) transfer
+    function first splits off its feedthrough ``D``. Coefficient arrays are in
+    descending powers and may have leading batch axes (one transfer function per
+    sample); the leading denominator coefficient must be non-zero everywhere.
+    """
+    num = np.atleast_1d(np.asarray(num, dtype=np.float64))
+    den = np.atleast_1d(np.asarray(den, dtype=np.float64))
+    if not (np.all(np.isfinite(num)) and np.all(np.isfinite(den))):
+        raise ValueError("num and den must be finite")
+    n = den.shape[-1] - 1
+    if num.shape[-1] > den.shape[-1]:
+        raise ValueError(
+            f"transfer function must be proper: numerator degree {num.shape[-1] - 1} "
+            f"exceeds denominator degree {n}"
+        )
+    lead = den[..., :1]
+    if np.any(lead == 0.0):
+        raise ValueError("den must have a non-zero leading coefficient (descending powers)")
+    batch = np.broadcast_shapes(num.shape[:-1], den.shape[:-1])
+    a = np.broadcast_to(den / lead, (*batch, n + 1))
+    b = np.zeros((*batch, n + 1))
+    b[..., n + 1 - num.shape[-1] :] = num / lead
+    d = b[..., :1]
+    remainder = b - d * a  # strictly proper part, remainder[..., 0] == 0
+    A = np.zeros((*batch, n, n))
+    if n > 0:
+        A[..., np.arange(n - 1), np.arange(1, n)] = 1.0
+        A[..., n - 1, :] = -a[..., :0:-1]
+    B = np.zeros((*batch, n, 1))
+    if n > 0:
+        B[..., n - 1, 0] = 1.0
+    C = remainder[..., :0:-1][..., None, :]
+    D = d[..., None]
+    return StateSpace(A, B, C, D)
+
+
+def frequency_response(system: StateSpace, omega: ArrayLike) -> NDArray[np.complex128]:
+    """Complex response ``C (jω I - A)^{-1} B + D`` of an unbatched model.
+
+    Returns an array of shape ``(len(omega), p, m)``.
+    """
+    if system.batch_shape:
+        raise ValueError(
+            f"frequency_response needs one model, got batch shape {system.batch_shape}"
+        )
+    omega = np.atleast_1d(np.asarray(omega, dtype=np.float64))
+    n = system.n_states
+    eye = np.eye(n)
+    out = np.empty((omega.shape[0], system.n_outputs, system.n_inputs), dtype=np.complex128)
+    for i, w in enumerate(omega):
+        out[i] = system.C @ np.linalg.solve(1j * w * eye - system.A, system.B) + system.D
+    return out
+
+
+# ---------------------------------------------------------------- interconnection
+
+
+@dataclass(frozen=True)
+class Block:
+    """A state-space block with named input and output signals."""
+
+    system: StateSpace
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "inputs", tuple(self.inputs))
+        object.__setattr__(self, "outputs", tuple(self.outputs))
+        if len(self.inputs) != self.system.n_inputs:
+            raise ValueError(
+                f"block has {self.system.n_inputs} inputs but {len(self.inputs)} "
+                f"input names {self.inputs}"
+            )
+        if len(self.outputs) != self.system.n_outputs:
+            raise ValueError(
+                f"block has {self.system.n_outputs} outputs but {len(self.outputs)} "
+                f"output names {self.outputs}"
+            )
+
+
+@dataclass(frozen=True)
+class DelayChannel:
+    """An exact delay ``target(t) = source(t - delay)`` cut out of a block diagram.
+
+    :func:`interconnect` treats ``target`` as an extra external input and ``source``
+    as an extra output; :func:`simulate_lpv` closes the channel through a delay line.
+    """
+
+    source: str
+    target: str
+
+
+class Interconnection(NamedTuple):
+    """Result of :func:`interconnect`: one model plus the names of its signals."""
+
+    system: StateSpace
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    delay_inputs: tuple[int, ...]
+    delay_outputs: tuple[int, ...]
+
+
+def interconnect(
+    blocks: Sequence[Block],
+    inputs: Sequence[str],
+    outputs: Sequence[str],
+    sums: Mapping[str, Mapping[str, float]] | None = None,
+    delays: Sequence[DelayChannel] = (),
+) -> Interconnection:
+    """Connect named blocks into one (possibly batched) state-space model.
+
+    Every block input and requested output is a *signal*: an external input, a
+    block output, or a summing junction ``sums[name] = {signal: gain, ...}``.
+    Writing the block outputs as ``Y = C x + D U`` and the block inputs as
+    ``U = M Y + N W`` (``W`` the external inputs), the connected model is
+
+        Y = L (C x + D N W),  L = (I - D M)^{-1}
+        x' = (A + B M L C) x + B (M L D N + N) W
+        z  = P L C x + (P L D N + Q) W
+
+    for requested outputs ``z = P Y + Q W``. A singular ``I - D M`` is an algebraic
+    loop and raises. Delay channels append their targets to the external inputs and
+    their sources to the outputs (indices returned in the result).
+    """
+    sums = dict(sums or {})
+    delays = tuple(delays)
+    external = tuple(inputs) + tuple(channel.target for channel in delays)
+    requested = tuple(outputs) + tuple(channel.source for channel in delays)
+    block_outputs: list[str] = []
+    for block in blocks:
+        block_outputs.extend(block.outputs)
+    names = block_outputs + list(external) + list(sums)
+    if len(set(names)) != len(names):
+        duplicated = sorted({name for name in names if names.count(name) > 1})
+        raise ValueError(
+            f"signal names must be unique across blocks, inputs and sums: {duplicated}"
+        )
+    n_y, n_w = len(block_outputs), len(external)
+    resolved: dict[str, FloatArray] = {}
+    for i, name in enumerate(block_outputs):
+        resolved[name] = np.eye(n_y + n_w)[i]
+    for j, name in enumerate(external):
+        resolved[name] = np.eye(n_y + n_w)[n_y + j]
+
+    def resolve(name: str, trail: tuple[str, ...] = ()) -> FloatArray:
+        if name in resolved:
+            return resolved[name]
+        if name not in sums:
+            raise ValueError(f"signal {name!r} is not a block output, an input or a sum")
+        if name in trail:
+            raise ValueError(f"summing junctions form a cycle: {' -> '.join((*trail, name))}")
+        row = np.zeros(n_y + n_w)
+        for term, gain in sums[name].items():
+            row = row + float(gain) * resolve(term, (*trail, name))
+        resolved[name] = row
+        return row
+
+    block_inputs = [name for block in blocks for name in block.inputs]
+    MN = np.array([resolve(name) for name in block_inputs]).reshape(len(block_inputs), n_y + n_w)
+    PQ = np.array([resolve(name) for name in requested]).reshape(len(requested), n_y + n_w)
+    M, N = MN[:, :n_y], MN[:, n_y:]
+    P, Q = PQ[:, :n_y], PQ[:, n_y:]
+
+    batch = np.broadcast_shapes(*(block.system.batch_shape for block in blocks))
+    n_x = sum(block.system.n_states for block in blocks)
+    n_u = len(block_inputs)
+    A = np.zeros((*batch, n_x, n_x))
+    B = np.zeros((*batch, n_x, n_u))
+    C = np.zeros((*batch, n_y, n_x))
+    D = np.zeros((*batch, n_y, n_u))
+    ix = iu = iy = 0
+    for block in blocks:
+        s = block.system
+        nx, nu, ny = s.n_states, s.n_inputs, s.n_outputs
+        A[..., ix : ix + nx, ix : ix + nx] = s.A
+        B[..., ix : ix + nx, iu : iu + nu] = s.B
+        C[..., iy : iy + ny, ix : ix + nx] = s.C
+        D[..., iy : iy + ny, iu : iu + nu] = s.D
+        ix, iu, iy = ix + nx, iu + nu, iy + ny
+    loop = np.eye(n_y) - D @ M
+    try:
+        LC = np.linalg.solve(loop, C)
+        LDN = np.linalg.solve(loop, D @ N)
+    except np.linalg.LinAlgError as error:
+        raise ValueError("the block diagram has an algebraic loop (I - D M is singular)") from error
+    system = StateSpace(A + B @ M @ LC, B @ (M @ LDN + N), P @ LC, P @ LDN + Q)
+    return Interconnection(
+        system,
+        external,
+        requested,
+        tuple(range(len(inputs), n_w)),
+        tuple(range(len(outputs), len(requested))),
+    )
+
+
+# ---------------------------------------------------------------- discretisation
+
+
+class Discretization(NamedTuple):
+    """Exact discretisation of ``x' = A x + B u`` over one sample ``dt``.
+
+    ``x[k+1] = phi x[k] + gamma u[k] + gamma_ramp (u[k+1] - u[k])``: with
+    ``gamma_ramp`` omitted (zero-order hold, inputs constant over the sample) this is
+    exact for piecewise-constant inputs; with it (first-order hold) it is exact for
+    inputs that are linear between samples.
+    """
+
+    phi: FloatArray
+    gamma: FloatArray
+    gamma_ramp: FloatArray
+
+
+def discretize(A: ArrayLike, B: ArrayLike, dt: float) -> Discretization:
+    """Zero- and first-order-hold discretisation by one augmented matrix exponential.
+
+    ``expm([[A, B, 0], [0, 0, I/dt], [0, 0, 0]] dt)`` holds ``phi = e^{A dt}``,
+    ``gamma = ∫_0^dt e^{A s} ds B`` and ``gamma_ramp = (1/dt) ∫_0^dt e^{A (dt - s)} s ds B``
+    in its first block row. ``A`` and ``B`` may have leading batch axes; identical
+    matrices along the batch are exponentiated once.
+    """
+    dt = check_positive("dt", dt)
+    A = np.asarray(A, dtype=np.float64)
+    B = np.asarray(B, dtype=np.float64)
+    n, m = A.shape[-1], B.shape[-1]
+    batch = np.broadcast_shapes(A.shape[:-2], B.shape[:-2])
+    size = n + 2 * m
+    augmented = np.zeros((*batch, size, size))
+    augmented[..., :n, :n] = A * dt
+    augmented[..., :n, n : n + m] = B * dt
+    augmented[..., n : n + m, n + m :] = np.eye(m)
+    flat = augmented.reshape(-1, size, size)
+    unique, inverse = np.unique(flat, axis=0, return_inverse=True)
+    exponentials = scipy.linalg.expm(unique)[np.ravel(inverse)].reshape(augmented.shape)
+    return Discretization(
+        np.ascontiguousarray(exponentials[..., :n, :n]),
+        np.ascontiguousarray(exponentials[..., :n, n : n + m]),
+        np.ascontiguousarray(exponentials[..., :n, n + m :]),
+    )
+
+
+# ------------------------------------------------------------------ LPV stepping
+
+
+@numba.njit(cache=True)
+def _read_history(history: FloatArray, newest: int, position: float) -> float:
+    """Bicubic read of ``history[0..newest]`` at fractional index ``position``.
+
+    Samples beyond ``newest`` are not yet known and are replaced by the newest one,
+    so delays shorter than about three samples lose interpolation order instead of
+    reading the future.
+    """
+    if position <= 0.0:
+        return history[0]
+    n = int(np.floor(position))
+    if n >= newest:
+        return history[newest]
+    d = position - n
+    i_m1 = n - 1 if n >= 1 else 0
+    i_1 = n + 1 if n + 1 <= newest else newest
+    i_2 = n + 2 if n + 2 <= newest else newest
+    a, b, c, w = bicubic_weights(d)
+    return a * history[i_m1] + b * history[n] + c * history[i_1] + w * history[i_2]
+
+
+@numba.njit(cache=True)
+def _simulate_lpv(
+    phi: FloatArray,
+    gamma: FloatArray,
+    gamma_ramp: FloatArray,
+    c: FloatArray,
+    d: FloatArray,
+    inputs: FloatArray,
+    x0: FloatArray,
+    delay_inputs: NDArray[np.int64],
+    delay_outputs: NDArray[np.int64],
+    delay_samples: FloatArray,
+    history_pad: int,
+) -> tuple[FloatArray, FloatArray]:
+    n_samples = inputs.shape[0]
+    n_x = phi.shape[1]
+    n_u = gamma.shape[2]
+    n_y = c.shape[1]
+    n_delay = delay_inputs.shape[0]
+    states = np.empty((n_samples, n_x))
+    outputs = np.empty((n_samples, n_y))
+    # delay-line histories: history_pad zeros (system at rest before t = 0), then samples
+    history = np.zeros((n_delay, history_pad + n_samples))
+    u = np.empty(n_u)
+    u_next = np.empty(n_u)
+    x = x0.copy()
+    x_next = np.empty(n_x)
+    for j in range(n_u):
+        u[j] = inputs[0, j]
+    for i in range(n_delay):
+        u[delay_inputs[i]] = 0.0
+    for k in range(n_samples):
+        kp = k if phi.shape[0] > 1 else 0
+        kg = k if gamma.shape[0] > 1 else 0
+        kc = k if c.shape[0] > 1 else 0
+        kd = k if d.shape[0] > 1 else 0
+        for r in range(n_x):
+            states[k, r] = x[r]
+        for r in range(n_y):
+            acc = 0.0
+            for j in range(n_x):
+                acc += c[kc, r, j] * x[j]
+            for j in range(n_u):
+                acc += d[kd, r, j] * u[j]
+            outputs[k, r] = acc
+        if k == n_samples - 1:
+            break
+        for j in range(n_u):
+            u_next[j] = inputs[k + 1, j]
+        newest = history_pad + k
+        for i in range(n_delay):
+            history[i, newest] = outputs[k, delay_outputs[i]]
+            position = newest + 1.0 - delay_samples[k + 1, i]
+            u_next[delay_inputs[i]] = _read_history(history[i], newest, position)
+        for r in range(n_x):
+            acc = 0.0
+            for j in range(n_x):
+                acc += phi[kp, r, j] * x[j]
+            for j in range(n_u):
+                acc += gamma[kg, r, j] * u[j]
+            for i in range(n_delay):
+                j = delay_inputs[i]
+                acc += gamma_ramp[kg, r, j] * (u_next[j] - u[j])
+            x_next[r] = acc
+        for r in range(n_x):
+            x[r] = x_next[r]
+        for j in range(n_u):
+            u[j] = u_next[j]
+    return states, outputs
+
+
+def _per_sample(name: str, array: ArrayLike, n_samples: int, trailing: int) -> FloatArray:
+    """Give ``array`` a leading time axis of length 1 (shared) or ``n_samples``."""
+    array = np.asarray(array, dtype=np.float64)
+    if array.ndim == trailing:
+        array = array[None]
+    if array.ndim != trailing + 1 or array.shape[0] not in (1, n_samples):
+        raise ValueError(
+            f"{name} must have shape {('n_samples',) + ('.',) * trailing} with n_samples "
+            f"{n_samples} or 1, or drop the time axis; got {array.shape}"
+        )
+    return np.ascontiguousarray(array)
+
+
+def simulate_lpv(
+    discretization: Discretization,
+    C: ArrayLike,
+    D: ArrayLike,
+    inputs: ArrayLike,
+    dt: float,
+    x0: ArrayLike | None = None,
+    delay_inputs: Sequence[int] = (),
+    delay_outputs: Sequence[int] = (),
+    delays: ArrayLike | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """Step a discrete linear parameter-varying system, with exact delay channels.
+
+    Each sample ``k`` uses its own ``phi[k], gamma[k], C[k], D[k]`` when the arrays
+    carry a leading time axis of length ``n_samples`` (shared when it is absent or 1):
+
+        y[k]   = C[k] x[k] + D[k] u[k]
+        x[k+1] = phi[k] x[k] + gamma[k] u[k] + gamma_ramp[k] (w[k+1] - w[k])
+
+    External inputs are held over each sample (zero-order hold). Delay channel ``i``
+    feeds input ``delay_inputs[i]`` with output ``delay_outputs[i]`` delayed by
+    ``delays[k, i]`` seconds, read from the past outputs by bicubic interpolation
+    (Boer & Kenyon 1998, Appendix) and treated as linear between samples (the ramp
+    term, first-order hold). The delay line starts at rest (zero before ``t = 0``).
+    Its local error is ``O(dt^2)`` in the delayed signal; delays must be at least
+    ``3 dt`` for the four interpolation samples to be in the past (shorter delays
+    lose interpolation order, see :func:`_read_history`).
+
+    Returns
+    -------
+    states, outputs
+        Arrays of shape ``(n_samples, n)`` and ``(n_samples, p)``.
+
+    """
+    dt = check_positive("dt", dt)
+    inputs = np.asarray(inputs, dtype=np.float64)
+    if inputs.ndim != 2:
+        raise ValueError(f"inputs must have shape (n_samples, n_inputs), got {inputs.shape}")
+    n_samples = inputs.shape[0]
+    phi = _per_sample("phi", discretization.phi, n_samples, 2)
+    gamma = _per_sample("gamma", discretization.gamma, n_samples, 2)
+    gamma_ramp = _per_sample("gamma_ramp", discretization.gamma_ramp, n_samples, 2)
+    C = _per_sample("C", C, n_samples, 2)
+    D = _per_sample("D", D, n_samples, 2)
+    n_x, n_u = phi.shape[-1], gamma.shape[-1]
+    if inputs.shape[1] != n_u:
+        raise ValueError(f"inputs must have {n_u} columns, got {inputs.shape[1]}")
+    x0 = np.zeros(n_x) if x0 is None else np.asarray(x0, dtype=np.float64).reshape(n_x)
+    delay_inputs_array = np.asarray(delay_inputs, dtype=np.int64).reshape(-1)
+    delay_outputs_array = np.asarray(delay_outputs, dtype=np.int64).reshape(-1)
+    n_delay = delay_inputs_array.shape[0]
+    if delay_outputs_array.shape[0] != n_delay:
+        raise ValueError("delay_inputs and delay_outputs must have the same length")
+    if n_delay:
+        if delays is None:
+            raise ValueError("delays must be given for delay channels")
+        delay_array = np.asarray(delays, dtype=np.float64)
+        delay_array = np.broadcast_to(
+            delay_array.reshape(delay_array.shape[0] if delay_array.ndim else 1, -1),
+            (n_samples, n_delay),
+        )
+        if not np.all(np.isfinite(delay_array)) or np.any(delay_array < 0.0):
+            raise ValueError("delays must be finite and >= 0 seconds")
+        delay_samples = np.ascontiguousarray(delay_array / dt)
+        history_pad = int(np.ceil(delay_samples.max())) + 4
+    else:
+        delay_samples = np.zeros((n_samples, 0))
+        history_pad = 0
+    return _simulate_lpv(
+        phi,
+        gamma,
+        gamma_ramp,
+        C,
+        D,
+        np.ascontiguousarray(inputs),
+        x0,
+        delay_inputs_array,
+        delay_outputs_array,
+        delay_samples,
+        history_pad,
+    )
+
+
+# ------------------------------------------------------------------- delay line
+
+
+@dataclass
+class DelayLine:
+    """Online fractional delay line with bounded memory.
+
+    Push one sample per ``dt``; read the signal ``delay`` seconds before the newest
+    sample, with bicubic interpolation (Boer & Kenyon 1998, Appendix) of the value
+    and its time derivative. The delay may change on every read. Memory is
+    ``ceil(max_delay/dt) + 4`` samples. Before the first push the line holds
+    ``initial``.
+    """
+
+    max_delay: float
+    dt: float
+    initial: float = 0.0
+    _buffer: FloatArray = field(init=False, repr=False)
+    _count: int = field(init=False, repr=False, default=0)
+
+    def __post_init__(self) -> None:
+        self.max_delay = check_positive("max_delay", self.max_delay, allow_zero=True)
+        self.dt = check_positive("dt", self.dt)
+        size = math.ceil(self.max_delay / self.dt - 1e-9) + 4
+        self._buffer = np.full(size, float(self.initial))
+        self._count = 0
+
+    def reset(self, initial: float | None = None) -> None:
+        """Forget all samples; fill with ``initial`` (default: the constructor's)."""
+        self._buffer.fill(self.initial if initial is None else float(initial))
+        self._count = 0
+
+    def push(self, value: float) -> None:
+        """Append the newest sample."""
+        self._buffer[self._count % self._buffer.shape[0]] = value
+        self._count += 1
+
+    def _window(self, delay: float) -> tuple[FloatArray, float]:
+        if not (0.0 <= delay <= self.max_delay + 1e-12):
+            raise ValueError(f"delay must lie in [0, {self.max_delay:g}] s, got {delay!r}")
+        size = self._buffer.shape[0]
+        # oldest-first copy of the ring; position of the read point within it
+        start = self._count % size
+        ordered = np.concatenate((self._buffer[start:], self._buffer[:start]))
+        return ordered, (size - 1) - delay / self.dt
+
+    def read(self, delay: float) -> float:
+        """Signal value ``delay`` seconds before the newest sample."""
+        ordered, position = self._window(delay)
+        return float(interpolate_at(ordered, position)[0])
+
+    def read_with_derivative(self, delay: float) -> tuple[float, float]:
+        """Value and time derivative ``delay`` seconds before the newest sample."""
+        ordered, position = self._window(delay)
+        value, slope = interpolate_at(ordered, position)
+        return float(value), float(slope) / self.dt

@@ -1,0 +1,356 @@
+"""Controlled elements (the vehicle dynamics a pilot controls) with schedulable parameters.
+
+Every element is a proper transfer function whose parameters may be constants or
+:mod:`~manualcontrol.envs.schedules` (time-varying dynamics, e.g. the break frequency
+going from 3 to 1 rad/s in Popovici et al. 2017, Sec. IV-A-2). An element turns into
+a (batched) state-space model in controllable canonical form for any array of times,
+which is what the simulations, the environments and the estimators step.
+
+Presets (:func:`make_element`) carry the papers' values: ``"SI"`` = 1.5/s and
+``"DI"`` = 5/s^2 (thesis Sec. IV-B), ``"schiess-roland1975"`` = 10/s^2, and the
+Popovici compensatory dynamics 4/(s(s + 3)), constant and time-varying.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any, ClassVar
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from manualcontrol.envs._validation import check_choice, check_positive
+from manualcontrol.envs.dynamics import Discretization, StateSpace, discretize, tf_to_ccf
+from manualcontrol.envs.schedules import Ramp, Schedule, Sigmoid, as_schedule
+
+__all__ = [
+    "ELEMENT_PRESETS",
+    "ControlledElement",
+    "DoubleIntegrator",
+    "Gain",
+    "Integrator",
+    "IntegratorWithLag",
+    "TransferFunctionElement",
+    "UnstableFirstOrder",
+    "critical_task",
+    "make_element",
+]
+
+FloatArray = NDArray[np.float64]
+ParameterValue = float | Schedule
+
+
+@dataclass(frozen=True)
+class ControlledElement:
+    """Base class: a transfer function ``num(s)/den(s)`` with named, schedulable parameters.
+
+    Subclasses declare their parameters as dataclass fields (floats or schedules) and
+    implement :meth:`coefficients`; everything else (evaluation on time arrays,
+    state-space form, discretisation, saving) is shared.
+    """
+
+    kind: ClassVar[str] = "element"
+    #: Parameters that must stay strictly positive along the whole schedule.
+    positive: ClassVar[tuple[str, ...]] = ()
+    #: Parameters that must stay non-zero along the whole schedule.
+    nonzero: ClassVar[tuple[str, ...]] = ()
+
+    def __post_init__(self) -> None:
+        for name in self.parameter_names:
+            try:
+                schedule = as_schedule(getattr(self, name))
+            except (TypeError, ValueError) as error:
+                raise type(error)(f"{type(self).__name__} parameter {name}: {error}") from None
+            object.__setattr__(self, name, schedule)
+        # Check the constant values now; schedules are checked where they are evaluated.
+        for name in self.parameter_names:
+            schedule = getattr(self, name)
+            if schedule.is_constant:
+                self._check_values(name, np.atleast_1d(schedule(0.0)))
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Names of the element's parameters, in declaration order."""
+        return tuple(f.name for f in fields(self))
+
+    @property
+    def is_time_varying(self) -> bool:
+        """True when any parameter is a non-constant schedule."""
+        return not all(getattr(self, name).is_constant for name in self.parameter_names)
+
+    def _check_values(self, name: str, values: FloatArray) -> None:
+        if not np.all(np.isfinite(values)):
+            raise ValueError(f"{type(self).__name__} parameter {name} must be finite, got {values}")
+        if name in self.positive and np.any(values <= 0.0):
+            raise ValueError(
+                f"{type(self).__name__} parameter {name} must be > 0, got minimum {float(values.min())!r}"
+            )
+        if name in self.nonzero and np.any(values == 0.0):
+            raise ValueError(f"{type(self).__name__} parameter {name} must be non-zero, got 0.0")
+
+    def parameters_at(self, t: ArrayLike) -> dict[str, FloatArray]:
+        """Parameter values at the times ``t`` (s), each an array shaped like ``t``."""
+        t = np.asarray(t, dtype=np.float64)
+        values = {}
+        for name in self.parameter_names:
+            value = np.asarray(getattr(self, name)(t), dtype=np.float64)
+            self._check_values(name, value)
+            values[name] = np.broadcast_to(value, t.shape).copy()
+        return values
+
+    def coefficients(self, **values: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Numerator and denominator (descending powers) for the given parameter values."""
+        raise NotImplementedError
+
+    def transfer_function(self, t: ArrayLike = 0.0) -> tuple[FloatArray, FloatArray]:
+        """Coefficients at time(s) ``t``: shapes ``(*t.shape, degree + 1)``."""
+        return self.coefficients(**self.parameters_at(t))
+
+    def state_space(self, t: ArrayLike = 0.0) -> StateSpace:
+        """Controllable canonical form (thesis eq. 4.7) at time(s) ``t``, batched over ``t``."""
+        return tf_to_ccf(*self.transfer_function(t))
+
+    def discretize(self, dt: float, t: ArrayLike = 0.0) -> tuple[Discretization, StateSpace]:
+        """Zero-order-hold discretisation at the times ``t`` and the continuous model."""
+        model = self.state_space(t)
+        return discretize(model.A, model.B, dt), model
+
+    @property
+    def order(self) -> int:
+        """Number of states of the canonical realisation."""
+        return self.transfer_function(0.0)[1].shape[-1] - 1
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able description, inverse of :func:`make_element` on a dict."""
+        return {
+            "kind": self.kind,
+            **{name: getattr(self, name).to_dict() for name in self.parameter_names},
+        }
+
+    def describe(self) -> str:
+        """Short human-readable form for plots and logs."""
+        parts = ", ".join(
+            f"{name}={getattr(self, name).describe()}" for name in self.parameter_names
+        )
+        return f"{type(self).__name__}({parts})"
+
+
+@dataclass(frozen=True)
+class Gain(ControlledElement):
+    """Pure gain ``K`` (position control; Boer & Kenyon's gap-postview task)."""
+
+    kind: ClassVar[str] = "gain"
+    nonzero: ClassVar[tuple[str, ...]] = ("K",)
+    K: ParameterValue = 1.0
+
+    def coefficients(self, K: FloatArray) -> tuple[FloatArray, FloatArray]:  # noqa: D102
+        return np.asarray(K)[..., None], np.ones((*np.shape(K), 1))
+
+
+@dataclass(frozen=True)
+class Integrator(ControlledElement):
+    """Single integrator ``K/s`` (velocity control); thesis SI preset ``K = 1.5``."""
+
+    kind: ClassVar[str] = "integrator"
+    nonzero: ClassVar[tuple[str, ...]] = ("K",)
+    K: ParameterValue = 1.5
+
+    def coefficients(self, K: FloatArray) -> tuple[FloatArray, FloatArray]:  # noqa: D102
+        shape = np.shape(K)
+        den = np.zeros((*shape, 2))
+        den[..., 0] = 1.0
+        return np.asarray(K)[..., None], den
+
+
+@dataclass(frozen=True)
+class DoubleIntegrator(ControlledElement):
+    """Double integrator ``K/s^2`` (acceleration control); thesis DI preset ``K = 5``."""
+
+    kind: ClassVar[str] = "double_integrator"
+    nonzero: ClassVar[tuple[str, ...]] = ("K",)
+    K: ParameterValue = 5.0
+
+    def coefficients(self, K: FloatArray) -> tuple[FloatArray, FloatArray]:  # noqa: D102
+        shape = np.shape(K)
+        den = np.zeros((*shape, 3))
+        den[..., 0] = 1.0
+        return np.asarray(K)[..., None], den
+
+
+@dataclass(frozen=True)
+class IntegratorWithLag(ControlledElement):
+    """``K/(s (s + omega_b))``: integrator-like below, double-integrator-like above ``omega_b``.
+
+    Popovici et al. (2017), Sec. IV-A, with ``omega_b`` going from 3 to 1 rad/s in
+    the time-varying case. ``omega_b`` must stay > 0 (use :class:`DoubleIntegrator`
+    for the limit).
+    """
+
+    kind: ClassVar[str] = "integrator_with_lag"
+    nonzero: ClassVar[tuple[str, ...]] = ("K",)
+    positive: ClassVar[tuple[str, ...]] = ("omega_b",)
+    K: ParameterValue = 4.0
+    omega_b: ParameterValue = 3.0
+
+    def coefficients(self, K: FloatArray, omega_b: FloatArray) -> tuple[FloatArray, FloatArray]:  # noqa: D102
+        shape = np.broadcast_shapes(np.shape(K), np.shape(omega_b))
+        den = np.zeros((*shape, 3))
+        den[..., 0] = 1.0
+        den[..., 1] = omega_b
+        return np.broadcast_to(np.asarray(K)[..., None], (*shape, 1)).copy(), den
+
+
+@dataclass(frozen=True)
+class UnstableFirstOrder(ControlledElement):
+    """``instability/(s - instability)``: Jex's critical tracking task dynamics.
+
+    ``instability`` (lambda, rad/s, > 0) is usually ramped up until the pilot loses
+    control; the environments end the episode at a loss-of-control limit.
+    """
+
+    kind: ClassVar[str] = "unstable_first_order"
+    positive: ClassVar[tuple[str, ...]] = ("instability",)
+    instability: ParameterValue = 1.0
+
+    def coefficients(self, instability: FloatArray) -> tuple[FloatArray, FloatArray]:  # noqa: D102
+        lam = np.asarray(instability)
+        den = np.stack([np.ones_like(lam), -lam], axis=-1)
+        return lam[..., None], den
+
+
+@dataclass(frozen=True, init=False)
+class TransferFunctionElement(ControlledElement):
+    """Any proper transfer function; each coefficient may be a schedule.
+
+    ``TransferFunctionElement(num=[4.0], den=[1.0, Sigmoid(3, 1, 40, 10), 0.0])``.
+    The leading denominator coefficient must stay non-zero.
+    """
+
+    kind: ClassVar[str] = "transfer_function"
+    num: tuple[Schedule, ...]
+    den: tuple[Schedule, ...]
+
+    def __init__(self, num: Any, den: Any) -> None:
+        num_terms = tuple(as_schedule(c) for c in np.atleast_1d(np.asarray(num, dtype=object)))
+        den_terms = tuple(as_schedule(c) for c in np.atleast_1d(np.asarray(den, dtype=object)))
+        if len(den_terms) == 0 or len(num_terms) == 0:
+            raise ValueError("num and den must each have at least one coefficient")
+        if len(num_terms) > len(den_terms):
+            raise ValueError(
+                f"transfer function must be proper: num has {len(num_terms)} coefficients, "
+                f"den has {len(den_terms)}"
+            )
+        object.__setattr__(self, "num", num_terms)
+        object.__setattr__(self, "den", den_terms)
+        if den_terms[0].is_constant and den_terms[0](0.0) == 0.0:
+            raise ValueError("den must have a non-zero leading coefficient (descending powers)")
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:  # noqa: D102
+        return tuple(f"num{i}" for i in range(len(self.num))) + tuple(
+            f"den{i}" for i in range(len(self.den))
+        )
+
+    @property
+    def is_time_varying(self) -> bool:  # noqa: D102
+        return not all(c.is_constant for c in (*self.num, *self.den))
+
+    def parameters_at(self, t: ArrayLike) -> dict[str, FloatArray]:  # noqa: D102
+        t = np.asarray(t, dtype=np.float64)
+        values = {}
+        for name, schedule in zip(self.parameter_names, (*self.num, *self.den), strict=True):
+            value = np.broadcast_to(np.asarray(schedule(t), dtype=np.float64), t.shape).copy()
+            self._check_values(name, value)
+            values[name] = value
+        if np.any(values["den0"] == 0.0):
+            raise ValueError("den0 (leading denominator coefficient) must stay non-zero")
+        return values
+
+    def coefficients(self, **values: FloatArray) -> tuple[FloatArray, FloatArray]:  # noqa: D102
+        num = np.stack([values[f"num{i}"] for i in range(len(self.num))], axis=-1)
+        den = np.stack([values[f"den{i}"] for i in range(len(self.den))], axis=-1)
+        return num, den
+
+    def to_dict(self) -> dict[str, Any]:  # noqa: D102
+        return {
+            "kind": self.kind,
+            "num": [c.to_dict() for c in self.num],
+            "den": [c.to_dict() for c in self.den],
+        }
+
+    def describe(self) -> str:  # noqa: D102
+        num = ", ".join(c.describe() for c in self.num)
+        den = ", ".join(c.describe() for c in self.den)
+        return f"TransferFunctionElement(num=[{num}], den=[{den}])"
+
+
+def critical_task(start: float = 1.0, rate: float = 0.05) -> UnstableFirstOrder:
+    """Critical tracking task with ``instability`` rising linearly at ``rate`` rad/s per s."""
+    start = check_positive("start", start)
+    rate = check_positive("rate", rate)
+    # A ramp over a long horizon; the episode ends at loss of control long before.
+    horizon = 3600.0
+    return UnstableFirstOrder(Ramp(start, start + rate * horizon, 0.0, horizon))
+
+
+_KINDS: dict[str, type[ControlledElement]] = {
+    cls.kind: cls
+    for cls in (
+        Gain,
+        Integrator,
+        DoubleIntegrator,
+        IntegratorWithLag,
+        UnstableFirstOrder,
+        TransferFunctionElement,
+    )
+}
+
+
+def _presets() -> dict[str, ControlledElement]:
+    return {
+        "gain": Gain(1.0),
+        "SI": Integrator(1.5),
+        "DI": DoubleIntegrator(5.0),
+        "schiess-roland1975": DoubleIntegrator(10.0),
+        "popovici2017": IntegratorWithLag(4.0, 3.0),
+        # Popovici Sec. IV-A-2: omega_b from 3 towards 1 rad/s starting around 40 s
+        "popovici2017-tv": IntegratorWithLag(4.0, Sigmoid(3.0, 1.0, 45.0, 10.0)),
+        "critical-task": critical_task(),
+    }
+
+
+#: Names accepted by :func:`make_element`.
+ELEMENT_PRESETS: tuple[str, ...] = tuple(_presets())
+
+
+def make_element(spec: str | ControlledElement | Mapping[str, Any]) -> ControlledElement:
+    """Return a controlled element from a preset name, an element, or a saved dict.
+
+    Preset names: see :data:`ELEMENT_PRESETS`. Dicts are those of
+    :meth:`ControlledElement.to_dict`.
+    """
+    if isinstance(spec, ControlledElement):
+        return spec
+    if isinstance(spec, str):
+        check_choice("controlled element", spec, ELEMENT_PRESETS)
+        return _presets()[spec]
+    if isinstance(spec, Mapping):
+        data = dict(spec)
+        kind = check_choice("controlled element kind", data.pop("kind", None), _KINDS)
+        cls = _KINDS[kind]
+        if cls is TransferFunctionElement:
+            return TransferFunctionElement(
+                [Schedule.from_dict(c) for c in data.get("num", [])],
+                [Schedule.from_dict(c) for c in data.get("den", [])],
+            )
+        allowed = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - allowed)
+        if unknown:
+            raise TypeError(
+                f"{cls.__name__} got unknown parameter(s) {unknown}; allowed: {sorted(allowed)}"
+            )
+        return cls(**{name: Schedule.from_dict(value) for name, value in data.items()})
+    raise TypeError(
+        f"controlled element must be a preset name, a ControlledElement or a dict, got {spec!r}"
+    )

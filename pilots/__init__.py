@@ -1,0 +1,1 @@
+"""manualcontrol.pilots."""
