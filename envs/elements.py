@@ -84,7 +84,8 @@ class ControlledElement:
             raise ValueError(f"{type(self).__name__} parameter {name} must be finite, got {values}")
         if name in self.positive and np.any(values <= 0.0):
             raise ValueError(
-                f"{type(self).__name__} parameter {name} must be > 0, got minimum {float(values.min())!r}"
+                f"{type(self).__name__} parameter {name} must be > 0, "
+                f"got minimum {float(values.min())!r}"
             )
         if name in self.nonzero and np.any(values == 0.0):
             raise ValueError(f"{type(self).__name__} parameter {name} must be non-zero, got 0.0")
