@@ -1,12 +1,12 @@
-"""``make demo``: a closed-loop tracking run built from the task-world core.
+"""``make demo``: a simulated preview-tracking run with a time-varying pilot.
 
-A crossover-model operator (McRuer & Jex 1967: the open loop ``omega_c e^{-tau s}/s``
-near crossover, i.e. a pure gain with an exact delay on a single integrator) tracks
-the 4 rad/s-bandwidth target of the thesis preset while a disturbance acts on the
-controlled-element output. The run is simulated with an exact (delay-line) delay,
+Van der El's preview pilot (thesis Table 6.1 values) tracks the 4 rad/s-bandwidth
+target of the thesis preset on single-integrator dynamics while its preview time
+drops from 0.6 to 0.3 s (a sigmoid at t = 60 s), with Levison remnant at the
+output feedback calibrated to 35 % of the control power (thesis Sec. IV-D). The run is
 written as a :class:`~manualcontrol.envs.recording.Recording` and plotted.
 
-This stands in for the main job until the pilot models and estimators exist.
+This stands in for the main job until the estimators exist.
 """
 
 from __future__ import annotations
@@ -18,100 +18,41 @@ from pathlib import Path
 import numpy as np
 
 from manualcontrol.envs._files import atomic_path
-from manualcontrol.envs.dynamics import (
-    Block,
-    DelayChannel,
-    StateSpace,
-    discretize,
-    interconnect,
-    simulate_lpv,
-)
-from manualcontrol.envs.elements import make_element
 from manualcontrol.envs.recording import Recording
-from manualcontrol.envs.signals import forcing_preset
-
-CROSSOVER_FREQUENCY = 2.5  # rad/s
-OPERATOR_DELAY = 0.25  # s
+from manualcontrol.envs.schedules import Sigmoid
+from manualcontrol.pilots import Pilot, simulate
 
 
-def crossover_run(
-    dt: float = 0.01, run_in: float = 20.0, measurement_time: float = 120.0
-) -> Recording:
-    """Simulate the crossover-model loop on the SI preset and cut the run-in."""
-    element = make_element("SI")
-    forcing = forcing_preset("vanderel-bw4", realisation=0)
-    n = round((run_in + measurement_time) / dt)
-    t = np.arange(n) * dt
-    ft, fd = forcing.sample(n * dt, dt)
-    gain = CROSSOVER_FREQUENCY / float(element.K(0.0))
-    operator = StateSpace(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), [[gain]])
-    loop = interconnect(
-        [
-            Block(operator, ("e_seen",), ("u",)),
-            Block(element.state_space(), ("u",), ("x",)),
-        ],
-        inputs=("ft", "fd"),
-        outputs=("u", "y", "e"),
-        sums={"y": {"x": 1.0, "fd": 1.0}, "e": {"ft": 1.0, "y": -1.0}},
-        delays=(DelayChannel("e", "e_seen"),),
-    )
-    exact = discretize(loop.system.A, loop.system.B, dt)
-    _, outputs = simulate_lpv(
-        exact,
-        loop.system.C,
-        loop.system.D,
-        np.column_stack([ft, fd, np.zeros(n)]),
-        dt,
-        delay_inputs=loop.delay_inputs,
-        delay_outputs=loop.delay_outputs,
-        delays=OPERATOR_DELAY,
-    )
-    recording = Recording(
-        signals={
-            "t": t,
-            "ft": ft,
-            "fd": fd,
-            "u": outputs[:, 0],
-            "y": outputs[:, 1],
-            "e": outputs[:, 2],
-        },
-        dt=dt,
-        metadata={
-            "task": "compensatory",
-            "controlled_element": element.to_dict(),
-            "forcing": forcing.name,
-            "realisation": forcing.realisation,
-            "operator": "crossover model, pure gain and exact delay",
-            "crossover_frequency": CROSSOVER_FREQUENCY,
-            "delay": OPERATOR_DELAY,
-            "run_in": run_in,
-        },
-    )
-    return recording.slice_time(run_in)
+def preview_run(seed: int = 1) -> Recording:
+    """Simulate the demo run: 60 s run-in (cut) and 120 s measurement at 100 Hz."""
+    pilot = Pilot("preview", {"tau_f": Sigmoid(0.6, 0.3, 60.0, 20.0)}, remnant="vertregt2020-SI")
+    return simulate(pilot, "SI", "vanderel-bw4", realisation=0, seed=seed)
 
 
 def plot(recording: Recording, path: Path) -> None:
-    """Draw target, output, error and stick of a recording to a PNG file."""
+    """Draw target, output, stick and preview time of a recording to a PNG file."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
+    fig, axes = plt.subplots(4, 1, figsize=(10, 8), sharex=True)
     t = recording.t
     axes[0].plot(t, recording.ft, label="target $f_t$", lw=1.0)
     axes[0].plot(t, recording.y, label="output $y$", lw=1.0)
     axes[0].legend(loc="upper right")
     axes[1].plot(t, recording.e, color="tab:red", lw=0.8, label="error $e$")
-    axes[1].plot(t, recording.fd, color="tab:gray", lw=0.8, label="disturbance $f_d$")
     axes[1].legend(loc="upper right")
     axes[2].plot(t, recording.u, color="tab:green", lw=0.8, label="control $u$")
+    axes[2].plot(t, recording.n, color="tab:gray", lw=0.6, label="remnant $n$")
     axes[2].legend(loc="upper right")
-    axes[2].set_xlabel("time [s]")
+    axes[3].plot(t, recording.parameters["tau_f"], color="k", label=r"preview time $\tau_f$ [s]")
+    axes[3].legend(loc="upper right")
+    axes[3].set_xlabel("time [s]")
+    ratio = recording.metadata["remnant_power_ratio"]
     rms = float(np.sqrt(np.mean(recording.e**2)))
     axes[0].set_title(
-        f"Crossover-model operator on 1.5/s, omega_c = {CROSSOVER_FREQUENCY} rad/s, "
-        f"tau = {OPERATOR_DELAY} s (RMS error {rms:.3f})"
+        f"Preview pilot on 1.5/s: RMS error {rms:.3f}, remnant power ratio {ratio:.2f}"
     )
     fig.tight_layout()
     with atomic_path(path) as temporary:
@@ -124,9 +65,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/demo"), help="output folder")
     args = parser.parse_args(argv)
-    recording = crossover_run()
-    recording_path = recording.save(args.out / "crossover_run.npz")
-    figure_path = args.out / "crossover_run.png"
+    recording = preview_run()
+    recording_path = recording.save(args.out / "preview_run.npz")
+    figure_path = args.out / "preview_run.png"
     plot(recording, figure_path)
     rms = float(np.sqrt(np.mean(recording.e**2)))
     print(f"simulated {recording.duration:.0f} s, RMS error {rms:.3f}")

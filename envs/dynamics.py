@@ -38,6 +38,7 @@ __all__ = [
     "DelayChannel",
     "DelayLine",
     "Discretization",
+    "Interconnection",
     "StateSpace",
     "discretize",
     "frequency_response",
@@ -422,12 +423,13 @@ def discretize(A: ArrayLike, B: ArrayLike, dt: float) -> Discretization:
 
 
 @numba.njit(cache=True)
-def _read_history(history: FloatArray, newest: int, position: float) -> float:
+def _read_smooth(history: FloatArray, newest: int, position: float) -> float:
     """Bicubic read of ``history[0..newest]`` at fractional index ``position``.
 
-    Samples beyond ``newest`` are not yet known and are replaced by the newest one,
-    so delays shorter than about three samples lose interpolation order instead of
-    reading the future.
+    For the part of a delayed signal that is a smooth function of time. Samples
+    beyond ``newest`` are not yet known and are replaced by the newest one, so delays
+    shorter than about three samples lose interpolation order instead of reading the
+    future.
     """
     if position <= 0.0:
         return history[0]
@@ -443,6 +445,23 @@ def _read_history(history: FloatArray, newest: int, position: float) -> float:
 
 
 @numba.njit(cache=True)
+def _read_held(history: FloatArray, newest: int, position: float) -> float:
+    """Mean of a delayed staircase over one sample, starting at fractional ``position``.
+
+    ``history[j]`` is held over ``[j, j + 1)``; its mean over ``[p, p + 1]`` is the
+    linear interpolation at ``p``: exact for held signals, so delaying a zero-order-
+    hold input by a whole number of samples is exact.
+    """
+    if position <= 0.0:
+        return history[0]
+    n = int(np.floor(position))
+    if n >= newest:
+        return history[newest]
+    d = position - n
+    return (1.0 - d) * history[n] + d * history[n + 1]
+
+
+@numba.njit(cache=True)
 def _simulate_lpv(
     phi: FloatArray,
     gamma: FloatArray,
@@ -455,6 +474,7 @@ def _simulate_lpv(
     delay_outputs: NDArray[np.int64],
     delay_samples: FloatArray,
     history_pad: int,
+    held_state: NDArray[np.bool_],
 ) -> tuple[FloatArray, FloatArray]:
     n_samples = inputs.shape[0]
     n_x = phi.shape[1]
@@ -463,21 +483,41 @@ def _simulate_lpv(
     n_delay = delay_inputs.shape[0]
     states = np.empty((n_samples, n_x))
     outputs = np.empty((n_samples, n_y))
-    # delay-line histories: history_pad zeros (system at rest before t = 0), then samples
-    history = np.zeros((n_delay, history_pad + n_samples))
+    # Each delayed source y_r = C_r x + D_r u has a smooth part C_r x and a part D_r u
+    # held over the sample; both histories start at rest (zeros before t = 0).
+    smooth = np.zeros((n_delay, history_pad + n_samples))
+    held = np.zeros((n_delay, history_pad + n_samples))
     u = np.empty(n_u)
-    u_next = np.empty(n_u)
     x = x0.copy()
     x_next = np.empty(n_x)
-    for j in range(n_u):
-        u[j] = inputs[0, j]
-    for i in range(n_delay):
-        u[delay_inputs[i]] = 0.0
+    smooth_now = np.zeros(n_delay)
+    smooth_next = np.zeros(n_delay)
     for k in range(n_samples):
         kp = k if phi.shape[0] > 1 else 0
         kg = k if gamma.shape[0] > 1 else 0
         kc = k if c.shape[0] > 1 else 0
         kd = k if d.shape[0] > 1 else 0
+        for j in range(n_u):
+            u[j] = inputs[k, j]
+        newest = history_pad + k
+        # delayed inputs of this sample: the smooth part was read one step ago
+        # (it needs the state of the previous sample only), the held part now
+        for i in range(n_delay):
+            r = delay_outputs[i]
+            acc = 0.0
+            held_value = 0.0
+            for j in range(n_x):
+                if held_state[j]:
+                    held_value += c[kc, r, j] * x[j]
+                else:
+                    acc += c[kc, r, j] * x[j]
+            smooth[i, newest] = acc
+            for j in range(n_u):
+                if j != delay_inputs[i]:
+                    held_value += d[kd, r, j] * u[j]
+            held[i, newest] = held_value
+            position = newest - delay_samples[k, i]
+            u[delay_inputs[i]] = smooth_now[i] + _read_held(held[i], newest, position)
         for r in range(n_x):
             states[k, r] = x[r]
         for r in range(n_y):
@@ -489,13 +529,9 @@ def _simulate_lpv(
             outputs[k, r] = acc
         if k == n_samples - 1:
             break
-        for j in range(n_u):
-            u_next[j] = inputs[k + 1, j]
-        newest = history_pad + k
         for i in range(n_delay):
-            history[i, newest] = outputs[k, delay_outputs[i]]
             position = newest + 1.0 - delay_samples[k + 1, i]
-            u_next[delay_inputs[i]] = _read_history(history[i], newest, position)
+            smooth_next[i] = _read_smooth(smooth[i], newest, position)
         for r in range(n_x):
             acc = 0.0
             for j in range(n_x):
@@ -503,13 +539,12 @@ def _simulate_lpv(
             for j in range(n_u):
                 acc += gamma[kg, r, j] * u[j]
             for i in range(n_delay):
-                j = delay_inputs[i]
-                acc += gamma_ramp[kg, r, j] * (u_next[j] - u[j])
+                acc += gamma_ramp[kg, r, delay_inputs[i]] * (smooth_next[i] - smooth_now[i])
             x_next[r] = acc
         for r in range(n_x):
             x[r] = x_next[r]
-        for j in range(n_u):
-            u[j] = u_next[j]
+        for i in range(n_delay):
+            smooth_now[i] = smooth_next[i]
     return states, outputs
 
 
@@ -536,6 +571,7 @@ def simulate_lpv(
     delay_inputs: Sequence[int] = (),
     delay_outputs: Sequence[int] = (),
     delays: ArrayLike | None = None,
+    held_states: Sequence[int] = (),
 ) -> tuple[FloatArray, FloatArray]:
     """Step a discrete linear parameter-varying system, with exact delay channels.
 
@@ -543,16 +579,26 @@ def simulate_lpv(
     carry a leading time axis of length ``n_samples`` (shared when it is absent or 1):
 
         y[k]   = C[k] x[k] + D[k] u[k]
-        x[k+1] = phi[k] x[k] + gamma[k] u[k] + gamma_ramp[k] (w[k+1] - w[k])
+        x[k+1] = phi[k] x[k] + gamma[k] u[k] + gamma_ramp[k] (s[k+1] - s[k])
 
     External inputs are held over each sample (zero-order hold). Delay channel ``i``
     feeds input ``delay_inputs[i]`` with output ``delay_outputs[i]`` delayed by
-    ``delays[k, i]`` seconds, read from the past outputs by bicubic interpolation
-    (Boer & Kenyon 1998, Appendix) and treated as linear between samples (the ramp
-    term, first-order hold). The delay line starts at rest (zero before ``t = 0``).
-    Its local error is ``O(dt^2)`` in the delayed signal; delays must be at least
-    ``3 dt`` for the four interpolation samples to be in the past (shorter delays
-    lose interpolation order, see :func:`_read_history`).
+    ``delays[k, i]`` seconds. The delayed output has two parts, delayed each in the
+    way that is exact for it:
+
+    * its smooth part ``C x`` is read from the past by bicubic interpolation (Boer &
+      Kenyon 1998, Appendix) and taken linear between samples (``s`` above, the
+      first-order-hold ramp term): error second order in ``dt``;
+    * its held part ``D u`` (held inputs passed straight through, such as a displayed
+      error) is a staircase; the delayed staircase is replaced by its mean over the
+      sample, exact when the delay is a whole number of samples and second order in
+      ``dt`` otherwise.
+
+    ``held_states`` lists states whose contribution to a delayed output counts as
+    held (sampled-data loops, where a discretised element feeds a sampled display).
+    The delay line starts at rest (zero before ``t = 0``). Delays must be at least
+    ``3 dt`` for the four interpolation samples to be in the past (shorter delays lose
+    interpolation order, see :func:`_read_smooth`).
 
     Returns
     -------
@@ -594,6 +640,8 @@ def simulate_lpv(
     else:
         delay_samples = np.zeros((n_samples, 0))
         history_pad = 0
+    held_mask = np.zeros(n_x, dtype=np.bool_)
+    held_mask[np.asarray(held_states, dtype=np.int64)] = True
     return _simulate_lpv(
         phi,
         gamma,
@@ -606,6 +654,7 @@ def simulate_lpv(
         delay_outputs_array,
         delay_samples,
         history_pad,
+        held_mask,
     )
 
 

@@ -262,44 +262,71 @@ def test_simulate_lpv_time_varying_matches_fine_ode_integration():
         x = solution.y[:, -1]
 
 
-def _delayed_filter_diagram():
-    passthrough = StateSpace(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.ones((1, 1)))
+def _delayed_cascade(source, dt, tau=0.2345, t_end=8.0):
+    """Simulated and fine-grid reference output of ``source -> delay tau -> 1/(s+1)``.
+
+    ``source`` is a block from the held input ``r`` to ``v``. The reference runs
+    scipy's ``lsim`` with zero-order hold on a grid 40x finer whose step divides
+    ``tau``, so the delay there is an exact shift of whole fine samples.
+    """
     lag = tf_to_ccf([1.0], [1.0, 1.0])
-    return interconnect(
-        [Block(passthrough, ("r",), ("v",)), Block(lag, ("w",), ("y",))],
+    diagram = interconnect(
+        [Block(source, ("r",), ("v",)), Block(lag, ("w",), ("y",))],
         inputs=("r",),
         outputs=("y",),
         delays=(DelayChannel("v", "w"),),
     )
-
-
-def _delayed_filter_error(dt):
-    # y = 1/(s+1) applied to sin(2 (t - tau)) switched on at t = tau
-    tau = 0.2345
-    t = np.arange(0, 8, dt)
-    diagram = _delayed_filter_diagram()
+    t = np.arange(0, t_end, dt)
+    r = np.sin(2 * t) + 0.5 * np.sin(5.3 * t + 1.0)
     exact = discretize(diagram.system.A, diagram.system.B, dt)
     _, outputs = simulate_lpv(
         exact,
         diagram.system.C,
         diagram.system.D,
-        np.stack([np.sin(2 * t), np.zeros_like(t)], axis=1),
+        np.stack([r, np.zeros_like(t)], axis=1),
         dt,
         delay_inputs=diagram.delay_inputs,
         delay_outputs=diagram.delay_outputs,
         delays=np.full((len(t), 1), tau),
     )
-    s = np.clip(t - tau, 0.0, None)
-    analytic = (np.sin(2 * s) - 2 * np.cos(2 * s) + 2 * np.exp(-s)) / 5.0
-    return np.max(np.abs(outputs[:, 0] - analytic))
+    fine = 40
+    fine_dt = dt / fine
+    shift = round(tau / fine_dt)
+    assert abs(shift * fine_dt - tau) < 1e-12
+    t_fine = np.arange(len(t) * fine) * fine_dt
+    r_fine = np.repeat(r, fine)  # the held input
+    system = (source.A, source.B, source.C, source.D)
+    v_fine = scipy.signal.lsim(system, r_fine, t_fine, interp=False)[1]
+    w_fine = np.concatenate([np.zeros(shift), v_fine[:-shift]])
+    # a held source delays into a staircase (exact with zero-order hold); a smooth
+    # one into a smooth signal (linear interpolation between fine samples)
+    smooth = source.D[0, 0] == 0.0
+    y_fine = scipy.signal.lsim(([1.0], [1.0, 1.0]), w_fine, t_fine, interp=smooth)[1]
+    return outputs[:, 0], y_fine[::fine]
 
 
-def test_exact_delay_channel_matches_analytic_delayed_response():
-    # The delayed signal is held linear between samples (first-order hold), so the
-    # error is second order in dt: about (omega dt)^2 / 8 of the amplitude, filtered.
-    error = _delayed_filter_error(0.01)
-    assert error < 2.5e-5
-    assert error / _delayed_filter_error(0.005) > 3.5  # halving dt quarters the error
+SMOOTH_SOURCE = tf_to_ccf([1.0], [0.05, 1.0])  # v = C x: no feedthrough
+HELD_SOURCE = StateSpace(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.ones((1, 1)))
+
+
+@pytest.mark.parametrize(
+    ("source", "bound"), [(SMOOTH_SOURCE, 3e-4), (HELD_SOURCE, 3e-5)], ids=["smooth", "held"]
+)
+def test_exact_delay_channel_matches_fine_grid_reference_to_second_order(source, bound):
+    # smooth part: bicubic read, linear between samples; held part: mean of the
+    # delayed staircase. Both errors are second order in dt.
+    errors = []
+    for dt in (0.01, 0.005):
+        got, reference = _delayed_cascade(source, dt)
+        errors.append(np.max(np.abs(got - reference)))
+    # (omega dt)^2 / 8 for the 5.3 rad/s component is 3.5e-4 of its amplitude
+    assert errors[0] < bound
+    assert errors[0] / errors[1] > 3.5  # halving dt quarters the error
+
+
+def test_delay_of_whole_samples_is_exact_for_held_signals():
+    got, reference = _delayed_cascade(HELD_SOURCE, 0.01, tau=0.23)
+    np.testing.assert_allclose(got, reference, atol=1e-12)
 
 
 def test_delay_feedback_loop_matches_method_of_steps():

@@ -1,0 +1,398 @@
+"""Pilot model structures: parameters, human limits and transfer functions.
+
+A structure is the one definition of a cybernetic pilot model that both the synthetic
+pilot (:mod:`manualcontrol.pilots.simulation`) and the estimators' internal models are
+built from. Every model has the same shape:
+
+    u = sum over channels c of  post_c(s) e^{-tau s} [ sum over branches b of  pre_b(s) x_b ]
+
+where ``x_b`` are the pilot's perceptions (the error ``e``; or the previewed target
+``ft_far`` and the output ``y``), ``tau`` is the model's delay parameter, and the pre-
+and post-delay transfer functions are polynomials in ``s`` whose coefficients are
+functions of the parameters (arrays: one value per sample of an LPV trajectory). The
+delay is applied exactly by a delay line or as a Padé approximant, as the caller asks.
+
+Parameters use the spellings of DESIGN.md: ``K_p, K_v, tau_v, omega_nms, zeta_nms``,
+``K_f, omega_f, tau_f``, ``K_n, tau_n``, ``K_1, tau_1, tau_2, tau_3, theta``.
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from manualcontrol.envs._validation import check_choice
+from manualcontrol.envs.dynamics import pade, poly_multiply
+
+__all__ = [
+    "MODEL_NAMES",
+    "Branch",
+    "Channel",
+    "GainDelayModel",
+    "ParameterSpec",
+    "PilotModel",
+    "PrecisionModel",
+    "PreviewModel",
+    "SchiessRolandModel",
+    "make_model",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    """One pilot parameter: its name, nominal value and ranges.
+
+    ``valid`` is where the model is defined at all (outside it simulation raises; a
+    valid lower bound of 0 excludes 0 itself when ``positive``); ``human`` is where
+    humans have been observed (outside it simulation warns). Human
+    ranges follow thesis Table I where it gives one; elsewhere wider bounds chosen
+    from the cited experiments, as documented per model.
+    """
+
+    name: str
+    nominal: float
+    human: tuple[float, float]
+    valid: tuple[float, float]
+    unit: str
+    description: str
+    positive: bool = False
+
+
+@dataclass(frozen=True)
+class Branch:
+    """A pre-delay path: perception ``signal`` through ``num(s)/den(s)``."""
+
+    signal: str
+    num: FloatArray
+    den: FloatArray
+
+
+@dataclass(frozen=True)
+class Channel:
+    """Branches summed, delayed by the model delay, then through ``num(s)/den(s)``."""
+
+    branches: tuple[Branch, ...]
+    num: FloatArray
+    den: FloatArray
+
+
+def _ones_like(values: Mapping[str, FloatArray]) -> FloatArray:
+    shape = np.broadcast_shapes(*(np.shape(v) for v in values.values()))
+    return np.ones(shape)
+
+
+def _stack(*columns: ArrayLike) -> FloatArray:
+    arrays = np.broadcast_arrays(*(np.asarray(c, dtype=np.float64) for c in columns))
+    return np.stack(arrays, axis=-1)
+
+
+class PilotModel(abc.ABC):
+    """Base class of the pilot model structures."""
+
+    #: Registry name (see :func:`make_model`).
+    name: ClassVar[str]
+    #: Display type the model belongs to: "compensatory" or "preview".
+    task: ClassVar[str]
+    #: Name of the parameter that is the model's delay.
+    delay_parameter: ClassVar[str]
+    #: Perception signals the model reads.
+    perceptions: ClassVar[tuple[str, ...]]
+
+    @property
+    @abc.abstractmethod
+    def parameters(self) -> tuple[ParameterSpec, ...]:
+        """The model's parameters, in a fixed order."""
+
+    @abc.abstractmethod
+    def channels(self, values: Mapping[str, FloatArray]) -> tuple[Channel, ...]:
+        """Pre- and post-delay transfer functions for the given parameter values.
+
+        ``values`` maps every parameter name to an array (all of one shape, e.g. one
+        entry per sample); coefficient arrays come back with that shape plus one axis.
+        """
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Names of :attr:`parameters` in order."""
+        return tuple(spec.name for spec in self.parameters)
+
+    def spec(self, name: str) -> ParameterSpec:
+        """The :class:`ParameterSpec` called ``name``."""
+        check_choice(f"{type(self).__name__} parameter", name, self.parameter_names)
+        return next(spec for spec in self.parameters if spec.name == name)
+
+    def nominal(self) -> dict[str, float]:
+        """Nominal value of every parameter."""
+        return {spec.name: spec.nominal for spec in self.parameters}
+
+    def frequency_response(
+        self, values: Mapping[str, float], omega: ArrayLike, signal: str
+    ) -> NDArray[np.complex128]:
+        """Response ``u/signal`` at ``omega`` (rad/s) with the delay exact.
+
+        ``signal`` is one of :attr:`perceptions`; the other perceptions are held at 0.
+        """
+        check_choice("signal", signal, self.perceptions)
+        omega = np.asarray(omega, dtype=np.float64)
+        s = 1j * omega
+        arrays = {name: np.asarray(float(value)) for name, value in values.items()}
+        delay = np.exp(-s * float(values[self.delay_parameter]))
+        total = np.zeros(omega.shape, dtype=np.complex128)
+        for channel in self.channels(arrays):
+            post = np.polyval(channel.num, s) / np.polyval(channel.den, s)
+            for branch in channel.branches:
+                if branch.signal == signal:
+                    total += post * delay * np.polyval(branch.num, s) / np.polyval(branch.den, s)
+        return total
+
+    def transfer_function(
+        self, values: Mapping[str, float], signal: str, delay_order: int
+    ) -> tuple[FloatArray, FloatArray]:
+        """Rational ``u/signal`` with the delay as an order-``delay_order`` Padé approximant.
+
+        Channels are brought onto one common denominator, so the result is the
+        exact sum of the channel transfer functions (not reduced).
+        """
+        check_choice("signal", signal, self.perceptions)
+        arrays = {name: np.asarray(float(value)) for name, value in values.items()}
+        pade_num, pade_den = pade(float(values[self.delay_parameter]), delay_order)
+        num_total, den_total = np.zeros(1), np.ones(1)
+        for channel in self.channels(arrays):
+            for branch in channel.branches:
+                if branch.signal != signal:
+                    continue
+                num = poly_multiply(poly_multiply(channel.num, branch.num), pade_num)
+                den = poly_multiply(poly_multiply(channel.den, branch.den), pade_den)
+                num_total = np.polyadd(poly_multiply(num_total, den), poly_multiply(num, den_total))
+                den_total = poly_multiply(den_total, den)
+        return num_total, den_total
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}()"
+
+
+# ------------------------------------------------------------------- shared specs
+
+_K_P = ParameterSpec("K_p", 1.5, (0.05, 2.5), (-math.inf, math.inf), "-", "visual position gain")
+_K_V = ParameterSpec("K_v", 0.5, (0.0, 1.5), (-math.inf, math.inf), "s", "visual rate gain K_p T_L")
+_TAU_V = ParameterSpec("tau_v", 0.2, (0.1, 0.8), (0.0, math.inf), "s", "visual time delay")
+_OMEGA_NMS = ParameterSpec(
+    "omega_nms", 8.0, (6.0, 15.0), (0.0, math.inf), "rad/s", "neuromuscular frequency", True
+)
+_ZETA_NMS = ParameterSpec(
+    "zeta_nms", 0.3, (0.1, 0.8), (0.0, math.inf), "-", "neuromuscular damping"
+)
+
+
+def _equalised_nms(values: Mapping[str, FloatArray]) -> tuple[FloatArray, FloatArray]:
+    """``(K_p + K_v s) omega^2 / (s^2 + 2 zeta omega s + omega^2)`` (Popovici eq. 1)."""
+    omega = values["omega_nms"]
+    zeta = values["zeta_nms"]
+    omega2 = omega * omega
+    num = _stack(values["K_v"] * omega2, values["K_p"] * omega2)
+    den = _stack(np.ones_like(omega), 2.0 * zeta * omega, omega2)
+    return num, den
+
+
+def _unity(values: Mapping[str, FloatArray]) -> tuple[FloatArray, FloatArray]:
+    one = _ones_like(values)
+    return one[..., None], one[..., None]
+
+
+class PrecisionModel(PilotModel):
+    """McRuer's precision (crossover) model for compensatory tracking, Popovici eq. 1.
+
+    ``H_p(s) = (K_p + K_v s) e^{-tau_v s} omega_nms^2 / (s^2 + 2 zeta_nms omega_nms s
+    + omega_nms^2)``, perception: the displayed error ``e``. Nominal values are the
+    Popovici-type compensatory pilot (K_p 1.5, K_v 0.5, tau_v 0.2 s, omega_nms 8 rad/s,
+    zeta_nms 0.3); human ranges are thesis Table I (union of its SI and DI columns;
+    K_v from 0 because single-integrator pilots use none).
+    """
+
+    name: ClassVar[str] = "precision"
+    task: ClassVar[str] = "compensatory"
+    delay_parameter: ClassVar[str] = "tau_v"
+    perceptions: ClassVar[tuple[str, ...]] = ("e",)
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:  # noqa: D102
+        return (_K_P, _K_V, _TAU_V, _OMEGA_NMS, _ZETA_NMS)
+
+    def channels(self, values: Mapping[str, FloatArray]) -> tuple[Channel, ...]:  # noqa: D102
+        num, den = _unity(values)
+        return (Channel((Branch("e", num, den),), *_equalised_nms(values)),)
+
+
+@dataclass(frozen=True, repr=False)
+class PreviewModel(PilotModel):
+    """Van der El et al.'s preview model (thesis Part I Sec. II-A, Fig. 1; Part II Fig. 4.2).
+
+    Far view: the target previewed ``tau_f`` ahead, ``ft_far(t) = ft(t + tau_f)``, is
+    low-pass filtered by ``K_f omega_f/(s + omega_f)`` (thesis eq. 1); the internal
+    error ``e* = ft_f - y`` goes through the compensatory equalisation ``K_p + K_v s``
+    (eq. 2), the visual delay and the neuromuscular system (eq. 3). With
+    ``near_view=True`` a near-viewpoint response ``K_n`` on the target rate at
+    ``t + tau_n`` (perception ``ft_near_rate``) is added before the delay, bypassing
+    the equalisation (van der El et al. 2016; the thesis leaves it out as small).
+    Pursuit tracking is this model with no preview available: ``tau_f = 0``.
+
+    Nominal values: thesis Table 6.1 Sim 2 (SI): tau_f 0.6 s, K_f 1, omega_f 3.3 rad/s,
+    K_p 1.3, K_v 0, omega_nms 10.5 rad/s, zeta_nms 0.35, tau_v 0.26 s. Human ranges:
+    thesis Table I (union of SI and DI columns); tau_f up to 2 s (the longest preview
+    of van der El's experiments).
+    """
+
+    near_view: bool = False
+
+    name: ClassVar[str] = "preview"
+    task: ClassVar[str] = "preview"
+    delay_parameter: ClassVar[str] = "tau_v"
+
+    @property
+    def perceptions(self) -> tuple[str, ...]:  # type: ignore[override]  # noqa: D102
+        return ("ft_far", "y", "ft_near_rate") if self.near_view else ("ft_far", "y")
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:  # noqa: D102
+        specs = (
+            ParameterSpec("K_f", 1.0, (0.2, 2.5), (-math.inf, math.inf), "-", "far-view gain"),
+            ParameterSpec(
+                "omega_f",
+                3.3,
+                (0.1, 10.0),
+                (0.0, math.inf),
+                "rad/s",
+                "far-view break frequency",
+                True,
+            ),
+            ParameterSpec("tau_f", 0.6, (0.0, 2.0), (0.0, math.inf), "s", "far-view preview time"),
+            ParameterSpec(
+                "K_p", 1.3, (0.05, 2.5), (-math.inf, math.inf), "-", "visual position gain"
+            ),
+            ParameterSpec("K_v", 0.0, (0.0, 1.5), (-math.inf, math.inf), "s", "visual rate gain"),
+            ParameterSpec("tau_v", 0.26, (0.1, 0.8), (0.0, math.inf), "s", "visual time delay"),
+            ParameterSpec(
+                "omega_nms",
+                10.5,
+                (6.0, 15.0),
+                (0.0, math.inf),
+                "rad/s",
+                "neuromuscular frequency",
+                True,
+            ),
+            ParameterSpec(
+                "zeta_nms", 0.35, (0.1, 0.8), (0.0, math.inf), "-", "neuromuscular damping"
+            ),
+        )
+        if self.near_view:
+            specs += (
+                ParameterSpec("K_n", 0.1, (0.0, 1.0), (-math.inf, math.inf), "s", "near-view gain"),
+                ParameterSpec(
+                    "tau_n", 0.2, (0.0, 1.0), (0.0, math.inf), "s", "near-view preview time"
+                ),
+            )
+        return specs
+
+    def channels(self, values: Mapping[str, FloatArray]) -> tuple[Channel, ...]:  # noqa: D102
+        one = _ones_like(values)
+        omega_f = values["omega_f"]
+        far = Branch("ft_far", (values["K_f"] * omega_f)[..., None], _stack(one, omega_f))
+        feedback = Branch("y", -one[..., None], one[..., None])
+        channels = (Channel((far, feedback), *_equalised_nms(values)),)
+        if self.near_view:
+            omega = values["omega_nms"]
+            omega2 = omega * omega
+            near = Branch("ft_near_rate", values["K_n"][..., None] * one[..., None], one[..., None])
+            nms = (omega2[..., None], _stack(one, 2.0 * values["zeta_nms"] * omega, omega2))
+            channels += (Channel((near,), *nms),)
+        return channels
+
+    def __repr__(self) -> str:
+        return f"PreviewModel(near_view={self.near_view})"
+
+
+class SchiessRolandModel(PilotModel):
+    """Schiess & Roland (1975) eq. 1, the delayed lead-lag pilot.
+
+    ``K_1 (tau_3 s + 1) e^{-theta s} / ((tau_1 s + 1)(tau_2 s + 1))``.
+
+    Nominal values: their Table I true values (K_1 1, tau_1 0.1 s, tau_2 0.1 s,
+    tau_3 0.5 s, theta 0.05 s). The paper gives no human ranges; the wide bounds here
+    only flag implausible values.
+    """
+
+    name: ClassVar[str] = "schiess-roland"
+    task: ClassVar[str] = "compensatory"
+    delay_parameter: ClassVar[str] = "theta"
+    perceptions: ClassVar[tuple[str, ...]] = ("e",)
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:  # noqa: D102
+        return (
+            ParameterSpec("K_1", 1.0, (0.01, 100.0), (-math.inf, math.inf), "-", "static gain"),
+            ParameterSpec(
+                "tau_1", 0.1, (0.0, 10.0), (0.0, math.inf), "s", "pilot lag time constant", True
+            ),
+            ParameterSpec(
+                "tau_2", 0.1, (0.0, 10.0), (0.0, math.inf), "s", "pilot lag time constant", True
+            ),
+            ParameterSpec(
+                "tau_3", 0.5, (0.0, 10.0), (0.0, math.inf), "s", "pilot lead time constant"
+            ),
+            ParameterSpec("theta", 0.05, (0.0, 1.0), (0.0, math.inf), "s", "effective time delay"),
+        )
+
+    def channels(self, values: Mapping[str, FloatArray]) -> tuple[Channel, ...]:  # noqa: D102
+        one = _ones_like(values)
+        num = values["K_1"][..., None] * _stack(values["tau_3"], one)
+        den = poly_multiply(_stack(values["tau_1"], one), _stack(values["tau_2"], one))
+        unity_num, unity_den = _unity(values)
+        return (Channel((Branch("e", unity_num, unity_den),), num, den),)
+
+
+class GainDelayModel(PilotModel):
+    """Pure gain, pure delay pilot ``K_p e^{-tau_v s}`` (Boer & Kenyon 1998, Sec. V-VI).
+
+    The model of their gap-postview and critical tracking experiments. Nominal K_p 1,
+    tau_v 0.2 s; human ranges are wide (their identified delays stay within 0-1 s).
+    """
+
+    name: ClassVar[str] = "gain-delay"
+    task: ClassVar[str] = "compensatory"
+    delay_parameter: ClassVar[str] = "tau_v"
+    perceptions: ClassVar[tuple[str, ...]] = ("e",)
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:  # noqa: D102
+        return (
+            ParameterSpec("K_p", 1.0, (0.01, 20.0), (-math.inf, math.inf), "-", "pilot gain"),
+            ParameterSpec("tau_v", 0.2, (0.0, 1.0), (0.0, math.inf), "s", "pilot delay"),
+        )
+
+    def channels(self, values: Mapping[str, FloatArray]) -> tuple[Channel, ...]:  # noqa: D102
+        num, den = _unity(values)
+        return (Channel((Branch("e", num, den),), values["K_p"][..., None] * num, den),)
+
+
+_MODELS: dict[str, type[PilotModel]] = {
+    cls.name: cls for cls in (PrecisionModel, PreviewModel, SchiessRolandModel, GainDelayModel)
+}
+
+#: Names accepted by :func:`make_model`.
+MODEL_NAMES: tuple[str, ...] = tuple(_MODELS)
+
+
+def make_model(spec: str | PilotModel, **options: bool) -> PilotModel:
+    """Return a pilot model structure from its name (``options`` go to its constructor)."""
+    if isinstance(spec, PilotModel):
+        return spec
+    name = check_choice("pilot model", spec, MODEL_NAMES)
+    return _MODELS[name](**options)

@@ -1,0 +1,157 @@
+"""A synthetic pilot: a model structure with parameter schedules, remnant and delay mode."""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from manualcontrol.envs._validation import check_int
+from manualcontrol.envs.schedules import Schedule, as_schedule
+from manualcontrol.pilots.models import PilotModel, make_model
+from manualcontrol.pilots.remnant import Remnant, make_remnant
+
+__all__ = ["HumanLimitWarning", "Pilot"]
+
+FloatArray = NDArray[np.float64]
+
+
+class HumanLimitWarning(UserWarning):
+    """A pilot parameter leaves the range observed in humans (the model still works)."""
+
+
+@dataclass(frozen=True)
+class Pilot:
+    """A cybernetic pilot: model structure, parameter values or schedules, remnant.
+
+    Parameters
+    ----------
+    model
+        A :class:`~manualcontrol.pilots.models.PilotModel` or its name
+        (``"precision"``, ``"preview"``, ``"schiess-roland"``, ``"gain-delay"``).
+    parameters
+        Values (floats) or :mod:`~manualcontrol.envs.schedules` for any of the model's
+        parameters; the others take the model's nominal values. Unknown names raise.
+    remnant
+        A :class:`~manualcontrol.pilots.remnant.Remnant`, a preset name, or None.
+    delay_order
+        None (default) simulates the model delay exactly with a fractional delay line;
+        an integer ``m >= 1`` uses the order-``m`` Padé approximant instead.
+
+    Values outside a parameter's valid range (e.g. a negative delay or neuromuscular
+    frequency) raise ``ValueError``; values outside the human range warn with
+    :class:`HumanLimitWarning`. Constant values are checked here, schedules wherever
+    they are evaluated (:meth:`parameter_traces`).
+
+    """
+
+    model: PilotModel | str
+    parameters: Mapping[str, float | Schedule] = field(default_factory=dict)
+    remnant: Remnant | str | None = None
+    delay_order: int | None = None
+
+    def __post_init__(self) -> None:
+        model = make_model(self.model)
+        object.__setattr__(self, "model", model)
+        unknown = sorted(set(self.parameters) - set(model.parameter_names))
+        if unknown:
+            raise ValueError(
+                f"{type(model).__name__} has no parameter(s) {', '.join(map(repr, unknown))}; "
+                f"its parameters are {', '.join(model.parameter_names)}"
+            )
+        schedules: dict[str, Schedule] = {}
+        for name in model.parameter_names:
+            value = self.parameters.get(name, model.spec(name).nominal)
+            try:
+                schedules[name] = as_schedule(value)
+            except (TypeError, ValueError) as error:
+                raise type(error)(f"pilot parameter {name}: {error}") from None
+        object.__setattr__(self, "parameters", MappingProxyType(schedules))
+        object.__setattr__(self, "remnant", make_remnant(self.remnant))
+        if self.delay_order is not None:
+            object.__setattr__(
+                self, "delay_order", check_int("delay_order", self.delay_order, minimum=1)
+            )
+        for name, schedule in schedules.items():
+            if schedule.is_constant:
+                self._check(name, np.atleast_1d(schedule(0.0)))
+
+    def _check_delay(self, values: FloatArray) -> None:
+        # a Padé approximant of a zero delay has a vanishing leading coefficient
+        if self.delay_order is not None and np.any(values <= 0.0):
+            raise ValueError(
+                f"pilot parameter {self.model.delay_parameter} must be > 0 s with a Padé delay "
+                f"(delay_order={self.delay_order}), got {float(values.min())!r}"
+            )
+
+    def _check(self, name: str, values: FloatArray) -> None:
+        spec = self.model.spec(name)
+        if not np.all(np.isfinite(values)):
+            raise ValueError(f"pilot parameter {name} must be finite, got non-finite values")
+        low, high = spec.valid
+        outside = (values <= low if spec.positive else values < low) | (values > high)
+        if np.any(outside):
+            left = "(" if spec.positive else "["
+            raise ValueError(
+                f"pilot parameter {name} must lie in {left}{low:g}, {high:g}] {spec.unit}, "
+                f"got {float(values[outside][0])!r}"
+            )
+        low, high = spec.human
+        if np.any(values < low) or np.any(values > high):
+            extreme = float(values.min() if np.any(values < low) else values.max())
+            warnings.warn(
+                f"pilot parameter {name} = {extreme:g} {spec.unit} is outside the human range "
+                f"[{low:g}, {high:g}] ({spec.description})",
+                HumanLimitWarning,
+                stacklevel=3,
+            )
+
+    @property
+    def is_time_varying(self) -> bool:
+        """True when any parameter is a non-constant schedule."""
+        return not all(schedule.is_constant for schedule in self.parameters.values())
+
+    def parameter_traces(self, t: ArrayLike) -> dict[str, FloatArray]:
+        """Every parameter evaluated at the times ``t`` (s), checked against its ranges."""
+        t = np.asarray(t, dtype=np.float64)
+        traces = {}
+        for name, schedule in self.parameters.items():
+            values = np.broadcast_to(np.asarray(schedule(t), dtype=np.float64), t.shape).copy()
+            self._check(name, values)
+            if name == self.model.delay_parameter:
+                self._check_delay(values)
+            traces[name] = values
+        return traces
+
+    def with_parameters(self, **values: float | Schedule) -> Pilot:
+        """Copy with some parameters replaced."""
+        return Pilot(self.model, {**self.parameters, **values}, self.remnant, self.delay_order)
+
+    def with_remnant(self, remnant: Remnant | str | None) -> Pilot:
+        """Copy with another remnant."""
+        return Pilot(self.model, dict(self.parameters), remnant, self.delay_order)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able description (model, schedules, remnant, delay order)."""
+        options = {"near_view": self.model.near_view} if hasattr(self.model, "near_view") else {}
+        return {
+            "model": self.model.name,
+            "model_options": options,
+            "parameters": {name: schedule.to_dict() for name, schedule in self.parameters.items()},
+            "remnant": None if self.remnant is None else self.remnant.to_dict(),
+            "delay_order": self.delay_order,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Pilot:
+        """Inverse of :meth:`to_dict`."""
+        model = make_model(data["model"], **dict(data.get("model_options") or {}))
+        parameters = {
+            name: Schedule.from_dict(value) for name, value in data.get("parameters", {}).items()
+        }
+        return cls(model, parameters, make_remnant(data.get("remnant")), data.get("delay_order"))
