@@ -19,7 +19,7 @@ $(BIN)/python:
 $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet torch==2.13.0
-	$(BIN)/python -m pip install --quiet -e ".[dev,rl,plot]"
+	$(BIN)/python -m pip install --quiet -e ".[dev,rl,plot,render]"
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -1,1 +1,21 @@
-"""The task world: signals, schedules, dynamics, controlled elements and recordings."""
+"""The task world: signals, dynamics, controlled elements, recordings and Gymnasium envs.
+
+Importing this package registers ``ManualControl/CompensatoryTracking-v0``,
+``ManualControl/PursuitTracking-v0`` and ``ManualControl/PreviewTracking-v0``. Gymnasium
+1.x has no plugin entry points any more, so either import ``manualcontrol.envs`` first
+or name the module in the id:
+``gymnasium.make("manualcontrol.envs:ManualControl/PreviewTracking-v0")``.
+"""
+
+from gymnasium.envs.registration import register, registry
+
+_TASKS = ("Compensatory", "Pursuit", "Preview")
+
+for _task in _TASKS:
+    _id = f"ManualControl/{_task}Tracking-v0"
+    if _id not in registry:
+        register(
+            id=_id,
+            entry_point=f"manualcontrol.envs.tracking:{_task}Tracking",
+            vector_entry_point=f"manualcontrol.envs.tracking_vector:{_task}TrackingVector",
+        )

@@ -46,6 +46,8 @@ __all__ = [
     "pade",
     "pade_coefficients",
     "poly_multiply",
+    "read_held",
+    "read_smooth",
     "simulate_lpv",
     "tf_to_ccf",
 ]
@@ -423,7 +425,7 @@ def discretize(A: ArrayLike, B: ArrayLike, dt: float) -> Discretization:
 
 
 @numba.njit(cache=True)
-def _read_smooth(history: FloatArray, newest: int, position: float) -> float:
+def read_smooth(history: FloatArray, newest: int, position: float) -> float:
     """Bicubic read of ``history[0..newest]`` at fractional index ``position``.
 
     For the part of a delayed signal that is a smooth function of time. Samples
@@ -445,7 +447,7 @@ def _read_smooth(history: FloatArray, newest: int, position: float) -> float:
 
 
 @numba.njit(cache=True)
-def _read_held(history: FloatArray, newest: int, position: float) -> float:
+def read_held(history: FloatArray, newest: int, position: float) -> float:
     """Mean of a delayed staircase over one sample, starting at fractional ``position``.
 
     ``history[j]`` is held over ``[j, j + 1)``; its mean over ``[p, p + 1]`` is the
@@ -517,7 +519,7 @@ def _simulate_lpv(
                     held_value += d[kd, r, j] * u[j]
             held[i, newest] = held_value
             position = newest - delay_samples[k, i]
-            u[delay_inputs[i]] = smooth_now[i] + _read_held(held[i], newest, position)
+            u[delay_inputs[i]] = smooth_now[i] + read_held(held[i], newest, position)
         for r in range(n_x):
             states[k, r] = x[r]
         for r in range(n_y):
@@ -531,7 +533,7 @@ def _simulate_lpv(
             break
         for i in range(n_delay):
             position = newest + 1.0 - delay_samples[k + 1, i]
-            smooth_next[i] = _read_smooth(smooth[i], newest, position)
+            smooth_next[i] = read_smooth(smooth[i], newest, position)
         for r in range(n_x):
             acc = 0.0
             for j in range(n_x):
@@ -598,7 +600,7 @@ def simulate_lpv(
     held (sampled-data loops, where a discretised element feeds a sampled display).
     The delay line starts at rest (zero before ``t = 0``). Delays must be at least
     ``3 dt`` for the four interpolation samples to be in the past (shorter delays lose
-    interpolation order, see :func:`_read_smooth`).
+    interpolation order, see :func:`read_smooth`).
 
     Returns
     -------

@@ -54,6 +54,7 @@ class Pilot:
     parameters: Mapping[str, float | Schedule] = field(default_factory=dict)
     remnant: Remnant | str | None = None
     delay_order: int | None = None
+    _controller: Any = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         model = make_model(self.model)
@@ -127,6 +128,22 @@ class Pilot:
                 self._check_delay(values)
             traces[name] = values
         return traces
+
+    def reset(self, seed: int | np.random.Generator | None = None, *, env: Any) -> None:
+        """Start acting in ``env``'s current episode (call after ``env.reset()``).
+
+        ``seed`` drives the remnant exactly as in :func:`~manualcontrol.pilots.simulate`:
+        the same seed in both gives the same recording (``loop="sampled"``).
+        """
+        from manualcontrol.pilots.controller import PilotController
+
+        object.__setattr__(self, "_controller", PilotController(self, env, seed))
+
+    def act(self, observation: ArrayLike) -> FloatArray:
+        """The pilot's stick for an environment observation, shape ``(1,)``."""
+        if self._controller is None:
+            raise RuntimeError("call pilot.reset(seed, env=env) after env.reset() before act()")
+        return self._controller.act(observation)
 
     def with_parameters(self, **values: float | Schedule) -> Pilot:
         """Copy with some parameters replaced."""

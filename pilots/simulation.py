@@ -78,8 +78,8 @@ FloatArray = NDArray[np.float64]
 
 TASKS: tuple[str, ...] = ("compensatory", "pursuit", "preview")
 LOOPS: tuple[str, ...] = ("continuous", "sampled")
-#: Preview shown by default in preview tasks (s): the longest of van der El's experiments.
-DEFAULT_AVAILABLE_PREVIEW = 2.0
+#: Preview shown by default in preview tasks (s): covers nominal far-view preview times.
+DEFAULT_AVAILABLE_PREVIEW = 1.0
 #: Relative deviation of the realised power ratio that triggers a re-calibration
 #: (thesis Part II Sec. 4.2.1: "more than 5 %").
 POWER_RATIO_TOLERANCE = 0.05
@@ -368,6 +368,42 @@ def closed_loop(setup: SimulationSetup, t: float = 0.0) -> Interconnection:
     return loop._replace(system=squeezed)
 
 
+def discrete_pilot(
+    setup: SimulationSetup, values: Mapping[str, FloatArray], remnant: Remnant | None
+) -> tuple[Interconnection, Discretization, tuple[DelayChannel, ...]]:
+    """The pilot alone, discretised for the sampled loop.
+
+    Inputs: its perceptions, then ``noise`` (when it has a remnant), then the delay
+    channel targets; outputs ``u``, ``n``, then the delay channel sources. Perceptions
+    and noise are held over each sample; the delayed signals follow
+    :func:`~manualcontrol.envs.dynamics.simulate_lpv`. ``values`` carry one leading
+    batch axis (one entry per distinct parameter set).
+    """
+    model = setup.pilot.model
+    noise_input = ("noise",) if remnant is not None else ()
+    pilot = _pilot_diagram(setup.pilot, values, remnant, {p: p for p in model.perceptions})
+    system = interconnect(
+        [*pilot.blocks, *_remnant_block(remnant)],
+        inputs=(*model.perceptions, *noise_input),
+        outputs=("u", "n"),
+        sums={**pilot.sums, **({} if remnant is not None else {"n": {}})},
+        delays=pilot.delays,
+    )
+    return system, discretize(system.system.A, system.system.B, setup.dt), pilot.delays
+
+
+def distinct_parameter_sets(
+    columns: Sequence[FloatArray], n_samples: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64] | None]:
+    """First sample of each distinct row of ``columns`` and the row used at each sample.
+
+    The index is None when one set serves every sample (a time-invariant loop).
+    """
+    table = np.column_stack(columns) if columns else np.zeros((n_samples, 0))
+    unique, first, inverse = np.unique(table, axis=0, return_index=True, return_inverse=True)
+    return first, (None if len(unique) == 1 else np.ravel(inverse))
+
+
 def _assemble(
     setup: SimulationSetup,
     values: Mapping[str, FloatArray],
@@ -378,8 +414,6 @@ def _assemble(
     """Connect and discretise the loop for parameter values with one leading batch axis."""
     model = setup.pilot.model
     inputs = _loop_inputs(model, remnant)
-    noise_input = ("noise",) if remnant is not None else ()
-    no_remnant = {} if remnant is not None else {"n": {}}
     if loop == "continuous":
         diagram = _continuous_loop(setup, values, element_model, remnant)
         exact = discretize(diagram.system.A, diagram.system.B, setup.dt)
@@ -393,17 +427,7 @@ def _assemble(
             diagram.delay_outputs,
         )
     # sampled: pilot and element discretised apart, joined in discrete time
-    pilot_inputs = (*model.perceptions, *noise_input)
-    sources = {p: p for p in model.perceptions}
-    pilot = _pilot_diagram(setup.pilot, values, remnant, sources)
-    pilot_system = interconnect(
-        [*pilot.blocks, *_remnant_block(remnant)],
-        inputs=pilot_inputs,
-        outputs=("u", "n"),
-        sums={**pilot.sums, **no_remnant},
-        delays=pilot.delays,
-    )
-    pilot_exact = discretize(pilot_system.system.A, pilot_system.system.B, setup.dt)
+    pilot_system, pilot_exact, pilot_delays = discrete_pilot(setup, values, remnant)
     element_exact = discretize(element_model.A, element_model.B, setup.dt)
     pilot_block = Block(
         StateSpace(
@@ -422,13 +446,13 @@ def _assemble(
         inputs=inputs,
         outputs=_LOOP_OUTPUTS,
         sums=_element_sums(),
-        delays=tuple(DelayChannel(ch.source, ch.target) for ch in pilot.delays),
+        delays=pilot_delays,
     )
     # The ramp (first-order hold) acts only on the pilot's delayed inputs.
     n_pilot = pilot_exact.phi.shape[-1]
     system = joined.system
     ramp = np.zeros((*system.B.shape[:-2], system.B.shape[-2], system.B.shape[-1]))
-    for channel in pilot.delays:
+    for channel in pilot_delays:
         ramp[..., :n_pilot, joined.inputs.index(channel.target)] = pilot_exact.gamma_ramp[
             ..., :, pilot_system.inputs.index(channel.target)
         ]
@@ -445,7 +469,7 @@ def _assemble(
     )
 
 
-def _matrix_parameters(setup: SimulationSetup, traces: Mapping[str, FloatArray]) -> list[str]:
+def matrix_parameters(setup: SimulationSetup, traces: Mapping[str, FloatArray]) -> list[str]:
     """Parameters that change the loop matrices (delays and preview times are inputs)."""
     model = setup.pilot.model
     skip = {"tau_f", "tau_n"}
@@ -467,15 +491,13 @@ def _build_loop(
     """
     time = setup.time
     element_traces = setup.element.parameters_at(time)
-    names = _matrix_parameters(setup, traces)
-    columns = [traces[name] for name in names] + list(element_traces.values())
-    table = np.column_stack(columns) if columns else np.zeros((len(time), 0))
-    unique, first, inverse = np.unique(table, axis=0, return_index=True, return_inverse=True)
-    inverse = np.ravel(inverse)
+    names = matrix_parameters(setup, traces)
+    first, index = distinct_parameter_sets(
+        [traces[name] for name in names] + list(element_traces.values()), len(time)
+    )
     values = {name: trace[first] for name, trace in traces.items()}
     element_model = setup.element.state_space(time[first])
-    assembled = _assemble(setup, values, element_model, remnant, loop)
-    return assembled, (None if len(unique) == 1 else inverse)
+    return _assemble(setup, values, element_model, remnant, loop), index
 
 
 def _run(
@@ -580,7 +602,7 @@ def simulate(
         (preview models default to ``"preview"``; ``"pursuit"`` shows no preview, so
         ``tau_f`` must be 0).
     available_preview
-        Preview shown on the display in a preview task (s, default 2 s); the far and
+        Preview shown on the display in a preview task (s, default 1 s); the far and
         near viewpoints must stay within it.
     dt, run_in, measurement_time
         Sample time (s), run-in simulated before ``t = 0`` and cut (default 60 s, as
