@@ -61,7 +61,7 @@ from manualcontrol.envs.dynamics import (
 from manualcontrol.envs.elements import ControlledElement, make_element
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair, forcing_preset
-from manualcontrol.pilots.models import PilotModel
+from manualcontrol.pilots.models import PilotModel, make_model
 from manualcontrol.pilots.pilot import Pilot
 from manualcontrol.pilots.remnant import Remnant
 
@@ -70,6 +70,7 @@ __all__ = [
     "TASKS",
     "SimulationSetup",
     "closed_loop",
+    "isolated_pilot_output",
     "remnant_power_ratio",
     "simulate",
 ]
@@ -533,6 +534,65 @@ def _run(
         held_states=assembled.held_states,
     )
     return {name: outputs[:, i] for i, name in enumerate(assembled.outputs)}
+
+
+def isolated_pilot_output(
+    model: PilotModel | str,
+    parameters: Mapping[str, float | FloatArray],
+    perceptions: Mapping[str, FloatArray],
+    dt: float,
+    delay_order: int | None = None,
+) -> FloatArray:
+    """The pilot model alone, driven by measured perceptions: its modelled stick ``u``.
+
+    The isolated pilot of thesis Fig. 3 / eq. 38: ``perceptions`` holds each of the
+    model's perception signals (``e``; or ``ft_far`` and ``y``) sampled at ``dt`` and
+    held over each sample; ``parameters`` holds constants or traces of every
+    parameter (one value per sample). The delay is exact unless ``delay_order`` asks
+    for a Padé approximant. Starts at rest; no remnant.
+    """
+    pilot = Pilot(make_model(model), delay_order=delay_order)
+    model = pilot.model
+    missing = sorted(set(model.perceptions) - set(perceptions))
+    if missing:
+        raise ValueError(
+            f"perceptions must include {', '.join(missing)} for the {model.name} model"
+        )
+    n = len(next(iter(perceptions.values())))
+    traces = {}
+    for name in model.parameter_names:
+        if name not in parameters:
+            raise ValueError(f"parameters must include {name!r} for the {model.name} model")
+        value = np.asarray(parameters[name], dtype=np.float64)
+        traces[name] = np.broadcast_to(value, (n,)).astype(np.float64)
+    pilot._check_delay(traces[model.delay_parameter])
+    columns = [
+        traces[name] for name in traces if name not in (model.delay_parameter, "tau_f", "tau_n")
+    ]
+    if delay_order is not None:
+        columns.append(traces[model.delay_parameter])
+    first, index = distinct_parameter_sets(columns, n)
+    values = {name: trace[first] for name, trace in traces.items()}
+    diagram = _pilot_diagram(pilot, values, None, {p: p for p in model.perceptions})
+    system = interconnect(
+        diagram.blocks,
+        inputs=model.perceptions,
+        outputs=("u",),
+        sums=diagram.sums,
+        delays=diagram.delays,
+    )
+    loop = _Loop(
+        discretize(system.system.A, system.system.B, dt),
+        system.system.C,
+        system.system.D,
+        system.inputs,
+        system.outputs,
+        system.delay_inputs,
+        system.delay_outputs,
+    )
+    inputs = {name: np.asarray(perceptions[name], dtype=np.float64) for name in model.perceptions}
+    delays = traces[model.delay_parameter] if delay_order is None else None
+    return _run(loop, index, inputs, delays, dt)["u"]
 
 
 # -------------------------------------------------------------------- power ratio

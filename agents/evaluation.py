@@ -1,0 +1,181 @@
+"""Evaluating a trained agent the way a human operator is evaluated.
+
+:func:`evaluate` lets the agent (through its human-limitation wrappers) fly one full
+measurement run, then reports what a manual-control researcher looks at: the RMS
+tracking error (beside a precision-model pilot with typical parameters on the same
+forcing), the open-loop frequency response at the forcing frequencies with crossover
+frequency and phase margin, and the identified parameters of the equivalent
+cybernetic pilot model (offline output-error fit, exact delay), to hold against the
+limitations imposed (e.g. is the identified delay the imposed action delay?).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from manualcontrol.agents.training import TrainedAgent, make_env
+from manualcontrol.envs._files import atomic_path, atomic_write
+from manualcontrol.envs.recording import Recording
+from manualcontrol.estimators.frequency import FrequencyResponse, forcing_frequency_response
+from manualcontrol.estimators.offline import OfflineFit, fit_pilot
+from manualcontrol.pilots import Pilot
+
+__all__ = ["REFERENCE_PILOTS", "Evaluation", "evaluate", "write_report"]
+
+#: Typical precision-model pilots (thesis Table 6.1: SI values of Sim 2 without
+#: preview, DI values of Sim 8), the reference an agent's tracking is compared with.
+REFERENCE_PILOTS: dict[str, dict[str, float]] = {
+    "SI": {"K_p": 1.3, "K_v": 0.0, "omega_nms": 10.5, "zeta_nms": 0.35, "tau_v": 0.26},
+    "DI": {"K_p": 0.24, "K_v": 0.36, "omega_nms": 8.0, "zeta_nms": 0.45, "tau_v": 0.3},
+}
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """What :func:`evaluate` measured for one run of the agent."""
+
+    rms_error: float
+    reference_rms_error: float | None
+    frequency_response: FrequencyResponse
+    identified: OfflineFit
+    limitations: tuple[Mapping[str, Any], ...]
+    recording: Recording
+
+    def summary(self) -> dict[str, Any]:
+        """Plain numbers for tables and JSON."""
+        return {
+            "rms_error": self.rms_error,
+            "reference_rms_error": self.reference_rms_error,
+            "rms_ratio": (
+                None
+                if self.reference_rms_error is None
+                else self.rms_error / self.reference_rms_error
+            ),
+            "crossover_frequency": self.frequency_response.crossover_frequency,
+            "phase_margin": self.frequency_response.phase_margin,
+            "identified": dict(self.identified.parameters),
+            "identification_vaf": self.identified.vaf,
+            "limitations": [dict(limit) for limit in self.limitations],
+        }
+
+
+def _run(actor: Any, env: Any, seed: int) -> Recording:
+    observation, _ = env.reset(seed=seed)
+    actor.reset(seed=seed, env=env)
+    done = False
+    while not done:
+        observation, _, terminated, truncated, _ = env.step(actor.act(observation))
+        done = terminated or truncated
+    return env.unwrapped.recording()
+
+
+def evaluate(
+    agent: TrainedAgent,
+    *,
+    seed: int = 0,
+    run_in: float = 10.0,
+    env_overrides: Mapping[str, Any] | None = None,
+    reference: Mapping[str, float] | None = None,
+) -> Evaluation:
+    """Run the agent over one full forcing period and identify it.
+
+    The environment is the agent's own (configuration, wrappers), over the full
+    measurement time of the forcing (for the frequency response) after ``run_in``
+    seconds. ``reference`` overrides the precision pilot of :data:`REFERENCE_PILOTS`
+    (chosen by the element's name "SI"/"DI"; another element needs one given).
+    """
+    overrides = {"measurement_time": None, "run_in": run_in, **dict(env_overrides or {})}
+    env = make_env(agent.config, **overrides)
+    recording = _run(agent, env, seed)
+    env.close()
+    rms = float(np.sqrt(np.mean(recording.e**2)))
+    response = forcing_frequency_response(recording)
+    model = "precision" if agent.config.task == "compensatory" else "preview"
+    identified = fit_pilot(recording, model)
+    element = agent.config.env_kwargs.get("controlled_element", "SI")
+    values = (
+        reference
+        if reference is not None
+        else REFERENCE_PILOTS.get(element)
+        if isinstance(element, str)
+        else None
+    )
+    reference_rms = None
+    if values is not None and agent.config.task == "compensatory":
+        base = make_env(
+            agent.config.__class__(**{**agent.config.to_dict(), "wrappers": ()}), **overrides
+        )
+        reference_recording = _run(Pilot("precision", dict(values)), base, seed)
+        base.close()
+        reference_rms = float(np.sqrt(np.mean(reference_recording.e**2)))
+    return Evaluation(rms, reference_rms, response, identified, agent.config.wrappers, recording)
+
+
+def write_report(evaluation: Evaluation, folder: str | Path) -> Path:
+    """Write ``evaluation.md``, ``evaluation.json`` and ``open_loop.png`` into ``folder``."""
+    import json
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    summary = evaluation.summary()
+    atomic_write(folder / "evaluation.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
+    response = evaluation.frequency_response
+    fig, (magnitude, phase) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    magnitude.loglog(response.frequencies, np.abs(response.open_loop), "o-", label="open loop Y/E")
+    magnitude.loglog(response.frequencies, np.abs(response.pilot), "s--", label="agent U/E")
+    magnitude.axhline(1.0, color="grey", lw=0.8)
+    magnitude.set_ylabel("magnitude")
+    magnitude.legend()
+    phase.semilogx(response.frequencies, np.degrees(np.unwrap(np.angle(response.open_loop))), "o-")
+    phase.axhline(-180.0, color="grey", lw=0.8)
+    phase.set_ylabel("open-loop phase [deg]")
+    phase.set_xlabel("frequency [rad/s]")
+    if math.isfinite(response.crossover_frequency):
+        for axis in (magnitude, phase):
+            axis.axvline(response.crossover_frequency, color="tab:red", lw=0.8)
+    magnitude.set_title(
+        f"crossover {response.crossover_frequency:.2f} rad/s, "
+        f"phase margin {response.phase_margin:.0f} deg"
+    )
+    fig.tight_layout()
+    with atomic_path(folder / "open_loop.png") as temporary:
+        fig.savefig(temporary, dpi=110, format="png")
+    plt.close(fig)
+    lines = [
+        "# Agent evaluation",
+        "",
+        f"- RMS tracking error: {summary['rms_error']:.4f}",
+    ]
+    if summary["reference_rms_error"] is not None:
+        lines.append(
+            f"- precision-model pilot, typical parameters: {summary['reference_rms_error']:.4f} "
+            f"(agent / pilot = {summary['rms_ratio']:.2f})"
+        )
+    lines += [
+        f"- crossover frequency: {summary['crossover_frequency']:.2f} rad/s, "
+        f"phase margin {summary['phase_margin']:.1f} deg",
+        f"- limitations imposed: {summary['limitations'] or 'none'}",
+        "",
+        f"Identified {evaluation.identified.model} model (offline output-error fit, "
+        f"VAF {evaluation.identified.vaf:.1f} %):",
+        "",
+        "| parameter | value |",
+        "| --- | --- |",
+        *(f"| {name} | {value:.4g} |" for name, value in summary["identified"].items()),
+        "",
+        "![open loop](open_loop.png)",
+        "",
+    ]
+    atomic_write(folder / "evaluation.md", lambda p: p.write_text("\n".join(lines)))
+    return folder / "evaluation.md"

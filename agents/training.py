@@ -1,0 +1,277 @@
+"""Training surrogate human operators with stable-baselines3 on the tracking tasks.
+
+:func:`train` runs PPO or SAC on any of the three tracking environments, wrapped with
+the human limitations of :mod:`~manualcontrol.agents.wrappers`, and writes to its
+output folder:
+
+``config.json``
+    the full :class:`TrainingConfig` (everything needed to rebuild the agent);
+``policy.pt``
+    the policy weights (a plain tensor dictionary);
+``model.zip``
+    stable-baselines3's own save (optimiser state included), for resuming;
+``checkpoints/``
+    weights every ``checkpoint_every`` steps, when asked.
+
+Security: ``model.zip`` holds Python pickles; loading one runs code from whoever wrote
+it. :func:`load_agent` therefore reads only ``config.json`` and ``policy.pt`` (with
+``torch.load(weights_only=True)``) unless you pass ``trust_pickle=True`` for files you
+made yourself.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from numpy.typing import NDArray
+
+import manualcontrol.envs  # noqa: F401  (registers the tracking ids)
+from manualcontrol.agents.wrappers import WRAPPERS, apply_wrappers
+from manualcontrol.envs._files import atomic_write
+from manualcontrol.envs._validation import check_choice, check_int, reject_unknown
+
+__all__ = [
+    "ALGORITHMS",
+    "TASK_IDS",
+    "TrainedAgent",
+    "TrainingConfig",
+    "load_agent",
+    "make_env",
+    "train",
+]
+
+FloatArray = NDArray[np.float64]
+
+ALGORITHMS: tuple[str, ...] = ("ppo", "sac")
+TASK_IDS: dict[str, str] = {
+    "compensatory": "ManualControl/CompensatoryTracking-v0",
+    "pursuit": "ManualControl/PursuitTracking-v0",
+    "preview": "ManualControl/PreviewTracking-v0",
+}
+
+
+@dataclass(frozen=True)
+class TrainingConfig:
+    """Everything that defines a training run; saved beside the trained agent.
+
+    Parameters
+    ----------
+    task
+        ``"compensatory"``, ``"pursuit"`` or ``"preview"``.
+    env_kwargs
+        Keywords of the tracking environment (``controlled_element``, ``forcing``,
+        ``realisation``, ``measurement_time``, ...).
+    wrappers
+        Human limitations, innermost first: ``({"kind": "action_delay", "delay": 0.2},)``.
+    algorithm
+        ``"ppo"`` or ``"sac"``.
+    total_timesteps, n_envs, seed
+        Training length (environment steps over all copies), parallel copies, seed.
+    algorithm_kwargs, policy_kwargs
+        Passed to the stable-baselines3 algorithm and its policy.
+    checkpoint_every
+        Save the weights every so many steps (None: no checkpoints).
+    """
+
+    task: str = "compensatory"
+    env_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    wrappers: tuple[Mapping[str, Any], ...] = ()
+    algorithm: str = "sac"
+    total_timesteps: int = 100_000
+    n_envs: int = 1
+    seed: int = 0
+    algorithm_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    policy_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    checkpoint_every: int | None = None
+
+    def __post_init__(self) -> None:
+        check_choice("task", self.task, tuple(TASK_IDS))
+        check_choice("algorithm", self.algorithm, ALGORITHMS)
+        check_int("total_timesteps", self.total_timesteps, minimum=1)
+        check_int("n_envs", self.n_envs, minimum=1)
+        check_int("seed", self.seed, minimum=0)
+        if self.checkpoint_every is not None:
+            check_int("checkpoint_every", self.checkpoint_every, minimum=1)
+        wrappers = tuple(dict(spec) for spec in self.wrappers)
+        for spec in wrappers:
+            check_choice("wrapper kind", spec.get("kind"), tuple(WRAPPERS))
+        object.__setattr__(self, "wrappers", wrappers)
+        for name in ("env_kwargs", "algorithm_kwargs", "policy_kwargs"):
+            object.__setattr__(self, name, dict(getattr(self, name)))
+        try:
+            json.dumps(self.to_dict())
+        except TypeError as error:
+            raise TypeError(f"training configuration must be JSON-serialisable: {error}") from None
+        # fail now, not after hours: the environment and wrappers must build
+        make_env(self).close()
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able dict (lists, dicts, numbers, strings)."""
+        data = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        data["wrappers"] = [dict(spec) for spec in self.wrappers]
+        return json.loads(json.dumps(data))
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> TrainingConfig:
+        """Inverse of :meth:`to_dict`; unknown keys raise."""
+        reject_unknown("TrainingConfig", data, [f.name for f in dataclasses.fields(cls)])
+        data = dict(data)
+        data["wrappers"] = tuple(data.get("wrappers", ()))
+        return cls(**data)
+
+
+def make_env(config: TrainingConfig, **overrides: Any) -> gym.Env:
+    """The wrapped tracking environment of a configuration (``overrides`` update env_kwargs)."""
+    env = gym.make(TASK_IDS[config.task], **{**config.env_kwargs, **overrides})
+    return apply_wrappers(env, config.wrappers)
+
+
+def _algorithm_class(name: str) -> type:
+    from stable_baselines3 import PPO, SAC
+
+    return {"ppo": PPO, "sac": SAC}[name]
+
+
+@dataclass
+class TrainedAgent:
+    """A trained policy with its configuration; acts like a cybernetic pilot.
+
+    ``reset(seed, env=env)`` / ``act(observation)`` mirror
+    :class:`~manualcontrol.pilots.Pilot`, so evaluation drives both the same way.
+    The policy is used deterministically (its mean action).
+    """
+
+    config: TrainingConfig
+    policy: Any
+    path: Path | None = None
+
+    def reset(self, seed: int | None = None, *, env: gym.Env | None = None) -> None:
+        """Nothing to reset: the policy is a memoryless map (the wrappers hold the state)."""
+        del seed, env
+
+    def act(self, observation: FloatArray) -> FloatArray:
+        """Deterministic action for one observation, shape ``(1,)``."""
+        action, _ = self.policy.predict(
+            np.asarray(observation, dtype=np.float32), deterministic=True
+        )
+        return np.asarray(action, dtype=np.float64).reshape(1)
+
+
+def _progress_callback(total: int, report: Callable[[str], None], every: int) -> Any:
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class Progress(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.started = time.perf_counter()
+            self.next_report = every
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= self.next_report or self.num_timesteps >= total:
+                self.next_report += every
+                episodes = [info["r"] / info["l"] for info in self.model.ep_info_buffer]
+                mean = f"{np.mean(episodes):.4f}" if episodes else "n/a"
+                elapsed = time.perf_counter() - self.started
+                rate = self.num_timesteps / elapsed
+                report(
+                    f"{self.num_timesteps:>9,d}/{total:,d} steps  {rate:7.0f} steps/s  "
+                    f"mean reward per step {mean}"
+                )
+            return True
+
+    return Progress()
+
+
+def _checkpoint_callback(every: int, folder: Path) -> Any:
+    import torch
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class Checkpoint(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.num_timesteps % every < self.training_env.num_envs:
+                path = folder / f"policy_{self.num_timesteps}.pt"
+                atomic_write(path, lambda p: torch.save(self.model.policy.state_dict(), p))
+            return True
+
+    return Checkpoint()
+
+
+def train(
+    config: TrainingConfig,
+    output: str | Path,
+    *,
+    report: Callable[[str], None] | None = print,
+    report_every: int = 10_000,
+) -> TrainedAgent:
+    """Train an agent and save it (see the module docstring) in ``output``."""
+    import torch
+    from stable_baselines3.common.callbacks import CallbackList
+    from stable_baselines3.common.env_util import make_vec_env
+
+    output = Path(output)
+    output.mkdir(parents=True, exist_ok=True)
+    atomic_write(
+        output / "config.json", lambda p: p.write_text(json.dumps(config.to_dict(), indent=2))
+    )
+    vec_env = make_vec_env(lambda: make_env(config), n_envs=config.n_envs, seed=config.seed)
+    model = _algorithm_class(config.algorithm)(
+        "MlpPolicy",
+        vec_env,
+        seed=config.seed,
+        verbose=0,
+        policy_kwargs=dict(config.policy_kwargs),
+        **dict(config.algorithm_kwargs),
+    )
+    callbacks = []
+    if report is not None:
+        callbacks.append(_progress_callback(config.total_timesteps, report, report_every))
+    if config.checkpoint_every is not None:
+        folder = output / "checkpoints"
+        folder.mkdir(exist_ok=True)
+        callbacks.append(_checkpoint_callback(config.checkpoint_every, folder))
+    model.learn(total_timesteps=config.total_timesteps, callback=CallbackList(callbacks))
+    atomic_write(output / "policy.pt", lambda p: torch.save(model.policy.state_dict(), p))
+    atomic_write(output / "model.zip", lambda p: model.save(p))
+    vec_env.close()
+    return TrainedAgent(config, model.policy, output)
+
+
+def load_agent(path: str | Path, *, trust_pickle: bool = False) -> TrainedAgent:
+    """Load a trained agent from its folder.
+
+    By default only ``config.json`` and the weights ``policy.pt`` are read (no pickle:
+    ``torch.load(weights_only=True)``); the policy is rebuilt from the configuration.
+    ``trust_pickle=True`` loads stable-baselines3's ``model.zip`` instead, which runs
+    pickled code: only for files you trust.
+    """
+    import torch
+
+    folder = Path(path)
+    config_path = folder / "config.json"
+    if not config_path.is_file():
+        raise FileNotFoundError(f"{folder} has no config.json: not a trained agent folder")
+    config = TrainingConfig.from_dict(json.loads(config_path.read_text()))
+    algorithm = _algorithm_class(config.algorithm)
+    if trust_pickle:
+        model = algorithm.load(folder / "model.zip", device="cpu")
+        return TrainedAgent(config, model.policy, folder)
+    weights = folder / "policy.pt"
+    if not weights.is_file():
+        raise FileNotFoundError(f"{folder} has no policy.pt weights")
+    env = make_env(config)
+    # only the policy is needed: no replay memory for an off-policy algorithm
+    extra = {"buffer_size": 1} if config.algorithm == "sac" else {}
+    model = algorithm(
+        "MlpPolicy", env, policy_kwargs=dict(config.policy_kwargs), device="cpu", **extra
+    )
+    model.policy.load_state_dict(torch.load(weights, weights_only=True, map_location="cpu"))
+    env.close()
+    return TrainedAgent(config, model.policy, folder)

@@ -1,0 +1,278 @@
+"""Wrappers that give an agent the limitations of a human operator.
+
+Each wrapper acts on the stick (action) or the display (observation) of a
+:mod:`~manualcontrol.envs.tracking` environment, validates its arguments, and stacks
+with the others in any order. Each appends to the observation what the agent needs to
+keep the problem Markov, and documents it:
+
+=====================  =====================================================  =====================
+wrapper                limitation                                             appended observation
+=====================  =====================================================  =====================
+:class:`ActionDelay`   perception/processing delay: the stick follows the     the ``ceil(delay/dt)``
+                       command ``delay`` seconds late (exact, fractional)      commands still queued
+:class:`Neuromuscular  second-order arm/stick dynamics                        filter position and
+Filter`                ``omega^2/(s^2 + 2 zeta omega s + omega^2)``            rate
+:class:`MotorNoise`    remnant: Levison-filtered white noise on the stick     nothing (see class)
+                       at a requested power ratio
+:class:`Observation    noisy perception of the display                        nothing
+Noise`
+=====================  =====================================================  =====================
+
+Commands are held over each sample, so delaying them by a whole number of samples is
+exact; a fractional delay applies the mean of the delayed staircase over the sample
+(the linear interpolation of the queued commands), as the exact delays of
+:func:`~manualcontrol.pilots.simulate` do for held signals.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+
+from manualcontrol.envs._validation import check_positive, check_range
+from manualcontrol.envs.dynamics import discretize, tf_to_ccf
+
+__all__ = [
+    "WRAPPERS",
+    "ActionDelay",
+    "MotorNoise",
+    "NeuromuscularFilter",
+    "ObservationNoise",
+    "apply_wrappers",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+def _dt(env: gym.Env) -> float:
+    dt = getattr(env.unwrapped, "dt", None)
+    if dt is None:
+        raise TypeError(
+            f"{type(env.unwrapped).__name__} has no sample time dt: wrap a tracking environment"
+        )
+    return float(dt)
+
+
+def _extend_box(space: spaces.Space, low: FloatArray, high: FloatArray) -> spaces.Box:
+    if not isinstance(space, spaces.Box) or len(space.shape) != 1:
+        raise TypeError(f"observation space must be a 1-D Box, got {space}")
+    return spaces.Box(
+        np.concatenate([space.low, low]), np.concatenate([space.high, high]), dtype=np.float64
+    )
+
+
+def _command(action: Any, bound: float) -> float:
+    value = float(np.asarray(action, dtype=np.float64).reshape(-1)[0])
+    if not math.isfinite(value):
+        raise ValueError(f"action must be finite, got {action!r}")
+    return min(max(value, -bound), bound)
+
+
+class ActionDelay(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """The stick follows the agent's command ``delay`` seconds late.
+
+    With ``delay/dt = q + a`` (``q`` whole samples, ``0 <= a < 1``) the stick over
+    sample ``k`` is ``(1 - a) c[k-q] + a c[k-q-1]`` of the commands ``c``, exact for
+    held commands and whole-sample delays; commands before the episode are zero. The
+    observation gains the ``m = ceil(delay/dt)`` most recent commands (newest first),
+    which have not (fully) reached the stick yet: with them the task stays Markov.
+
+    Parameters
+    ----------
+    env
+        A tracking environment (possibly wrapped).
+    delay
+        Delay in seconds, ``0 <= delay <= 2``.
+    """
+
+    def __init__(self, env: gym.Env, delay: float) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, delay=delay)
+        gym.Wrapper.__init__(self, env)
+        self.delay = check_range("delay", delay, 0.0, 2.0)
+        dt = _dt(env)
+        samples = self.delay / dt
+        self._whole = math.floor(samples + 1e-9)
+        self._fraction = max(samples - self._whole, 0.0)
+        self._queued = math.ceil(samples - 1e-9)
+        bound = float(np.max(np.abs(env.action_space.high)))
+        self._bound = bound
+        self.observation_space = _extend_box(
+            env.observation_space, np.full(self._queued, -bound), np.full(self._queued, bound)
+        )
+        self._history: deque[float] = deque([0.0] * (self._queued + 1), maxlen=self._queued + 1)
+
+    def _observe(self, observation: FloatArray) -> FloatArray:
+        queued = list(self._history)[: self._queued]
+        return np.concatenate([observation, np.asarray(queued, dtype=np.float64)])
+
+    def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
+        observation, info = self.env.reset(**kwargs)
+        self._history = deque([0.0] * (self._queued + 1), maxlen=self._queued + 1)
+        return self._observe(observation), info
+
+    def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
+        self._history.appendleft(_command(action, self._bound))
+        history = self._history
+        # history[0] is this step's command; history[q] arrived q samples ago
+        applied = (1.0 - self._fraction) * history[self._whole]
+        if self._fraction > 0.0:
+            applied += self._fraction * history[self._whole + 1]
+        observation, reward, terminated, truncated, info = self.env.step(np.array([applied]))
+        info = {**info, "command": history[0]}
+        return self._observe(observation), reward, terminated, truncated, info
+
+
+class NeuromuscularFilter(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """The stick moves through ``omega^2/(s^2 + 2 zeta omega s + omega^2)`` (thesis eq. 3).
+
+    The command is held over each sample and the filter stepped exactly (zero-order
+    hold). The stick applied over sample ``k`` is the filter output at its start,
+    ``C x[k]``: the arm cannot answer a command within the same sample. The filter
+    state (canonical coordinates, scaled to stick position and rate) is appended to
+    the observation.
+    """
+
+    def __init__(self, env: gym.Env, omega_nms: float = 10.5, zeta_nms: float = 0.35) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, omega_nms=omega_nms, zeta_nms=zeta_nms)
+        gym.Wrapper.__init__(self, env)
+        self.omega_nms = check_positive("omega_nms", omega_nms)
+        self.zeta_nms = check_positive("zeta_nms", zeta_nms)
+        model = tf_to_ccf(
+            [self.omega_nms**2], [1.0, 2 * self.zeta_nms * self.omega_nms, self.omega_nms**2]
+        )
+        exact = discretize(model.A, model.B, _dt(env))
+        self._phi, self._gamma, self._c = exact.phi, exact.gamma[:, 0], model.C[0]
+        self._bound = float(np.max(np.abs(env.action_space.high)))
+        self.observation_space = _extend_box(
+            env.observation_space, np.full(2, -np.inf), np.full(2, np.inf)
+        )
+        self._x = np.zeros(2)
+
+    def _observe(self, observation: FloatArray) -> FloatArray:
+        # position = C x; rate = C A x = omega^2 x_2 for this canonical form
+        position = float(self._c @ self._x)
+        rate = self.omega_nms**2 * float(self._x[1])
+        return np.concatenate([observation, [position, rate]])
+
+    def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
+        observation, info = self.env.reset(**kwargs)
+        self._x = np.zeros(2)
+        return self._observe(observation), info
+
+    def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
+        command = _command(action, self._bound)
+        stick = float(self._c @ self._x)
+        self._x = self._phi @ self._x + self._gamma * command
+        observation, reward, terminated, truncated, info = self.env.step(np.array([stick]))
+        return (
+            self._observe(observation),
+            reward,
+            terminated,
+            truncated,
+            {**info, "command": command},
+        )
+
+
+class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Remnant on the stick: Levison-filtered white noise at a requested power ratio.
+
+    ``n = g K_r/(s + omega_r) w`` (thesis eq. 5) with unit white noise ``w`` per
+    sample, scaled so that ``var(n) / (var(n) + var(command))`` is ``power_ratio``
+    (thesis eq. 6 with the command as the noise-free part): ``g`` follows the
+    variance of the commands over the last 5 s, as Popovici et al. track the control
+    variance (eq. 24), so the noise level adapts to how hard the agent steers. The
+    stick is ``command + n``. The noise state is not observed: like a human's
+    remnant it is a disturbance the agent does not command.
+    """
+
+    WINDOW = 5.0  # s, Popovici eq. 24
+
+    def __init__(self, env: gym.Env, power_ratio: float = 0.3, omega_r: float = 3.0) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, power_ratio=power_ratio, omega_r=omega_r)
+        gym.Wrapper.__init__(self, env)
+        self.power_ratio = check_range("power_ratio", power_ratio, 0.0, 1.0, high_inclusive=False)
+        self.omega_r = check_positive("omega_r", omega_r)
+        dt = _dt(env)
+        self._phi = math.exp(-self.omega_r * dt)
+        self._gamma = (1.0 - self._phi) / self.omega_r
+        # stationary variance of the unit-noise filter state: gamma^2 / (1 - phi^2)
+        self._unit_std = self._gamma / math.sqrt(1.0 - self._phi**2)
+        self._bound = float(np.max(np.abs(env.action_space.high)))
+        self._window: deque[float] = deque(maxlen=max(round(self.WINDOW / dt), 2))
+        self._state = 0.0
+        self._rng = np.random.default_rng()
+
+    def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
+        observation, info = self.env.reset(**kwargs)
+        # a generator of our own, seeded from the environment's (reproducible per seed)
+        self._rng = np.random.default_rng(int(self.env.unwrapped.np_random.integers(2**63)))
+        self._state = 0.0
+        self._window.clear()
+        return observation, info
+
+    def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
+        command = _command(action, self._bound)
+        self._window.append(command)
+        variance = float(np.var(self._window)) if len(self._window) > 1 else 0.0
+        ratio = self.power_ratio
+        scale = math.sqrt(ratio / (1.0 - ratio) * variance) / self._unit_std
+        noise = scale * self._state
+        self._state = self._phi * self._state + self._gamma * float(self._rng.standard_normal())
+        observation, reward, terminated, truncated, info = self.env.step(
+            np.array([command + noise])
+        )
+        return (
+            observation,
+            reward,
+            terminated,
+            truncated,
+            {**info, "command": command, "remnant": noise},
+        )
+
+
+class ObservationNoise(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
+    """Gaussian perception noise of standard deviation ``std`` on every observed value."""
+
+    def __init__(self, env: gym.Env, std: float) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, std=std)
+        gym.ObservationWrapper.__init__(self, env)
+        self.std = check_positive("std", std, allow_zero=True)
+        self._rng = np.random.default_rng()
+
+    def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
+        observation, info = self.env.reset(**kwargs)
+        self._rng = np.random.default_rng(int(self.env.unwrapped.np_random.integers(2**63)))
+        return self.observation(observation), info
+
+    def observation(self, observation: FloatArray) -> FloatArray:  # noqa: D102
+        return observation + self.std * self._rng.standard_normal(observation.shape)
+
+
+#: Wrapper names for configurations: ``{"kind": name, **arguments}``.
+WRAPPERS: dict[str, type[gym.Wrapper]] = {
+    "action_delay": ActionDelay,
+    "neuromuscular": NeuromuscularFilter,
+    "motor_noise": MotorNoise,
+    "observation_noise": ObservationNoise,
+}
+
+
+def apply_wrappers(
+    env: gym.Env, wrappers: list[dict[str, Any]] | tuple[dict[str, Any], ...]
+) -> gym.Env:
+    """Wrap ``env`` with ``[{"kind": "action_delay", "delay": 0.2}, ...]``, innermost first."""
+    for spec in wrappers:
+        spec = dict(spec)
+        kind = spec.pop("kind", None)
+        if kind not in WRAPPERS:
+            raise ValueError(
+                f"wrapper kind must be one of {', '.join(map(repr, WRAPPERS))}, got {kind!r}"
+            )
+        env = WRAPPERS[kind](env, **spec)
+    return env

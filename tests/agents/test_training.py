@@ -1,0 +1,118 @@
+"""Training plumbing with tiny runs: saving, weights-only reloading, evaluation report."""
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from manualcontrol.agents.evaluation import evaluate, write_report
+from manualcontrol.agents.training import TrainingConfig, load_agent, make_env, train
+
+DELAY = ({"kind": "action_delay", "delay": 0.2},)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("agent")
+    config = TrainingConfig(
+        task="compensatory",
+        env_kwargs={"measurement_time": 5.0, "forcing": "plaetinck2018"},
+        wrappers=DELAY,
+        algorithm="sac",
+        total_timesteps=300,
+        algorithm_kwargs={"learning_starts": 100, "batch_size": 32},
+        policy_kwargs={"net_arch": [16, 16]},
+        checkpoint_every=100,
+    )
+    lines = []
+    agent = train(config, folder, report=lines.append, report_every=100)
+    return config, agent, folder, lines
+
+
+def test_training_writes_weights_config_and_checkpoints(trained):
+    config, _, folder, lines = trained
+    assert json.loads((folder / "config.json").read_text()) == config.to_dict()
+    assert (folder / "policy.pt").is_file() and (folder / "model.zip").is_file()
+    assert sorted(p.name for p in (folder / "checkpoints").iterdir()) == [
+        "policy_100.pt",
+        "policy_200.pt",
+        "policy_300.pt",
+    ]
+    assert len(lines) == 3 and "300/300 steps" in lines[-1]
+    assert not list(folder.glob(".*part*"))
+
+
+def test_reloaded_agent_acts_identically(trained):
+    config, agent, folder, _ = trained
+    env = make_env(config)
+    observations = [env.reset(seed=1)[0]]
+    for _ in range(20):
+        observations.append(env.step(agent.act(observations[-1]))[0])
+    weights_only = load_agent(folder)
+    pickled = load_agent(folder, trust_pickle=True)
+    for observation in observations:
+        expected = agent.act(observation)
+        np.testing.assert_array_equal(weights_only.act(observation), expected)
+        np.testing.assert_array_equal(pickled.act(observation), expected)
+    assert weights_only.config == config
+
+
+def test_ppo_trains_too(tmp_path):
+    config = TrainingConfig(
+        env_kwargs={"measurement_time": 2.0},
+        algorithm="ppo",
+        total_timesteps=128,
+        n_envs=2,
+        algorithm_kwargs={"n_steps": 32, "batch_size": 32, "n_epochs": 1},
+    )
+    agent = train(config, tmp_path, report=None)
+    action = agent.act(np.zeros(1))
+    assert action.shape == (1,) and np.isfinite(action).all()
+
+
+def test_evaluation_report(trained, tmp_path):
+    _, agent, _, _ = trained
+    evaluation = evaluate(agent, run_in=2.0)
+    summary = evaluation.summary()
+    recording = evaluation.recording
+    assert recording.duration == pytest.approx(81.92)
+    assert summary["rms_error"] == pytest.approx(float(np.sqrt(np.mean(recording.e**2))))
+    assert summary["reference_rms_error"] > 0
+    assert set(summary["identified"]) == {"K_p", "K_v", "tau_v", "omega_nms", "zeta_nms"}
+    assert summary["limitations"] == [{"kind": "action_delay", "delay": 0.2}]
+    path = write_report(evaluation, tmp_path)
+    text = path.read_text()
+    assert "RMS tracking error" in text and "tau_v" in text
+    assert (tmp_path / "open_loop.png").read_bytes().startswith(b"\x89PNG")
+    assert (
+        json.loads((tmp_path / "evaluation.json").read_text())["rms_error"] == summary["rms_error"]
+    )
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "message"),
+    [
+        ({"algorithm": "dqn"}, ValueError, "algorithm must be one of 'ppo', 'sac', got 'dqn'"),
+        (
+            {"task": "gap"},
+            ValueError,
+            "task must be one of 'compensatory', 'pursuit', 'preview', got 'gap'",
+        ),
+        ({"total_timesteps": 0}, ValueError, "total_timesteps must be >= 1, got 0"),
+        ({"wrappers": ({"kind": "fatigue"},)}, ValueError, "wrapper kind must be one of"),
+        (
+            {"env_kwargs": {"controlled_element": "TI"}},
+            ValueError,
+            "controlled element must be one of",
+        ),
+    ],
+)
+def test_bad_configurations_fail_before_training(kwargs, error, message):
+    with pytest.raises(error, match=re.escape(message)):
+        TrainingConfig(**kwargs)
+
+
+def test_loading_a_folder_without_an_agent_fails(tmp_path):
+    with pytest.raises(FileNotFoundError, match=re.escape("has no config.json")):
+        load_agent(tmp_path)

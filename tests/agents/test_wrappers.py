@@ -1,0 +1,158 @@
+"""Human-limitation wrappers: what reaches the stick, what the agent observes."""
+
+import re
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import scipy.signal
+from gymnasium.utils.env_checker import check_env
+
+import manualcontrol.envs  # noqa: F401
+from manualcontrol.agents.wrappers import (
+    ActionDelay,
+    MotorNoise,
+    NeuromuscularFilter,
+    ObservationNoise,
+    apply_wrappers,
+)
+
+KWARGS = dict(run_in=0.0, measurement_time=5.0)
+
+
+def base(task="Compensatory", **kwargs):
+    return gym.make(f"ManualControl/{task}Tracking-v0", **{**KWARGS, **kwargs})
+
+
+def applied_sticks(env, commands):
+    env.reset(seed=0)
+    for command in commands:
+        env.step(np.array([command]))
+    return env.unwrapped.recording().u
+
+
+@pytest.mark.parametrize(("delay", "shift"), [(0.0, 0), (0.2, 20), (0.05, 5)])
+def test_whole_sample_delays_shift_the_commands_exactly(delay, shift):
+    commands = np.random.default_rng(0).uniform(-1, 1, 100)
+    sticks = applied_sticks(ActionDelay(base(), delay), commands)
+    np.testing.assert_array_equal(sticks[shift:], commands[: 100 - shift])
+    np.testing.assert_array_equal(sticks[:shift], 0.0)
+
+
+def test_fractional_delay_applies_the_mean_of_the_delayed_staircase():
+    commands = np.random.default_rng(1).uniform(-1, 1, 100)
+    sticks = applied_sticks(ActionDelay(base(), 0.123), commands)  # 12.3 samples
+    expected = 0.7 * commands[88 - 12] + 0.3 * commands[88 - 13]
+    assert sticks[88] == pytest.approx(expected, rel=1e-12)
+
+
+def test_delay_observation_carries_the_queued_commands():
+    env = ActionDelay(base(), 0.03)  # 3 samples queued
+    observation, _ = env.reset(seed=0)
+    assert observation.shape == (4,) and env.observation_space.shape == (4,)
+    for command in (0.1, 0.2, 0.3):
+        observation, *_ = env.step(np.array([command]))
+    np.testing.assert_array_equal(observation[1:], [0.3, 0.2, 0.1])  # newest first
+
+
+def test_neuromuscular_filter_is_the_exact_zoh_discretisation():
+    omega, zeta, dt = 10.5, 0.35, 0.01
+    commands = np.random.default_rng(2).uniform(-1, 1, 200)
+    sticks = applied_sticks(NeuromuscularFilter(base(), omega, zeta), commands)
+    continuous = scipy.signal.tf2ss([omega**2], [1.0, 2 * zeta * omega, omega**2])
+    phi, gamma, c, d, _ = scipy.signal.cont2discrete(continuous, dt)
+    _, reference, _ = scipy.signal.dlsim((phi, gamma, c, d, dt), commands)
+    np.testing.assert_allclose(sticks, reference[:, 0], atol=1e-12)
+
+
+def test_neuromuscular_observation_is_stick_position_and_rate():
+    env = NeuromuscularFilter(base(), 8.0, 0.5)
+    env.reset(seed=0)
+    for _ in range(30):
+        observation, _, _, _, info = env.step(np.array([1.0]))
+    position, rate = observation[-2:]
+    assert 0.0 < position < 1.2 and rate > 0.0
+    # the next stick applied is the position observed now
+    _, _, _, _, info = env.step(np.array([1.0]))
+    assert info["u"] == pytest.approx(position, rel=1e-12)
+
+
+def test_motor_noise_reaches_the_requested_power_ratio():
+    env = MotorNoise(base(measurement_time=60.0), power_ratio=0.3, omega_r=3.0)
+    env.reset(seed=3)
+    commands = np.sin(np.arange(6000) * 0.01 * 2.0)
+    noise = []
+    for command in commands:
+        *_, info = env.step(np.array([command]))
+        noise.append(info["remnant"])
+    noise = np.array(noise[1000:])  # after the 5 s variance window filled
+    ratio = np.var(noise) / (np.var(noise) + np.var(commands[1000:]))
+    assert ratio == pytest.approx(0.3, rel=0.15)  # a 50 s sample of coloured noise
+
+
+def test_noise_wrappers_are_reproducible_per_seed():
+    def run(seed):
+        env = ObservationNoise(MotorNoise(base(), 0.3), std=0.05)
+        observations = [env.reset(seed=seed)[0]]
+        for _ in range(50):
+            observations.append(env.step(np.array([0.5]))[0])
+        return np.array(observations)
+
+    np.testing.assert_array_equal(run(4), run(4))
+    assert not np.array_equal(run(4), run(5))
+
+
+def test_stacked_wrappers_pass_check_env():
+    env = apply_wrappers(
+        base("Preview", available_preview=0.3),
+        [
+            {"kind": "neuromuscular", "omega_nms": 10.0, "zeta_nms": 0.4},
+            {"kind": "action_delay", "delay": 0.2},
+            {"kind": "motor_noise", "power_ratio": 0.2},
+            {"kind": "observation_noise", "std": 0.01},
+        ],
+    )
+    assert env.observation_space.shape == (31 + 1 + 2 + 20,)
+    with warnings.catch_warnings():
+        # known: the physical stick range, unbounded signals, and checking a wrapped env
+        # on purpose (the wrappers are what is under test)
+        warnings.filterwarnings(
+            "ignore", message=".*(normalized space|infinity|unwrapped version).*"
+        )
+        check_env(env, skip_render_check=True)
+
+
+@pytest.mark.parametrize(
+    ("build", "error", "message"),
+    [
+        (lambda: ActionDelay(base(), -0.1), ValueError, "delay must lie in [0, 2], got -0.1"),
+        (
+            lambda: NeuromuscularFilter(base(), omega_nms=0.0),
+            ValueError,
+            "omega_nms must be > 0, got 0.0",
+        ),
+        (
+            lambda: MotorNoise(base(), power_ratio=1.0),
+            ValueError,
+            "power_ratio must lie in [0, 1), got 1.0",
+        ),
+        (lambda: ObservationNoise(base(), std=-1.0), ValueError, "std must be >= 0, got -1.0"),
+        (
+            lambda: apply_wrappers(base(), [{"kind": "fatigue"}]),
+            ValueError,
+            "wrapper kind must be one of",
+        ),
+        (lambda: ActionDelay(gym.make("CartPole-v1"), 0.1), TypeError, "has no sample time dt"),
+    ],
+)
+def test_bad_wrapper_arguments(build, error, message):
+    with pytest.raises(error, match=re.escape(message)):
+        build()
+
+
+def test_non_finite_commands_raise():
+    env = ActionDelay(base(), 0.1)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="action must be finite"):
+        env.step(np.array([np.nan]))
