@@ -10,6 +10,7 @@ wrapper                limitation                                             ap
 =====================  =====================================================  =====================
 :class:`ActionDelay`   perception/processing delay: the stick follows the     the ``ceil(delay/dt)``
                        command ``delay`` seconds late (exact, fractional)      commands still queued
+                                                                              (optional)
 :class:`Neuromuscular  second-order arm/stick dynamics                        filter position and
 Filter`                ``omega^2/(s^2 + 2 zeta omega s + omega^2)``            rate
 :class:`MotorNoise`    remnant: Levison-filtered white noise on the stick     nothing (see class)
@@ -83,18 +84,26 @@ class ActionDelay(gym.Wrapper, gym.utils.RecordConstructorArgs):
     observation gains the ``m = ceil(delay/dt)`` most recent commands (newest first),
     which have not (fully) reached the stick yet: with them the task stays Markov.
 
+    With ``observe_queue=False`` the queue is hidden: the task is then partially
+    observed, as for a human who cannot watch his own commands travel; an agent that
+    sees the queue can learn to predict through the delay (a Smith predictor) and
+    then identifies with a shorter effective delay.
+
     Parameters
     ----------
     env
         A tracking environment (possibly wrapped).
     delay
         Delay in seconds, ``0 <= delay <= 2``.
+    observe_queue
+        Append the queued commands to the observation (default True: Markov).
     """
 
-    def __init__(self, env: gym.Env, delay: float) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, delay=delay)
+    def __init__(self, env: gym.Env, delay: float, observe_queue: bool = True) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, delay=delay, observe_queue=observe_queue)
         gym.Wrapper.__init__(self, env)
         self.delay = check_range("delay", delay, 0.0, 2.0)
+        self.observe_queue = bool(observe_queue)
         dt = _dt(env)
         samples = self.delay / dt
         self._whole = math.floor(samples + 1e-9)
@@ -102,12 +111,15 @@ class ActionDelay(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._queued = math.ceil(samples - 1e-9)
         bound = float(np.max(np.abs(env.action_space.high)))
         self._bound = bound
+        shown = self._queued if self.observe_queue else 0
         self.observation_space = _extend_box(
-            env.observation_space, np.full(self._queued, -bound), np.full(self._queued, bound)
+            env.observation_space, np.full(shown, -bound), np.full(shown, bound)
         )
         self._history: deque[float] = deque([0.0] * (self._queued + 1), maxlen=self._queued + 1)
 
     def _observe(self, observation: FloatArray) -> FloatArray:
+        if not self.observe_queue:
+            return observation
         queued = list(self._history)[: self._queued]
         return np.concatenate([observation, np.asarray(queued, dtype=np.float64)])
 

@@ -31,8 +31,10 @@ clipped and counted in ``info["clipped_actions"]``; non-finite actions raise.
 
 Reward (``reward=``): ``"squared_error"`` (default) ``-e^2/var(ft)``;
 ``"absolute_error"`` ``-|e|/std(ft)``; ``"squared_error_and_effort"``
-``-(e^2 + effort_weight u^2)/var(ft)``, with ``e`` after the step and the variance of
-the target forcing function (of the disturbance when there is no target).
+``-(e^2 + effort_weight u^2)/var(ft)``; ``"bounded"`` ``var(ft)/(var(ft) + e^2)`` in
+(0, 1], 1 at zero error (positive, so ending an episode early never pays: use it with a
+loss-of-control limit when training agents). ``e`` is the error after the step, the
+variance that of the target forcing function (of the disturbance without a target).
 
 Episodes start at rest (all states zero) and are truncated after
 ``round((run_in + measurement_time)/dt)`` steps. They terminate on loss of control,
@@ -82,7 +84,12 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 
 #: Reward choices, see the module docstring.
-REWARDS: tuple[str, ...] = ("squared_error", "absolute_error", "squared_error_and_effort")
+REWARDS: tuple[str, ...] = (
+    "squared_error",
+    "absolute_error",
+    "squared_error_and_effort",
+    "bounded",
+)
 
 _SCREEN = (600, 400)
 _RESET_OPTIONS = ("realisation",)
@@ -342,6 +349,8 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
             reward = -e * e * self._inverse_variance
         elif self.reward_kind == "absolute_error":
             reward = -abs(e) * self._inverse_std
+        elif self.reward_kind == "bounded":
+            reward = 1.0 / (1.0 + e * e * self._inverse_variance)
         else:
             reward = -(e * e + self.effort_weight * u * u) * self._inverse_variance
         terminated = self.loss_of_control is not None and abs(e) > self.loss_of_control

@@ -164,6 +164,8 @@ class TrackingVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
             reward = -e * e * variance
         elif kind == "absolute_error":
             reward = -np.abs(e) * np.sqrt(variance)
+        elif kind == "bounded":
+            reward = 1.0 / (1.0 + e * e * variance)
         else:
             reward = -(e * e + template.effort_weight * u * u) * variance
         limit = template.loss_of_control

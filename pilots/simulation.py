@@ -646,6 +646,7 @@ def simulate(
     seed: int | np.random.Generator | None = None,
     loop: str = "continuous",
     remnant_signal: Sequence[float] | FloatArray | None = None,
+    keep_run_in: bool = False,
 ) -> Recording:
     """Simulate a closed-loop tracking run and return its :class:`Recording`.
 
@@ -675,6 +676,9 @@ def simulate(
         Instead of the pilot's remnant filter, inject these samples (held over each
         sample; length run-in + measurement) at the pilot remnant's injection point
         (``"output"`` when the pilot has no remnant).
+    keep_run_in
+        Keep the run-in in the recording (times from ``-run_in``), e.g. to let an
+        estimator converge on it as the thesis does; metrics then start at ``t = 0``.
 
     The recording holds ``t, ft, fd, y, e, u, n`` (plus ``ft_far``, the previewed
     target the pilot used, in preview tasks), the parameter traces of the pilot, and
@@ -741,20 +745,17 @@ def simulate(
             remnant.with_gain(gain).to_dict() if remnant_signal is None else "signal"
         )
         metadata.update({"remnant": remnant_description, "remnant_power_ratio": ratio})
-    recorded = {
-        "t": setup.time[measured],
-        "ft": columns["ft"][measured],
-        "fd": columns["fd"][measured],
-    }
+    part = slice(0, n) if keep_run_in else measured
+    recorded = {"t": setup.time[part], "ft": columns["ft"][part], "fd": columns["fd"][part]}
     for name in ("y", "e", "u", "n"):
-        recorded[name] = outputs[name][measured]
+        recorded[name] = outputs[name][part]
     for name in ("ft_far", "ft_near_rate"):
         if name in columns:
-            recorded[name] = columns[name][measured]
+            recorded[name] = columns[name][part]
     return Recording(
         signals=recorded,
         dt=setup.dt,
-        parameters={name: trace[measured] for name, trace in traces.items()},
+        parameters={name: trace[part] for name, trace in traces.items()},
         metadata=metadata,
     )
 

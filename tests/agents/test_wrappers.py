@@ -56,6 +56,14 @@ def test_delay_observation_carries_the_queued_commands():
     np.testing.assert_array_equal(observation[1:], [0.3, 0.2, 0.1])  # newest first
 
 
+def test_hidden_queue_keeps_the_observation_and_the_delay():
+    env = ActionDelay(base(), 0.03, observe_queue=False)
+    observation, _ = env.reset(seed=0)
+    assert observation.shape == (1,) and env.observation_space.shape == (1,)
+    sticks = applied_sticks(env, [0.1, 0.2, 0.3, 0.4])
+    np.testing.assert_array_equal(sticks, [0.0, 0.0, 0.0, 0.1])
+
+
 def test_neuromuscular_filter_is_the_exact_zoh_discretisation():
     omega, zeta, dt = 10.5, 0.35, 0.01
     commands = np.random.default_rng(2).uniform(-1, 1, 200)

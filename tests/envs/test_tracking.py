@@ -136,6 +136,7 @@ def test_reward_choices():
             "squared_error": -(info["e"] ** 2) / variance,
             "absolute_error": -abs(info["e"]) / np.sqrt(variance),
             "squared_error_and_effort": -(info["e"] ** 2 + 0.5) / variance,
+            "bounded": variance / (variance + info["e"] ** 2),
         }[kind]
         assert reward == pytest.approx(expected, rel=1e-12)
 

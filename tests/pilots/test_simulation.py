@@ -338,3 +338,12 @@ def test_closed_loop_model_has_the_analytic_response():
     hc = 5.0 / s**2
     np.testing.assert_allclose(frequency_response(loop.system, omega)[:, 0, 0], hp / (1 + hp * hc))
     assert np.all(np.linalg.eigvals(loop.system.A).real < 0)  # Sim 8 gains: a stable loop
+
+
+def test_keep_run_in_returns_the_whole_run():
+    pilot = Pilot("precision", COMPENSATORY, remnant="popovici2017")
+    whole = simulate(pilot, "DI", run_in=10.0, measurement_time=20.0, seed=1, keep_run_in=True)
+    cut = simulate(pilot, "DI", run_in=10.0, measurement_time=20.0, seed=1)
+    assert whole.t[0] == pytest.approx(-10.0) and len(whole) == 3000
+    np.testing.assert_array_equal(whole.slice_time(0.0).u, cut.u)
+    assert whole.metadata["remnant_power_ratio"] == cut.metadata["remnant_power_ratio"]
