@@ -1,0 +1,289 @@
+"""How good an estimate is: VAF, moving VAF, NRMSE, relative bias, innovation consistency.
+
+Definitions (thesis Part I Sec. IV-E; Part II Sec. 5.3):
+
+* VAF, eq. 38: ``(1 - sum (u - u_hat)^2 / sum u^2) * 100 %`` over the samples where
+  both are finite. Eq. 38 normalises by ``sum u^2`` rather than the variance; for the
+  zero-mean control signals of tracking tasks the two agree.
+* One-step VAF: of the filter's one-step prediction ``g(x^-_k, theta^-_k)``
+  (:attr:`EstimationResult.prediction`), Popovici et al.'s "filter output".
+* Resimulated VAF: of the isolated pilot model driven by the measured perceptions
+  with the identified parameter traces (:func:`resimulate`), the thesis's VAF.
+* Moving VAF: eq. 38 over a retrospective window (10 s in the thesis, Fig. 7).
+* NRMSE, eq. 37 (Part II eq. 5.6): RMS error divided by the magnitude of the mean true
+  value; for parameters whose mean true value is near zero (``|mean| < 0.05``) the
+  plain RMSE instead (Part II eq. 5.7).
+* Relative bias: mean error divided by the magnitude of the mean true value (the
+  plain mean error for near-zero parameters), the "mean relative parameter bias" of
+  Sec. IV-E-1.
+* Innovation consistency: the fractions of innovations within one and two predicted
+  standard deviations (about 68 % and 95 % for a consistent filter).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from manualcontrol.envs._validation import check_int, check_positive, check_real
+from manualcontrol.envs.recording import Recording
+from manualcontrol.estimators._targets import target_function
+from manualcontrol.estimators.protocol import EstimationResult
+from manualcontrol.pilots.models import PilotModel, make_model
+from manualcontrol.pilots.simulation import isolated_pilot_output
+
+__all__ = [
+    "NEAR_ZERO",
+    "EstimationMetrics",
+    "evaluate",
+    "innovation_fractions",
+    "moving_vaf",
+    "nrmse",
+    "relative_bias",
+    "resimulate",
+    "vaf",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Mean true value below which NRMSE and bias are absolute (thesis Part II eq. 5.7).
+NEAR_ZERO = 0.05
+
+
+def _pair(name_a: str, a: ArrayLike, name_b: str, b: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if a.ndim != 1 or a.shape != b.shape:
+        raise ValueError(
+            f"{name_a} and {name_b} must be 1-D of the same length, got shapes {a.shape} "
+            f"and {b.shape}"
+        )
+    return a, b
+
+
+def vaf(measured: ArrayLike, modelled: ArrayLike) -> float:
+    """Variance accounted for (%), thesis eq. 38, over samples where both are finite.
+
+    Returns NaN when no sample is usable or ``sum u^2`` is zero.
+    """
+    u, u_hat = _pair("measured", measured, "modelled", modelled)
+    ok = np.isfinite(u) & np.isfinite(u_hat)
+    power = float(np.sum(u[ok] ** 2))
+    if not ok.any() or power == 0.0:
+        return float("nan")
+    return float((1.0 - np.sum((u[ok] - u_hat[ok]) ** 2) / power) * 100.0)
+
+
+def moving_vaf(
+    measured: ArrayLike, modelled: ArrayLike, dt: float, window: float = 10.0
+) -> FloatArray:
+    """Retrospective moving VAF (%): eq. 38 over the last ``window`` seconds at each sample.
+
+    Sample ``k`` uses samples ``k - N + 1 .. k`` with ``N = round(window/dt)``; the first
+    ``N - 1`` samples are NaN, as are windows without a usable sample.
+    """
+    u, u_hat = _pair("measured", measured, "modelled", modelled)
+    dt = check_positive("dt", dt)
+    n = check_int("window samples", round(check_positive("window", window) / dt), minimum=1)
+    ok = np.isfinite(u) & np.isfinite(u_hat)
+    error = np.where(ok, (u - u_hat) ** 2, 0.0)
+    power = np.where(ok, u * u, 0.0)
+    cumulative_error = np.concatenate(([0.0], np.cumsum(error)))
+    cumulative_power = np.concatenate(([0.0], np.cumsum(power)))
+    out = np.full(u.shape, np.nan)
+    if u.shape[0] >= n:
+        window_error = cumulative_error[n:] - cumulative_error[:-n]
+        window_power = cumulative_power[n:] - cumulative_power[:-n]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            values = (1.0 - window_error / window_power) * 100.0
+        values[window_power <= 0.0] = np.nan
+        out[n - 1 :] = values
+    return out
+
+
+def _errors(estimate: ArrayLike, truth: ArrayLike) -> tuple[FloatArray, float]:
+    est, true = _pair("estimate", estimate, "truth", truth)
+    ok = np.isfinite(est) & np.isfinite(true)
+    if not ok.any():
+        raise ValueError("estimate and truth have no finite sample in common")
+    return est[ok] - true[ok], float(np.mean(true[ok]))
+
+
+def nrmse(estimate: ArrayLike, truth: ArrayLike, near_zero: float = NEAR_ZERO) -> float:
+    """NRMSE, thesis eq. 37; the RMSE (Part II eq. 5.7) when ``|mean(truth)| < near_zero``."""
+    error, mean = _errors(estimate, truth)
+    rmse = float(np.sqrt(np.mean(error**2)))
+    return rmse if abs(mean) < near_zero else rmse / abs(mean)
+
+
+def relative_bias(estimate: ArrayLike, truth: ArrayLike, near_zero: float = NEAR_ZERO) -> float:
+    """Mean error over ``|mean(truth)|`` (the mean error when ``|mean(truth)| < near_zero``)."""
+    error, mean = _errors(estimate, truth)
+    bias = float(np.mean(error))
+    return bias if abs(mean) < near_zero else bias / abs(mean)
+
+
+def innovation_fractions(innovation: ArrayLike, variance: ArrayLike) -> tuple[float, float]:
+    """Fractions of innovations within one and two predicted standard deviations."""
+    r, s = _pair("innovation", innovation, "variance", variance)
+    ok = np.isfinite(r) & np.isfinite(s) & (s >= 0.0)
+    if not ok.any():
+        return float("nan"), float("nan")
+    sigma = np.sqrt(s[ok])
+    magnitude = np.abs(r[ok])
+    return float(np.mean(magnitude <= sigma)), float(np.mean(magnitude <= 2.0 * sigma))
+
+
+# -------------------------------------------------------------------- resimulation
+
+
+def _model_of(result: EstimationResult) -> PilotModel:
+    try:
+        name = result.settings["settings"]["model"]
+    except (KeyError, TypeError):
+        raise ValueError("the result's settings do not name its pilot model") from None
+    return make_model(name)
+
+
+def _held(values: FloatArray) -> FloatArray:
+    """NaN (dropped) samples replaced by the last finite value (0 before the first)."""
+    out = np.array(values, dtype=np.float64, copy=True)
+    bad = ~np.isfinite(out)
+    if bad.any():
+        index = np.where(~bad, np.arange(out.shape[0]), 0)
+        np.maximum.accumulate(index, out=index)
+        out = out[index]
+        out[~np.isfinite(out)] = 0.0
+    return out
+
+
+def resimulate(
+    result: EstimationResult,
+    recording: Recording,
+    *,
+    delay_order: int | None = None,
+    forcing: Any = None,
+    target_period: float | None = None,
+) -> FloatArray:
+    """Output of the isolated pilot model with the identified parameter traces (eq. 38).
+
+    The model structure of ``result`` (from its settings) with the parameters of every
+    sample, in :func:`~manualcontrol.pilots.simulation.isolated_pilot_output` (the
+    simulation's own isolated pilot, started at rest), driven by the recorded
+    perceptions: the error ``e``, or for the preview model the previewed target
+    ``ft(t + tau_f(t))`` at the identified preview time (target from ``forcing``, the
+    recording's metadata, or its periodic extension, as for the DEKF) and the output
+    ``y``. Perceptions are held over each sample; dropped samples hold the last value.
+    The model delay is exact (a fractional delay line, as in the simulation;
+    ``delay_order=None``, default) or a Padé approximant.
+    """
+    if not isinstance(result, EstimationResult):
+        raise TypeError(f"result must be an EstimationResult, got {result!r}")
+    if not isinstance(recording, Recording):
+        raise TypeError(f"recording must be a Recording, got {recording!r}")
+    if len(result) != len(recording):
+        raise ValueError(
+            f"result and recording must have the same samples: {len(result)} != {len(recording)}"
+        )
+    model = _model_of(result)
+    values = {name: np.array(result.mean_of(name)) for name in model.parameter_names}
+    perceptions: dict[str, FloatArray] = {}
+    for signal in model.perceptions:
+        if signal == "ft_far":
+            target = target_function(recording, forcing, target_period)
+            perceptions[signal] = np.asarray(target(recording.t + values["tau_f"]), dtype=float)
+        elif signal in ("e", "y"):
+            if signal == "e" and "e" not in recording:
+                recording = recording.with_error_signal()
+            perceptions[signal] = _held(recording[signal])
+        else:
+            raise ValueError(f"cannot resimulate a model that reads {signal!r}")
+    order = None if delay_order is None else check_int("delay_order", delay_order, minimum=1)
+    return isolated_pilot_output(model, values, perceptions, recording.dt, order)
+
+
+# ------------------------------------------------------------------------ summary
+
+
+@dataclass(frozen=True)
+class EstimationMetrics:
+    """All metrics of one estimation run against its recording (see the module docstring).
+
+    Attributes
+    ----------
+    start : float
+        Time (s) from which the metrics are computed.
+    one_step_vaf, resimulated_vaf : float
+        VAF (%) of the one-step prediction and of the resimulated model output.
+    nrmse, relative_bias : Mapping[str, float]
+        Per estimated parameter with a known true trace.
+    error_kind : Mapping[str, str]
+        ``"nrmse"`` or ``"rmse"`` (near-zero parameters) per parameter.
+    within_1_sigma, within_2_sigma : float
+        Innovation consistency.
+
+    """
+
+    start: float
+    one_step_vaf: float
+    resimulated_vaf: float
+    nrmse: Mapping[str, float]
+    relative_bias: Mapping[str, float]
+    error_kind: Mapping[str, str]
+    within_1_sigma: float
+    within_2_sigma: float
+
+    def __post_init__(self) -> None:
+        for name in ("nrmse", "relative_bias", "error_kind"):
+            object.__setattr__(self, name, MappingProxyType(dict(getattr(self, name))))
+
+
+def evaluate(
+    result: EstimationResult,
+    recording: Recording,
+    *,
+    start: float = 0.0,
+    delay_order: int | None = None,
+    forcing: Any = None,
+    target_period: float | None = None,
+) -> EstimationMetrics:
+    """Every metric of ``result`` against ``recording`` from time ``start`` on.
+
+    Parameter errors need the recording's true parameter traces (simulations); the
+    resimulation is run over the whole recording and scored from ``start``.
+    """
+    start = check_real("start", start)
+    mask = np.asarray(recording.t) >= start
+    if not mask.any():
+        raise ValueError(f"start = {start!r} s is after the last sample")
+    resimulated = resimulate(
+        result, recording, delay_order=delay_order, forcing=forcing, target_period=target_period
+    )
+    u = np.asarray(recording.u)
+    errors, biases, kinds = {}, {}, {}
+    for name in result.estimated:
+        if name not in recording.parameters:
+            continue
+        truth = recording.parameters[name][mask]
+        estimate = result.mean_of(name)[mask]
+        errors[name] = nrmse(estimate, truth)
+        biases[name] = relative_bias(estimate, truth)
+        kinds[name] = "rmse" if abs(float(np.mean(truth))) < NEAR_ZERO else "nrmse"
+    within_1, within_2 = innovation_fractions(
+        result.innovation[mask], result.innovation_variance[mask]
+    )
+    return EstimationMetrics(
+        start=start,
+        one_step_vaf=vaf(u[mask], result.prediction[mask]),
+        resimulated_vaf=vaf(u[mask], resimulated[mask]),
+        nrmse=errors,
+        relative_bias=biases,
+        error_kind=kinds,
+        within_1_sigma=within_1,
+        within_2_sigma=within_2,
+    )

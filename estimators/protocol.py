@@ -1,0 +1,469 @@
+"""The estimator protocol: what every online estimator of pilot parameters provides.
+
+An estimator is configured with a frozen settings dataclass, then
+
+* ``reset(dt, ...)`` starts it (an unconfigured or un-reset estimator refuses to run),
+* ``update(sample) -> Estimate`` consumes one sample (a mapping of signal values),
+* ``estimate(recording, ...) -> EstimationResult`` runs a whole recording.
+
+``update`` and ``estimate`` give identical numbers for the same samples and settings.
+
+:class:`Estimate` is one sample's answer: mean and standard deviation of *every*
+parameter of the pilot model (estimated or held constant; a constant has standard
+deviation 0), the innovation and its variance, the one-step model output and health
+flags. :class:`EstimationResult` holds the same as traces over a run, with fixed named
+fields, the settings used and a :class:`HealthSummary`; it saves to and loads from
+``.npz`` (written atomically, validated on load).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from manualcontrol.envs._files import atomic_write
+from manualcontrol.envs._validation import check_choice
+from manualcontrol.envs.recording import Recording
+
+__all__ = [
+    "RESULT_FORMAT",
+    "Estimate",
+    "EstimateHealth",
+    "EstimationResult",
+    "Estimator",
+    "HealthSummary",
+    "load_result",
+]
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+#: Value of the ``result_format`` entry of saved results.
+RESULT_FORMAT = "manualcontrol.estimation/1"
+
+_ARRAYS_1D = ("t", "prediction", "innovation", "innovation_variance")
+_FLAGS_1D = ("finite", "covariance_ok", "dropped", "diverged")
+
+
+def _readonly(array: Any, dtype: type) -> NDArray[Any]:
+    out = np.array(array, dtype=dtype, copy=True)
+    out.flags.writeable = False
+    return out
+
+
+# ---------------------------------------------------------------------- one sample
+
+
+@dataclass(frozen=True)
+class EstimateHealth:
+    """Health of the estimator after one sample.
+
+    Attributes
+    ----------
+    finite : bool
+        States, parameters and covariances are finite.
+    covariance_ok : bool
+        Every covariance diagonal is positive and below the divergence threshold.
+    pinned : tuple of str
+        Estimated parameters sitting at a limit (estimate projection, thesis eqs. 20, 25).
+    dropped : bool
+        The sample was dropped (NaN in ``u`` or an input): corrections were skipped.
+    diverged : bool
+        Divergence has been detected at or before this sample.
+
+    """
+
+    finite: bool
+    covariance_ok: bool
+    pinned: tuple[str, ...]
+    dropped: bool
+    diverged: bool
+
+    @property
+    def ok(self) -> bool:
+        """True when finite, covariances fine and not diverged."""
+        return self.finite and self.covariance_ok and not self.diverged
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One sample's estimate.
+
+    Attributes
+    ----------
+    t : float
+        Time of the sample (s).
+    mean, std : Mapping[str, float]
+        Mean and standard deviation of every model parameter, in model order;
+        parameters held constant report their value and a standard deviation of 0.
+    estimated : tuple of str
+        The parameters being estimated.
+    prediction : float
+        One-step model output ``g(x^-, theta^-)`` (NaN after divergence).
+    innovation, innovation_variance : float
+        ``u - prediction`` (NaN for a dropped sample) and its predicted variance.
+    health : EstimateHealth
+        Flags.
+
+    """
+
+    t: float
+    mean: Mapping[str, float]
+    std: Mapping[str, float]
+    estimated: tuple[str, ...]
+    prediction: float
+    innovation: float
+    innovation_variance: float
+    health: EstimateHealth
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mean", MappingProxyType(dict(self.mean)))
+        object.__setattr__(self, "std", MappingProxyType(dict(self.std)))
+
+
+# ---------------------------------------------------------------------- whole runs
+
+
+@dataclass(frozen=True)
+class HealthSummary:
+    """Health of a whole run.
+
+    Attributes
+    ----------
+    diverged : bool
+        Divergence was detected.
+    divergence_time : float
+        Time of detection (s), NaN when none.
+    divergence_reason : str
+        ``"non-finite values"``, ``"covariance blow-up"``, ``"<name> pinned at a limit
+        for <s> s"``, or ``""``.
+    stopped : bool
+        The filter stopped at the divergence (non-finite values or covariance
+        blow-up); later samples repeat the last finite estimate and report NaN
+        predictions. A pinned parameter only reports; the filter goes on.
+    dropped_samples : int
+        Number of dropped samples.
+    dropped_stretches : tuple of (float, float)
+        ``(start time, duration)`` of each stretch of dropped samples (s).
+    pinned_fraction : Mapping[str, float]
+        Fraction of samples each parameter spent at a limit.
+
+    """
+
+    diverged: bool
+    divergence_time: float
+    divergence_reason: str
+    stopped: bool
+    dropped_samples: int
+    dropped_stretches: tuple[tuple[float, float], ...]
+    pinned_fraction: Mapping[str, float]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pinned_fraction", MappingProxyType(dict(self.pinned_fraction)))
+        stretches = tuple((float(a), float(b)) for a, b in self.dropped_stretches)
+        object.__setattr__(self, "dropped_stretches", stretches)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able form (NaN divergence time as None)."""
+        return {
+            "diverged": self.diverged,
+            "divergence_time": None if math.isnan(self.divergence_time) else self.divergence_time,
+            "divergence_reason": self.divergence_reason,
+            "stopped": self.stopped,
+            "dropped_samples": self.dropped_samples,
+            "dropped_stretches": [list(s) for s in self.dropped_stretches],
+            "pinned_fraction": dict(self.pinned_fraction),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> HealthSummary:
+        """Inverse of :meth:`to_dict`."""
+        time = data["divergence_time"]
+        return cls(
+            diverged=bool(data["diverged"]),
+            divergence_time=math.nan if time is None else float(time),
+            divergence_reason=str(data["divergence_reason"]),
+            stopped=bool(data["stopped"]),
+            dropped_samples=int(data["dropped_samples"]),
+            dropped_stretches=tuple(tuple(s) for s in data["dropped_stretches"]),
+            pinned_fraction={str(k): float(v) for k, v in data["pinned_fraction"].items()},
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class EstimationResult:
+    """Traces of a whole estimation run, with fixed named fields.
+
+    Attributes
+    ----------
+    estimator : str
+        Name of the estimator (``"dekf"``).
+    t : ndarray, shape (n,)
+        Sample times (s).
+    parameter_names : tuple of str
+        Every model parameter, in model order (columns of ``mean`` and ``std``).
+    estimated : tuple of str
+        The parameters that were estimated; the others were held constant.
+    mean, std : ndarray, shape (n, p)
+        Parameter means and standard deviations after each sample.
+    prediction : ndarray, shape (n,)
+        One-step model output ``g(x^-_k, theta^-_k)`` before each correction.
+    innovation, innovation_variance : ndarray, shape (n,)
+        ``u_k - prediction_k`` (NaN where dropped or after divergence) and its variance.
+    finite, covariance_ok, dropped, diverged : ndarray of bool, shape (n,)
+        Per-sample health flags (see :class:`EstimateHealth`).
+    pinned : ndarray of bool, shape (n, p)
+        Parameter at a limit after the sample.
+    settings : Mapping[str, Any]
+        The settings used, JSON-able: the estimator's settings and every value
+        resolved from them (initial values, covariances, limits, variances).
+    health : HealthSummary
+        Summary, including the divergence time if any.
+
+    """
+
+    estimator: str
+    t: FloatArray
+    parameter_names: tuple[str, ...]
+    estimated: tuple[str, ...]
+    mean: FloatArray
+    std: FloatArray
+    prediction: FloatArray
+    innovation: FloatArray
+    innovation_variance: FloatArray
+    finite: BoolArray
+    covariance_ok: BoolArray
+    dropped: BoolArray
+    diverged: BoolArray
+    pinned: BoolArray
+    settings: Mapping[str, Any]
+    health: HealthSummary
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.estimator, str) or not self.estimator:
+            raise TypeError(f"estimator must be a non-empty string, got {self.estimator!r}")
+        names = tuple(str(name) for name in self.parameter_names)
+        if len(set(names)) != len(names):
+            raise ValueError(f"parameter_names must be unique, got {names}")
+        object.__setattr__(self, "parameter_names", names)
+        estimated = tuple(str(name) for name in self.estimated)
+        unknown = sorted(set(estimated) - set(names))
+        if unknown:
+            raise ValueError(f"estimated names {unknown} are not in parameter_names {names}")
+        object.__setattr__(self, "estimated", estimated)
+        t = _readonly(self.t, np.float64)
+        if t.ndim != 1:
+            raise ValueError(f"t must be 1-D, got shape {t.shape}")
+        n, p = t.shape[0], len(names)
+        object.__setattr__(self, "t", t)
+        for name in _ARRAYS_1D[1:]:
+            array = _readonly(getattr(self, name), np.float64)
+            if array.shape != (n,):
+                raise ValueError(f"{name} must have shape ({n},), got {array.shape}")
+            object.__setattr__(self, name, array)
+        for name in _FLAGS_1D:
+            array = _readonly(getattr(self, name), np.bool_)
+            if array.shape != (n,):
+                raise ValueError(f"{name} must have shape ({n},), got {array.shape}")
+            object.__setattr__(self, name, array)
+        for name, dtype in (("mean", np.float64), ("std", np.float64), ("pinned", np.bool_)):
+            array = _readonly(getattr(self, name), dtype)
+            if array.shape != (n, p):
+                raise ValueError(f"{name} must have shape ({n}, {p}), got {array.shape}")
+            object.__setattr__(self, name, array)
+        if not isinstance(self.health, HealthSummary):
+            raise TypeError(f"health must be a HealthSummary, got {self.health!r}")
+        settings = json.loads(json.dumps(dict(self.settings), allow_nan=False))
+        object.__setattr__(self, "settings", MappingProxyType(settings))
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    def _column(self, name: str) -> int:
+        check_choice("parameter", name, self.parameter_names)
+        return self.parameter_names.index(name)
+
+    def mean_of(self, name: str) -> FloatArray:
+        """Trace of the mean of parameter ``name``, shape (n,)."""
+        return self.mean[:, self._column(name)]
+
+    def std_of(self, name: str) -> FloatArray:
+        """Trace of the standard deviation of parameter ``name``, shape (n,)."""
+        return self.std[:, self._column(name)]
+
+    def final(self) -> dict[str, float]:
+        """Mean of every parameter after the last sample."""
+        return {name: float(self.mean[-1, j]) for j, name in enumerate(self.parameter_names)}
+
+    def equals(self, other: object) -> bool:
+        """Exact equality of every field (NaN equal to NaN)."""
+        if not isinstance(other, EstimationResult):
+            return False
+        if (self.estimator, self.parameter_names, self.estimated) != (
+            other.estimator,
+            other.parameter_names,
+            other.estimated,
+        ):
+            return False
+        if dict(self.settings) != dict(other.settings):
+            return False
+        if self.health.to_dict() != other.health.to_dict():  # NaN-safe
+            return False
+        for name in (*_ARRAYS_1D, *_FLAGS_1D, "mean", "std", "pinned"):
+            if not np.array_equal(getattr(self, name), getattr(other, name), equal_nan=True):
+                return False
+        return True
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, EstimationResult):
+            return NotImplemented
+        return self.equals(other)
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        return (
+            f"EstimationResult(estimator={self.estimator!r}, {len(self)} samples, "
+            f"estimated={self.estimated}, diverged={self.health.diverged})"
+        )
+
+    # ----------------------------------------------------------------- files
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the result to ``path`` (``.npz``) atomically and return the path.
+
+        Layout: one array per trace under its field name, and 0-d strings
+        ``result_format`` (:data:`RESULT_FORMAT`), ``estimator``, ``parameter_names``,
+        ``estimated``, ``settings`` and ``health`` (JSON). Read back with :meth:`load`
+        (``allow_pickle=False``).
+        """
+        target = Path(path)
+        if target.suffix.lower() != ".npz":
+            raise ValueError(f"{target}: results are saved as .npz, got suffix {target.suffix!r}")
+        entries: dict[str, Any] = {
+            name: getattr(self, name) for name in (*_ARRAYS_1D, *_FLAGS_1D, "mean", "std", "pinned")
+        }
+        entries.update(
+            {
+                "result_format": np.array(RESULT_FORMAT),
+                "estimator": np.array(self.estimator),
+                "parameter_names": np.array(json.dumps(list(self.parameter_names))),
+                "estimated": np.array(json.dumps(list(self.estimated))),
+                "settings": np.array(json.dumps(dict(self.settings), allow_nan=False)),
+                "health": np.array(json.dumps(self.health.to_dict(), allow_nan=False)),
+            }
+        )
+
+        def write(temporary: Path) -> None:
+            with open(temporary, "wb") as handle:
+                np.savez(handle, **entries)
+
+        return atomic_write(target, write)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> EstimationResult:
+        """Read a result written by :meth:`save`, validating every entry.
+
+        Raises
+        ------
+        ValueError
+            For a file that is not a saved result (missing or wrong ``result_format``,
+            missing entries, inconsistent shapes).
+
+        """
+        source = Path(path)
+        try:
+            archive = np.load(source, allow_pickle=False)
+        except (OSError, ValueError) as error:
+            raise ValueError(f"{source}: not a readable .npz file ({error})") from error
+        with archive:
+            names = set(archive.files)
+            tag = str(archive["result_format"]) if "result_format" in names else None
+            if tag != RESULT_FORMAT:
+                raise ValueError(
+                    f"{source}: not a saved EstimationResult (result_format {tag!r}, "
+                    f"expected {RESULT_FORMAT!r})"
+                )
+            required = (
+                *_ARRAYS_1D,
+                *_FLAGS_1D,
+                "mean",
+                "std",
+                "pinned",
+                "estimator",
+                "parameter_names",
+                "estimated",
+                "settings",
+                "health",
+            )
+            missing = [name for name in required if name not in names]
+            if missing:
+                raise ValueError(f"{source}: saved result lacks entries {missing}")
+            try:
+                return cls(
+                    estimator=str(archive["estimator"]),
+                    t=archive["t"],
+                    parameter_names=tuple(json.loads(str(archive["parameter_names"]))),
+                    estimated=tuple(json.loads(str(archive["estimated"]))),
+                    mean=archive["mean"],
+                    std=archive["std"],
+                    prediction=archive["prediction"],
+                    innovation=archive["innovation"],
+                    innovation_variance=archive["innovation_variance"],
+                    finite=archive["finite"],
+                    covariance_ok=archive["covariance_ok"],
+                    dropped=archive["dropped"],
+                    diverged=archive["diverged"],
+                    pinned=archive["pinned"],
+                    settings=json.loads(str(archive["settings"])),
+                    health=HealthSummary.from_dict(json.loads(str(archive["health"]))),
+                )
+            except (KeyError, TypeError, ValueError) as error:
+                raise ValueError(f"{source}: invalid saved result: {error}") from error
+
+
+def load_result(path: str | os.PathLike[str]) -> EstimationResult:
+    """Read an :class:`EstimationResult`; see :meth:`EstimationResult.load`."""
+    return EstimationResult.load(path)
+
+
+# ---------------------------------------------------------------------- protocol
+
+
+@runtime_checkable
+class Estimator(Protocol):
+    """What every online estimator provides (structural type).
+
+    ``settings`` is a frozen dataclass; ``configure(**changes)`` returns a new
+    estimator with some settings replaced; ``reset`` must be called before
+    ``update``; ``estimate`` runs a recording from a fresh reset.
+    """
+
+    @property
+    def name(self) -> str:
+        """Short name, stored in results."""
+
+    @property
+    def settings(self) -> Any:
+        """The frozen settings dataclass."""
+
+    def configure(self, **changes: Any) -> Estimator:
+        """A new estimator with the given settings replaced."""
+
+    def reset(self, dt: float, **kwargs: Any) -> None:
+        """Start from the initial belief for samples ``dt`` seconds apart."""
+
+    def update(self, sample: Mapping[str, float]) -> Estimate:
+        """Consume one sample and return the estimate after it."""
+
+    def estimate(self, recording: Recording, **kwargs: Any) -> EstimationResult:
+        """Run a whole recording and return the traces."""
