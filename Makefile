@@ -8,6 +8,9 @@ STAMP := $(VENV)/.installed
 export MPLBACKEND := Agg
 export SDL_VIDEODRIVER := dummy
 export PYGAME_HIDE_SUPPORT_PROMPT := 1
+# numpy/scipy on small matrices: threads only spin and contend (see estimators notes)
+export OPENBLAS_NUM_THREADS := 1
+export OMP_NUM_THREADS := 1
 
 .PHONY: demo test lint bench clean
 

@@ -453,6 +453,10 @@ class DEKFSettings:
             items["limits"] = {k: tuple(v) for k, v in items["limits"].items()}
         return cls(**items)
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        # read-only mappings do not pickle: rebuild from the plain dict
+        return (type(self).from_dict, (self.to_dict(),))
+
 
 def _json_number(value: Any) -> Any:
     if isinstance(value, list):
@@ -730,6 +734,10 @@ class DEKF:
     def configure(self, **changes: Any) -> DEKF:
         """A new DEKF with some settings replaced."""
         return DEKF(dataclasses.replace(self._settings, **changes))
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickle (and deep copy) as a fresh filter with the same settings, without run state."""
+        return (type(self), (self._settings,))
 
     def __repr__(self) -> str:
         return f"DEKF(model={self._settings.model!r}, ce={self._settings.ce!r})"

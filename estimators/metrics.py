@@ -220,6 +220,11 @@ class EstimationMetrics:
         Time (s) from which the metrics are computed.
     one_step_vaf, resimulated_vaf : float
         VAF (%) of the one-step prediction and of the resimulated model output.
+    ideal_resimulated_vaf : float
+        VAF (%) of the resimulated output against the remnant-free control signal
+        ``u - u_n`` (simulations record ``u_n``, the part of ``u`` the remnant caused,
+        thesis eq. 6): the thesis's "idealised" comparison (Part III App. H.2.3); NaN
+        without ``u_n``.
     nrmse, relative_bias : Mapping[str, float]
         Per estimated parameter with a known true trace.
     error_kind : Mapping[str, str]
@@ -232,6 +237,7 @@ class EstimationMetrics:
     start: float
     one_step_vaf: float
     resimulated_vaf: float
+    ideal_resimulated_vaf: float
     nrmse: Mapping[str, float]
     relative_bias: Mapping[str, float]
     error_kind: Mapping[str, str]
@@ -281,6 +287,11 @@ def evaluate(
         start=start,
         one_step_vaf=vaf(u[mask], result.prediction[mask]),
         resimulated_vaf=vaf(u[mask], resimulated[mask]),
+        ideal_resimulated_vaf=(
+            vaf((u - np.asarray(recording["u_n"]))[mask], resimulated[mask])
+            if "u_n" in recording
+            else float("nan")
+        ),
         nrmse=errors,
         relative_bias=biases,
         error_kind=kinds,

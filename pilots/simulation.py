@@ -681,7 +681,8 @@ def simulate(
         estimator converge on it as the thesis does; metrics then start at ``t = 0``.
 
     The recording holds ``t, ft, fd, y, e, u, n`` (plus ``ft_far``, the previewed
-    target the pilot used, in preview tasks), the parameter traces of the pilot, and
+    target the pilot used, in preview tasks, and ``u_n``, the part of ``u`` the remnant
+    caused, thesis eq. 6, when there is one), the parameter traces of the pilot, and
     metadata with everything needed to repeat the run, including the calibrated
     remnant gain and the realised remnant power ratio ``P_r`` (thesis eq. 6). When
     the pilot's remnant requests ``P_r``, ``K_r`` is calibrated as in the thesis
@@ -752,6 +753,8 @@ def simulate(
     for name in ("ft_far", "ft_near_rate"):
         if name in columns:
             recorded[name] = columns[name][part]
+    if noise is not None:
+        recorded["u_n"] = gain * unit["u"][part]
     return Recording(
         signals=recorded,
         dt=setup.dt,

@@ -1,0 +1,259 @@
+"""Reports: tables in the layout of the thesis beside its numbers, and figures.
+
+:func:`write_report` turns a suite's results rows into ``report.md`` with, per batch,
+the relative bias and NRMSE of every estimated parameter and the VAF (thesis Tables
+II-IV layout) next to the paper's numbers where the suite gives them, plus PNG figures:
+parameter traces (median and 25-75 % band over the batch against the truth) and the
+10-s moving VAF. An HTML copy is written when the ``markdown`` package is installed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from manualcontrol.bench.scenarios import Suite, scenario_from_dict
+from manualcontrol.envs._files import atomic_path, atomic_write
+from manualcontrol.envs.recording import Recording
+
+__all__ = ["plot_estimation", "plot_recording", "summarise", "write_report"]
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig: Any, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as temporary:
+        fig.savefig(temporary, dpi=100, format="png")
+    _pyplot().close(fig)
+    return path
+
+
+def plot_recording(recording: Recording, path: str | Path) -> Path:
+    """Target, output, error and stick of a recording, as a PNG."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(3, 1, figsize=(10, 6.5), sharex=True)
+    t = recording.t
+    if "ft" in recording:
+        axes[0].plot(t, recording.ft, lw=0.9, label="target $f_t$")
+    axes[0].plot(t, recording.y, lw=0.9, label="output $y$")
+    axes[0].legend(loc="upper right")
+    axes[1].plot(t, recording.e, lw=0.8, color="tab:red", label="error $e$")
+    axes[1].legend(loc="upper right")
+    axes[2].plot(t, recording.u, lw=0.8, color="tab:green", label="control $u$")
+    if "n" in recording:
+        axes[2].plot(t, recording.n, lw=0.6, color="tab:gray", label="remnant $n$")
+    axes[2].legend(loc="upper right")
+    axes[2].set_xlabel("time [s]")
+    fig.tight_layout()
+    return _save(fig, Path(path))
+
+
+def plot_estimation(recording: Recording, result: Any, path: str | Path) -> Path:
+    """Estimated parameter traces (with one-sigma band, truth when known) and the innovation."""
+    plt = _pyplot()
+    names = list(result.estimated)
+    fig, axes = plt.subplots(len(names) + 1, 1, figsize=(9, 1.8 * (len(names) + 1)), sharex=True)
+    axes = np.atleast_1d(axes)
+    t = result.t
+    for axis, name in zip(axes, names, strict=False):
+        mean, std = result.mean_of(name), result.std_of(name)
+        axis.plot(t, mean, color="k", lw=1.0, label="estimate")
+        axis.fill_between(t, mean - std, mean + std, color="k", alpha=0.15, lw=0)
+        if name in recording.parameters:
+            axis.plot(
+                recording.t, recording.parameters[name], color="tab:red", lw=1.0, label="true"
+            )
+        axis.set_ylabel(name)
+    axes[0].legend(loc="upper right")
+    axes[-1].plot(t, result.innovation, color="tab:red", lw=0.5, label="innovation")
+    axes[-1].plot(t, np.sqrt(result.innovation_variance), color="k", lw=0.8, label="sqrt(variance)")
+    axes[-1].legend(loc="upper right")
+    axes[-1].set_xlabel("time [s]")
+    fig.tight_layout()
+    return _save(fig, Path(path))
+
+
+def _number(value: Any) -> float:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return math.nan
+    return number
+
+
+def _finite(statistic: Any, values: Sequence[Any]) -> float:
+    """``statistic`` of the finite entries (NaN when there are none)."""
+    numbers = np.array([_number(value) for value in values])
+    known = numbers[np.isfinite(numbers)]
+    return float(statistic(known)) if known.size else math.nan
+
+
+def summarise(rows: Sequence[Mapping[str, Any]], batch: str) -> dict[str, Any]:
+    """Batch means of the scores (successful runs only) and run counts."""
+    runs = [row for row in rows if row.get("batch") == batch]
+    ok = [row for row in runs if row.get("status") == "ok"]
+    summary: dict[str, Any] = {"runs": len(runs), "failed": len(runs) - len(ok), "parameters": {}}
+    names = sorted({key[len("nrmse_") :] for row in ok for key in row if key.startswith("nrmse_")})
+    for name in names:
+        summary["parameters"][name] = {
+            kind: _finite(np.mean, [row.get(f"{kind}_{name}") for row in ok])
+            for kind in ("rel_bias", "nrmse")
+        }
+    for key in (
+        "vaf_resimulated",
+        "vaf_resimulated_ideal",
+        "vaf_one_step",
+        "innovations_within_1sigma",
+        "run_time_s",
+    ):
+        values = [row.get(key) for row in ok]
+        summary[key] = _finite(np.mean, values)
+        summary[f"{key}_median"] = _finite(np.median, values)
+    summary["diverged"] = sum(bool(row.get("diverged")) for row in ok)
+    return summary
+
+
+def _cell(value: Any, signed: bool = False) -> str:
+    number = _number(value)
+    if math.isnan(number):
+        return "—"
+    return f"{number:+.3f}" if signed else f"{number:.3f}"
+
+
+def _batch_table(summary: Mapping[str, Any], reference: Mapping[str, Any]) -> list[str]:
+    paper = dict(reference.get("parameters", {}))
+    names = list(summary["parameters"]) + [n for n in paper if n not in summary["parameters"]]
+    lines = [
+        "| parameter | rel. bias (ours) | rel. bias (paper) | NRMSE (ours) | NRMSE (paper) |",
+        "| --- | ---: | ---: | ---: | ---: |",
+    ]
+    for name in names:
+        ours = summary["parameters"].get(name, {})
+        theirs = paper.get(name, {})
+        lines.append(
+            f"| {name} | {_cell(ours.get('rel_bias'), True)} "
+            f"| {_cell(theirs.get('rel_bias'), True)} "
+            f"| {_cell(ours.get('nrmse'))} | {_cell(theirs.get('nrmse'))} |"
+        )
+    for key, label in (
+        ("vaf_resimulated", "**VAF** resimulated pilot (eq. 38) vs u"),
+        ("vaf_resimulated_ideal", "VAF resimulated vs remnant-free u"),
+        ("vaf_one_step", "VAF one-step filter output"),
+    ):
+        paper = reference.get(key)
+        lines.append(
+            f"| {label} | {_cell(summary[key])} % (median {_cell(summary[key + '_median'])} %) | "
+            f"{'—' if paper is None else f'{paper:.2f} %'} | | |"
+        )
+    return lines
+
+
+def _trace_figure(
+    suite: Suite, batch: str, rows: Sequence[Mapping[str, Any]], out: Path
+) -> Path | None:
+    from manualcontrol.estimators.protocol import load_result
+
+    ok = [row for row in rows if row.get("batch") == batch and row.get("status") == "ok"]
+    results = []
+    for row in ok:
+        path = out / "runs" / f"{row['key']}.npz"
+        if path.is_file():
+            results.append(load_result(path))
+    if not results:
+        return None
+    first = results[0]
+    names = list(first.estimated)
+    scenario = scenario_from_dict(ok[0]["scenario"])
+    truth = {
+        name: schedule(first.t) for name, schedule in scenario.build_pilot().parameters.items()
+    }
+    plt = _pyplot()
+    rows_in_figure = len(names) + 1
+    fig, axes = plt.subplots(rows_in_figure, 1, figsize=(9, 1.7 * rows_in_figure), sharex=True)
+    axes = np.atleast_1d(axes)
+    for axis, name in zip(axes, names, strict=False):
+        stack = np.array([result.mean_of(name) for result in results if len(result) == len(first)])
+        median = np.nanmedian(stack, axis=0)
+        low, high = np.nanpercentile(stack, [25, 75], axis=0)
+        axis.fill_between(first.t, low, high, color="k", alpha=0.2, lw=0, label="25-75 %")
+        axis.plot(first.t, median, color="k", lw=1.0, label=f"median of {len(stack)}")
+        if name in truth:
+            axis.plot(first.t, truth[name], color="tab:red", lw=1.0, label="true")
+        axis.set_ylabel(name)
+    axes[0].legend(loc="upper right", fontsize=8)
+    moving = [row.get("moving_vaf") for row in ok if row.get("moving_vaf")]
+    if moving:
+        import warnings
+
+        warnings.filterwarnings("ignore", "All-NaN slice", RuntimeWarning)  # the first 10 s
+        length = min(len(m) for m in moving)
+        stack = np.array([m[:length] for m in moving], dtype=float)
+        times = np.asarray(ok[0].get("moving_vaf_t", np.arange(length)))[:length]
+        axes[-1].fill_between(
+            times, *np.nanpercentile(stack, [25, 75], axis=0), color="tab:blue", alpha=0.2, lw=0
+        )
+        axes[-1].plot(times, np.nanmedian(stack, axis=0), color="tab:blue", lw=1.0)
+        axes[-1].set_ylim(
+            max(0.0, float(np.nanmin(np.nanpercentile(stack, 25, axis=0))) - 5.0), 101.0
+        )
+    axes[-1].set_ylabel("10-s VAF [%]")
+    axes[-1].set_xlabel("time [s]")
+    axes[0].set_title(f"{suite.name}: {batch}")
+    fig.tight_layout()
+    return _save(fig, out / "figures" / f"{batch}.png")
+
+
+def write_report(suite: Suite, rows: Sequence[Mapping[str, Any]], out: str | Path) -> Path:
+    """Write ``report.md`` (and figures) for a suite's results in ``out``."""
+    out = Path(out)
+    lines = [f"# {suite.name}", "", suite.description, ""]
+    ok = [row for row in rows if row.get("status") == "ok"]
+    runtime = sum(_number(row.get("run_time_s")) for row in ok)
+    lines += [
+        f"{len(rows)} runs, {len(rows) - len(ok)} failed; {runtime:.0f} s of run time in total.",
+        "",
+    ]
+    for batch in suite.batches:
+        summary = summarise(rows, batch.name)
+        if not summary["runs"]:
+            continue
+        reference = dict(batch.reference)
+        source = reference.get("source", "")
+        lines += [
+            f"## {batch.name}",
+            "",
+            f"{summary['runs']} runs ({summary['failed']} failed, {summary['diverged']} diverged)"
+            + (f"; paper: {source}" if source else ""),
+            "",
+            *_batch_table(summary, reference),
+            "",
+        ]
+        figure = _trace_figure(suite, batch.name, rows, out)
+        if figure is not None:
+            lines += [f"![{batch.name}](figures/{figure.name})", ""]
+    failed = [row for row in rows if row.get("status") != "ok"]
+    if failed:
+        lines += ["## Failed runs", ""]
+        lines += [f"- `{row['key']}`: {row.get('error', '')}" for row in failed]
+        lines.append("")
+    text = "\n".join(lines)
+    path = atomic_write(out / "report.md", lambda p: p.write_text(text))
+    try:
+        import markdown
+    except ImportError:
+        return path
+    html = markdown.markdown(text, extensions=["tables"])
+    atomic_write(out / "report.html", lambda p: p.write_text(f"<html><body>{html}</body></html>"))
+    return path

@@ -1,0 +1,145 @@
+"""Running an online estimator inside a tracking environment.
+
+:class:`EstimatorObserver` wraps any :mod:`~manualcontrol.envs.tracking` environment
+(possibly wrapped itself, e.g. with an agent's human limitations) and feeds each
+step's signals to an online estimator, whoever acts: a cybernetic pilot, an RL policy
+or a person. After every step ``info["estimates"]`` holds the current estimate:
+
+``mean``, ``std``
+    every parameter of the estimator's pilot model (held ones with std 0);
+``innovation``, ``innovation_variance``, ``prediction``
+    the filter's one-step figures for the sample just taken;
+``health``
+    ``finite``, ``covariance_ok``, ``pinned`` (parameter names), ``dropped``,
+    ``diverged``.
+
+With ``append_to_observation=True`` the means of the estimated parameters are
+appended to the observation (in the estimator's order; the initial values before the
+first sample), the observation space extended accordingly.
+
+The sample of step ``k`` is the displayed error ``e[k]`` (and output ``y[k]``, target
+ahead ``ft(t_k + tau_a)`` for a preview model) seen before the action, and the stick
+``u[k]`` applied: the same samples an offline :meth:`estimate` reads from the episode's
+:class:`~manualcontrol.envs.recording.Recording`, so both give the same numbers. The
+estimator must start causally (``initial_variance="causal"`` for the DEKF: online,
+the first window of data is not known at reset).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+
+from manualcontrol.envs.tracking import TrackingEnv
+
+__all__ = ["EstimatorObserver"]
+
+FloatArray = NDArray[np.float64]
+
+
+class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Feed an online estimator from an environment; report its estimates in ``info``.
+
+    Parameters
+    ----------
+    env
+        A tracking environment, possibly wrapped.
+    estimator
+        An online estimator (e.g. :class:`~manualcontrol.estimators.DEKF`) set up for a
+        causal start.
+    append_to_observation
+        Append the estimated parameters' means to the observation.
+    """
+
+    def __init__(self, env: gym.Env, estimator: Any, append_to_observation: bool = False) -> None:
+        gym.utils.RecordConstructorArgs.__init__(
+            self, estimator=estimator, append_to_observation=append_to_observation
+        )
+        gym.Wrapper.__init__(self, env)
+        if not isinstance(env.unwrapped, TrackingEnv):
+            raise TypeError(
+                "env must be a manualcontrol tracking environment, "
+                f"got {type(env.unwrapped).__name__}"
+            )
+        settings = getattr(estimator, "settings", None)
+        if getattr(settings, "initial_variance", "causal") != "causal":
+            raise ValueError(
+                "estimator must start causally online: configure it with "
+                "initial_variance='causal' (and initial K_p), got "
+                f"initial_variance={settings.initial_variance!r}"
+            )
+        self.estimator = estimator
+        self.append_to_observation = bool(append_to_observation)
+        keys = tuple(estimator.sample_keys)
+        unknown = sorted(set(keys) - {"e", "u", "y", "ft_ahead"})
+        if unknown:
+            raise ValueError(f"the environment cannot supply the estimator's samples {unknown}")
+        self._keys = keys
+        self._anticipation = float(getattr(settings, "anticipation_time", None) or 0.0)
+        self._estimated = self._estimated_names()
+        if self.append_to_observation:
+            low = np.full(len(self._estimated), -np.inf)
+            box = env.observation_space
+            self.observation_space = spaces.Box(
+                np.concatenate([box.low, low]), np.concatenate([box.high, -low]), dtype=np.float64
+            )
+        self._last: dict[str, Any] | None = None
+        self._pending: dict[str, float] = {}
+
+    def _estimated_names(self) -> tuple[str, ...]:
+        # what is estimated is resolved at reset (e.g. the SI rule holds K_v)
+        self.estimator.reset(self.env.unwrapped.dt)
+        return tuple(self.estimator.resolved.estimated)
+
+    def _observe(self, observation: FloatArray) -> FloatArray:
+        if not self.append_to_observation:
+            return observation
+        if self._last is None:  # before the first sample: the initial values
+            initial = self.estimator.resolved.initial
+            means = [initial[name] for name in self._estimated]
+        else:
+            means = [self._last["mean"][name] for name in self._estimated]
+        return np.concatenate([observation, np.asarray(means, dtype=np.float64)])
+
+    def _display(self, info: dict[str, Any]) -> dict[str, float]:
+        """What the sample of this step takes from the display (before the action)."""
+        base = self.env.unwrapped
+        sample = {"e": float(info["e"]), "y": float(info["y"]), "t": float(info["t"])}
+        if "ft_ahead" in self._keys:
+            sample["ft_ahead"] = float(base.forcing.target(info["t"] + self._anticipation))
+        return sample
+
+    def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
+        observation, info = self.env.reset(**kwargs)
+        base = self.env.unwrapped
+        self.estimator.reset(base.dt, t0=float(info["t"]))
+        self._pending = self._display(info)
+        self._last = None
+        return self._observe(observation), info
+
+    def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        sample = {**self._pending, "u": float(info["u"])}
+        estimate = self.estimator.update({key: sample[key] for key in (*self._keys, "t")})
+        self._last = {
+            "t": estimate.t,
+            "mean": dict(estimate.mean),
+            "std": dict(estimate.std),
+            "innovation": estimate.innovation,
+            "innovation_variance": estimate.innovation_variance,
+            "prediction": estimate.prediction,
+            "health": {
+                "finite": estimate.health.finite,
+                "covariance_ok": estimate.health.covariance_ok,
+                "pinned": list(estimate.health.pinned),
+                "dropped": estimate.health.dropped,
+                "diverged": estimate.health.diverged,
+            },
+        }
+        self._pending = self._display(info)
+        info = {**info, "estimates": self._last}
+        return self._observe(observation), reward, terminated, truncated, info

@@ -1,0 +1,190 @@
+"""The manualcontrol command: every subcommand once, its exit codes and error messages."""
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from manualcontrol.bench.cli import EXIT_OK, EXIT_RUNS_FAILED, EXIT_USAGE, main
+from manualcontrol.envs.recording import Recording
+
+TINY_SUITE = """
+name = "tiny"
+[defaults]
+run_in = 2.0
+measurement_time = 10.0
+[[batch]]
+name = "comp"
+task = "compensatory"
+element = "DI"
+forcing = "vanderel-bw4"
+realisations = [0]
+[batch.pilot]
+model = "precision"
+parameters = { K_p = 0.24, K_v = 0.36, tau_v = 0.3, omega_nms = 8.0, zeta_nms = 0.45 }
+[batch.estimator]
+name = "dekf"
+model = "precision"
+ce = "DI"
+"""
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_help_lists_every_command():
+    result = subprocess.run(
+        [sys.executable, "-m", "manualcontrol.bench.cli", "--help"], capture_output=True, text=True
+    )
+    assert result.returncode == 0
+    for command in ("simulate", "identify", "bench", "suites", "train", "evaluate"):
+        assert command in result.stdout
+    assert "Exit codes" in result.stdout
+
+
+def test_suites_lists_the_builtin_suites(capsys):
+    code, out, _ = run(capsys, "suites")
+    assert code == EXIT_OK
+    assert "vertregt2020-performance: " in out and "800 runs" in out and "--quick: 8 runs" in out
+
+
+def test_simulate_then_identify(tmp_path, capsys):
+    recording_path = tmp_path / "run.csv"
+    code, out, _ = run(
+        capsys,
+        "simulate",
+        "--model", "precision",
+        "--element", "DI",
+        "--param", "K_p=0.24",
+        "--param", "K_v=0.36",
+        "--param", "tau_v=sigmoid:0.3,0.25,20,5",
+        "--run-in", "5",
+        "--measurement-time", "40",
+        "--out", str(recording_path),
+        "--plot", str(tmp_path / "run.png"),
+    )  # fmt: skip
+    assert code == EXIT_OK, out
+    recording = Recording.load(recording_path)
+    assert recording.duration == pytest.approx(40.0)
+    np.testing.assert_allclose(recording.parameters["tau_v"][-1], 0.25, atol=1e-3)
+    assert (tmp_path / "run.png").is_file()
+
+    out_dir = tmp_path / "identified"
+    code, out, err = run(
+        capsys,
+        "identify", str(recording_path),
+        "--model", "precision",
+        "--set", "ce=DI",
+        "--set", 'initial={"K_p": 0.24, "K_v": 0.36}',
+        "--out", str(out_dir),
+    )  # fmt: skip
+    assert code == EXIT_OK, err
+    summary = json.loads((out_dir / "summary.json").read_text())
+    assert summary["final"]["K_v"] == pytest.approx(0.36, rel=0.1)
+    assert (out_dir / "estimation.npz").is_file() and (out_dir / "parameters.png").is_file()
+
+
+def test_identify_reads_an_experiment_file_with_a_column_mapping(tmp_path, capsys):
+    from manualcontrol.pilots import Pilot, simulate
+
+    recording = simulate(
+        Pilot("precision"), "popovici2017", "popovici2017", run_in=0.0, measurement_time=30.0
+    )
+    path = tmp_path / "trial.csv"
+    lines = ["time,target,output,stick"]
+    columns = zip(recording.t, recording.ft, recording.y, recording.u, strict=True)
+    lines += [",".join(repr(float(v)) for v in row) for row in columns]
+    path.write_text("\n".join(lines))
+    code, out, err = run(
+        capsys, "identify", str(path), "--column", "u=stick", "--out", str(tmp_path / "o")
+    )
+    assert code == EXIT_OK, err
+    assert "estimated K_p, K_v, tau_v, omega_nms, zeta_nms" in out
+
+
+def test_bench_runs_a_suite_file(tmp_path, capsys):
+    suite = tmp_path / "tiny.toml"
+    suite.write_text(textwrap.dedent(TINY_SUITE))
+    code, out, _ = run(
+        capsys,
+        "bench",
+        str(suite),
+        "--out",
+        str(tmp_path / "r"),
+        "--backend",
+        "inprocess",
+        "--quiet",
+    )
+    assert code == EXIT_OK
+    assert "(1 runs, 0 failed)" in out and (tmp_path / "r" / "report.md").is_file()
+
+
+def test_bench_with_failing_runs_exits_3(tmp_path, capsys, monkeypatch):
+    from manualcontrol.bench import runner
+
+    class Broken:
+        def estimate(self, recording):
+            raise RuntimeError("no")
+
+    monkeypatch.setitem(runner.ESTIMATORS, "broken", lambda settings: Broken())
+    suite = tmp_path / "tiny.toml"
+    suite.write_text(
+        textwrap.dedent(TINY_SUITE).replace(
+            'name = "dekf"\nmodel = "precision"\nce = "DI"', 'name = "broken"'
+        )
+    )
+    code, out, _ = run(
+        capsys,
+        "bench",
+        str(suite),
+        "--out",
+        str(tmp_path / "r"),
+        "--backend",
+        "inprocess",
+        "--quiet",
+    )
+    assert code == EXIT_RUNS_FAILED and "1 failed" in out
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["bench", "no-such-suite"], "suite must be a built-in name"),
+        (["simulate", "--element", "TI", "--out", "x.npz"], "controlled element must be one of"),
+        (
+            ["simulate", "--param", "K_p", "--out", "x.npz"],
+            "--param must look like NAME=VALUE, got 'K_p'",
+        ),
+        (["simulate", "--param", "K_p=ramp:1", "--out", "x.npz"], "bad ramp schedule 'ramp:1'"),
+        (["identify", "missing.npz"], "no such recording file"),
+        (["evaluate", "no-agent-here"], "has no config.json"),
+    ],
+)
+def test_user_errors_exit_2_with_a_message_and_no_traceback(
+    capsys, tmp_path, monkeypatch, argv, message
+):
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run(capsys, *argv)
+    assert code == EXIT_USAGE
+    assert message in err and "Traceback" not in err
+    assert err.startswith(f"manualcontrol {argv[0]}: error:")
+
+
+def test_train_and_evaluate_commands(tmp_path, capsys):
+    agent = tmp_path / "agent"
+    code, out, _ = run(
+        capsys,
+        "train", "--steps", "200", "--delay", "0.1", "--algorithm", "ppo",
+        "--env", "measurement_time=2.0", "--env", "forcing=\"plaetinck2018\"",
+        "--out", str(agent), "--quiet",
+    )  # fmt: skip
+    assert code == EXIT_OK and (agent / "policy.pt").is_file()
+    code, out, _ = run(capsys, "evaluate", str(agent), "--out", str(tmp_path / "eval"))
+    assert code == EXIT_OK and "RMS error" in out
+    assert (tmp_path / "eval" / "evaluation.md").is_file()

@@ -1,0 +1,121 @@
+"""Runner: backends agree, finished runs are resumed, failures are rows, reports are written."""
+
+import json
+import math
+
+import pytest
+
+from manualcontrol.bench import runner
+from manualcontrol.bench.report import write_report
+from manualcontrol.bench.runner import run_suite
+from manualcontrol.bench.scenarios import parse_suite
+
+SMALL = {
+    "name": "small",
+    "description": "two short compensatory runs with remnant",
+    "defaults": {"run_in": 5.0, "measurement_time": 20.0},
+    "batch": [
+        {
+            "name": "comp",
+            "task": "compensatory",
+            "element": "popovici2017",
+            "forcing": "popovici2017",
+            "realisations": [0, 1],
+            "remnant_seeds": [3],
+            "pilot": {"model": "precision", "remnant": "popovici2017"},
+            "estimator": {"name": "dekf", "model": "precision"},
+            "reference": {
+                "source": "made up",
+                "vaf_one_step": 90.0,
+                "parameters": {"K_p": {"rel_bias": 0.1, "nrmse": 0.2}},
+            },
+        }
+    ],
+}
+
+
+def numbers(row):
+    return {
+        k: v for k, v in row.items() if isinstance(v, (int, float)) and not k.endswith("time_s")
+    }
+
+
+def same(a, b):
+    return all(
+        (math.isnan(a[k]) and math.isnan(b[k]))
+        if isinstance(a[k], float) and math.isnan(a[k])
+        else a[k] == b[k]
+        for k in a
+    )
+
+
+def test_process_pool_and_in_process_give_identical_numbers(tmp_path):
+    suite = parse_suite(SMALL)
+    pooled = run_suite(suite, tmp_path / "pool", backend="process", workers=2)
+    serial = run_suite(suite, tmp_path / "serial", backend="inprocess")
+    assert [r["key"] for r in pooled] == [r["key"] for r in serial]
+    for a, b in zip(pooled, serial, strict=True):
+        assert a["status"] == "ok", a.get("error")
+        assert numbers(a).keys() == numbers(b).keys()
+        assert same(numbers(a), numbers(b))
+    row = pooled[0]
+    assert {
+        "nrmse_K_p",
+        "rel_bias_K_p",
+        "vaf_one_step",
+        "vaf_resimulated",
+        "vaf_resimulated_ideal",
+    } <= set(row)
+    assert row["remnant_power_ratio"] == pytest.approx(0.3, rel=0.05)
+    header = (tmp_path / "pool" / "results.csv").read_text().splitlines()[0].split(",")
+    assert "moving_vaf" not in header and "nrmse_K_p" in header
+    import pyarrow.parquet as pq
+
+    assert pq.read_table(tmp_path / "pool" / "results.parquet").num_rows == 2
+
+
+def test_finished_runs_are_resumed(tmp_path):
+    suite = parse_suite(SMALL)
+    first = run_suite(suite, tmp_path, backend="inprocess")
+    calls = []
+    second = run_suite(
+        suite, tmp_path, backend="inprocess", progress=lambda d, t, r: calls.append((d, r))
+    )
+    assert calls == [(2, {})]  # nothing left to run
+    assert [r["vaf_one_step"] for r in second] == [r["vaf_one_step"] for r in first]
+    (tmp_path / "runs" / f"{first[1]['key']}.json").unlink()
+    calls.clear()
+    run_suite(
+        suite, tmp_path, backend="inprocess", progress=lambda d, t, r: calls.append(r.get("key"))
+    )
+    assert calls == [None, first[1]["key"]]  # only the missing run again
+
+
+def test_a_failing_scenario_is_a_row_and_the_batch_goes_on(tmp_path, monkeypatch):
+    class Broken:
+        def estimate(self, recording):
+            raise FloatingPointError("filter exploded")
+
+    monkeypatch.setitem(runner.ESTIMATORS, "broken", lambda settings: Broken())
+    data = json.loads(json.dumps(SMALL))
+    data["batch"].append({**data["batch"][0], "name": "broken", "estimator": {"name": "broken"}})
+    rows = run_suite(parse_suite(data), tmp_path, backend="inprocess")
+    statuses = [(r["batch"], r["status"]) for r in rows]
+    assert statuses == [("comp", "ok"), ("comp", "ok"), ("broken", "failed"), ("broken", "failed")]
+    assert rows[-1]["error"] == "FloatingPointError: filter exploded"
+    report = write_report(parse_suite(data), rows, tmp_path).read_text()
+    assert "## Failed runs" in report and "filter exploded" in report
+
+
+def test_report_puts_ours_beside_the_paper(tmp_path):
+    suite = parse_suite(SMALL)
+    rows = run_suite(suite, tmp_path, backend="inprocess")
+    text = write_report(suite, rows, tmp_path).read_text()
+    assert "| K_p |" in text and "+0.100 |" in text and "0.200 |" in text  # the paper's columns
+    assert "90.00 %" in text  # the paper's one-step VAF
+    assert (tmp_path / "figures" / "comp.png").read_bytes().startswith(b"\x89PNG")
+
+
+def test_unknown_backend():
+    with pytest.raises(ValueError, match="backend must be one of 'process', 'inprocess', 'ray'"):
+        run_suite(parse_suite(SMALL), "unused", backend="dask")

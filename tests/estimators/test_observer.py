@@ -1,0 +1,108 @@
+"""EstimatorObserver: online estimates inside an environment equal the offline run."""
+
+import re
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import manualcontrol.envs  # noqa: F401
+from manualcontrol.agents.wrappers import ActionDelay
+from manualcontrol.estimators import DEKF
+from manualcontrol.estimators.observer import EstimatorObserver
+from manualcontrol.pilots import Pilot
+
+DI_PREVIEW = dict(K_f=0.9, omega_f=1.0, K_p=0.24, K_v=0.36, omega_nms=8.0, zeta_nms=0.45, tau_v=0.3)
+CASES = {
+    "compensatory": (
+        "Compensatory",
+        "popovici2017",
+        Pilot("precision", remnant="popovici2017"),
+        dict(model="precision", initial_variance="causal", initial={"K_p": 1.0}),
+    ),
+    "preview": (
+        "Preview",
+        "DI",
+        Pilot("preview", DI_PREVIEW),
+        dict(
+            model="preview",
+            ce="DI",
+            anticipation_time=1.5,
+            initial_variance="causal",
+            initial={"K_p": 0.24},
+        ),
+    ),
+}
+
+
+def fly(case, append=False):
+    task, element, pilot, settings = CASES[case]
+    inner = gym.make(
+        f"ManualControl/{task}Tracking-v0",
+        controlled_element=element,
+        run_in=5.0,
+        measurement_time=25.0,
+    )
+    env = EstimatorObserver(inner, DEKF(**settings), append_to_observation=append)
+    observation, _ = env.reset(seed=0)
+    pilot.reset(seed=3, env=env)
+    width = inner.observation_space.shape[0]
+    means, done = [], False
+    while not done:
+        observation, _, terminated, truncated, info = env.step(pilot.act(observation[:width]))
+        means.append(info["estimates"]["mean"])
+        done = terminated or truncated
+    return env, means, observation, info
+
+
+@pytest.mark.parametrize("case", ["compensatory", "preview"])
+def test_online_estimates_equal_the_offline_estimate_of_the_episode(case):
+    env, means, _, _ = fly(case)
+    recording = env.unwrapped.recording(include_run_in=True)
+    offline = DEKF(**CASES[case][3]).estimate(recording)
+    for name in offline.parameter_names:
+        online = np.array([mean[name] for mean in means])
+        np.testing.assert_array_equal(online, offline.mean_of(name), err_msg=name)
+
+
+def test_appended_estimates_and_info():
+    env, _, observation, info = fly("compensatory", append=True)
+    estimated = ("K_p", "K_v", "tau_v", "omega_nms", "zeta_nms")
+    assert env.observation_space.shape == (1 + len(estimated),)
+    np.testing.assert_array_equal(
+        observation[1:], [info["estimates"]["mean"][n] for n in estimated]
+    )
+    estimates = info["estimates"]
+    assert set(estimates) == {
+        "t",
+        "mean",
+        "std",
+        "innovation",
+        "innovation_variance",
+        "prediction",
+        "health",
+    }
+    assert estimates["health"]["finite"] and not estimates["health"]["diverged"]
+    assert all(estimates["std"][name] > 0 for name in estimated)
+
+
+def test_observer_passes_check_env_around_an_agent_wrapper():
+    inner = ActionDelay(
+        gym.make("ManualControl/CompensatoryTracking-v0", measurement_time=5.0), 0.1
+    )
+    env = EstimatorObserver(inner, DEKF(**CASES["compensatory"][3]), append_to_observation=True)
+    with warnings.catch_warnings():
+        warnings.filterwarnings(
+            "ignore", message=".*(normalized space|infinity|unwrapped version).*"
+        )
+        check_env(env, skip_render_check=True)
+
+
+def test_observer_needs_a_causal_estimator():
+    env = gym.make("ManualControl/CompensatoryTracking-v0")
+    with pytest.raises(ValueError, match=re.escape("configure it with initial_variance='causal'")):
+        EstimatorObserver(env, DEKF(model="precision"))
+    with pytest.raises(TypeError, match="must be a manualcontrol tracking environment"):
+        EstimatorObserver(gym.make("CartPole-v1"), DEKF(**CASES["compensatory"][3]))
