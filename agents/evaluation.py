@@ -5,8 +5,10 @@ measurement run, then reports what a manual-control researcher looks at: the RMS
 tracking error (beside a precision-model pilot with typical parameters on the same
 forcing), the open-loop frequency response at the forcing frequencies with crossover
 frequency and phase margin, and the identified parameters of the equivalent
-cybernetic pilot model (offline output-error fit, exact delay), to hold against the
-limitations imposed (e.g. is the identified delay the imposed action delay?).
+cybernetic pilot model, to hold against the limitations imposed (is the identified
+delay the imposed action delay?): by an offline output-error fit (exact delay,
+constant parameters) and by the DEKF (its estimates averaged over the measurement,
+after converging on the run-in).
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ class Evaluation:
     reference_rms_error: float | None
     frequency_response: FrequencyResponse
     identified: OfflineFit
+    dekf: Mapping[str, float]
     limitations: tuple[Mapping[str, Any], ...]
     recording: Recording
 
@@ -61,6 +64,7 @@ class Evaluation:
             "phase_margin": self.frequency_response.phase_margin,
             "identified": dict(self.identified.parameters),
             "identification_vaf": self.identified.vaf,
+            "dekf": dict(self.dekf),
             "limitations": [dict(limit) for limit in self.limitations],
         }
 
@@ -92,12 +96,15 @@ def evaluate(
     """
     overrides = {"measurement_time": None, "run_in": run_in, **dict(env_overrides or {})}
     env = make_env(agent.config, **overrides)
-    recording = _run(agent, env, seed)
+    _run(agent, env, seed)
+    whole = env.unwrapped.recording(include_run_in=True)
+    recording = whole.slice_time(0.0)
     env.close()
     rms = float(np.sqrt(np.mean(recording.e**2)))
     response = forcing_frequency_response(recording)
     model = "precision" if agent.config.task == "compensatory" else "preview"
     identified = fit_pilot(recording, model)
+    dekf = _dekf_identification(whole, model, agent.config)
     element = agent.config.env_kwargs.get("controlled_element", "SI")
     values = (
         reference
@@ -114,7 +121,23 @@ def evaluate(
         reference_recording = _run(Pilot("precision", dict(values)), base, seed)
         base.close()
         reference_rms = float(np.sqrt(np.mean(reference_recording.e**2)))
-    return Evaluation(rms, reference_rms, response, identified, agent.config.wrappers, recording)
+    return Evaluation(
+        rms, reference_rms, response, identified, dekf, agent.config.wrappers, recording
+    )
+
+
+def _dekf_identification(recording: Recording, model: str, config: Any) -> dict[str, float]:
+    """DEKF estimates averaged over the measurement (t >= 0), the run-in to converge on."""
+    from manualcontrol.estimators import DEKF
+
+    element = config.env_kwargs.get("controlled_element", "SI")
+    ce = element if element in ("SI", "DI") else None
+    settings: dict[str, Any] = {"model": model, "ce": ce}
+    if model == "preview":
+        settings["anticipation_time"] = float(config.env_kwargs.get("available_preview", 1.0))
+    result = DEKF(**settings).estimate(recording)
+    measured = np.asarray(recording.t) >= 0.0
+    return {name: float(np.mean(result.mean_of(name)[measured])) for name in result.estimated}
 
 
 def write_report(evaluation: Evaluation, folder: str | Path) -> Path:
@@ -173,6 +196,12 @@ def write_report(evaluation: Evaluation, folder: str | Path) -> Path:
         "| parameter | value |",
         "| --- | --- |",
         *(f"| {name} | {value:.4g} |" for name, value in summary["identified"].items()),
+        "",
+        "DEKF (mean of the estimates over the measurement):",
+        "",
+        "| parameter | value |",
+        "| --- | --- |",
+        *(f"| {name} | {value:.4g} |" for name, value in summary["dekf"].items()),
         "",
         "![open loop](open_loop.png)",
         "",

@@ -80,10 +80,11 @@ def test_evaluation_report(trained, tmp_path):
     assert summary["rms_error"] == pytest.approx(float(np.sqrt(np.mean(recording.e**2))))
     assert summary["reference_rms_error"] > 0
     assert set(summary["identified"]) == {"K_p", "K_v", "tau_v", "omega_nms", "zeta_nms"}
+    assert set(summary["dekf"]) == {"K_p", "tau_v", "omega_nms", "zeta_nms"}  # SI: K_v held
     assert summary["limitations"] == [{"kind": "action_delay", "delay": 0.2}]
     path = write_report(evaluation, tmp_path)
     text = path.read_text()
-    assert "RMS tracking error" in text and "tau_v" in text
+    assert "RMS tracking error" in text and "tau_v" in text and "DEKF" in text
     assert (tmp_path / "open_loop.png").read_bytes().startswith(b"\x89PNG")
     assert (
         json.loads((tmp_path / "evaluation.json").read_text())["rms_error"] == summary["rms_error"]
