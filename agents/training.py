@@ -175,8 +175,9 @@ def _progress_callback(total: int, report: Callable[[str], None], every: int) ->
             self.next_report = every
 
         def _on_step(self) -> bool:
-            if self.num_timesteps >= self.next_report or self.num_timesteps >= total:
-                self.next_report += every
+            if self.num_timesteps >= self.next_report:
+                while self.next_report <= self.num_timesteps:
+                    self.next_report += every
                 episodes = [info["r"] / info["l"] for info in self.model.ep_info_buffer]
                 mean = f"{np.mean(episodes):.4f}" if episodes else "n/a"
                 elapsed = time.perf_counter() - self.started
