@@ -91,10 +91,16 @@ def evaluate(
 
     The environment is the agent's own (configuration, wrappers), over the full
     measurement time of the forcing (for the frequency response) after ``run_in``
-    seconds. ``reference`` overrides the precision pilot of :data:`REFERENCE_PILOTS`
+    seconds, with loss-of-control termination off so that a poor agent is still
+    measured over the whole period. ``reference`` overrides the precision pilot of :data:`REFERENCE_PILOTS`
     (chosen by the element's name "SI"/"DI"; another element needs one given).
     """
-    overrides = {"measurement_time": None, "run_in": run_in, **dict(env_overrides or {})}
+    overrides = {
+        "measurement_time": None,
+        "run_in": run_in,
+        "loss_of_control": None,
+        **dict(env_overrides or {}),
+    }
     env = make_env(agent.config, **overrides)
     _run(agent, env, seed)
     whole = env.unwrapped.recording(include_run_in=True)

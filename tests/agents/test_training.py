@@ -1,5 +1,6 @@
 """Training plumbing with tiny runs: saving, weights-only reloading, evaluation report."""
 
+import dataclasses
 import json
 import re
 
@@ -89,6 +90,20 @@ def test_evaluation_report(trained, tmp_path):
     assert (
         json.loads((tmp_path / "evaluation.json").read_text())["rms_error"] == summary["rms_error"]
     )
+
+
+def test_evaluation_covers_the_whole_period_despite_loss_of_control(trained):
+    """A training-time termination limit must not cut the evaluation short."""
+    config, agent, _, _ = trained
+    strict = TrainingConfig(
+        **{**config.to_dict(), "env_kwargs": {**config.env_kwargs, "loss_of_control": 1e-6}}
+    )
+    strict_agent = dataclasses.replace(agent, config=strict)
+    env = make_env(strict)
+    env.reset(seed=0)
+    assert env.step(strict_agent.act(np.zeros(env.observation_space.shape)))[2]  # terminates
+    evaluation = evaluate(strict_agent, run_in=2.0)
+    assert evaluation.recording.duration == pytest.approx(81.92)
 
 
 @pytest.mark.parametrize(
