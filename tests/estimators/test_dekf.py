@@ -382,6 +382,7 @@ BAD_SETTINGS = [
         "total_derivative must be one of 'printed', 'dimensional', got 'eq44'",
     ),
     ({"model": "precision", "delay_order": 0}, "delay_order must be >= 1, got 0"),
+    ({"model": "precision", "delay_order": 5}, "delay_order must be <= 4, got 5: higher orders"),
     ({"model": "precision", "pinned_time": 0.0}, "pinned_time must be > 0 s (inf: never)"),
 ]
 
