@@ -92,8 +92,9 @@ def evaluate(
     The environment is the agent's own (configuration, wrappers), over the full
     measurement time of the forcing (for the frequency response) after ``run_in``
     seconds, with loss-of-control termination off so that a poor agent is still
-    measured over the whole period. ``reference`` overrides the precision pilot of :data:`REFERENCE_PILOTS`
-    (chosen by the element's name "SI"/"DI"; another element needs one given).
+    measured over the whole period. ``reference`` overrides the precision pilot of
+    :data:`REFERENCE_PILOTS` (chosen by the element's name "SI"/"DI"; another element
+    needs one given).
     """
     overrides = {
         "measurement_time": None,
