@@ -218,18 +218,27 @@ def train(
     from stable_baselines3.common.env_util import make_vec_env
 
     output = Path(output)
+    vec_env = make_vec_env(lambda: make_env(config), n_envs=config.n_envs, seed=config.seed)
+    try:
+        model = _algorithm_class(config.algorithm)(
+            "MlpPolicy",
+            vec_env,
+            seed=config.seed,
+            verbose=0,
+            policy_kwargs=dict(config.policy_kwargs),
+            **dict(config.algorithm_kwargs),
+        )
+    except TypeError as error:
+        vec_env.close()
+        raise ValueError(
+            f"algorithm_kwargs {dict(config.algorithm_kwargs)!r} or policy_kwargs "
+            f"{dict(config.policy_kwargs)!r} not accepted by {config.algorithm.upper()}: "
+            f"{error}"
+        ) from error
+    # the folder is written only once the algorithm has accepted the configuration
     output.mkdir(parents=True, exist_ok=True)
     atomic_write(
         output / "config.json", lambda p: p.write_text(json.dumps(config.to_dict(), indent=2))
-    )
-    vec_env = make_vec_env(lambda: make_env(config), n_envs=config.n_envs, seed=config.seed)
-    model = _algorithm_class(config.algorithm)(
-        "MlpPolicy",
-        vec_env,
-        seed=config.seed,
-        verbose=0,
-        policy_kwargs=dict(config.policy_kwargs),
-        **dict(config.algorithm_kwargs),
     )
     callbacks = []
     if report is not None:

@@ -168,7 +168,11 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
     wrappers = []
     if args.delay:
-        wrappers.append({"kind": "action_delay", "delay": args.delay})
+        wrappers.append(
+            {"kind": "action_delay", "delay": args.delay, "observe_queue": not args.hide_queue}
+        )
+    elif args.hide_queue:
+        raise UsageError("--hide-queue needs an action delay (--delay SECONDS)")
     if args.neuromuscular:
         omega, zeta = args.neuromuscular
         wrappers.append({"kind": "neuromuscular", "omega_nms": omega, "zeta_nms": zeta})
@@ -183,6 +187,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
         n_envs=args.envs,
         seed=args.seed,
         checkpoint_every=args.checkpoint_every,
+        algorithm_kwargs=_assignments(args.algorithm_option, "--algorithm-option"),
+        policy_kwargs={} if args.net_arch is None else {"net_arch": list(args.net_arch)},
     )
     agent = train(config, args.out, report=None if args.quiet else print)
     print(f"saved agent to {agent.path} (config.json, policy.pt, model.zip)")
@@ -326,6 +332,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--delay", type=float, default=0.0, help="action delay (s)")
     p.add_argument(
+        "--hide-queue",
+        action="store_true",
+        help="hide the actions still in the delay queue from the agent (by default they "
+        "are observed, which keeps the task Markov but lets the agent predict through "
+        "the delay; hidden, it must act through the delay as a human does)",
+    )
+    p.add_argument(
         "--neuromuscular",
         type=float,
         nargs=2,
@@ -339,6 +352,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--algorithm", default="sac", choices=("sac", "ppo"), help="RL algorithm")
     p.add_argument("--steps", type=int, default=100_000, help="environment steps")
     p.add_argument("--envs", type=int, default=1, help="parallel environments")
+    p.add_argument(
+        "--algorithm-option",
+        action="append",
+        metavar="KEY=VALUE",
+        help="keyword for the stable-baselines3 algorithm, e.g. n_steps=512; repeatable",
+    )
+    p.add_argument(
+        "--net-arch",
+        type=int,
+        nargs="+",
+        metavar="UNITS",
+        default=None,
+        help="hidden layer sizes of the policy (and value) networks, e.g. 64 64",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed")
     p.add_argument("--checkpoint-every", type=int, default=None, help="save weights every N steps")
     p.add_argument("--out", type=Path, required=True, help="output folder for the agent")

@@ -164,6 +164,11 @@ def test_bench_with_failing_runs_exits_3(tmp_path, capsys, monkeypatch):
         (["simulate", "--param", "K_p=ramp:1", "--out", "x.npz"], "bad ramp schedule 'ramp:1'"),
         (["identify", "missing.npz"], "no such recording file"),
         (["evaluate", "no-agent-here"], "has no config.json"),
+        (["train", "--hide-queue", "--out", "a"], "--hide-queue needs an action delay"),
+        (
+            ["train", "--algorithm", "ppo", "--algorithm-option", "n_step=64", "--out", "a"],
+            "algorithm_kwargs {'n_step': 64} or policy_kwargs {} not accepted by PPO",
+        ),
     ],
 )
 def test_user_errors_exit_2_with_a_message_and_no_traceback(
@@ -174,17 +179,23 @@ def test_user_errors_exit_2_with_a_message_and_no_traceback(
     assert code == EXIT_USAGE
     assert message in err and "Traceback" not in err
     assert err.startswith(f"manualcontrol {argv[0]}: error:")
+    assert not (tmp_path / "a").exists() and not (tmp_path / "x.npz").exists()
 
 
 def test_train_and_evaluate_commands(tmp_path, capsys):
     agent = tmp_path / "agent"
     code, out, _ = run(
         capsys,
-        "train", "--steps", "200", "--delay", "0.1", "--algorithm", "ppo",
+        "train", "--steps", "200", "--delay", "0.1", "--hide-queue", "--algorithm", "ppo",
         "--env", "measurement_time=2.0", "--env", "forcing=\"plaetinck2018\"",
-        "--out", str(agent), "--quiet",
+        "--envs", "2", "--algorithm-option", "n_steps=50", "--algorithm-option",
+        "batch_size=25", "--net-arch", "8", "8", "--out", str(agent), "--quiet",
     )  # fmt: skip
     assert code == EXIT_OK and (agent / "policy.pt").is_file()
+    config = json.loads((agent / "config.json").read_text())
+    assert config["algorithm_kwargs"] == {"n_steps": 50, "batch_size": 25}
+    assert config["policy_kwargs"] == {"net_arch": [8, 8]} and config["n_envs"] == 2
+    assert config["wrappers"] == [{"kind": "action_delay", "delay": 0.1, "observe_queue": False}]
     code, out, _ = run(capsys, "evaluate", str(agent), "--out", str(tmp_path / "eval"))
     assert code == EXIT_OK and "RMS error" in out
     assert (tmp_path / "eval" / "evaluation.md").is_file()

@@ -74,6 +74,22 @@ def test_process_pool_and_in_process_give_identical_numbers(tmp_path):
     assert pq.read_table(tmp_path / "pool" / "results.parquet").num_rows == 2
 
 
+def test_ray_gives_the_same_numbers(tmp_path):
+    """Runs where Ray is installed (extra ``dist``); a local Ray cluster of 2 CPUs."""
+    ray = pytest.importorskip("ray")
+    suite = parse_suite(SMALL)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        remote = run_suite(suite, tmp_path / "ray", backend="ray")
+    finally:
+        ray.shutdown()
+    serial = run_suite(suite, tmp_path / "serial", backend="inprocess")
+    assert [r["key"] for r in remote] == [r["key"] for r in serial]
+    for a, b in zip(remote, serial, strict=True):
+        assert a["status"] == "ok", a.get("error")
+        assert same(numbers(a), numbers(b))
+
+
 def test_finished_runs_are_resumed(tmp_path):
     suite = parse_suite(SMALL)
     first = run_suite(suite, tmp_path, backend="inprocess")
