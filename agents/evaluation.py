@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -122,9 +122,7 @@ def evaluate(
     )
     reference_rms = None
     if values is not None and agent.config.task == "compensatory":
-        base = make_env(
-            agent.config.__class__(**{**agent.config.to_dict(), "wrappers": ()}), **overrides
-        )
+        base = make_env(replace(agent.config, wrappers=()), **overrides)
         reference_recording = _run(Pilot("precision", dict(values)), base, seed)
         base.close()
         reference_rms = float(np.sqrt(np.mean(reference_recording.e**2)))

@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 import manualcontrol.envs  # noqa: F401  (registers the tracking ids)
-from manualcontrol.agents.wrappers import WRAPPERS, apply_wrappers
+from manualcontrol.agents.wrappers import apply_wrappers
 from manualcontrol.envs._files import atomic_write
 from manualcontrol.envs._validation import check_choice, check_int, reject_unknown
 
@@ -100,14 +100,11 @@ class TrainingConfig:
         check_int("seed", self.seed, minimum=0)
         if self.checkpoint_every is not None:
             check_int("checkpoint_every", self.checkpoint_every, minimum=1)
-        wrappers = tuple(dict(spec) for spec in self.wrappers)
-        for spec in wrappers:
-            check_choice("wrapper kind", spec.get("kind"), tuple(WRAPPERS))
-        object.__setattr__(self, "wrappers", wrappers)
+        object.__setattr__(self, "wrappers", tuple(dict(spec) for spec in self.wrappers))
         for name in ("env_kwargs", "algorithm_kwargs", "policy_kwargs"):
             object.__setattr__(self, name, dict(getattr(self, name)))
         try:
-            json.dumps(self.to_dict())
+            self.to_dict()  # a JSON round trip
         except TypeError as error:
             raise TypeError(f"training configuration must be JSON-serialisable: {error}") from None
         # fail now, not after hours: the environment and wrappers must build

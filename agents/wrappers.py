@@ -36,7 +36,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from manualcontrol.envs._validation import check_positive, check_range
+from manualcontrol.envs._validation import check_choice, check_positive, check_range
 from manualcontrol.envs.dynamics import discretize, tf_to_ccf
 
 __all__ = [
@@ -281,10 +281,6 @@ def apply_wrappers(
     """Wrap ``env`` with ``[{"kind": "action_delay", "delay": 0.2}, ...]``, innermost first."""
     for spec in wrappers:
         spec = dict(spec)
-        kind = spec.pop("kind", None)
-        if kind not in WRAPPERS:
-            raise ValueError(
-                f"wrapper kind must be one of {', '.join(map(repr, WRAPPERS))}, got {kind!r}"
-            )
+        kind = check_choice("wrapper kind", spec.pop("kind", None), tuple(WRAPPERS))
         env = WRAPPERS[kind](env, **spec)
     return env

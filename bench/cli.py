@@ -113,6 +113,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 def _cmd_identify(args: argparse.Namespace) -> int:
     from manualcontrol.bench.report import plot_estimation
     from manualcontrol.bench.runner import make_estimator
+    from manualcontrol.envs._files import atomic_write
     from manualcontrol.envs.recording import Recording
 
     columns = _assignments(args.column, "--column")
@@ -130,7 +131,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         "estimated": list(result.estimated),
         "health": result.health.to_dict(),
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    atomic_write(out / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
     figure = plot_estimation(recording, result, out / "parameters.png")
     print(f"estimated {', '.join(result.estimated)}; final values {final}")
     print(f"wrote {path}, {out / 'summary.json'}, {figure}")

@@ -197,17 +197,17 @@ def _trace_figure(
     if moving:
         import warnings
 
-        warnings.filterwarnings("ignore", "All-NaN slice", RuntimeWarning)  # the first 10 s
         length = min(len(m) for m in moving)
         stack = np.array([m[:length] for m in moving], dtype=float)
         times = np.asarray(ok[0].get("moving_vaf_t", np.arange(length)))[:length]
-        axes[-1].fill_between(
-            times, *np.nanpercentile(stack, [25, 75], axis=0), color="tab:blue", alpha=0.2, lw=0
-        )
-        axes[-1].plot(times, np.nanmedian(stack, axis=0), color="tab:blue", lw=1.0)
-        axes[-1].set_ylim(
-            max(0.0, float(np.nanmin(np.nanpercentile(stack, 25, axis=0))) - 5.0), 101.0
-        )
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", "All-NaN slice", RuntimeWarning)  # the first 10 s
+            quartiles = np.nanpercentile(stack, [25, 75], axis=0)
+            median = np.nanmedian(stack, axis=0)
+            lowest = float(np.nanmin(quartiles[0]))  # NaN when no window is complete
+        axes[-1].fill_between(times, *quartiles, color="tab:blue", alpha=0.2, lw=0)
+        axes[-1].plot(times, median, color="tab:blue", lw=1.0)
+        axes[-1].set_ylim(max(0.0, lowest - 5.0), 101.0)
     axes[-1].set_ylabel("10-s VAF [%]")
     axes[-1].set_xlabel("time [s]")
     axes[0].set_title(f"{suite.name}: {batch}")

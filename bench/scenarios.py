@@ -47,7 +47,6 @@ Schema of a suite file::
 
     [batch.reference]          # optional: the paper's numbers for this batch
     source = "thesis Table II"
-X
     [batch.reference.parameters]
     tau_f = {rel_bias = 0.312, nrmse = 0.252}
 """
