@@ -714,6 +714,10 @@ class DEKF:
             settings = dataclasses.replace(settings, **changes)
         self._settings = settings
         self._internal = _internal_model(settings.model, settings.delay_order)
+        keys = list(self._internal.input_names)
+        keys += [name for name in ("e", "u") if name not in keys]
+        self._sample_keys = tuple(keys)
+        self._allowed_sample_keys = frozenset((*keys, "t"))
         self._belief: _Belief | None = None
         self._resolved: ResolvedSettings | None = None
 
@@ -739,11 +743,7 @@ class DEKF:
     @property
     def sample_keys(self) -> tuple[str, ...]:
         """Keys :meth:`update` needs: the filter inputs, ``u`` and ``e``."""
-        keys = list(self._internal.input_names)
-        for name in ("e", "u"):
-            if name not in keys:
-                keys.append(name)
-        return tuple(keys)
+        return self._sample_keys
 
     def configure(self, **changes: Any) -> DEKF:
         """A new DEKF with some settings replaced."""
@@ -938,7 +938,7 @@ class DEKF:
         if not isinstance(sample, Mapping):
             raise TypeError(f"sample must be a mapping of signal values, got {sample!r}")
         keys = self.sample_keys
-        reject_unknown("DEKF.update sample", sample, (*keys, "t"))
+        reject_unknown("DEKF.update sample", sample, self._allowed_sample_keys)
         missing = [key for key in keys if key not in sample]
         if missing:
             raise ValueError(

@@ -460,13 +460,6 @@ def build_internal_model(
     )
 
 
-def parameter_usage(internal: InternalModel) -> dict[str, bool]:
-    """Whether each parameter enters the model at all (tests and validation)."""
-    used = set(internal.term_var[internal.term_var >= 0].tolist())
-    used.update(int(j) for j in internal.chain_pade if j >= 0)
-    return {name: j in used for j, name in enumerate(internal.parameter_names)}
-
-
 # ------------------------------------------------------------------ compiled kernels
 
 
