@@ -1,9 +1,12 @@
 """Compiled core of the Dual Extended Kalman Filter: one step, and a whole run.
 
-Pure numerics: :func:`dekf_step` advances a belief (arrays it updates in place) by one
-sample and writes that sample's estimate into row ``row`` of the output arrays;
-:func:`dekf_run` loops it over a recording. The online ``DEKF.update`` and the batch
-``DEKF.estimate`` both call :func:`dekf_step`, so they give identical numbers.
+Pure numerics on small records (namedtuples of arrays, STYLE.md item 14):
+:func:`dekf_step` advances a :data:`DEKFBelief` by one sample and writes that
+sample's estimate into row ``row`` of a :data:`DEKFOutput`; :func:`dekf_run` loops it
+over a recording. The online ``DEKF.update`` and the batch ``DEKF.estimate`` both call
+:func:`dekf_step`, so they give identical numbers. The covariance algebra (Joseph
+correction, symmetrisation, health checks, windowed variances, pin tracking) is the
+family's shared code in :mod:`manualcontrol.estimators.filters`.
 
 The six steps (thesis Part I eqs. 11-25, Popovici et al. 2017 eqs. 6-15):
 
@@ -18,119 +21,111 @@ The six steps (thesis Part I eqs. 11-25, Popovici et al. 2017 eqs. 6-15):
 5. parameter correction with the total derivative ``G_p^tot`` (eqs. 21-24, 47-50);
 6. parameter limitation by estimate projection (eq. 25).
 
-The first sample has no prediction (the prior is the initial belief). Matrix
-products exploit the structure of ``F`` (shift rows ``x_i' = x_{i+1}`` and one dense
-row per canonical chain) and the rank-one structure of ``I - K G``; the Joseph form
-``(I - K G) P (I - K G)^T + K R K^T`` is evaluated as that product, in O(n^2).
+The first sample has no prediction (the prior is the initial belief). ``Phi_s`` is
+applied through the structure of ``F`` (shift rows ``x_i' = x_{i+1}`` and one dense
+row per canonical chain) in O(n^2) rather than as a dense product.
+
+With smoother storage in the output record (arrays of one row per sample, see
+:func:`manualcontrol.estimators.dekf.DEKF.estimate`), each step also stores the
+state filter's prior, posterior and ``Phi_s`` and the parameter filter's prior and
+posterior, from which :mod:`~manualcontrol.estimators.filters.smoothers` smooths the
+state filter as an EKF and the parameter filter as random walks.
 
 The kernels are compiled with ``_nrt=False`` (numba's array reference counting off):
-they allocate nothing, and the atomic reference counts of the ~60 arrays passed
-around each step otherwise cost more than the arithmetic (about 3.5 us against 1.5 us
-per compensatory step).
+they allocate nothing, and the atomic reference counts of the arrays passed around
+each step otherwise cost more than the arithmetic.
 """
 
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numba
 import numpy as np
 
+from manualcontrol.estimators._pilot_core import (
+    CFG_DIMENSIONAL,
+    CFG_DT,
+    CFG_ERROR_STATE,
+    CFG_GAMMA2,
+    CFG_JITTER,
+    CFG_MAX_COV,
+    SC_FROZEN,
+    SC_K,
+    inputs_in_use,
+    noise_levels,
+    report_frozen,
+    report_row,
+)
+from manualcontrol.estimators.filters.kalman import clamp, joseph_correct
+from manualcontrol.estimators.filters.linalg import symmetrise
+from manualcontrol.estimators.filters.monitor import belief_health
 from manualcontrol.estimators.internal_model import evaluate_coefficients, model_f, model_g
 
-# ---- indices into the configuration vector ``cfg``
-CFG_DT = 0
-CFG_Q2 = 1
-CFG_R2 = 2
-CFG_WINDOW = 3  # samples N; the window holds N + 1 samples
-CFG_FIRST_WINDOW = 4  # 1: use var0 for k < N (papers); 0: causal growing window
-CFG_FLOOR = 5
-CFG_JITTER = 6
-CFG_MAX_COV = 7
-CFG_DIMENSIONAL = 8  # 1: eq. 49 with dt on df/dtheta; 0: as printed
-CFG_FIXED_R = 9  # > 0 replaces r^2 var(u)
-CFG_FIXED_QE = 10  # > 0 replaces q^2 var(e)
-CFG_ERROR_STATE = 11
-CFG_GAMMA2 = 12  # Gamma^2: dt^2 (Euler noise input) or 1 (identity)
-CFG_R2_PARAMETER = 13  # r^2 of the parameter filter (the same as CFG_R2 unless set)
-CFG_SIZE = 14
-
-# ---- indices into the belief's scalar vector ``sc``
-SC_K = 0
-SC_VAR_U0 = 1
-SC_VAR_E0 = 2
-SC_U = 3  # shift, sum, sum of squares, count
-SC_E = 7
-SC_FROZEN = 11
-SC_DIV_INDEX = 12
-SC_DIV_REASON = 13
-SC_DIV_PARAM = 14
-SC_SIZE = 15
-
-#: Magnitude below which covariance entries are flushed to zero (subnormal range).
-TINY = 1e-290
-#: Fraction of the samples of the last ``pinned_time`` at a limit that counts as pinned.
-PIN_FRACTION = 0.9
-#: Relative tolerance for a covariance diagonal below zero (rounding of a variance ~0).
-NEGATIVE_TOLERANCE = 1e-10
-
-REASON_NONE = 0
-REASON_NONFINITE = 1
-REASON_COVARIANCE = 2
-REASON_PINNED = 3
-
-
-@numba.njit(cache=True, _nrt=False)
-def _window_push(buf, sc, base, value, k):
-    """Append ``value`` to the ring ``buf`` (NaN = missing), updating running sums in ``sc``.
-
-    ``sc[base:base + 4]`` = (shift, sum, sum of squares, count) of the finite values
-    in the ring, taken about ``shift`` (the first value of a filling) against
-    cancellation; the sums are recomputed exactly at every wrap of the ring, so
-    rounding cannot accumulate over a long run.
-    """
-    size = buf.shape[0]
-    pos = k % size
-    old = buf[pos]
-    if not np.isnan(old):
-        dv = old - sc[base]
-        sc[base + 1] -= dv
-        sc[base + 2] -= dv * dv
-        sc[base + 3] -= 1.0
-        if sc[base + 3] <= 0.0:
-            sc[base + 1] = 0.0
-            sc[base + 2] = 0.0
-            sc[base + 3] = 0.0
-    buf[pos] = value
-    if not np.isnan(value):
-        if sc[base + 3] == 0.0:
-            sc[base] = value
-        dv = value - sc[base]
-        sc[base + 1] += dv
-        sc[base + 2] += dv * dv
-        sc[base + 3] += 1.0
-    if pos == size - 1:
-        s = 0.0
-        ss = 0.0
-        c = 0.0
-        for i in range(size):
-            v = buf[i]
-            if not np.isnan(v):
-                dv = v - sc[base]
-                s += dv
-                ss += dv * dv
-                c += 1.0
-        sc[base + 1] = s
-        sc[base + 2] = ss
-        sc[base + 3] = c
-
-
-@numba.njit(cache=True, _nrt=False)
-def _window_variance(sc, base):
-    c = sc[base + 3]
-    if c < 1.0:
-        return 0.0
-    mean = sc[base + 1] / c
-    var = sc[base + 2] / c - mean * mean
-    return var if var > 0.0 else 0.0
+#: Settings as arrays: ``cfg`` (``CFG_*`` of :mod:`~manualcontrol.estimators._pilot_core`),
+#: which canonical rows of ``F`` are dense, where the gains and parameters sit in the
+#: model's parameter vector, their process noises, and the limit entry of each
+#: state-filter and parameter-filter state (-1: none).
+DEKFConfig = namedtuple(
+    "DEKFConfig",
+    [
+        "cfg",
+        "is_dense",
+        "gain_index",
+        "theta_index",
+        "q_state",
+        "q_theta",
+        "state_limit",
+        "theta_limit",
+        "estimated",
+    ],
+)
+#: The belief: state filter ``x, P`` (canonical states then gains), parameter filter
+#: ``th, Pp``, the total derivative ``dx = dx^+/dtheta``, the previous inputs, the
+#: parameter vector ``p`` in model order and the scalars ``sc`` (``SC_*``).
+DEKFBelief = namedtuple("DEKFBelief", ["x", "P", "th", "Pp", "dx", "prev_in", "p", "sc"])
+DEKFScratch = namedtuple(
+    "DEKFScratch",
+    [
+        "F",
+        "f",
+        "dfdp",
+        "dgdx",
+        "dgdp",
+        "M",
+        "H_state",
+        "H_theta",
+        "R_state",
+        "R_theta",
+        "r",
+        "state_work",
+        "theta_work",
+        "dxm",
+        "in_use",
+        "variance",
+        "scalars",
+    ],
+)
+#: Per-row outputs; the smoother storage has one row per sample or none.
+DEKFOutput = namedtuple(
+    "DEKFOutput",
+    [
+        "mean",
+        "std",
+        "scalar",
+        "flag",
+        "pinned",
+        "x_prior",
+        "P_prior",
+        "x_post",
+        "P_post",
+        "Phi",
+        "th_prior",
+        "Pp_prior",
+        "th_post",
+        "Pp_post",
+    ],
+)
 
 
 @numba.njit(cache=True, _nrt=False)
@@ -172,176 +167,67 @@ def _apply_phi_transpose(F, is_dense, n_c, dt, src, dst):
 
 
 @numba.njit(cache=True, _nrt=False)
-def _symmetrise(P):
-    """``P <- (P + P^T)/2``, flushing subnormal entries to zero.
-
-    A state without process noise that the measurements pin down (the far-view chain)
-    has a variance that decays towards zero; left alone it would reach subnormal
-    numbers, whose arithmetic is a hundred times slower, and flicker around zero by
-    rounding. Entries below :data:`TINY` in magnitude are set to 0 (flush to zero).
-    """
-    n = P.shape[0]
-    for i in range(n):
-        if abs(P[i, i]) < TINY:
-            P[i, i] = 0.0
-        for j in range(i + 1, n):
-            v = 0.5 * (P[i, j] + P[j, i])
-            if abs(v) < TINY:
-                v = 0.0
-            P[i, j] = v
-            P[j, i] = v
+def _store(row, x, P, target_x, target_P):
+    if target_x.shape[0] == 0:
+        return
+    for i in range(x.shape[0]):
+        target_x[row, i] = x[i]
+        for j in range(x.shape[0]):
+            target_P[row, i, j] = P[i, j]
 
 
 @numba.njit(cache=True, _nrt=False)
-def _joseph(P, G, R, K, PG, m, jitter):
-    """Scalar-measurement Kalman update of ``P`` in Joseph form; returns ``S``.
-
-    ``K = P G^T / S`` with ``S = G P G^T + R`` (a scalar: the solve is a division),
-    ``P <- (I - K G) P (I - K G)^T + K R K^T``, symmetrised, plus ``jitter I``.
-    """
-    n = P.shape[0]
-    S = R
-    for i in range(n):
-        acc = 0.0
-        for j in range(n):
-            acc += P[i, j] * G[j]
-        PG[i] = acc
-        S += G[i] * acc
-    for i in range(n):
-        K[i] = PG[i] / S
-    # M = (I - K G) P = P - K (G P);  G P = PG^T for symmetric P
-    for i in range(n):
-        for j in range(n):
-            P[i, j] -= K[i] * PG[j]
-    # M (I - K G)^T = M - (M G^T) K^T
-    for i in range(n):
-        acc = 0.0
-        for j in range(n):
-            acc += P[i, j] * G[j]
-        m[i] = acc
-    for i in range(n):
-        for j in range(n):
-            P[i, j] += -m[i] * K[j] + R * K[i] * K[j]
-    _symmetrise(P)
-    for i in range(n):
-        P[i, i] += jitter
-    return S
+def _store_phi(out, row, F, is_dense, n_c, dt, k):
+    """``Phi_s`` of this sample's prediction (identity on the gains; identity at k = 0)."""
+    Phi = out.Phi
+    if Phi.shape[0] == 0:
+        return
+    n_s = Phi.shape[1]
+    for i in range(n_s):
+        for j in range(n_s):
+            Phi[row, i, j] = 1.0 if i == j else 0.0
+    if k == 0:
+        return
+    for i in range(n_c):
+        if is_dense[i]:
+            for j in range(n_c):
+                Phi[row, i, j] += dt * F[i, j]
+        else:
+            Phi[row, i, i + 1] += dt
 
 
 @numba.njit(cache=True, _nrt=False)
-def dekf_step(
-    tables,
-    work,
-    coef,
-    cfg,
-    is_dense,
-    gain_index,
-    theta_index,
-    p,
-    lo,
-    hi,
-    q_state,
-    q_theta,
-    report_offset,
-    report_sign,
-    x,
-    P,
-    th,
-    Pp,
-    dx,
-    prev_in,
-    buf_u,
-    buf_e,
-    sc,
-    pins,
-    pin_ring,
-    last_mean,
-    last_std,
-    scratch,
-    inputs_k,
-    u_k,
-    e_k,
-    row,
-    out_mean,
-    out_std,
-    out_scalar,
-    out_flag,
-    out_pinned,
-):
+def dekf_step(model, config, belief, monitor, report, scratch, inputs_k, u_k, e_k, row, out):
     """Advance the belief by one sample; write its estimate into output row ``row``.
 
-    ``out_scalar[row]`` = (prediction, innovation, innovation variance);
-    ``out_flag[row]`` = (finite, covariance ok, dropped, diverged).
+    ``out.scalar[row]`` = (prediction, innovation, innovation variance);
+    ``out.flag[row]`` = (finite, covariance ok, dropped, diverged).
     """
-    (
-        term_coef,
-        term_var,
-        term_exp,
-        term_slot,
-        chain_num,
-        chain_den,
-        chain_pade,
-        chain_offset,
-        chain_size,
-        chain_num_length,
-        chain_den_length,
-        branch_chain,
-        branch_input,
-        active,
-    ) = tables
-    raw, raw_grad, num, num_grad, den, den_grad, pade_value, pade_slope = work
-    negA, negA_grad, C, C_grad, d, d_grad = coef
-    (F, f, dfdp, dgdx, dgdp, M, Gs, PG, K, m, Gt, PGp, Kp, mp, dxm, in_use) = scratch
+    cfg = config.cfg
+    x, P, th, Pp, dx, prev_in, p, sc = belief
+    F, f, dfdp, dgdx, dgdp = scratch.F, scratch.f, scratch.dfdp, scratch.dgdx, scratch.dgdp
+    H, Ht, dxm, in_use = scratch.H_state, scratch.H_theta, scratch.dxm, scratch.in_use
+    gain_index, theta_index = config.gain_index, config.theta_index
 
     n_c = f.shape[0]
     n_s = x.shape[0]
     n_g = gain_index.shape[0]
     n_t = th.shape[0]
-    n_p = p.shape[0]
     dt = cfg[CFG_DT]
     gamma2 = cfg[CFG_GAMMA2]
     k = int(sc[SC_K])
-    n_window = int(cfg[CFG_WINDOW])
 
-    # ---- retrospective variances (Popovici eqs. 24-25, thesis eqs. 29-30)
-    _window_push(buf_u, sc, SC_U, u_k, k)
-    _window_push(buf_e, sc, SC_E, e_k, k)
-    if cfg[CFG_FIRST_WINDOW] > 0.0 and k < n_window:
-        var_u = sc[SC_VAR_U0]
-        var_e = sc[SC_VAR_E0]
-    else:
-        var_u = _window_variance(sc, SC_U)
-        var_e = _window_variance(sc, SC_E)
-    floor = cfg[CFG_FLOOR]
-    var_u = max(var_u, floor)
-    R = cfg[CFG_FIXED_R] if cfg[CFG_FIXED_R] > 0.0 else cfg[CFG_R2] * var_u
-    R_p = cfg[CFG_FIXED_R] if cfg[CFG_FIXED_R] > 0.0 else cfg[CFG_R2_PARAMETER] * var_u
-    q_error = cfg[CFG_FIXED_QE] if cfg[CFG_FIXED_QE] > 0.0 else cfg[CFG_Q2] * max(var_e, floor)
-
-    # inputs used this sample: a dropped input holds its last value
-    dropped = np.isnan(u_k)
-    for i in range(inputs_k.shape[0]):
-        if np.isnan(inputs_k[i]):
-            dropped = True
-            in_use[i] = prev_in[i]
-        else:
-            in_use[i] = inputs_k[i]
+    # retrospective variances (Popovici eqs. 24-25, thesis eqs. 29-30)
+    R, R_p, q_error = noise_levels(cfg, sc, monitor, u_k, e_k)
+    dropped = inputs_in_use(inputs_k, u_k, prev_in, in_use)
 
     if sc[SC_FROZEN] > 0.0:
-        for j in range(n_p):
-            out_mean[row, j] = last_mean[j]
-            out_std[row, j] = last_std[j]
-            out_pinned[row, j] = False
-        out_scalar[row, 0] = np.nan
-        out_scalar[row, 1] = np.nan
-        out_scalar[row, 2] = np.nan
-        out_flag[row, 0] = False
-        out_flag[row, 1] = False
-        out_flag[row, 2] = dropped
-        out_flag[row, 3] = True
-        for i in range(prev_in.shape[0]):
-            prev_in[i] = in_use[i]
-        sc[SC_K] = k + 1
+        _store(row, x, P, out.x_prior, out.P_prior)
+        _store(row, x, P, out.x_post, out.P_post)
+        _store(row, th, Pp, out.th_prior, out.Pp_prior)
+        _store(row, th, Pp, out.th_post, out.Pp_post)
+        _store_phi(out, row, F, config.is_dense, n_c, dt, 0)
+        report_frozen(sc, monitor, prev_in, in_use, dropped, row, out)
         return
 
     # current parameter vector: gains from the state filter, theta^- = theta^+ (eq. 11)
@@ -349,327 +235,135 @@ def dekf_step(
         p[gain_index[g]] = x[n_c + g]
     for t in range(n_t):
         p[theta_index[t]] = th[t]
-    evaluate_coefficients(
-        p,
-        term_coef,
-        term_var,
-        term_exp,
-        term_slot,
-        chain_num,
-        chain_den,
-        chain_pade,
-        chain_offset,
-        chain_size,
-        chain_num_length,
-        chain_den_length,
-        branch_chain,
-        branch_input,
-        active,
-        raw,
-        raw_grad,
-        num,
-        num_grad,
-        den,
-        den_grad,
-        pade_value,
-        pade_slope,
-        negA,
-        negA_grad,
-        C,
-        C_grad,
-        d,
-        d_grad,
-    )
+    evaluate_coefficients(p, model)
 
     if k > 0:
         # ---- 1. parameter prediction (eq. 12)
         for t in range(n_t):
-            Pp[t, t] += q_theta[t] * gamma2
+            Pp[t, t] += config.q_theta[t] * gamma2
         # ---- 2. state prediction (eqs. 13-14) at x^+_{k-1}, in_{k-1}, theta^-_k
-        model_f(
-            x,
-            prev_in,
-            chain_num,
-            chain_den,
-            chain_pade,
-            chain_offset,
-            chain_size,
-            chain_num_length,
-            chain_den_length,
-            branch_chain,
-            branch_input,
-            negA,
-            negA_grad,
-            C,
-            C_grad,
-            d,
-            d_grad,
-            f,
-            F,
-            dfdp,
-        )
+        model_f(x, prev_in, model, f, F, dfdp, True)
         # total-derivative recursion, eq. 49: dx^-_k = df/dtheta (dt) + Phi dx^+_{k-1}
-        _apply_phi(F, is_dense, n_c, dt, dx, dxm)
+        _apply_phi(F, config.is_dense, n_c, dt, dx, dxm)
         scale = dt if cfg[CFG_DIMENSIONAL] > 0.0 else 1.0
         for i in range(n_c):
             for t in range(n_t):
                 dxm[i, t] += dfdp[i, theta_index[t]] * scale
         for i in range(n_c):
             x[i] += f[i] * dt
-        _apply_phi(F, is_dense, n_c, dt, P, M)
-        _apply_phi_transpose(F, is_dense, n_c, dt, M, P)
+        _apply_phi(F, config.is_dense, n_c, dt, P, scratch.M)
+        _apply_phi_transpose(F, config.is_dense, n_c, dt, scratch.M, P)
         for i in range(n_s):
-            P[i, i] += q_state[i] * gamma2
+            P[i, i] += config.q_state[i] * gamma2
         P[int(cfg[CFG_ERROR_STATE]), int(cfg[CFG_ERROR_STATE])] += q_error * gamma2
-        _symmetrise(P)
+        symmetrise(P)
     else:
         for i in range(n_s):
             for t in range(n_t):
                 dxm[i, t] = dx[i, t]
+    _store(row, x, P, out.x_prior, out.P_prior)
+    _store(row, th, Pp, out.th_prior, out.Pp_prior)
+    _store_phi(out, row, F, config.is_dense, n_c, dt, k)
 
     # ---- output equation at x^-_k, theta^-_k
-    prediction = model_g(
-        x,
-        in_use,
-        chain_num,
-        chain_den,
-        chain_pade,
-        chain_offset,
-        chain_size,
-        chain_num_length,
-        chain_den_length,
-        branch_chain,
-        branch_input,
-        negA,
-        negA_grad,
-        C,
-        C_grad,
-        d,
-        d_grad,
-        dgdx,
-        dgdp,
-    )
+    prediction = model_g(x, in_use, model, dgdx, dgdp, True)
     for i in range(n_c):
-        Gs[i] = dgdx[i]
+        H[0, i] = dgdx[i]
     for g in range(n_g):
-        Gs[n_c + g] = dgdp[gain_index[g]]
+        H[0, n_c + g] = dgdp[gain_index[g]]
     # G_p^tot = dg/dtheta + dg/dx dx^-/dtheta (eq. 48)
     for t in range(n_t):
         acc = dgdp[theta_index[t]]
         for i in range(n_s):
-            acc += Gs[i] * dxm[i, t]
-        Gt[t] = acc
+            acc += H[0, i] * dxm[i, t]
+        Ht[0, t] = acc
 
+    correct_ok = True
     if dropped:
         innovation = np.nan
         S = R
         for i in range(n_s):
             acc = 0.0
             for j in range(n_s):
-                acc += P[i, j] * Gs[j]
-            S += Gs[i] * acc
+                acc += P[i, j] * H[0, j]
+            S += H[0, i] * acc
         # no correction: K_s = 0, so dx^+ = dx^- (eq. 50)
         for i in range(n_s):
             for t in range(n_t):
                 dx[i, t] = dxm[i, t]
     else:
         innovation = u_k - prediction  # eq. 16
+        scratch.r[0] = innovation
         # ---- 3. state correction (eqs. 15-19)
-        S = _joseph(P, Gs, R, K, PG, m, cfg[CFG_JITTER])
-        for i in range(n_s):
-            x[i] += K[i] * innovation
+        scratch.R_state[0, 0] = R
+        correct_ok = joseph_correct(
+            x, P, scratch.r, H, scratch.R_state, scratch.state_work, cfg[CFG_JITTER]
+        )
+        S = scratch.state_work.S[0, 0]
+        K = scratch.state_work.K
         # ---- 4. state limitation (eq. 20): with unit-row D, the projection clamps
-        for g in range(n_g):
-            j = gain_index[g]
-            if x[n_c + g] < lo[j]:
-                x[n_c + g] = lo[j]
-            elif x[n_c + g] > hi[j]:
-                x[n_c + g] = hi[j]
+        clamp(x, config.state_limit, report.lo, report.hi)
         # ---- 5. parameter correction (eqs. 21-24)
-        if n_t > 0:
-            _joseph(Pp, Gt, R_p, Kp, PGp, mp, cfg[CFG_JITTER])
-            for t in range(n_t):
-                th[t] += Kp[t] * innovation
+        if n_t > 0 and correct_ok:
+            scratch.R_theta[0, 0] = R_p
+            correct_ok = joseph_correct(
+                th, Pp, scratch.r, Ht, scratch.R_theta, scratch.theta_work, cfg[CFG_JITTER]
+            )
             # ---- 6. parameter limitation (eq. 25)
-            for t in range(n_t):
-                j = theta_index[t]
-                if th[t] < lo[j]:
-                    th[t] = lo[j]
-                elif th[t] > hi[j]:
-                    th[t] = hi[j]
+            clamp(th, config.theta_limit, report.lo, report.hi)
         # eq. 50 for the next step: dx^+_k = dx^-_k - K_s,k G_p,k^tot
         for i in range(n_s):
             for t in range(n_t):
-                dx[i, t] = dxm[i, t] - K[i] * Gt[t]
+                dx[i, t] = dxm[i, t] - K[i, 0] * Ht[0, t]
+    _store(row, x, P, out.x_post, out.P_post)
+    _store(row, th, Pp, out.th_post, out.Pp_post)
 
     for i in range(prev_in.shape[0]):
         prev_in[i] = in_use[i]
 
-    # ---- report and health
-    # covariances: finite, no diagonal below zero beyond rounding, none above max_cov
-    finite = np.isfinite(prediction)
-    cov_ok = True
+    # ---- health and report
     max_cov = cfg[CFG_MAX_COV]
-    largest = 0.0
-    for i in range(n_s):
-        if not np.isfinite(x[i]) or not np.isfinite(P[i, i]):
-            finite = False
-        elif P[i, i] > largest:
-            largest = P[i, i]
-    for i in range(n_s):
-        if P[i, i] < -NEGATIVE_TOLERANCE * largest or P[i, i] > max_cov:
-            cov_ok = False
-    largest = 0.0
-    for t in range(n_t):
-        if not np.isfinite(th[t]) or not np.isfinite(Pp[t, t]):
-            finite = False
-        elif Pp[t, t] > largest:
-            largest = Pp[t, t]
-    for t in range(n_t):
-        if Pp[t, t] <= -NEGATIVE_TOLERANCE * largest or Pp[t, t] > max_cov:
-            cov_ok = False
+    finite_s, cov_ok_s = belief_health(x, P, max_cov, True)
+    finite_t, cov_ok_t = belief_health(th, Pp, max_cov, False)
+    finite = np.isfinite(prediction) and finite_s and finite_t
+    cov_ok = cov_ok_s and cov_ok_t
     if not dropped and not np.isfinite(innovation):
         finite = False
-
-    for j in range(n_p):
-        out_pinned[row, j] = False
-    if finite:
-        # means and standard deviations in internal units, then as reported
-        for j in range(n_p):
-            out_mean[row, j] = p[j]
-            out_std[row, j] = 0.0
-        for g in range(n_g):
-            j = gain_index[g]
-            out_mean[row, j] = x[n_c + g]
-            out_std[row, j] = np.sqrt(max(P[n_c + g, n_c + g], 0.0))
-        for t in range(n_t):
-            j = theta_index[t]
-            out_mean[row, j] = th[t]
-            out_std[row, j] = np.sqrt(max(Pp[t, t], 0.0))
-        for g in range(n_g):
-            j = gain_index[g]
-            v = x[n_c + g]
-            out_pinned[row, j] = v <= lo[j] or v >= hi[j]
-        for t in range(n_t):
-            j = theta_index[t]
-            out_pinned[row, j] = th[t] <= lo[j] or th[t] >= hi[j]
-        # samples at a limit within the last pin_ring.shape[1] samples
-        n_pin = pin_ring.shape[1]
-        if n_pin > 0:
-            pos = k % n_pin
-            for j in range(n_p):
-                now = 1 if out_pinned[row, j] else 0
-                pins[j] += now - pin_ring[j, pos]
-                pin_ring[j, pos] = now
-        for j in range(n_p):
-            out_mean[row, j] = report_offset[j] + report_sign[j] * out_mean[row, j]
-            last_mean[j] = out_mean[row, j]
-            last_std[j] = out_std[row, j]
-        if sc[SC_DIV_REASON] == REASON_NONE and n_pin > 0 and k + 1 >= n_pin:
-            for j in range(n_p):
-                if pins[j] >= PIN_FRACTION * n_pin:
-                    sc[SC_DIV_REASON] = REASON_PINNED
-                    sc[SC_DIV_INDEX] = k
-                    sc[SC_DIV_PARAM] = j
-                    break
-    else:
-        for j in range(n_p):
-            out_mean[row, j] = last_mean[j]
-            out_std[row, j] = last_std[j]
-    if not finite or not cov_ok:
-        sc[SC_FROZEN] = 1.0
-        if sc[SC_DIV_REASON] == REASON_NONE or sc[SC_DIV_REASON] == REASON_PINNED:
-            sc[SC_DIV_REASON] = REASON_NONFINITE if not finite else REASON_COVARIANCE
-            sc[SC_DIV_INDEX] = k
-            sc[SC_DIV_PARAM] = -1
-
-    out_scalar[row, 0] = prediction if finite else np.nan
-    out_scalar[row, 1] = innovation if finite else np.nan
-    out_scalar[row, 2] = S if finite else np.nan
-    out_flag[row, 0] = finite
-    out_flag[row, 1] = cov_ok
-    out_flag[row, 2] = dropped
-    out_flag[row, 3] = sc[SC_DIV_REASON] != REASON_NONE
-    sc[SC_K] = k + 1
+    if not correct_ok:
+        # an innovation variance that is not positive: non-finite, or the covariance broke
+        if np.isfinite(S):
+            cov_ok = False
+        else:
+            finite = False
+    variance = scratch.variance
+    for g in range(n_g):
+        p[gain_index[g]] = x[n_c + g]
+        variance[gain_index[g]] = P[n_c + g, n_c + g]
+    for t in range(n_t):
+        p[theta_index[t]] = th[t]
+        variance[theta_index[t]] = Pp[t, t]
+    scalars = scratch.scalars
+    scalars[0] = prediction
+    scalars[1] = innovation
+    scalars[2] = S
+    report_row(
+        sc,
+        monitor,
+        report,
+        p,
+        variance,
+        config.estimated,
+        finite,
+        cov_ok,
+        dropped,
+        scalars,
+        row,
+        out,
+    )
 
 
 @numba.njit(cache=True, _nrt=False)
-def dekf_run(
-    tables,
-    work,
-    coef,
-    cfg,
-    is_dense,
-    gain_index,
-    theta_index,
-    p,
-    lo,
-    hi,
-    q_state,
-    q_theta,
-    report_offset,
-    report_sign,
-    x,
-    P,
-    th,
-    Pp,
-    dx,
-    prev_in,
-    buf_u,
-    buf_e,
-    sc,
-    pins,
-    pin_ring,
-    last_mean,
-    last_std,
-    scratch,
-    inputs,
-    u,
-    e,
-    out_mean,
-    out_std,
-    out_scalar,
-    out_flag,
-    out_pinned,
-):
+def dekf_run(model, config, belief, monitor, report, scratch, inputs, u, e, out):
     """:func:`dekf_step` over every sample; ``inputs`` has shape ``(n, n_inputs)``."""
     for k in range(u.shape[0]):
-        dekf_step(
-            tables,
-            work,
-            coef,
-            cfg,
-            is_dense,
-            gain_index,
-            theta_index,
-            p,
-            lo,
-            hi,
-            q_state,
-            q_theta,
-            report_offset,
-            report_sign,
-            x,
-            P,
-            th,
-            Pp,
-            dx,
-            prev_in,
-            buf_u,
-            buf_e,
-            sc,
-            pins,
-            pin_ring,
-            last_mean,
-            last_std,
-            scratch,
-            inputs[k],
-            u[k],
-            e[k],
-            k,
-            out_mean,
-            out_std,
-            out_scalar,
-            out_flag,
-            out_pinned,
-        )
+        dekf_step(model, config, belief, monitor, report, scratch, inputs[k], u[k], e[k], k, out)

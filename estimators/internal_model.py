@@ -39,6 +39,7 @@ Sec. III-A), all others in the parameter filter.
 
 from __future__ import annotations
 
+from collections import namedtuple
 from dataclasses import dataclass
 
 import numba
@@ -52,6 +53,7 @@ __all__ = [
     "INPUT_SIGNALS",
     "InternalModel",
     "ModelEvaluation",
+    "ModelKernel",
     "build_internal_model",
 ]
 
@@ -64,6 +66,47 @@ INPUT_SIGNALS: dict[str, str] = {"e": "e", "y": "y", "ft_far": "ft_ahead"}
 ANTICIPATED_PARAMETER = "tau_f"
 _MAX_DEGREE = 3
 _CHECK_POINTS = 7
+
+#: What the compiled kernels read and write, one record per filter (each filter owns its
+#: scratch): the model's tables (monomials, chains, branches), ``active`` (which
+#: gradients to compute, see :meth:`InternalModel.active_table`), the scratch of the
+#: coefficient evaluation and its outputs ``negA, C, d`` with their gradients.
+ModelKernel = namedtuple(
+    "ModelKernel",
+    [
+        # tables
+        "term_coef",
+        "term_var",
+        "term_exp",
+        "term_slot",
+        "chain_num",
+        "chain_den",
+        "chain_pade",
+        "chain_offset",
+        "chain_size",
+        "chain_num_length",
+        "chain_den_length",
+        "branch_chain",
+        "branch_input",
+        "active",
+        # scratch
+        "raw",
+        "raw_grad",
+        "num",
+        "num_grad",
+        "den",
+        "den_grad",
+        "pade_value",
+        "pade_slope",
+        # canonical-form coefficients and their gradients
+        "negA",
+        "negA_grad",
+        "C",
+        "C_grad",
+        "d",
+        "d_grad",
+    ],
+)
 
 
 @dataclass(frozen=True)
@@ -153,24 +196,6 @@ class InternalModel:
         """Number of parameters ``n_p``."""
         return len(self.parameter_names)
 
-    def tables(self) -> tuple:
-        """The arrays the compiled kernels take, in their argument order."""
-        return (
-            self.term_coef,
-            self.term_var,
-            self.term_exp,
-            self.term_slot,
-            self.chain_num,
-            self.chain_den,
-            self.chain_pade,
-            self.chain_offset,
-            self.chain_size,
-            self.chain_num_length,
-            self.chain_den_length,
-            self.branch_chain,
-            self.branch_input,
-        )
-
     def active_table(self, needed: tuple[str, ...] | None = None) -> IntArray:
         """Parameters whose gradients :func:`evaluate_coefficients` computes, per chain.
 
@@ -203,12 +228,30 @@ class InternalModel:
                 table[c, which, : len(ordered)] = ordered
         return table
 
-    def workspace(self) -> tuple[FloatArray, ...]:
-        """Scratch arrays for :func:`evaluate_coefficients` (allocated once per filter)."""
+    def kernel(self, needed: tuple[str, ...] | None = None) -> ModelKernel:
+        """A fresh :class:`ModelKernel` (tables shared, scratch and outputs new).
+
+        ``needed``: the parameters whose gradients the filter reads (default: all;
+        ``()`` for filters that need values only, such as the unscented ones).
+        """
         n_p = self.n_parameters
         n_chain = self.chain_num.shape[0]
         longest = int(max(self.chain_den_length.max(), self.chain_num_length.max()))
-        return (
+        return ModelKernel(
+            self.term_coef,
+            self.term_var,
+            self.term_exp,
+            self.term_slot,
+            self.chain_num,
+            self.chain_den,
+            self.chain_pade,
+            self.chain_offset,
+            self.chain_size,
+            self.chain_num_length,
+            self.chain_den_length,
+            self.branch_chain,
+            self.branch_input,
+            self.active_table(needed),
             np.zeros(self.n_raw),
             np.zeros((self.n_raw, n_p)),
             np.zeros((n_chain, longest)),
@@ -217,13 +260,6 @@ class InternalModel:
             np.zeros((n_chain, longest, n_p)),
             np.zeros((2, self.delay_order + 1)),
             np.zeros((2, self.delay_order + 1)),
-        )
-
-    def coefficient_arrays(self) -> tuple[FloatArray, ...]:
-        """Output arrays of :func:`evaluate_coefficients`: ``negA, C, d`` and gradients."""
-        n_p = self.n_parameters
-        n_chain = self.chain_num.shape[0]
-        return (
             np.zeros(self.n_states),
             np.zeros((self.n_states, n_p)),
             np.zeros(self.n_states),
@@ -242,18 +278,16 @@ class InternalModel:
         p = np.ascontiguousarray(p, dtype=np.float64)
         x = np.ascontiguousarray(x, dtype=np.float64)
         inputs = np.ascontiguousarray(inputs, dtype=np.float64)
-        coefficients = self.coefficient_arrays()
-        evaluate_coefficients(
-            p, *self.tables(), self.active_table(), *self.workspace(), *coefficients
-        )
+        kernel = self.kernel()
+        evaluate_coefficients(p, kernel)
         n, n_p = self.n_states, self.n_parameters
         f = np.zeros(n)
         F = np.zeros((n, n))
         dfdp = np.zeros((n, n_p))
         dgdx = np.zeros(n)
         dgdp = np.zeros(n_p)
-        model_f(x, inputs, *self.tables()[4:], *coefficients, f, F, dfdp)
-        g = model_g(x, inputs, *self.tables()[4:], *coefficients, dgdx, dgdp)
+        model_f(x, inputs, kernel, f, F, dfdp, True)
+        g = model_g(x, inputs, kernel, dgdx, dgdp, True)
         return ModelEvaluation(f, F, dfdp, float(g), dgdx, dgdp)
 
 
@@ -316,9 +350,7 @@ def _recover_monomials(
     return monomials
 
 
-def build_internal_model(
-    model: str | PilotModel, delay_order: int = 3, *, anticipate: bool = True
-) -> InternalModel:
+def build_internal_model(model: str | PilotModel, delay_order: int = 3) -> InternalModel:
     """Build the internal model of a pilot structure.
 
     Parameters
@@ -329,10 +361,8 @@ def build_internal_model(
         ``"schiess-roland"``.
     delay_order
         Padé order (>= 1) of the model delay and of the anticipation delay ``tau_f*``;
-        3 as in Popovici et al. and the thesis.
-    anticipate
-        Feed a ``ft_far`` branch the anticipated target through ``exp(-tau_f* s)``
-        (thesis eq. 26). Must be True for models that read ``ft_far``.
+        3 as in Popovici et al. and the thesis. A branch fed by ``ft_far`` is always
+        fed the anticipated target through ``exp(-tau_f* s)`` (thesis eq. 26).
 
     Raises
     ------
@@ -356,8 +386,6 @@ def build_internal_model(
     for branch in channel.branches:
         check_choice("pilot perception", branch.signal, tuple(INPUT_SIGNALS))
     anticipated = any(branch.signal == "ft_far" for branch in channel.branches)
-    if anticipated and not anticipate:
-        raise ValueError("a model reading ft_far needs anticipate=True (thesis eq. 26)")
     monomials = None
     for degree in range(1, _MAX_DEGREE + 1):
         monomials = _recover_monomials(model, names, degree)
@@ -539,37 +567,7 @@ def _chain_polynomial(
 
 
 @numba.njit(cache=True, _nrt=False)
-def evaluate_coefficients(
-    p,
-    term_coef,
-    term_var,
-    term_exp,
-    term_slot,
-    chain_num,
-    chain_den,
-    chain_pade,
-    chain_offset,
-    chain_size,
-    chain_num_length,
-    chain_den_length,
-    branch_chain,
-    branch_input,
-    active,
-    raw,
-    raw_grad,
-    num,
-    num_grad,
-    den,
-    den_grad,
-    pade_value,
-    pade_slope,
-    negA,
-    negA_grad,
-    C,
-    C_grad,
-    d,
-    d_grad,
-):
+def evaluate_coefficients(p, kernel):
     """Canonical-form coefficients of every chain and their gradients in ``p``.
 
     Writes ``negA`` (last row of each chain's companion matrix, ``-a_i``), ``C`` (the
@@ -578,6 +576,20 @@ def evaluate_coefficients(
     parameters of its numerator, of its denominator and of both, each list ended by
     -1); gradient entries of other parameters are left untouched (zero).
     """
+    term_coef, term_var, term_exp, term_slot = (
+        kernel.term_coef,
+        kernel.term_var,
+        kernel.term_exp,
+        kernel.term_slot,
+    )
+    chain_num, chain_den, chain_pade = kernel.chain_num, kernel.chain_den, kernel.chain_pade
+    chain_offset, chain_size = kernel.chain_offset, kernel.chain_size
+    chain_num_length, chain_den_length = kernel.chain_num_length, kernel.chain_den_length
+    active, raw, raw_grad = kernel.active, kernel.raw, kernel.raw_grad
+    num, num_grad, den, den_grad = kernel.num, kernel.num_grad, kernel.den, kernel.den_grad
+    pade_value, pade_slope = kernel.pade_value, kernel.pade_slope
+    negA, negA_grad, C, C_grad = kernel.negA, kernel.negA_grad, kernel.C, kernel.C_grad
+    d, d_grad = kernel.d, kernel.d_grad
     n_p = p.shape[0]
     for t in range(term_coef.shape[0]):
         raw[term_slot[t]] = 0.0
@@ -687,30 +699,16 @@ def evaluate_coefficients(
 
 
 @numba.njit(cache=True, _nrt=False)
-def model_f(
-    x,
-    inputs,
-    chain_num,
-    chain_den,
-    chain_pade,
-    chain_offset,
-    chain_size,
-    chain_num_length,
-    chain_den_length,
-    branch_chain,
-    branch_input,
-    negA,
-    negA_grad,
-    C,
-    C_grad,
-    d,
-    d_grad,
-    f,
-    F,
-    dfdp,
-):
-    """``f``, ``df/dx`` (dense rows only; shift rows are set too) and ``df/dp``."""
-    n_p = dfdp.shape[1]
+def model_f(x, inputs, kernel, f, F, dfdp, jacobians):
+    """``f``; with ``jacobians`` also ``df/dx`` (shift rows are set too) and ``df/dp``.
+
+    Reads the coefficients that :func:`evaluate_coefficients` left in ``kernel``.
+    """
+    chain_offset, chain_size = kernel.chain_offset, kernel.chain_size
+    branch_chain, branch_input = kernel.branch_chain, kernel.branch_input
+    negA, negA_grad, C, C_grad = kernel.negA, kernel.negA_grad, kernel.C, kernel.C_grad
+    d, d_grad = kernel.d, kernel.d_grad
+    n_p = dfdp.shape[1] if jacobians else 0
     n_chain = chain_size.shape[0]
     for c in range(n_chain):
         n = chain_size[c]
@@ -754,29 +752,12 @@ def model_f(
 
 
 @numba.njit(cache=True, _nrt=False)
-def model_g(
-    x,
-    inputs,
-    chain_num,
-    chain_den,
-    chain_pade,
-    chain_offset,
-    chain_size,
-    chain_num_length,
-    chain_den_length,
-    branch_chain,
-    branch_input,
-    negA,
-    negA_grad,
-    C,
-    C_grad,
-    d,
-    d_grad,
-    dgdx,
-    dgdp,
-):
-    """``g`` (returned), ``dg/dx`` and ``dg/dp`` (written)."""
-    n_p = dgdp.shape[0]
+def model_g(x, inputs, kernel, dgdx, dgdp, jacobians):
+    """``g`` (returned); with ``jacobians`` also ``dg/dx`` and ``dg/dp`` (written)."""
+    chain_offset, chain_size = kernel.chain_offset, kernel.chain_size
+    branch_chain, branch_input = kernel.branch_chain, kernel.branch_input
+    C, C_grad, d, d_grad = kernel.C, kernel.C_grad, kernel.d, kernel.d_grad
+    n_p = dgdp.shape[0] if jacobians else 0
     n0 = chain_size[0]
     g = 0.0
     for j in range(n_p):

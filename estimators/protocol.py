@@ -10,10 +10,20 @@ An estimator is configured with a frozen settings dataclass, then
 
 :class:`Estimate` is one sample's answer: mean and standard deviation of *every*
 parameter of the pilot model (estimated or held constant; a constant has standard
-deviation 0), the innovation and its variance, the one-step model output and health
-flags. :class:`EstimationResult` holds the same as traces over a run, with fixed named
-fields, the settings used and a :class:`HealthSummary`; it saves to and loads from
-``.npz`` (written atomically, validated on load).
+deviation 0), the one-step prediction of each measured output, the innovations and
+their covariance, and health flags. :class:`EstimationResult` holds the same as traces
+over a run, with fixed named fields, the settings used and a :class:`HealthSummary`;
+it saves to and loads from ``.npz`` (written atomically, validated on load).
+
+Measurements may have ``m`` outputs (``outputs`` names the recorded signal each one
+predicts: ``("u",)`` for the pilot filters, ``("u", "y")`` for Schiess-Roland's stick
+and plant output). The first output is the *primary* one: ``prediction``,
+``innovation`` and ``innovation_variance`` are its traces, so code written for
+one-output estimators reads every estimator alike. Estimators may also record their
+state traces (``state_names``, ``states``), iterate over a run (``passes``, with each
+pass's final estimates in ``pass_mean``/``pass_std``), and a filtered result may be
+turned into a smoothed one (:func:`manualcontrol.estimators.smoothing.smooth`), marked
+``smoothed``.
 """
 
 from __future__ import annotations
@@ -47,11 +57,25 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
-#: Value of the ``result_format`` entry of saved results.
-RESULT_FORMAT = "manualcontrol.estimation/1"
+#: Value of the ``result_format`` entry of saved results (version 2: m outputs, state
+#: traces, passes, smoothing). Version 1 files (one output) still load.
+RESULT_FORMAT = "manualcontrol.estimation/2"
+_OLDER_FORMATS = ("manualcontrol.estimation/1",)
 
-_ARRAYS_1D = ("t", "prediction", "innovation", "innovation_variance")
 _FLAGS_1D = ("finite", "covariance_ok", "dropped", "diverged")
+_ARRAYS = (
+    "t",
+    "predictions",
+    "innovations",
+    "innovation_covariance",
+    *_FLAGS_1D,
+    "mean",
+    "std",
+    "pinned",
+    "states",
+    "pass_mean",
+    "pass_std",
+)
 
 
 def _readonly(array: Any, dtype: type) -> NDArray[Any]:
@@ -108,11 +132,19 @@ class Estimate:
     estimated : tuple of str
         The parameters being estimated.
     prediction : float
-        One-step model output ``g(x^-, theta^-)`` (NaN after divergence).
+        One-step prediction of the primary output, e.g. ``g(x^-, theta^-)`` for ``u``
+        (NaN after divergence).
     innovation, innovation_variance : float
-        ``u - prediction`` (NaN for a dropped sample) and its predicted variance.
+        Primary output minus its prediction (NaN for a dropped sample) and its
+        predicted variance.
     health : EstimateHealth
         Flags.
+    outputs : tuple of str
+        The measured outputs, primary first (default ``("u",)``).
+    predictions, innovations : tuple of float
+        Per output (default: the primary output's values alone).
+    innovation_covariance : tuple of tuple of float
+        ``(m, m)`` predicted covariance of the innovations.
 
     """
 
@@ -124,10 +156,31 @@ class Estimate:
     innovation: float
     innovation_variance: float
     health: EstimateHealth
+    outputs: tuple[str, ...] = ("u",)
+    predictions: tuple[float, ...] = ()
+    innovations: tuple[float, ...] = ()
+    innovation_covariance: tuple[tuple[float, ...], ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mean", MappingProxyType(dict(self.mean)))
         object.__setattr__(self, "std", MappingProxyType(dict(self.std)))
+        object.__setattr__(self, "outputs", tuple(self.outputs))
+        m = len(self.outputs)
+        if not self.predictions:
+            object.__setattr__(self, "predictions", (self.prediction,) * min(m, 1))
+        if not self.innovations:
+            object.__setattr__(self, "innovations", (self.innovation,) * min(m, 1))
+        if not self.innovation_covariance:
+            object.__setattr__(self, "innovation_covariance", ((self.innovation_variance,),))
+        for name in ("predictions", "innovations"):
+            values = tuple(float(v) for v in getattr(self, name))
+            if len(values) != m:
+                raise ValueError(f"{name} must have one value per output {self.outputs}")
+            object.__setattr__(self, name, values)
+        covariance = tuple(tuple(float(v) for v in row) for row in self.innovation_covariance)
+        if len(covariance) != m or any(len(row) != m for row in covariance):
+            raise ValueError(f"innovation_covariance must be {m} x {m}")
+        object.__setattr__(self, "innovation_covariance", covariance)
 
 
 # ---------------------------------------------------------------------- whole runs
@@ -206,7 +259,7 @@ class EstimationResult:
     Attributes
     ----------
     estimator : str
-        Name of the estimator (``"dekf"``).
+        Name of the estimator (``"dekf"``, ``"joint-ukf"``, ...).
     t : ndarray, shape (n,)
         Sample times (s).
     parameter_names : tuple of str
@@ -214,11 +267,16 @@ class EstimationResult:
     estimated : tuple of str
         The parameters that were estimated; the others were held constant.
     mean, std : ndarray, shape (n, p)
-        Parameter means and standard deviations after each sample.
-    prediction : ndarray, shape (n,)
-        One-step model output ``g(x^-_k, theta^-_k)`` before each correction.
-    innovation, innovation_variance : ndarray, shape (n,)
-        ``u_k - prediction_k`` (NaN where dropped or after divergence) and its variance.
+        Parameter means and standard deviations after each sample (smoothed ones in a
+        smoothed result).
+    outputs : tuple of str
+        The m measured outputs, primary first (the recorded signal each predicts).
+    predictions : ndarray, shape (n, m)
+        One-step prediction of each output before each correction.
+    innovations : ndarray, shape (n, m)
+        Output minus prediction (NaN where dropped or after divergence).
+    innovation_covariance : ndarray, shape (n, m, m)
+        Predicted covariance of the innovations.
     finite, covariance_ok, dropped, diverged : ndarray of bool, shape (n,)
         Per-sample health flags (see :class:`EstimateHealth`).
     pinned : ndarray of bool, shape (n, p)
@@ -228,6 +286,19 @@ class EstimationResult:
         resolved from them (initial values, covariances, limits, variances).
     health : HealthSummary
         Summary, including the divergence time if any.
+    state_names : tuple of str
+        Names of the recorded state traces (empty when the estimator records none).
+    states : ndarray, shape (n, len(state_names))
+        State means after each sample.
+    passes : int
+        Passes over the run (1 for filters that run once); the traces are the last pass's.
+    pass_mean, pass_std : ndarray, shape (passes, p)
+        Each pass's final parameter means and standard deviations.
+    smoothed : bool
+        The traces are fixed-interval smoothed (the innovations stay the filter's).
+    smoother_inputs : object or None
+        What :func:`~manualcontrol.estimators.smoothing.smooth` needs (stored priors,
+        posteriors and links of the run); kept in memory only, never saved or compared.
 
     """
 
@@ -237,9 +308,10 @@ class EstimationResult:
     estimated: tuple[str, ...]
     mean: FloatArray
     std: FloatArray
-    prediction: FloatArray
-    innovation: FloatArray
-    innovation_variance: FloatArray
+    outputs: tuple[str, ...]
+    predictions: FloatArray
+    innovations: FloatArray
+    innovation_covariance: FloatArray
     finite: BoolArray
     covariance_ok: BoolArray
     dropped: BoolArray
@@ -247,6 +319,13 @@ class EstimationResult:
     pinned: BoolArray
     settings: Mapping[str, Any]
     health: HealthSummary
+    state_names: tuple[str, ...] = ()
+    states: FloatArray | None = None
+    passes: int = 1
+    pass_mean: FloatArray | None = None
+    pass_std: FloatArray | None = None
+    smoothed: bool = False
+    smoother_inputs: Any = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.estimator, str) or not self.estimator:
@@ -260,26 +339,47 @@ class EstimationResult:
         if unknown:
             raise ValueError(f"estimated names {unknown} are not in parameter_names {names}")
         object.__setattr__(self, "estimated", estimated)
+        outputs = tuple(str(name) for name in self.outputs)
+        if not outputs or len(set(outputs)) != len(outputs):
+            raise ValueError(f"outputs must be unique names, at least one, got {outputs}")
+        object.__setattr__(self, "outputs", outputs)
         t = _readonly(self.t, np.float64)
         if t.ndim != 1:
             raise ValueError(f"t must be 1-D, got shape {t.shape}")
-        n, p = t.shape[0], len(names)
+        n, p, m = t.shape[0], len(names), len(outputs)
         object.__setattr__(self, "t", t)
-        for name in _ARRAYS_1D[1:]:
-            array = _readonly(getattr(self, name), np.float64)
-            if array.shape != (n,):
-                raise ValueError(f"{name} must have shape ({n},), got {array.shape}")
-            object.__setattr__(self, name, array)
-        for name in _FLAGS_1D:
-            array = _readonly(getattr(self, name), np.bool_)
-            if array.shape != (n,):
-                raise ValueError(f"{name} must have shape ({n},), got {array.shape}")
-            object.__setattr__(self, name, array)
-        for name, dtype in (("mean", np.float64), ("std", np.float64), ("pinned", np.bool_)):
+        state_names = tuple(str(name) for name in self.state_names)
+        object.__setattr__(self, "state_names", state_names)
+        passes = self.passes
+        if isinstance(passes, bool) or not isinstance(passes, (int, np.integer)) or passes < 1:
+            raise ValueError(f"passes must be an integer >= 1, got {passes!r}")
+        object.__setattr__(self, "passes", int(passes))
+        if self.states is None:
+            object.__setattr__(self, "states", np.zeros((n, len(state_names))))
+        mean = np.asarray(self.mean, dtype=np.float64)
+        std = np.asarray(self.std, dtype=np.float64)
+        if self.pass_mean is None:
+            object.__setattr__(self, "pass_mean", mean[-1:] if n else np.zeros((1, p)))
+        if self.pass_std is None:
+            object.__setattr__(self, "pass_std", std[-1:] if n else np.zeros((1, p)))
+        shapes = {
+            "predictions": ((n, m), np.float64),
+            "innovations": ((n, m), np.float64),
+            "innovation_covariance": ((n, m, m), np.float64),
+            "mean": ((n, p), np.float64),
+            "std": ((n, p), np.float64),
+            "pinned": ((n, p), np.bool_),
+            "states": ((n, len(state_names)), np.float64),
+            "pass_mean": ((self.passes, p), np.float64),
+            "pass_std": ((self.passes, p), np.float64),
+            **{name: ((n,), np.bool_) for name in _FLAGS_1D},
+        }
+        for name, (shape, dtype) in shapes.items():
             array = _readonly(getattr(self, name), dtype)
-            if array.shape != (n, p):
-                raise ValueError(f"{name} must have shape ({n}, {p}), got {array.shape}")
+            if array.shape != shape:
+                raise ValueError(f"{name} must have shape {shape}, got {array.shape}")
             object.__setattr__(self, name, array)
+        object.__setattr__(self, "smoothed", bool(self.smoothed))
         if not isinstance(self.health, HealthSummary):
             raise TypeError(f"health must be a HealthSummary, got {self.health!r}")
         settings = json.loads(json.dumps(dict(self.settings), allow_nan=False))
@@ -287,6 +387,35 @@ class EstimationResult:
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
+
+    # ----------------------------------------------------------- primary output
+
+    @property
+    def prediction(self) -> FloatArray:
+        """Trace of the primary output's one-step prediction, shape (n,)."""
+        return self.predictions[:, 0]
+
+    @property
+    def innovation(self) -> FloatArray:
+        """Trace of the primary output's innovation, shape (n,)."""
+        return self.innovations[:, 0]
+
+    @property
+    def innovation_variance(self) -> FloatArray:
+        """Trace of the primary output's innovation variance, shape (n,)."""
+        return self.innovation_covariance[:, 0, 0]
+
+    def _output(self, name: str) -> int:
+        check_choice("output", name, self.outputs)
+        return self.outputs.index(name)
+
+    def prediction_of(self, output: str) -> FloatArray:
+        """Trace of the one-step prediction of ``output``, shape (n,)."""
+        return self.predictions[:, self._output(output)]
+
+    def innovation_of(self, output: str) -> FloatArray:
+        """Trace of the innovation of ``output``, shape (n,)."""
+        return self.innovations[:, self._output(output)]
 
     def _column(self, name: str) -> int:
         check_choice("parameter", name, self.parameter_names)
@@ -300,25 +429,28 @@ class EstimationResult:
         """Trace of the standard deviation of parameter ``name``, shape (n,)."""
         return self.std[:, self._column(name)]
 
+    def state_of(self, name: str) -> FloatArray:
+        """Trace of the state ``name``, shape (n,)."""
+        check_choice("state", name, self.state_names)
+        return self.states[:, self.state_names.index(name)]
+
     def final(self) -> dict[str, float]:
         """Mean of every parameter after the last sample."""
         return {name: float(self.mean[-1, j]) for j, name in enumerate(self.parameter_names)}
 
     def equals(self, other: object) -> bool:
-        """Exact equality of every field (NaN equal to NaN)."""
+        """Exact equality of every field but the smoother inputs (NaN equal to NaN)."""
         if not isinstance(other, EstimationResult):
             return False
-        if (self.estimator, self.parameter_names, self.estimated) != (
-            other.estimator,
-            other.parameter_names,
-            other.estimated,
-        ):
+        scalars = ("estimator", "parameter_names", "estimated", "outputs", "state_names")
+        scalars += ("passes", "smoothed")
+        if any(getattr(self, name) != getattr(other, name) for name in scalars):
             return False
         if dict(self.settings) != dict(other.settings):
             return False
         if self.health.to_dict() != other.health.to_dict():  # NaN-safe
             return False
-        for name in (*_ARRAYS_1D, *_FLAGS_1D, "mean", "std", "pinned"):
+        for name in _ARRAYS:
             if not np.array_equal(getattr(self, name), getattr(other, name), equal_nan=True):
                 return False
         return True
@@ -331,9 +463,11 @@ class EstimationResult:
     __hash__ = None  # type: ignore[assignment]
 
     def __repr__(self) -> str:
+        kind = ", smoothed" if self.smoothed else ""
         return (
             f"EstimationResult(estimator={self.estimator!r}, {len(self)} samples, "
-            f"estimated={self.estimated}, diverged={self.health.diverged})"
+            f"estimated={self.estimated}, outputs={self.outputs}, "
+            f"diverged={self.health.diverged}{kind})"
         )
 
     # ----------------------------------------------------------------- files
@@ -343,21 +477,24 @@ class EstimationResult:
 
         Layout: one array per trace under its field name, and 0-d strings
         ``result_format`` (:data:`RESULT_FORMAT`), ``estimator``, ``parameter_names``,
-        ``estimated``, ``settings`` and ``health`` (JSON). Read back with :meth:`load`
-        (``allow_pickle=False``).
+        ``estimated``, ``outputs``, ``state_names``, ``passes``, ``smoothed``,
+        ``settings`` and ``health`` (JSON). Read back with :meth:`load`
+        (``allow_pickle=False``). The smoother inputs are not saved.
         """
         target = Path(path)
         if target.suffix.lower() != ".npz":
             raise ValueError(f"{target}: results are saved as .npz, got suffix {target.suffix!r}")
-        entries: dict[str, Any] = {
-            name: getattr(self, name) for name in (*_ARRAYS_1D, *_FLAGS_1D, "mean", "std", "pinned")
-        }
+        entries: dict[str, Any] = {name: getattr(self, name) for name in _ARRAYS}
         entries.update(
             {
                 "result_format": np.array(RESULT_FORMAT),
                 "estimator": np.array(self.estimator),
                 "parameter_names": np.array(json.dumps(list(self.parameter_names))),
                 "estimated": np.array(json.dumps(list(self.estimated))),
+                "outputs": np.array(json.dumps(list(self.outputs))),
+                "state_names": np.array(json.dumps(list(self.state_names))),
+                "passes": np.array(self.passes),
+                "smoothed": np.array(self.smoothed),
                 "settings": np.array(json.dumps(dict(self.settings), allow_nan=False)),
                 "health": np.array(json.dumps(self.health.to_dict(), allow_nan=False)),
             }
@@ -371,62 +508,74 @@ class EstimationResult:
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> EstimationResult:
-        """Read a result written by :meth:`save`, validating every entry.
+        """Read a result written by :meth:`save` (this or an older format), validating it.
 
         Raises
         ------
         ValueError
-            For a file that is not a saved result (missing or wrong ``result_format``,
+            For a file that is not a saved result (missing or unknown ``result_format``,
             missing entries, inconsistent shapes).
 
         """
         source = Path(path)
         try:
             archive = np.load(source, allow_pickle=False)
-        except (OSError, ValueError) as error:
+        except (OSError, ValueError, EOFError) as error:
             raise ValueError(f"{source}: not a readable .npz file ({error})") from error
         with archive:
             names = set(archive.files)
             tag = str(archive["result_format"]) if "result_format" in names else None
-            if tag != RESULT_FORMAT:
+            if tag not in (RESULT_FORMAT, *_OLDER_FORMATS):
                 raise ValueError(
                     f"{source}: not a saved EstimationResult (result_format {tag!r}, "
-                    f"expected {RESULT_FORMAT!r})"
+                    f"expected one of {[RESULT_FORMAT, *_OLDER_FORMATS]})"
                 )
-            required = (
-                *_ARRAYS_1D,
-                *_FLAGS_1D,
-                "mean",
-                "std",
-                "pinned",
-                "estimator",
-                "parameter_names",
-                "estimated",
-                "settings",
-                "health",
-            )
+            if tag == RESULT_FORMAT:
+                required = (*_ARRAYS, "estimator", "parameter_names", "estimated", "outputs")
+                required += ("state_names", "passes", "smoothed", "settings", "health")
+            else:
+                required = ("t", "prediction", "innovation", "innovation_variance", "mean")
+                required += ("std", "pinned", *_FLAGS_1D, "estimator", "parameter_names")
+                required += ("estimated", "settings", "health")
             missing = [name for name in required if name not in names]
             if missing:
                 raise ValueError(f"{source}: saved result lacks entries {missing}")
             try:
-                return cls(
-                    estimator=str(archive["estimator"]),
-                    t=archive["t"],
-                    parameter_names=tuple(json.loads(str(archive["parameter_names"]))),
-                    estimated=tuple(json.loads(str(archive["estimated"]))),
-                    mean=archive["mean"],
-                    std=archive["std"],
-                    prediction=archive["prediction"],
-                    innovation=archive["innovation"],
-                    innovation_variance=archive["innovation_variance"],
-                    finite=archive["finite"],
-                    covariance_ok=archive["covariance_ok"],
-                    dropped=archive["dropped"],
-                    diverged=archive["diverged"],
-                    pinned=archive["pinned"],
-                    settings=json.loads(str(archive["settings"])),
-                    health=HealthSummary.from_dict(json.loads(str(archive["health"]))),
-                )
+                fields: dict[str, Any] = {
+                    "estimator": str(archive["estimator"]),
+                    "t": archive["t"],
+                    "parameter_names": tuple(json.loads(str(archive["parameter_names"]))),
+                    "estimated": tuple(json.loads(str(archive["estimated"]))),
+                    "mean": archive["mean"],
+                    "std": archive["std"],
+                    "pinned": archive["pinned"],
+                    "settings": json.loads(str(archive["settings"])),
+                    "health": HealthSummary.from_dict(json.loads(str(archive["health"]))),
+                    **{name: archive[name] for name in _FLAGS_1D},
+                }
+                if tag == RESULT_FORMAT:
+                    fields.update(
+                        outputs=tuple(json.loads(str(archive["outputs"]))),
+                        predictions=archive["predictions"],
+                        innovations=archive["innovations"],
+                        innovation_covariance=archive["innovation_covariance"],
+                        state_names=tuple(json.loads(str(archive["state_names"]))),
+                        states=archive["states"],
+                        passes=int(archive["passes"]),
+                        pass_mean=archive["pass_mean"],
+                        pass_std=archive["pass_std"],
+                        smoothed=bool(archive["smoothed"]),
+                    )
+                else:  # version 1: one output, u
+                    fields.update(
+                        outputs=("u",),
+                        predictions=np.asarray(archive["prediction"])[:, None],
+                        innovations=np.asarray(archive["innovation"])[:, None],
+                        innovation_covariance=np.asarray(archive["innovation_variance"])[
+                            :, None, None
+                        ],
+                    )
+                return cls(**fields)
             except (KeyError, TypeError, ValueError) as error:
                 raise ValueError(f"{source}: invalid saved result: {error}") from error
 

@@ -158,7 +158,7 @@ def test_constant_parameters_make_a_linear_kalman_filter():
         initial=values,
         fixed_R=R,
         fixed_Q_error=q,
-        P0_canonical=1e-6,  # well conditioned, see the module docstring
+        P0_canonical=1e-12,  # C P0 C^T ~ 2: well conditioned, see the module docstring
     )
     result = dekf.estimate(recording)
     assert result.estimated == ()
@@ -177,7 +177,7 @@ def test_constant_parameters_make_a_linear_kalman_filter():
     Q = np.zeros((5, 5))
     Q[4, 4] = q * dt * dt
     x = np.zeros(5)
-    P = 1e-6 * np.eye(5)
+    P = 1e-12 * np.eye(5)
     e, u = np.asarray(recording.e), np.asarray(recording.u)
     predictions, variances = [], []
     for k in range(len(u)):

@@ -1,0 +1,135 @@
+"""Small dense linear algebra for the filters, compiled, allocation-free.
+
+Everything works in place on caller-owned arrays (numba with ``_nrt=False``: no array
+is allocated or reference counted inside a step). Covariances are kept symmetric by
+:func:`symmetrise` after every update; systems are solved through a Cholesky factor,
+never by forming an inverse (dynamax ``psd_solve``, STYLE.md item 5).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = [
+    "TINY",
+    "add_product",
+    "cholesky",
+    "cholesky_solve_rows",
+    "log_determinant",
+    "matmul",
+    "matmul_transposed",
+    "symmetrise",
+]
+
+#: Magnitude below which covariance entries are flushed to zero (subnormal range).
+#: A state without process noise that the measurements pin down has a variance that
+#: decays towards zero; left alone it reaches subnormal numbers, whose arithmetic is a
+#: hundred times slower, and flickers around zero by rounding.
+TINY = 1e-290
+
+
+@numba.njit(cache=True, _nrt=False)
+def symmetrise(P):
+    """``P <- (P + P^T)/2`` in place, flushing entries below :data:`TINY` to zero."""
+    n = P.shape[0]
+    for i in range(n):
+        if abs(P[i, i]) < TINY:
+            P[i, i] = 0.0
+        for j in range(i + 1, n):
+            v = 0.5 * (P[i, j] + P[j, i])
+            if abs(v) < TINY:
+                v = 0.0
+            P[i, j] = v
+            P[j, i] = v
+
+
+@numba.njit(cache=True, _nrt=False)
+def cholesky(A, L):
+    """Lower Cholesky factor of the symmetric ``A`` into ``L`` (``A = L L^T``).
+
+    Returns False (``L`` then undefined) when ``A`` is not positive definite or not
+    finite. Reads the lower triangle of ``A`` only.
+    """
+    n = A.shape[0]
+    for j in range(n):
+        s = A[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0 or not np.isfinite(s):
+            return False
+        d = np.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / d
+        for i in range(j):
+            L[i, j] = 0.0
+    return True
+
+
+@numba.njit(cache=True, _nrt=False)
+def cholesky_solve_rows(L, B, X):
+    """Solve ``X S = B`` for ``X`` (rows of ``B``), ``S = L L^T`` symmetric.
+
+    ``B`` and ``X`` have shape ``(r, m)``; ``X`` may be ``B``. This is the Kalman gain
+    ``K = P H^T S^-1`` without an inverse: each row solves ``S k = b`` (S symmetric)
+    by a forward and a backward substitution.
+    """
+    m = L.shape[0]
+    for r in range(B.shape[0]):
+        # forward: L z = b
+        for i in range(m):
+            s = B[r, i]
+            for k in range(i):
+                s -= L[i, k] * X[r, k]
+            X[r, i] = s / L[i, i]
+        # backward: L^T k = z
+        for i in range(m - 1, -1, -1):
+            s = X[r, i]
+            for k in range(i + 1, m):
+                s -= L[k, i] * X[r, k]
+            X[r, i] = s / L[i, i]
+
+
+@numba.njit(cache=True, _nrt=False)
+def log_determinant(L):
+    """``log det(L L^T)`` from a Cholesky factor."""
+    total = 0.0
+    for i in range(L.shape[0]):
+        total += np.log(L[i, i])
+    return 2.0 * total
+
+
+@numba.njit(cache=True, _nrt=False)
+def matmul(A, B, out):
+    """``out = A B`` (``out`` must not alias ``A`` or ``B``)."""
+    for i in range(A.shape[0]):
+        for j in range(B.shape[1]):
+            acc = 0.0
+            for k in range(A.shape[1]):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
+
+
+@numba.njit(cache=True, _nrt=False)
+def matmul_transposed(A, B, out):
+    """``out = A B^T`` (``out`` must not alias ``A`` or ``B``)."""
+    for i in range(A.shape[0]):
+        for j in range(B.shape[0]):
+            acc = 0.0
+            for k in range(A.shape[1]):
+                acc += A[i, k] * B[j, k]
+            out[i, j] = acc
+
+
+@numba.njit(cache=True, _nrt=False)
+def add_product(x, K, r):
+    """``x += K r`` for a matrix ``K`` and vector ``r`` (the Kalman mean update)."""
+    for i in range(K.shape[0]):
+        acc = 0.0
+        for a in range(K.shape[1]):
+            acc += K[i, a] * r[a]
+        x[i] += acc

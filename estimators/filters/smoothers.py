@@ -1,0 +1,154 @@
+"""Rauch-Tung-Striebel smoothers over a stored filter run, compiled.
+
+Every fixed-interval smoother of the family is the same backward recursion
+(Rauch, Tung & Striebel 1965; Särkkä 2013, Theorems 8.2 and 9.3):
+
+    G_k   = C_{k+1} (P^-_{k+1})^-1
+    x^s_k = x^+_k + G_k (x^s_{k+1} - x^-_{k+1})
+    P^s_k = P^+_k + G_k (P^s_{k+1} - P^-_{k+1}) G_k^T
+
+with ``C_{k+1} = cov(x^+_k, x^-_{k+1})`` the cross-covariance of a posterior and the
+next prior. The filters differ only in how they know ``C``:
+
+* random-walk states (``F = I``, Boer & Kenyon 1998 Sec. III-E): ``C_{k+1} = P^+_k``;
+* the EKF (linearised transition ``Phi_{k+1}``): ``C_{k+1} = P^+_k Phi_{k+1}^T``;
+* the UKF (the unscented RTS smoother, Särkkä 2008): ``C_{k+1}`` from the sigma points
+  of the prediction, stored by the filter.
+
+Storage, ``N`` samples: ``x_filtered[k], P_filtered[k]`` the posterior after sample k;
+``x_predicted[k], P_predicted[k]`` the prior at sample k (for k = 0, the initial
+belief); ``link[k]`` for k >= 1 either the cross-covariance ``C_k`` or the transition
+Jacobian ``Phi_k`` (from sample k - 1 to k); ``link[0]`` is not read.
+
+``P^-_{k+1}`` is solved by Cholesky; a prior that is singular to rounding (a state
+with no process noise that the data have pinned down) is regularised by adding
+``REGULARISATION`` times its largest diagonal entry to the diagonal, and the number of
+such samples is returned.
+"""
+
+from __future__ import annotations
+
+from collections import namedtuple
+
+import numba
+import numpy as np
+
+from manualcontrol.estimators.filters.linalg import (
+    cholesky,
+    cholesky_solve_rows,
+    matmul,
+    matmul_transposed,
+    symmetrise,
+)
+
+__all__ = [
+    "LINK_CROSS",
+    "LINK_RANDOM_WALK",
+    "LINK_TRANSITION",
+    "REGULARISATION",
+    "SmootherWork",
+    "rts_smooth",
+    "smoother_work",
+]
+
+#: ``link`` holds cross-covariances ``C_k`` (UKF).
+LINK_CROSS = 0
+#: ``link`` holds transition Jacobians ``Phi_k`` (EKF).
+LINK_TRANSITION = 1
+#: Random-walk states: no ``link`` needed (``C_k = P^+_{k-1}``).
+LINK_RANDOM_WALK = 2
+#: Relative diagonal loading of a prior covariance that is singular to rounding.
+REGULARISATION = 1e-12
+
+SmootherWork = namedtuple("SmootherWork", ["C", "G", "A", "L", "D", "T"])
+
+
+def smoother_work(n: int) -> SmootherWork:
+    """Scratch for an ``n``-state smoother pass."""
+    return SmootherWork(*(np.zeros((n, n)) for _ in range(6)))
+
+
+@numba.njit(cache=True, _nrt=False)
+def _factor_prior(P, A, L):
+    """Cholesky factor of the prior ``P`` into ``L`` (regularised if needed); 1 if so."""
+    if cholesky(P, L):
+        return 0
+    n = P.shape[0]
+    largest = 0.0
+    for i in range(n):
+        largest = max(largest, abs(P[i, i]))
+    load = REGULARISATION * largest + 1e-300
+    for _ in range(6):
+        for i in range(n):
+            for j in range(n):
+                A[i, j] = P[i, j]
+            A[i, i] += load
+        if cholesky(A, L):
+            return 1
+        load *= 1e3
+    return -1
+
+
+@numba.njit(cache=True, _nrt=False)
+def rts_smooth(x_filtered, P_filtered, x_predicted, P_predicted, link, kind, x_smooth, P_smooth, w):
+    """Smooth a stored run backwards (module docstring); returns regularised-sample count.
+
+    ``kind`` is :data:`LINK_CROSS`, :data:`LINK_TRANSITION` or :data:`LINK_RANDOM_WALK`.
+    ``x_smooth`` (N, n) and ``P_smooth`` (N, n, n) receive the result. Returns the
+    number of samples whose prior was regularised, or minus the number of samples
+    whose prior could not be factored even then (those keep their filtered belief).
+    """
+    N = x_filtered.shape[0]
+    n = x_filtered.shape[1]
+    C, G, A, L, D, T = w.C, w.G, w.A, w.L, w.D, w.T
+    regularised = 0
+    failed = 0
+    if N == 0:
+        return 0
+    for i in range(n):
+        x_smooth[N - 1, i] = x_filtered[N - 1, i]
+        for j in range(n):
+            P_smooth[N - 1, i, j] = P_filtered[N - 1, i, j]
+    for k in range(N - 2, -1, -1):
+        Pf = P_filtered[k]
+        Pp = P_predicted[k + 1]
+        # C_{k+1} = cov(x^+_k, x^-_{k+1})
+        if kind == LINK_CROSS:
+            for i in range(n):
+                for j in range(n):
+                    C[i, j] = link[k + 1, i, j]
+        elif kind == LINK_TRANSITION:
+            matmul_transposed(Pf, link[k + 1], C)
+        else:
+            for i in range(n):
+                for j in range(n):
+                    C[i, j] = Pf[i, j]
+        status = _factor_prior(Pp, A, L)
+        if status < 0:
+            failed += 1
+            for i in range(n):
+                x_smooth[k, i] = x_filtered[k, i]
+                for j in range(n):
+                    P_smooth[k, i, j] = Pf[i, j]
+            continue
+        regularised += status
+        # G = C P_p^-1 (rows of C solved against the symmetric P_p)
+        cholesky_solve_rows(L, C, G)
+        for i in range(n):
+            acc = x_filtered[k, i]
+            for j in range(n):
+                acc += G[i, j] * (x_smooth[k + 1, j] - x_predicted[k + 1, j])
+            x_smooth[k, i] = acc
+        for i in range(n):
+            for j in range(n):
+                D[i, j] = P_smooth[k + 1, i, j] - Pp[i, j]
+        matmul(G, D, T)
+        matmul_transposed(T, G, A)
+        for i in range(n):
+            for j in range(n):
+                A[i, j] += Pf[i, j]
+        symmetrise(A)
+        for i in range(n):
+            for j in range(n):
+                P_smooth[k, i, j] = A[i, j]
+    return regularised if failed == 0 else -failed

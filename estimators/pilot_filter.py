@@ -1,0 +1,1106 @@
+"""The shell shared by the filters on pilot internal models: settings, resolution, I/O.
+
+The DEKF (:mod:`~manualcontrol.estimators.dekf`), the joint and the dual UKF
+(:mod:`~manualcontrol.estimators.ukf`) run on the same internal model (the pilot
+structure's one definition with Padé delays, :mod:`~manualcontrol.estimators.internal_model`),
+with the same noise rules (``R = r^2 var(u)``, chain-input process noise ``q^2 var(e)``
+over a 5-s window, Popovici eqs. 24-25, thesis eqs. 29-30), the same initial values,
+covariances and limits (Popovici eqs. 25-34, thesis Sec. V-B and Table I), and the
+same way of reading samples and reporting results. That is written once, here:
+
+* :class:`PilotFilterSettings`: the settings every member takes (each adds its own);
+* :func:`resolve_settings` -> :class:`ResolvedSettings`: every number a run uses;
+* :class:`ParameterMap`: internal parameter values and back. The preview time is
+  estimated as the apparent delay ``tau_f* = tau_a - tau_f`` behind the anticipated
+  target (thesis eq. 26); this is the one place that converts;
+* :class:`PilotFilter`: the estimator protocol around a compiled step (``reset``,
+  ``update``, ``estimate``, ``signals``, results, smoothing).
+
+Settings rules, with the papers' defaults
+-----------------------------------------
+* ``q2``, ``r2``: ``Q_s`` at the chain input state is ``q^2 var(e)`` and
+  ``R = r^2 var(u)``, variances over the last ``window`` = 5 s (Popovici eqs. 24-25,
+  thesis eqs. 29-30), over the first 5 s before that (eq. 34); q^2 = 0.4, r^2 = 0.7
+  (Popovici Sec. III-B; the thesis used r^2 = 4 for DI preview data with remnant).
+* ``preset``: ``"popovici2017"`` (eqs. 25-26, 32-33: ``P_s0`` 0.1 for canonical
+  states, 10 for gains and frequencies, 1 otherwise; ``Q`` 100 % of the initial value
+  for gains, 10 % otherwise), ``"vertregt2020"`` (thesis Sec. V-B: ``P_0 = (p
+  theta_0)^2`` with p = 0.1 for omega_nms and 0.5 otherwise; ``Q = q_theta theta_0``
+  with 5 % for gains and delays and 2.5 % for frequencies and damping) and
+  ``"vertregt2020-remnant"`` (the same with r^2 = 4 for DI).
+* initial values: Popovici's generic rules eqs. 27-31 for whatever ``initial`` leaves
+  out: ``K_p0 = sigma_u/sigma_e``, ``K_v0 = 0.5 K_p0`` (0 for SI), ``omega_nms0 = 10``,
+  ``zeta_nms0 = 0.3``, ``tau_v0 = 0.3``; for the preview model (no rule in the thesis,
+  which started at the true values) ``K_f0 = 1``, ``omega_f0`` its nominal value and
+  ``tau_f0 = tau_a/2``, the middle of its limits.
+* ``limits``: estimate projection (thesis eqs. 20, 25, 27-28) with Table I for the
+  ``ce`` type (``"SI"``/``"DI"``); without a CE type the union of both columns (the
+  structure's human ranges); ``tau_f*`` always within ``[0.1, tau_a - 0.1]``.
+* single-integrator tasks (``ce="SI"``) hold ``K_v`` (at 0) and ``omega_f`` constant,
+  as the thesis did; parameters held constant are removed from the filters (thesis
+  Sec. III-A) and reported with standard deviation 0.
+* variances are population variances (``ddof=0``) of the ``N + 1`` samples
+  ``k - N .. k`` (``N = window/dt``), NaN samples left out.
+* ``Gamma = I dt`` (``noise_input="euler"``): the "discrete input identity matrices"
+  (Popovici eq. 19) read as the Euler discretisation of the identity noise input of
+  eqs. 2 and 4, so ``Gamma Q Gamma^T = Q dt^2``; ``noise_input="identity"`` takes
+  ``Gamma = I``.
+* ``Q`` for ``K_v`` is ``K_v0`` (Popovici eq. 25 and its rule of thumb; its text once
+  says ``0.1 K_v0``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from manualcontrol.envs._validation import (
+    check_choice,
+    check_int,
+    check_positive,
+    check_real,
+    reject_unknown,
+)
+from manualcontrol.envs.recording import Recording
+from manualcontrol.estimators import _pilot_core as core
+from manualcontrol.estimators._targets import target_function
+from manualcontrol.estimators.filters import monitor
+from manualcontrol.estimators.internal_model import (
+    ANTICIPATED_PARAMETER,
+    InternalModel,
+    build_internal_model,
+)
+from manualcontrol.estimators.protocol import (
+    Estimate,
+    EstimateHealth,
+    EstimationResult,
+    HealthSummary,
+)
+from manualcontrol.pilots.models import MODEL_NAMES, make_model
+
+__all__ = [
+    "CE_TYPES",
+    "GENERIC_INITIAL",
+    "INITIAL_VARIANCE_MODES",
+    "MAX_DELAY_ORDER",
+    "NOISE_INPUTS",
+    "PRESETS",
+    "TABLE_I",
+    "TAU_F_MARGIN",
+    "ParameterMap",
+    "PilotFilter",
+    "PilotFilterSettings",
+    "ResolvedSettings",
+    "resolve_settings",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+#: Controlled-element types with Table I limits.
+CE_TYPES: tuple[str, ...] = ("SI", "DI")
+#: Initialisation presets.
+PRESETS: tuple[str, ...] = ("popovici2017", "vertregt2020", "vertregt2020-remnant")
+INITIAL_VARIANCE_MODES: tuple[str, ...] = ("first-window", "causal")
+#: Highest Padé order of the internal model's delays. The canonical-form coefficients
+#: grow like (2m)!/(m! tau^m): at order 5 with tau 0.2 s they are near 1e7, the
+#: canonical-state variances start near 1e18 from the 0.1 of Popovici eq. 32, and the
+#: covariance loses positive definiteness within a fraction of a second (measured on
+#: the Popovici compensatory run). Order 4 runs but identifies worse than order 3.
+MAX_DELAY_ORDER = 4
+
+#: Discrete noise-input matrices Gamma_s, Gamma_p (Popovici eq. 19): ``"euler"``
+#: ``Gamma = I dt``, the Euler discretisation of the identity noise input of eqs. 2 and 4
+#: (``Gamma Q Gamma^T = Q dt^2``); ``"identity"``: ``Gamma = I`` (``Q`` per sample).
+NOISE_INPUTS: tuple[str, ...] = ("euler", "identity")
+
+#: Thesis Part I Table I, HO parameter limits per CE type (model units). ``tau_f`` is
+#: limited through ``tau_f* = tau_a - tau_f`` in ``[0.1, tau_a - 0.1]``, which is the same
+#: interval for ``tau_f``; "n/a" entries (SI ``omega_f``, ``K_v``) are absent.
+TABLE_I: Mapping[str, Mapping[str, tuple[float, float]]] = MappingProxyType(
+    {
+        "SI": MappingProxyType(
+            {
+                "K_f": (0.2, 2.5),
+                "K_p": (0.2, 2.5),
+                "omega_nms": (6.0, 15.0),
+                "zeta_nms": (0.1, 0.8),
+                "tau_v": (0.1, 0.8),
+            }
+        ),
+        "DI": MappingProxyType(
+            {
+                "K_f": (0.2, 2.5),
+                "omega_f": (0.1, 10.0),
+                "K_p": (0.05, 1.0),
+                "K_v": (0.05, 1.5),
+                "omega_nms": (6.0, 15.0),
+                "zeta_nms": (0.1, 0.8),
+                "tau_v": (0.1, 0.8),
+            }
+        ),
+    }
+)
+#: Distance of the ``tau_f*`` limits from 0 and from ``tau_a`` (Table I: 0.1 s).
+TAU_F_MARGIN = 0.1
+#: Popovici eqs. 29-31 and the preview extension: generic initial values.
+GENERIC_INITIAL = MappingProxyType({"omega_nms": 10.0, "zeta_nms": 0.3, "tau_v": 0.3, "K_f": 1.0})
+#: Order of the parameter filter's vector (Popovici eq. 39, thesis eq. 41).
+_THETA_ORDER = ("omega_nms", "zeta_nms", "tau_v", "K_f", "omega_f", "tau_f")
+#: Words for the divergence codes of :mod:`~manualcontrol.estimators.filters.monitor`.
+REASONS = {
+    monitor.REASON_NONFINITE: "non-finite values",
+    monitor.REASON_COVARIANCE: "covariance blow-up",
+}
+
+
+def _kind(name: str) -> str:
+    """Parameter kind for the presets: gain, delay, frequency or damping."""
+    if name.startswith("K"):
+        return "gain"
+    if name.startswith(("tau", "theta")):
+        return "delay"
+    if name.startswith("omega"):
+        return "frequency"
+    return "damping"
+
+
+def _frozen_mapping(name: str, value: Any, convert: Any) -> Mapping[str, Any]:
+    if value is None:
+        return MappingProxyType({})
+    if not isinstance(value, Mapping):
+        raise TypeError(f"{name} must be a mapping of parameter names, got {value!r}")
+    out = {}
+    for key, item in value.items():
+        if not isinstance(key, str):
+            raise TypeError(f"{name} keys must be parameter names, got {key!r}")
+        out[key] = convert(f"{name}[{key!r}]", item)
+    return MappingProxyType(out)
+
+
+def _limit_pair(name: str, value: Any) -> tuple[float, float]:
+    try:
+        low, high = value
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a (low, high) pair, got {value!r}") from None
+    low = float(low)
+    high = float(high)
+    if math.isnan(low) or math.isnan(high) or not low < high:
+        raise ValueError(f"{name} must satisfy low < high, got ({low!r}, {high!r})")
+    return (low, high)
+
+
+# --------------------------------------------------------------------------- settings
+
+
+@dataclass(frozen=True)
+class PilotFilterSettings:
+    """Settings shared by the filters on pilot internal models (frozen).
+
+    The DEKF's settings (:class:`~manualcontrol.estimators.dekf.DEKFSettings`) and the
+    unscented filters' (:mod:`~manualcontrol.estimators.ukf`) add their own fields to
+    these; vary any of them with :func:`dataclasses.replace`.
+
+    Parameters
+    ----------
+    model : str
+        Pilot structure: ``"precision"`` (compensatory) or ``"preview"`` (far view);
+        other single-channel structures (``"gain-delay"``, ``"schiess-roland"``) work
+        with nominal initial values and their human ranges as limits.
+    ce : {"SI", "DI"} or None
+        Controlled-element type: Table I limits and the SI rule (``K_v``,
+        ``omega_f`` held constant). None for other dynamics (e.g. Popovici's
+        ``4/(s(s+3))``): limits are the union of both columns.
+    anticipation_time : float or None
+        ``tau_a`` (s), required for the preview model: the target is anticipated by
+        ``tau_a`` and ``tau_f`` must stay below it (thesis Sec. III-B).
+    estimated : tuple of str or None
+        Parameters to estimate; the others are held at their ``initial`` values.
+        None: all (minus the SI rule).
+    initial : Mapping[str, float]
+        Initial values (model units; ``tau_f`` as preview time); missing ones follow
+        the generic rules (module docstring).
+    limits : "table-I", "none" or Mapping[str, (low, high)]
+        Estimate-projection limits: Table I for ``ce`` (default), none at all, or the
+        Table I defaults with these entries replaced (``(-inf, inf)`` removes one).
+    preset : str
+        Initial covariances and process noise: one of :data:`PRESETS`.
+    q2, r2 : float
+        Process-noise factor of the error variance and measurement-noise factor of the
+        control variance (> 0); ``r2=None`` takes the preset's value.
+    window : float
+        Retrospective window of the variances (s), 5 s.
+    initial_variance : {"first-window", "causal"}
+        Before a full window: the variances of the first window (the papers; needs
+        the first ``window`` of data at reset, which ``estimate`` computes),
+        or of the samples so far (a causal online start; then ``initial`` must give
+        ``K_p`` for the precision and preview models).
+    P0, Q : Mapping[str, float]
+        Initial variance and process-noise variance per parameter (> 0; Q enters as
+        ``Gamma Q Gamma^T``), replacing the preset's.
+    P0_fraction, Q_fraction : Mapping[str, float]
+        Per parameter, the thesis's forms with another fraction: ``P_0 = (p theta_0)^2``
+        and ``Q = q theta_0`` (> 0), replacing the preset's (``P0``/``Q`` win).
+    P0_canonical : float
+        Initial variance of the canonical states (> 0), 0.1 (Popovici eq. 32).
+    delay_order : int
+        Padé order of the delays in the internal model, 1 to
+        :data:`MAX_DELAY_ORDER`, 3 (the papers' choice).
+    noise_input : {"euler", "identity"}
+        The noise-input matrices ``Gamma``, see :data:`NOISE_INPUTS`.
+    jitter : float
+        Added to every covariance diagonal after each correction (>= 0; 0 = off): a
+        guard that keeps covariances positive definite when estimates stall.
+    variance_floor : float
+        Lower bound of the windowed variances (> 0) so ``R > 0`` on silent starts.
+    max_covariance : float
+        A covariance diagonal above this counts as divergence (stops the filter).
+    pinned_time : float
+        A parameter at a limit in at least 90 % of the samples of the last
+        ``pinned_time`` seconds is reported as divergence (the filter goes on);
+        ``inf`` never reports.
+    fixed_R, fixed_Q_error : float or None
+        Constant ``R`` and constant chain-input process noise instead of the
+        windowed ones (> 0); for checks against a linear Kalman filter.
+
+    """
+
+    model: str = "precision"
+    ce: str | None = None
+    anticipation_time: float | None = None
+    estimated: tuple[str, ...] | None = None
+    initial: Mapping[str, float] = field(default_factory=dict)
+    limits: str | Mapping[str, tuple[float, float]] = "table-I"
+    preset: str = "popovici2017"
+    q2: float = 0.4
+    r2: float | None = None
+    window: float = 5.0
+    initial_variance: str = "first-window"
+    P0: Mapping[str, float] = field(default_factory=dict)
+    Q: Mapping[str, float] = field(default_factory=dict)
+    P0_fraction: Mapping[str, float] = field(default_factory=dict)
+    Q_fraction: Mapping[str, float] = field(default_factory=dict)
+    P0_canonical: float = 0.1
+    delay_order: int = 3
+    noise_input: str = "euler"
+    jitter: float = 0.0
+    variance_floor: float = 1e-12
+    max_covariance: float = 1e8
+    pinned_time: float = 30.0
+    fixed_R: float | None = None
+    fixed_Q_error: float | None = None
+
+    def __post_init__(self) -> None:
+        check_choice("model", self.model, MODEL_NAMES)
+        model = make_model(self.model)
+        names = model.parameter_names
+        known = ", ".join(names)
+
+        def check_names(what: str, keys: Any) -> None:
+            unknown = [key for key in keys if key not in names]
+            if unknown:
+                raise ValueError(
+                    f"{what}: unknown parameter(s) {', '.join(map(repr, unknown))} for the "
+                    f"{self.model!r} model; its parameters are {known}"
+                )
+
+        if self.ce is not None:
+            check_choice("ce", self.ce, CE_TYPES)
+        preview = "ft_far" in model.perceptions
+        if preview:
+            if self.anticipation_time is None:
+                raise ValueError(
+                    "anticipation_time (tau_a, s) is required for the preview model "
+                    "(thesis Sec. III-B); the thesis used 0.9 s (SI) and 1.5 s (DI)"
+                )
+            tau_a = check_positive("anticipation_time", self.anticipation_time)
+            if tau_a <= 2.0 * TAU_F_MARGIN:
+                raise ValueError(
+                    f"anticipation_time must be > {2.0 * TAU_F_MARGIN:g} s so that tau_f* "
+                    f"can lie in [{TAU_F_MARGIN:g}, tau_a - {TAU_F_MARGIN:g}] (thesis "
+                    f"Table I), got {tau_a!r}"
+                )
+            object.__setattr__(self, "anticipation_time", tau_a)
+        elif self.anticipation_time is not None:
+            raise ValueError(
+                f"anticipation_time applies to the preview model only, not {self.model!r}; "
+                f"got {self.anticipation_time!r}"
+            )
+        if self.estimated is not None:
+            if isinstance(self.estimated, str):
+                raise TypeError(
+                    f"estimated must be a tuple of parameter names, got {self.estimated!r}"
+                )
+            estimated = tuple(self.estimated)
+            check_names("estimated", estimated)
+            if len(set(estimated)) != len(estimated):
+                raise ValueError(f"estimated names a parameter twice: {estimated}")
+            object.__setattr__(self, "estimated", estimated)
+        initial = _frozen_mapping("initial", self.initial, check_real)
+        check_names("initial", initial)
+        object.__setattr__(self, "initial", initial)
+        if preview and "tau_f" in initial and initial["tau_f"] >= self.anticipation_time:
+            raise ValueError(
+                f"initial tau_f must be < anticipation_time = {self.anticipation_time:g} s "
+                f"(tau_f* = tau_a - tau_f > 0, thesis eq. 26), got {initial['tau_f']!r}"
+            )
+        if isinstance(self.limits, str):
+            check_choice("limits", self.limits, ("table-I", "none"))
+        else:
+            limits = _frozen_mapping("limits", self.limits, _limit_pair)
+            check_names("limits", limits)
+            if preview and "tau_f" in limits and limits["tau_f"][1] >= self.anticipation_time:
+                raise ValueError(
+                    f"limits['tau_f'] must stay below anticipation_time = "
+                    f"{self.anticipation_time:g} s, got {limits['tau_f']!r}"
+                )
+            object.__setattr__(self, "limits", limits)
+        check_choice("preset", self.preset, PRESETS)
+        object.__setattr__(self, "q2", check_positive("q2", self.q2))
+        if self.r2 is not None:
+            object.__setattr__(self, "r2", check_positive("r2", self.r2))
+        object.__setattr__(self, "window", check_positive("window", self.window))
+        check_choice("initial_variance", self.initial_variance, INITIAL_VARIANCE_MODES)
+        for which in ("P0", "Q", "P0_fraction", "Q_fraction"):
+            values = _frozen_mapping(which, getattr(self, which), check_positive)
+            check_names(which, values)
+            for key, value in values.items():
+                if value <= 0.0:
+                    raise ValueError(f"{which}[{key!r}] must be > 0 (a variance), got {value!r}")
+            object.__setattr__(self, which, values)
+        object.__setattr__(self, "P0_canonical", check_positive("P0_canonical", self.P0_canonical))
+        order = check_int("delay_order", self.delay_order, minimum=1)
+        if order > MAX_DELAY_ORDER:
+            raise ValueError(
+                f"delay_order must be <= {MAX_DELAY_ORDER}, got {order!r}: higher orders make "
+                "the controllable canonical form of the internal model too ill-conditioned "
+                "for the filter (order 5 loses a positive-definite covariance in the first "
+                "samples)"
+            )
+        object.__setattr__(self, "delay_order", order)
+        check_choice("noise_input", self.noise_input, NOISE_INPUTS)
+        object.__setattr__(self, "jitter", check_positive("jitter", self.jitter, allow_zero=True))
+        object.__setattr__(
+            self, "variance_floor", check_positive("variance_floor", self.variance_floor)
+        )
+        object.__setattr__(
+            self, "max_covariance", check_positive("max_covariance", self.max_covariance)
+        )
+        pinned = float(self.pinned_time)
+        if math.isnan(pinned) or pinned <= 0.0:
+            raise ValueError(f"pinned_time must be > 0 s (inf: never), got {self.pinned_time!r}")
+        object.__setattr__(self, "pinned_time", pinned)
+        for which in ("fixed_R", "fixed_Q_error"):
+            value = getattr(self, which)
+            if value is not None:
+                object.__setattr__(self, which, check_positive(which, value))
+
+    @property
+    def r2_value(self) -> float:
+        """``r^2`` in use: the given one, else the preset's."""
+        if self.r2 is not None:
+            return self.r2
+        return 4.0 if self.preset == "vertregt2020-remnant" and self.ce == "DI" else 0.7
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able form; :meth:`from_dict` inverts it (infinities as strings)."""
+        out: dict[str, Any] = {}
+        for item in dataclasses.fields(self):
+            value = getattr(self, item.name)
+            if isinstance(value, Mapping):
+                value = {k: list(v) if isinstance(v, tuple) else v for k, v in value.items()}
+                value = {k: _json_number(v) for k, v in value.items()}
+            elif isinstance(value, tuple):
+                value = list(value)
+            else:
+                value = _json_number(value)
+            out[item.name] = value
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> PilotFilterSettings:
+        """Inverse of :meth:`to_dict`; unknown keys raise."""
+        items = dict(data)
+        reject_unknown(
+            f"{cls.__name__}.from_dict", items, [f.name for f in dataclasses.fields(cls)]
+        )
+        for key, value in list(items.items()):
+            items[key] = _from_json_number(value)
+        if items.get("estimated") is not None:
+            items["estimated"] = tuple(items["estimated"])
+        if isinstance(items.get("limits"), Mapping):
+            items["limits"] = {k: tuple(v) for k, v in items["limits"].items()}
+        return cls(**items)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # read-only mappings do not pickle: rebuild from the plain dict
+        return (type(self).from_dict, (self.to_dict(),))
+
+
+def _json_number(value: Any) -> Any:
+    if isinstance(value, list):
+        return [_json_number(v) for v in value]
+    if isinstance(value, float) and math.isinf(value):
+        return "inf" if value > 0 else "-inf"
+    return value
+
+
+def _from_json_number(value: Any) -> Any:
+    if isinstance(value, list):
+        return [_from_json_number(v) for v in value]
+    if isinstance(value, Mapping):
+        return {k: _from_json_number(v) for k, v in value.items()}
+    if value in ("inf", "-inf"):
+        return float(value)
+    return value
+
+
+# ----------------------------------------------------------------------- resolution
+
+
+@dataclass(frozen=True)
+class ResolvedSettings:
+    """Every number a filter run uses, resolved from its settings at reset.
+
+    Values are in model units (``tau_f`` as preview time, its variances those of
+    ``tau_f*``, which has the same spread).
+    """
+
+    parameter_names: tuple[str, ...]
+    estimated: tuple[str, ...]
+    gains: tuple[str, ...]
+    theta: tuple[str, ...]
+    initial: Mapping[str, float]
+    P0: Mapping[str, float]
+    Q: Mapping[str, float]
+    limits: Mapping[str, tuple[float, float]]
+    q2: float
+    r2: float
+    r2_parameter: float
+    var_u0: float | None
+    var_e0: float | None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able form."""
+        return {
+            "parameter_names": list(self.parameter_names),
+            "estimated": list(self.estimated),
+            "state_filter_gains": list(self.gains),
+            "parameter_filter": list(self.theta),
+            "initial": dict(self.initial),
+            "P0": dict(self.P0),
+            "Q": dict(self.Q),
+            "limits": {k: [_json_number(v[0]), _json_number(v[1])] for k, v in self.limits.items()},
+            "q2": self.q2,
+            "r2": self.r2,
+            "r2_parameter": self.r2_parameter,
+            "var_u0": self.var_u0,
+            "var_e0": self.var_e0,
+        }
+
+
+def _default_limits(
+    settings: PilotFilterSettings, names: tuple[str, ...]
+) -> dict[str, tuple[float, float]]:
+    model = make_model(settings.model)
+    if settings.ce is not None:
+        table = dict(TABLE_I[settings.ce])
+    else:
+        table = {spec.name: spec.human for spec in model.parameters}
+    limits = {name: table[name] for name in names if name in table}
+    if "ft_far" in model.perceptions:
+        tau_a = settings.anticipation_time
+        limits["tau_f"] = (TAU_F_MARGIN, tau_a - TAU_F_MARGIN)
+    return limits
+
+
+def resolve_settings(
+    settings: PilotFilterSettings,
+    internal: InternalModel,
+    var_u0: float | None,
+    var_e0: float | None,
+) -> ResolvedSettings:
+    """Fill in initial values, covariances and limits (see the module docstring)."""
+    r2_parameter = getattr(settings, "r2_parameter", None)
+    model = internal.model
+    names = internal.parameter_names
+    preview = ANTICIPATED_PARAMETER in names and "ft_far" in model.perceptions
+    si = settings.ce == "SI"
+    if settings.estimated is None:
+        held = {"K_v", "omega_f"} if si else set()
+        estimated = tuple(name for name in names if name not in held)
+    else:
+        estimated = settings.estimated
+    # limits
+    if settings.limits == "none":
+        limits: dict[str, tuple[float, float]] = {}
+    else:
+        limits = _default_limits(settings, names)
+        if isinstance(settings.limits, Mapping):
+            limits.update(settings.limits)
+    # initial values
+    initial: dict[str, float] = {}
+    generic_gain = None
+    if var_u0 is not None and var_e0 is not None and var_u0 > 0.0 and var_e0 > 0.0:
+        generic_gain = math.sqrt(var_u0 / var_e0)  # Popovici eq. 27
+    for name in names:
+        if name in settings.initial:
+            initial[name] = float(settings.initial[name])
+            continue
+        if name == "K_p" and model.name in ("precision", "preview"):
+            if generic_gain is None:
+                raise ValueError(
+                    "initial K_p is needed: Popovici's generic rule K_p0 = sigma_u/sigma_e "
+                    "(eq. 27) needs the variances of u and e over the first window (reset with "
+                    "var_u0 and var_e0, or use initial_variance='first-window' through "
+                    "estimate), or give initial={'K_p': ...}"
+                )
+            value = generic_gain
+        elif name == "K_v" and model.name in ("precision", "preview"):
+            value = 0.0 if si else 0.5 * initial["K_p"]  # eq. 28
+        elif name == "tau_f" and preview:
+            value = 0.5 * settings.anticipation_time
+        elif name in GENERIC_INITIAL and model.name in ("precision", "preview"):
+            value = GENERIC_INITIAL[name]  # eqs. 29-31
+        else:
+            value = model.spec(name).nominal
+        if name in limits and name not in settings.initial:
+            low, high = limits[name]
+            value = min(max(value, low), high)
+        initial[name] = value
+    for name in estimated:
+        if name in limits:
+            low, high = limits[name]
+            if not low <= initial[name] <= high:
+                raise ValueError(
+                    f"initial {name} = {initial[name]!r} lies outside its limits "
+                    f"[{low:g}, {high:g}]"
+                )
+
+    def internal_value(name: str) -> float:
+        if preview and name == ANTICIPATED_PARAMETER:
+            return settings.anticipation_time - initial[name]
+        return initial[name]
+
+    # covariances
+    P0: dict[str, float] = {}
+    Q: dict[str, float] = {}
+    for name in estimated:
+        value = abs(internal_value(name))
+        kind = _kind(name)
+        if settings.preset == "popovici2017":
+            p0 = 10.0 if kind in ("gain", "frequency") else 1.0  # eqs. 32-33
+            q = (1.0 if kind == "gain" else 0.1) * value  # eqs. 25-26
+        else:
+            p_factor = 0.1 if name == "omega_nms" else 0.5
+            p0 = (p_factor * value) ** 2  # thesis Sec. V-B-1
+            q = (0.05 if kind in ("gain", "delay") else 0.025) * value  # Sec. V-B-2
+        if name in settings.P0_fraction:
+            p0 = (settings.P0_fraction[name] * value) ** 2  # thesis Sec. V-B-1 form
+        if name in settings.Q_fraction:
+            q = settings.Q_fraction[name] * value  # thesis Sec. IV-F-2 form
+        P0[name] = settings.P0.get(name, p0)
+        Q[name] = settings.Q.get(name, q)
+        for which, table in (("P0", P0), ("Q", Q)):
+            if not table[name] > 0.0:
+                raise ValueError(
+                    f"{which}[{name!r}] resolves to {table[name]!r} (from the initial value "
+                    f"{initial[name]!r} with preset {settings.preset!r}); covariances must "
+                    f"be > 0: give {which}={{{name!r}: ...}} or another initial value"
+                )
+    gains = tuple(name for name in internal.gain_parameters if name in estimated)
+    theta_names = [name for name in _THETA_ORDER if name in estimated and name not in gains]
+    theta_names += [
+        name
+        for name in names
+        if name in estimated and name not in gains and name not in theta_names
+    ]
+    return ResolvedSettings(
+        parameter_names=names,
+        estimated=tuple(name for name in names if name in estimated),
+        gains=gains,
+        theta=tuple(theta_names),
+        initial=MappingProxyType(initial),
+        P0=MappingProxyType(P0),
+        Q=MappingProxyType(Q),
+        limits=MappingProxyType({k: v for k, v in limits.items() if k in estimated}),
+        q2=settings.q2,
+        r2=settings.r2_value,
+        r2_parameter=settings.r2_value if r2_parameter is None else r2_parameter,
+        var_u0=var_u0,
+        var_e0=var_e0,
+    )
+
+
+@functools.lru_cache(maxsize=16)
+def internal_model(model: str, delay_order: int) -> InternalModel:
+    """The internal model of ``model`` with Padé order ``delay_order`` (cached)."""
+    return build_internal_model(model, delay_order)
+
+
+# ------------------------------------------------------------------ parameter map
+
+
+@dataclass(frozen=True)
+class ParameterMap:
+    """Internal values of the model's parameters (what the filters estimate), and back.
+
+    The preview model's preview time is estimated as the apparent delay
+    ``tau_f* = tau_a - tau_f`` behind the target anticipated by ``tau_a`` (thesis eq.
+    26): its slot holds ``tau_f*`` inside the filters, and results report ``tau_f``.
+    Every other parameter is its own internal value.
+    """
+
+    names: tuple[str, ...]
+    anticipation_time: float
+    anticipated: str | None
+
+    @classmethod
+    def of(cls, settings: PilotFilterSettings, internal: InternalModel) -> ParameterMap:
+        """The map of a filter with these settings on this internal model."""
+        names = internal.parameter_names
+        preview = ANTICIPATED_PARAMETER in names and "ft_far" in internal.model.perceptions
+        if not preview:
+            return cls(names, 0.0, None)
+        return cls(names, float(settings.anticipation_time), ANTICIPATED_PARAMETER)
+
+    def internal(self, name: str, value: float) -> float:
+        """Internal value of parameter ``name`` reported as ``value``."""
+        return self.anticipation_time - value if name == self.anticipated else value
+
+    def reported(self, name: str, value: float) -> float:
+        """Reported value of parameter ``name`` whose internal value is ``value``."""
+        return self.anticipation_time - value if name == self.anticipated else value
+
+    def internal_limits(self, name: str, low: float, high: float) -> tuple[float, float]:
+        """Limits on the internal value from limits on the reported one."""
+        if name == self.anticipated:
+            return self.anticipation_time - high, self.anticipation_time - low
+        return low, high
+
+    def report_transform(self) -> tuple[FloatArray, FloatArray]:
+        """``(offset, sign)`` per parameter: reported = offset + sign internal."""
+        offset = np.zeros(len(self.names))
+        sign = np.ones(len(self.names))
+        if self.anticipated is not None:
+            j = self.names.index(self.anticipated)
+            offset[j] = self.anticipation_time
+            sign[j] = -1.0
+        return offset, sign
+
+
+# ---------------------------------------------------------------------- the shell
+
+
+@dataclass
+class CommonArrays:
+    """The records every pilot filter's compiled step reads (see ``_pilot_core``)."""
+
+    cfg: FloatArray
+    sc: FloatArray
+    monitor: core.PilotMonitor
+    report: core.PilotReport
+    p: FloatArray
+    estimated: NDArray[np.bool_]
+    parameter_map: ParameterMap
+
+
+class PilotFilter:
+    """The estimator protocol around a compiled filter on a pilot internal model.
+
+    Subclasses set :attr:`name` and :attr:`settings_type` and implement ``_start``
+    (build their records from the resolved settings), ``_new_output`` (output records
+    for ``n`` rows, with smoother storage or without), ``_step``/``_run`` (call the
+    compiled kernels) and, for smoothing, ``_smoother_inputs``.
+    """
+
+    name: ClassVar[str] = ""
+    settings_type: ClassVar[type[PilotFilterSettings]] = PilotFilterSettings
+
+    def __init__(self, settings: PilotFilterSettings | None = None, **changes: Any) -> None:
+        kind = self.settings_type
+        if settings is None:
+            settings = kind(**changes)
+        elif not isinstance(settings, kind):
+            raise TypeError(f"settings must be {kind.__name__}, got {settings!r}")
+        elif changes:
+            settings = dataclasses.replace(settings, **changes)
+        self._settings = settings
+        self._internal = internal_model(settings.model, settings.delay_order)
+        keys = list(self._internal.input_names)
+        keys += [name for name in ("e", "u") if name not in keys]
+        self._sample_keys = tuple(keys)
+        self._allowed_sample_keys = frozenset((*keys, "t"))
+        self._common: CommonArrays | None = None
+        self._resolved: ResolvedSettings | None = None
+        self._row: Any = None
+        self._t0 = 0.0
+        self._dt = 0.01
+        self._k = 0
+
+    # ----------------------------------------------------------------- access
+
+    @property
+    def settings(self) -> PilotFilterSettings:
+        """The frozen settings."""
+        return self._settings
+
+    @property
+    def internal_model(self) -> InternalModel:
+        """The internal model (f, g) the filter runs on."""
+        return self._internal
+
+    @property
+    def resolved(self) -> ResolvedSettings:
+        """Numbers resolved at the last :meth:`reset`."""
+        if self._resolved is None:
+            raise RuntimeError(f"the {type(self).__name__} has not been reset; call reset() first")
+        return self._resolved
+
+    @property
+    def sample_keys(self) -> tuple[str, ...]:
+        """Keys :meth:`update` needs: the filter inputs, ``u`` and ``e``."""
+        return self._sample_keys
+
+    def configure(self, **changes: Any) -> PilotFilter:
+        """A new filter of this kind with some settings replaced."""
+        return type(self)(dataclasses.replace(self._settings, **changes))
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickle (and deep copy) as a fresh filter with the same settings, without run state."""
+        return (type(self), (self._settings,))
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(model={self._settings.model!r}, ce={self._settings.ce!r})"
+
+    # ----------------------------------------------------------------- reset
+
+    def reset(
+        self,
+        dt: float = 0.01,
+        *,
+        var_u0: float | None = None,
+        var_e0: float | None = None,
+        t0: float = 0.0,
+    ) -> None:
+        """Start from the initial belief.
+
+        Parameters
+        ----------
+        dt
+            Sample time (s) of the samples to come.
+        var_u0, var_e0
+            Variances of ``u`` and ``e`` over the first ``window`` (Popovici eq. 34):
+            required with ``initial_variance="first-window"``, and by the generic
+            ``K_p0 = sigma_u/sigma_e`` (eq. 27) when ``initial`` has no ``K_p``.
+        t0
+            Time of the first sample (s).
+
+        """
+        settings = self._settings
+        dt = check_positive("dt", dt)
+        t0 = check_real("t0", t0)
+        n_window = round(settings.window / dt)
+        if n_window < 1:
+            raise ValueError(
+                f"window must be at least one sample ({dt:g} s), got {settings.window!r}"
+            )
+        for name, value in (("var_u0", var_u0), ("var_e0", var_e0)):
+            if value is not None:
+                check_positive(name, value, allow_zero=True)
+        if settings.initial_variance == "first-window" and (var_u0 is None or var_e0 is None):
+            raise ValueError(
+                "reset needs var_u0 and var_e0 with initial_variance='first-window' (the "
+                "variances of u and e over the first window, Popovici eq. 34); "
+                "estimate() computes them from the recording"
+            )
+        internal = self._internal
+        resolved = resolve_settings(settings, internal, var_u0, var_e0)
+        names = internal.parameter_names
+        n_p = len(names)
+        parameter_map = ParameterMap.of(settings, internal)
+        lo = np.full(n_p, -np.inf)
+        hi = np.full(n_p, np.inf)
+        for name, (low, high) in resolved.limits.items():
+            j = names.index(name)
+            lo[j], hi[j] = parameter_map.internal_limits(name, low, high)
+        offset, sign = parameter_map.report_transform()
+        cfg = np.zeros(core.CFG_SIZE)
+        cfg[core.CFG_DT] = dt
+        cfg[core.CFG_Q2] = resolved.q2
+        cfg[core.CFG_R2] = resolved.r2
+        cfg[core.CFG_R2_PARAMETER] = resolved.r2_parameter
+        cfg[core.CFG_WINDOW] = n_window
+        cfg[core.CFG_FIRST_WINDOW] = 1.0 if settings.initial_variance == "first-window" else 0.0
+        cfg[core.CFG_FLOOR] = settings.variance_floor
+        cfg[core.CFG_JITTER] = settings.jitter
+        cfg[core.CFG_MAX_COV] = settings.max_covariance
+        cfg[core.CFG_FIXED_R] = settings.fixed_R or 0.0
+        cfg[core.CFG_FIXED_QE] = settings.fixed_Q_error or 0.0
+        cfg[core.CFG_ERROR_STATE] = internal.input_states[0]
+        cfg[core.CFG_GAMMA2] = dt * dt if settings.noise_input == "euler" else 1.0
+        sc = np.zeros(core.SC_SIZE)
+        sc[core.SC_VAR_U0] = var_u0 if var_u0 is not None else 0.0
+        sc[core.SC_VAR_E0] = var_e0 if var_e0 is not None else 0.0
+        sc[core.SC_DIV_INDEX] = -1.0
+        sc[core.SC_DIV_PARAM] = -1.0
+        n_pin = 0 if math.isinf(settings.pinned_time) else max(1, round(settings.pinned_time / dt))
+        watch = core.PilotMonitor(
+            np.full(n_window + 1, np.nan),
+            np.full(n_window + 1, np.nan),
+            np.zeros(n_p, dtype=np.int64),
+            np.zeros((n_p, n_pin), dtype=np.int64),
+            np.array([resolved.initial[n] for n in names], dtype=np.float64),  # last reported
+            np.zeros(n_p),
+            np.zeros(n_p, dtype=np.bool_),
+        )
+        self._common = CommonArrays(
+            cfg=cfg,
+            sc=sc,
+            monitor=watch,
+            report=core.PilotReport(lo, hi, offset, sign),
+            p=np.array([parameter_map.internal(n, resolved.initial[n]) for n in names]),
+            estimated=np.array([n in resolved.estimated for n in names], dtype=np.bool_),
+            parameter_map=parameter_map,
+        )
+        self._resolved = resolved
+        self._start(resolved, self._common)
+        self._row = self._new_output(1, store=False)
+        self._t0, self._dt, self._k = t0, dt, 0
+
+    def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
+        raise NotImplementedError
+
+    def _new_output(self, n: int, store: bool) -> Any:
+        raise NotImplementedError
+
+    def _step(self, inputs: FloatArray, u: float, e: float, out: Any) -> None:
+        raise NotImplementedError
+
+    def _run(self, inputs: FloatArray, u: FloatArray, e: FloatArray, out: Any) -> None:
+        raise NotImplementedError
+
+    def _smoother_inputs(self, out: Any) -> Any:
+        raise NotImplementedError
+
+    def _state_traces(self, out: Any) -> tuple[tuple[str, ...], FloatArray | None]:
+        return (), None
+
+    # ---------------------------------------------------------------- update
+
+    def update(self, sample: Mapping[str, float]) -> Estimate:
+        """Consume one sample and return the estimate after it.
+
+        ``sample`` maps :attr:`sample_keys` (compensatory: ``e``, ``u``; preview:
+        ``ft_ahead`` = ``ft(t + tau_a)``, ``y``, ``e``, ``u``) to floats, optionally
+        with ``t``. NaN in ``u`` or an input marks a dropped sample.
+        """
+        if self._common is None:
+            raise RuntimeError(f"the {type(self).__name__} has not been reset; call reset() first")
+        if not isinstance(sample, Mapping):
+            raise TypeError(f"sample must be a mapping of signal values, got {sample!r}")
+        keys = self._sample_keys
+        where = f"{type(self).__name__}.update sample"
+        reject_unknown(where, sample, self._allowed_sample_keys)
+        missing = [key for key in keys if key not in sample]
+        if missing:
+            raise ValueError(
+                f"{where} lacks {', '.join(map(repr, missing))}; it needs "
+                f"{', '.join(map(repr, keys))}"
+            )
+        values = {}
+        for key in keys:
+            value = sample[key]
+            if isinstance(value, bool) or not isinstance(
+                value, (int, float, np.floating, np.integer)
+            ):
+                raise TypeError(f"sample[{key!r}] must be a number, got {value!r}")
+            value = float(value)
+            if math.isinf(value):
+                raise ValueError(f"sample[{key!r}] must be finite or NaN (dropped), got {value!r}")
+            values[key] = value
+        inputs = np.array([values[name] for name in self._internal.input_names])
+        out = self._row
+        self._step(inputs, values["u"], values["e"], out)
+        t = float(sample["t"]) if "t" in sample else self._t0 + self._k * self._dt
+        self._k += 1
+        names = self._internal.parameter_names
+        mean, std, scalar, flag, pinned = (
+            out.mean[0],
+            out.std[0],
+            out.scalar[0],
+            out.flag[0],
+            out.pinned[0],
+        )
+        return Estimate(
+            t=t,
+            mean={n: float(mean[j]) for j, n in enumerate(names)},
+            std={n: float(std[j]) for j, n in enumerate(names)},
+            estimated=self.resolved.estimated,
+            prediction=float(scalar[0]),
+            innovation=float(scalar[1]),
+            innovation_variance=float(scalar[2]),
+            health=EstimateHealth(
+                finite=bool(flag[0]),
+                covariance_ok=bool(flag[1]),
+                pinned=tuple(n for j, n in enumerate(names) if pinned[j]),
+                dropped=bool(flag[2]),
+                diverged=bool(flag[3]),
+            ),
+        )
+
+    # -------------------------------------------------------------- estimate
+
+    def signals(
+        self,
+        recording: Recording,
+        *,
+        forcing: Any = None,
+        target_period: float | None = None,
+    ) -> dict[str, FloatArray]:
+        """The sample signals :meth:`estimate` feeds the filter (see :meth:`update`)."""
+        if not isinstance(recording, Recording):
+            raise TypeError(f"recording must be a Recording, got {recording!r}")
+        if "u" not in recording:
+            raise ValueError("the recording has no control signal u to estimate from")
+        if "e" not in recording:
+            if "ft" in recording and "y" in recording:
+                recording = recording.with_error_signal()
+            else:
+                raise ValueError("the recording needs the error e (or ft and y to form it)")
+        out = {"u": np.asarray(recording.u), "e": np.asarray(recording.e)}
+        for name in self._internal.input_names:
+            if name == "ft_ahead":
+                target = target_function(recording, forcing, target_period)
+                tau_a = self._settings.anticipation_time
+                out[name] = np.asarray(target(recording.t + tau_a), dtype=np.float64)
+            elif name not in out:
+                if name not in recording:
+                    raise ValueError(
+                        f"the recording has no signal {name!r}, which the filter reads"
+                    )
+                out[name] = np.asarray(recording[name])
+        return out
+
+    def estimate(
+        self,
+        recording: Recording,
+        *,
+        forcing: Any = None,
+        target_period: float | None = None,
+        smoother_inputs: bool = False,
+        smooth: bool = False,
+    ) -> EstimationResult:
+        """Run the filter over a recording from a fresh reset.
+
+        Parameters
+        ----------
+        recording
+            Needs ``u`` and ``e`` (or ``ft`` and ``y``); the preview model also ``y``
+            and the target ahead of the samples.
+        forcing, target_period
+            Where the preview model's anticipated target ``ft(t + tau_a)`` comes from:
+            the ``forcing`` given (a ForcingPair or callable of time), else
+            ``recording.metadata["forcing"]``, else the periodic extension of the
+            recorded ``ft`` over ``target_period``; otherwise ``ValueError``.
+        smoother_inputs
+            Keep what :func:`~manualcontrol.estimators.smoothing.smooth` needs (the
+            stored priors, posteriors and links: memory of order ``n`` times the square
+            of the state count) in the result.
+        smooth
+            Return the fixed-interval smoothed result instead of the filtered one.
+
+        """
+        signals = self.signals(recording, forcing=forcing, target_period=target_period)
+        dt = recording.dt
+        n_window = round(self._settings.window / dt)
+        first = slice(0, n_window + 1)
+        variances = []
+        for name in ("u", "e"):
+            window = signals[name][first]
+            with np.errstate(invalid="ignore"):
+                finite = np.any(np.isfinite(window))
+                variances.append(float(np.nanvar(window)) if finite else 0.0)
+        self.reset(dt, var_u0=variances[0], var_e0=variances[1], t0=float(recording.t[0]))
+        n = len(recording)
+        inputs = np.ascontiguousarray(
+            np.column_stack([signals[name] for name in self._internal.input_names])
+        )
+        store = bool(smoother_inputs or smooth)
+        out = self._new_output(n, store=store)
+        self._run(
+            inputs,
+            np.ascontiguousarray(signals["u"]),
+            np.ascontiguousarray(signals["e"]),
+            out,
+        )
+        self._k = n
+        result = self._result(np.asarray(recording.t), out, store)
+        if smooth:
+            from manualcontrol.estimators.smoothing import smooth as smooth_result
+
+            return smooth_result(result)
+        return result
+
+    def _health(self, t: FloatArray, flag: NDArray[np.bool_], pinned: NDArray[np.bool_]) -> Any:
+        sc = self._common.sc
+        names = self._internal.parameter_names
+        reason_code = int(sc[core.SC_DIV_REASON])
+        diverged = reason_code != monitor.REASON_NONE
+        if reason_code == monitor.REASON_PINNED:
+            name = names[int(sc[core.SC_DIV_PARAM])]
+            reason = f"{name} pinned at a limit for {self._settings.pinned_time:g} s"
+        else:
+            reason = REASONS.get(reason_code, "")
+        index = int(sc[core.SC_DIV_INDEX])
+        dropped = flag[:, 2]
+        edges = np.diff(np.concatenate(([0], dropped.astype(np.int8), [0])))
+        starts = np.flatnonzero(edges == 1)
+        stops = np.flatnonzero(edges == -1)
+        stretches = tuple(
+            (float(t[a]), float((b - a) * self._dt)) for a, b in zip(starts, stops, strict=True)
+        )
+        return HealthSummary(
+            diverged=diverged,
+            divergence_time=float(t[index]) if diverged and 0 <= index < len(t) else math.nan,
+            divergence_reason=reason,
+            stopped=bool(sc[core.SC_FROZEN] > 0.0),
+            dropped_samples=int(dropped.sum()),
+            dropped_stretches=stretches,
+            pinned_fraction={
+                n: float(pinned[:, j].mean()) if len(t) else 0.0 for j, n in enumerate(names)
+            },
+        )
+
+    def _result(self, t: FloatArray, out: Any, store: bool) -> EstimationResult:
+        state_names, states = self._state_traces(out)
+        return EstimationResult(
+            estimator=self.name,
+            t=t,
+            parameter_names=self._internal.parameter_names,
+            estimated=self.resolved.estimated,
+            mean=out.mean,
+            std=out.std,
+            outputs=("u",),
+            predictions=out.scalar[:, 0:1],
+            innovations=out.scalar[:, 1:2],
+            innovation_covariance=out.scalar[:, 2, None, None],
+            finite=out.flag[:, 0],
+            covariance_ok=out.flag[:, 1],
+            dropped=out.flag[:, 2],
+            diverged=out.flag[:, 3],
+            pinned=out.pinned,
+            settings={"settings": self._settings.to_dict(), "resolved": self.resolved.to_dict()},
+            health=self._health(t, out.flag, out.pinned),
+            state_names=state_names,
+            states=states,
+            smoother_inputs=self._smoother_inputs(out) if store else None,
+        )
