@@ -36,27 +36,13 @@ from manualcontrol.bench.scenarios import Scenario, Suite
 from manualcontrol.envs._files import atomic_write
 from manualcontrol.envs._validation import check_choice, check_int
 from manualcontrol.envs.recording import Recording
+from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
 
 __all__ = ["BACKENDS", "ESTIMATORS", "make_estimator", "run_scenario", "run_suite", "write_table"]
 
 BACKENDS: tuple[str, ...] = ("process", "inprocess", "ray")
 
 
-def _dekf(settings: Mapping[str, Any]) -> Any:
-    from manualcontrol.estimators.dekf import DEKF, DEKFSettings
-
-    return DEKF(DEKFSettings.from_dict(dict(settings)))
-
-
-#: Estimators a scenario can name, each built from its settings table.
-ESTIMATORS: dict[str, Callable[[Mapping[str, Any]], Any]] = {"dekf": _dekf}
-
-
-def make_estimator(spec: Mapping[str, Any]) -> Any:
-    """An estimator from ``{"name": ..., **settings}``."""
-    spec = dict(spec)
-    name = check_choice("estimator name", spec.pop("name", None), tuple(ESTIMATORS))
-    return ESTIMATORS[name](spec)
 
 
 def simulate_scenario(scenario: Scenario) -> Recording:

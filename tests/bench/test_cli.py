@@ -10,6 +10,7 @@ import pytest
 
 from manualcontrol.bench.cli import EXIT_OK, EXIT_RUNS_FAILED, EXIT_USAGE, main
 from manualcontrol.envs.recording import Recording
+from manualcontrol.estimators.registry import EstimatorEntry
 
 TINY_SUITE = """
 name = "tiny"
@@ -132,7 +133,9 @@ def test_bench_with_failing_runs_exits_3(tmp_path, capsys, monkeypatch):
         def estimate(self, recording):
             raise RuntimeError("no")
 
-    monkeypatch.setitem(runner.ESTIMATORS, "broken", lambda settings: Broken())
+    monkeypatch.setitem(
+        runner.ESTIMATORS, "broken", EstimatorEntry("broken", "", "", lambda settings: Broken())
+    )
     suite = tmp_path / "tiny.toml"
     suite.write_text(
         textwrap.dedent(TINY_SUITE).replace(

@@ -9,6 +9,7 @@ from manualcontrol.bench import runner
 from manualcontrol.bench.report import write_report
 from manualcontrol.bench.runner import run_suite
 from manualcontrol.bench.scenarios import parse_suite
+from manualcontrol.estimators.registry import EstimatorEntry
 
 SMALL = {
     "name": "small",
@@ -112,7 +113,9 @@ def test_a_failing_scenario_is_a_row_and_the_batch_goes_on(tmp_path, monkeypatch
         def estimate(self, recording):
             raise FloatingPointError("filter exploded")
 
-    monkeypatch.setitem(runner.ESTIMATORS, "broken", lambda settings: Broken())
+    monkeypatch.setitem(
+        runner.ESTIMATORS, "broken", EstimatorEntry("broken", "", "", lambda settings: Broken())
+    )
     data = json.loads(json.dumps(SMALL))
     data["batch"].append({**data["batch"][0], "name": "broken", "estimator": {"name": "broken"}})
     rows = run_suite(parse_suite(data), tmp_path, backend="inprocess")
