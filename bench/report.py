@@ -243,6 +243,11 @@ def write_report(suite: Suite, rows: Sequence[Mapping[str, Any]], out: str | Pat
         figure = _trace_figure(suite, batch.name, rows, out)
         if figure is not None:
             lines += [f"![{batch.name}](figures/{figure.name})", ""]
+    from manualcontrol.bench.papers import section_writer
+
+    writer = section_writer(suite.name)
+    if writer is not None:
+        lines += [*writer(suite, rows, out), ""]
     failed = [row for row in rows if row.get("status") != "ok"]
     if failed:
         lines += ["## Failed runs", ""]

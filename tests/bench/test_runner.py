@@ -138,3 +138,17 @@ def test_report_puts_ours_beside_the_paper(tmp_path):
 def test_unknown_backend():
     with pytest.raises(ValueError, match="backend must be one of 'process', 'inprocess', 'ray'"):
         run_suite(parse_suite(SMALL), "unused", backend="dask")
+
+
+def test_paper_sections_are_found_by_suite_name(monkeypatch):
+    import sys
+    import types
+
+    from manualcontrol.bench.papers import section_writer
+
+    assert section_writer("no-such-suite") is None
+    assert section_writer("not a name!") is None
+    module = types.ModuleType("manualcontrol.bench.papers.made_up_2099")
+    module.report_section = lambda suite, rows, out: ["## extra"]
+    monkeypatch.setitem(sys.modules, module.__name__, module)
+    assert section_writer("made-up-2099")(None, [], None) == ["## extra"]
