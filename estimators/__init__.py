@@ -1,4 +1,10 @@
-"""Online identification of pilot parameters: the estimator protocol, the DEKF, metrics."""
+"""Online identification of pilot parameters: the estimator protocol, the family, metrics.
+
+The family (``manualcontrol estimators`` lists it; :data:`ESTIMATORS` holds it): the
+DEKF, the joint and dual UKF, and the papers' other members, all on the shared Kalman
+core :mod:`manualcontrol.estimators.filters`; :func:`smooth` turns a filtered result of
+any of them into a smoothed one.
+"""
 
 from manualcontrol.estimators.dekf import DEKF, DEKFSettings, ResolvedSettings
 from manualcontrol.estimators.internal_model import InternalModel, build_internal_model
@@ -20,25 +26,36 @@ from manualcontrol.estimators.protocol import (
     HealthSummary,
     load_result,
 )
+from manualcontrol.estimators.registry import ESTIMATORS, EstimatorEntry, make_estimator
+from manualcontrol.estimators.smoothing import smooth
+from manualcontrol.estimators.ukf import DualUKF, DualUKFSettings, JointUKF, UKFSettings
 
 __all__ = [
     "DEKF",
+    "ESTIMATORS",
     "DEKFSettings",
+    "DualUKF",
+    "DualUKFSettings",
     "Estimate",
     "EstimateHealth",
     "EstimationMetrics",
     "EstimationResult",
     "Estimator",
+    "EstimatorEntry",
     "HealthSummary",
     "InternalModel",
+    "JointUKF",
     "ResolvedSettings",
+    "UKFSettings",
     "build_internal_model",
     "evaluate",
     "innovation_fractions",
     "load_result",
+    "make_estimator",
     "moving_vaf",
     "nrmse",
     "relative_bias",
     "resimulate",
+    "smooth",
     "vaf",
 ]

@@ -15,6 +15,7 @@ __all__ = [
     "TINY",
     "add_product",
     "cholesky",
+    "cholesky_semidefinite",
     "cholesky_solve_rows",
     "log_determinant",
     "matmul",
@@ -67,6 +68,50 @@ def cholesky(A, L):
             L[i, j] = s / d
         for i in range(j):
             L[i, j] = 0.0
+    return True
+
+
+#: Pivots below this fraction of the largest diagonal entry count as zero in
+#: :func:`cholesky_semidefinite` (a few hundred times the double precision epsilon).
+SEMIDEFINITE_TOLERANCE = 1e-13
+
+
+@numba.njit(cache=True, _nrt=False)
+def cholesky_semidefinite(A, L):
+    """A factor ``L`` (lower, ``A = L L^T``) of a positive *semi*definite ``A``.
+
+    Directions whose variance the data have driven to zero (a state without process
+    noise that the measurements pin down) leave pivots at rounding level, possibly
+    below zero; a pivot under :data:`SEMIDEFINITE_TOLERANCE` times the largest diagonal
+    entry is taken as zero and its column left zero. Returns False for a clearly
+    negative pivot or non-finite entries.
+    """
+    n = A.shape[0]
+    largest = 0.0
+    for i in range(n):
+        if not np.isfinite(A[i, i]):
+            return False
+        largest = max(largest, A[i, i])
+    floor = SEMIDEFINITE_TOLERANCE * largest
+    for j in range(n):
+        s = A[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        for i in range(j):
+            L[i, j] = 0.0
+        if s <= floor:
+            if s < -1e3 * floor - 1e-300:
+                return False
+            for i in range(j, n):
+                L[i, j] = 0.0
+            continue
+        d = np.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / d
     return True
 
 

@@ -20,7 +20,15 @@ correct the belief:
 * :func:`weighted_mean` and :func:`weighted_covariance`: moments of the images, with
   additive noise (``Q`` or ``R``); :func:`cross_covariance` between two point sets;
 * :func:`unscented_correct`: ``K = C_xz S^-1`` (Cholesky solve), ``x^+ = x^- + K r``,
-  ``P^+ = P^- - K C_xz^T`` (Zhao Algorithm 2 step 3), symmetrised.
+  ``P^+ = P^- - K C_xz^T`` (Zhao Algorithm 2 step 3), symmetrised;
+* :func:`project_points`: sigma points onto box limits before they are propagated
+  (Kandepu, Foss & Imsland 2008). A prior spread wide against its limits otherwise
+  sends points where the model is meaningless (a negative delay in a Padé
+  approximant). Projected points no longer carry the prior's moments; before a
+  correction :func:`constrain_prior` replaces the prior by the moments of the
+  projected points, so that the prior, the cross-covariance and the innovation
+  covariance come from one weighted point set and (with positive weights, as in the
+  cubature rule) the corrected covariance stays positive semidefinite.
 
 Points are stored centre last (row ``2N``), so a scheme whose centre weights are both
 zero (cubature) propagates only the first ``2N`` rows.
@@ -37,6 +45,7 @@ import numpy as np
 from manualcontrol.estimators.filters.linalg import (
     add_product,
     cholesky,
+    cholesky_semidefinite,
     cholesky_solve_rows,
     log_determinant,
     symmetrise,
@@ -46,7 +55,9 @@ __all__ = [
     "SIGMA_SCHEMES",
     "SigmaWeights",
     "UnscentedWork",
+    "constrain_prior",
     "cross_covariance",
+    "project_points",
     "sigma_points",
     "sigma_weights",
     "unscented_correct",
@@ -127,9 +138,13 @@ def unscented_work(n: int, m: int) -> UnscentedWork:
 
 @numba.njit(cache=True, _nrt=False)
 def sigma_points(x, P, spread, L, X):
-    """Sigma points of ``(x, P)`` into the rows of ``X`` (centre last); False if P is not PD."""
+    """Sigma points of ``(x, P)`` into the rows of ``X`` (centre last).
+
+    ``P`` may be semidefinite (:func:`~.linalg.cholesky_semidefinite`: directions of
+    zero variance get no spread); False if it is not, or not finite.
+    """
     n = x.shape[0]
-    if not cholesky(P, L):
+    if not cholesky_semidefinite(P, L):
         return False
     for i in range(n):
         for j in range(n):
@@ -213,3 +228,41 @@ def unscented_correct(x, P, r, Cxz, S, LS, K, log_det, jitter):
         for i in range(n):
             P[i, i] += jitter
     return True
+
+
+@numba.njit(cache=True, _nrt=False)
+def project_points(X, count, index, lo, hi):
+    """Clamp column ``i`` of the first ``count`` points into ``[lo[j], hi[j]]``, ``j = index[i]``.
+
+    ``index[i] = -1`` leaves column ``i`` free. The centre row (last) is clamped too.
+    Returns the number of entries moved.
+    """
+    n_points = X.shape[0]
+    moved = 0
+    for i in range(index.shape[0]):
+        j = index[i]
+        if j < 0:
+            continue
+        for r in range(n_points):
+            if r >= count and r != n_points - 1:
+                continue
+            if X[r, i] < lo[j]:
+                X[r, i] = lo[j]
+                moved += 1
+            elif X[r, i] > hi[j]:
+                X[r, i] = hi[j]
+                moved += 1
+    return moved
+
+
+@numba.njit(cache=True, _nrt=False)
+def constrain_prior(X, wm, wc, count, index, lo, hi, x, P, zero):
+    """Project the points of ``(x, P)``; if any moved, make ``(x, P)`` their moments.
+
+    ``zero`` is an (n, n) array of zeros (no added noise). Returns the entries moved.
+    """
+    moved = project_points(X, count, index, lo, hi)
+    if moved > 0:
+        weighted_mean(X, wm, count, x)
+        weighted_covariance(X, x, wc, count, zero, P)
+    return moved
