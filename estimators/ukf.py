@@ -17,6 +17,16 @@ approximation. The algebra is :mod:`~manualcontrol.estimators.filters.unscented`
 compiled steps are in :mod:`~manualcontrol.estimators._ukf_core` (see its docstring
 for the order of the augmented state and the dual measurement model).
 
+Smoothing (``estimate(..., smooth=True)``) smooths each parameter marginal as random
+walks (Boer & Kenyon's smoother), not the whole augmented state with the unscented RTS
+smoother: the canonical states' variances span some twenty orders of magnitude, and
+the unscented smoother gain ``C (P^-)^-1`` amplified the rounding of ``C`` and ``P^-``
+(two separate point sums) until the smoothed gains ran to their limits on the
+time-varying Popovici run, even with relative diagonal loading. The parameters'
+marginal dynamics are exactly random walks, so the marginal smoother is the right
+recursion for them; it leaves out what the future states say about the parameters
+through their cross-covariance, which the filtered marginals already carry forward.
+
 Settings beyond the shared ones: ``sigma_points`` (``"cubature"``, the default: the
 third-degree rule of Zhao et al. 2019 Alg. 1, weights ``1/(2N)``, no centre point, all
 weights positive so every covariance stays positive semidefinite; or ``"merwe"``, the
@@ -157,31 +167,29 @@ class _UnscentedPilotFilter(PilotFilter):
         )
 
     def _smoother_inputs(self, out: core.UKFOutput) -> Any:
+        """Random-walk blocks over the parameters' marginals (see the module docstring)."""
         from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
 
-        first, second = self._blocks
-        blocks = [
-            SmootherBlock(
-                kind="ukf",
-                x_filtered=out.x_post,
-                P_filtered=out.P_post,
-                x_predicted=out.x_prior,
-                P_predicted=out.P_prior,
-                link=out.cross,
-                parameters=first,
+        def marginal(x_post, P_post, x_prior, P_prior, names):
+            index = np.arange(len(names))
+            square = np.ix_(np.arange(len(x_post)), index, index)
+            return SmootherBlock(
+                kind="random-walk",
+                x_filtered=x_post[:, index],
+                P_filtered=P_post[square],
+                x_predicted=x_prior[:, index],
+                P_predicted=P_prior[square],
+                link=None,
+                parameters={name: i for i, name in enumerate(names)},
             )
-        ]
+
+        first, second = self._blocks
+        blocks = []
+        if first:
+            blocks.append(marginal(out.x_post, out.P_post, out.x_prior, out.P_prior, first))
         if second:
             blocks.append(
-                SmootherBlock(
-                    kind="random-walk",
-                    x_filtered=out.x_post_2,
-                    P_filtered=out.P_post_2,
-                    x_predicted=out.x_prior_2,
-                    P_predicted=out.P_prior_2,
-                    link=None,
-                    parameters=second,
-                )
+                marginal(out.x_post_2, out.P_post_2, out.x_prior_2, out.P_prior_2, second)
             )
         report = self._common.report
         return SmootherInputs(
@@ -273,7 +281,7 @@ class JointUKF(_UnscentedPilotFilter):
         scratch = self._scratch(n)
         self._records = (model, config, belief, common.monitor, common.report, scratch)
         self._sizes = (n, 0)
-        self._blocks = ({name: i for i, name in enumerate(names)}, {})
+        self._blocks = (names, ())
 
     def _step(self, inputs: Any, u: float, e: float, out: core.UKFOutput) -> None:
         core.joint_step(*self._records, inputs, u, e, 0, out)
@@ -330,10 +338,7 @@ class DualUKF(_UnscentedPilotFilter):
         scratch = self._scratch(n)
         self._records = (model, config, belief, common.monitor, common.report, scratch, theta_half)
         self._sizes = (n, n_t)
-        self._blocks = (
-            {name: i for i, name in enumerate(gains)},
-            {name: i for i, name in enumerate(theta)},
-        )
+        self._blocks = (gains, theta)
 
     def _step(self, inputs: Any, u: float, e: float, out: core.UKFOutput) -> None:
         core.dual_step(*self._records, inputs, u, e, 0, out)
