@@ -45,7 +45,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from manualcontrol.envs._interpolation import interpolate_at
-from manualcontrol.envs._validation import check_choice, check_positive, check_vector
+from manualcontrol.envs._validation import (
+    check_choice,
+    check_duration,
+    check_int,
+    check_positive,
+    check_vector,
+)
 from manualcontrol.envs.dynamics import (
     Block,
     DelayChannel,
@@ -168,6 +174,7 @@ class SimulationSetup:
             target = forcing.target or forcing.disturbance
             measurement_time = getattr(target, "measurement_time", None) or 120.0
         measurement_time = check_positive("measurement_time", measurement_time)
+        check_duration("measurement_time", measurement_time, dt)
         return cls(pilot, element, forcing, task, preview, dt, run_in, measurement_time)
 
     @property
@@ -629,7 +636,8 @@ def _as_generator(seed: int | np.random.Generator | None) -> tuple[np.random.Gen
         seed = int(np.random.SeedSequence().generate_state(1)[0])
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
         raise TypeError(f"seed must be an int, a numpy Generator or None, got {seed!r}")
-    return np.random.default_rng(int(seed)), int(seed)
+    seed = check_int("seed", seed, minimum=0)
+    return np.random.default_rng(seed), seed
 
 
 def simulate(
