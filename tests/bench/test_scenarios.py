@@ -87,7 +87,10 @@ def test_scenario_key_changes_with_any_setting(tmp_path):
             ('task = "compensatory"', 'task = "gap"'),
             "batch 1 (one): task must be one of 'compensatory', 'pursuit', 'preview', got 'gap'",
         ),
-        (('element = "DI"', 'element = "TI"'), "batch 1 (one): controlled element must be one of"),
+        (
+            ('element = "DI"', 'element = "TI"'),
+            "batch 1 (one): element: controlled element must be one of",
+        ),
         (
             ("realisations = [0, 1]", "realisations = [0, 12]"),
             "realisations must lie in [0, 9] for forcing 'vanderel-bw4', got 12",
