@@ -458,6 +458,10 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     path = write_report(evaluation, args.out or Path(args.agent) / "evaluation")
     summary = evaluation.summary()
     print(f"RMS error {summary['rms_error']:.4f}; identified {summary['identified']}")
+    for flag in summary["implausible"]:
+        print(
+            f"manualcontrol evaluate: warning: implausible identification: {flag}", file=sys.stderr
+        )
     print(f"report: {path}")
     return EXIT_OK
 
