@@ -3,6 +3,7 @@
 import json
 import math
 
+import pyarrow.parquet as pq
 import pytest
 
 from manualcontrol.bench import runner
@@ -135,3 +136,17 @@ def test_report_puts_ours_beside_the_paper(tmp_path):
 def test_unknown_backend():
     with pytest.raises(ValueError, match="backend must be one of 'process', 'inprocess', 'ray'"):
         run_suite(parse_suite(SMALL), "unused", backend="dask")
+
+
+def test_a_resumed_table_equals_a_fresh_one(tmp_path):
+    suite = parse_suite(SMALL)
+    run_suite(suite, tmp_path / "fresh", backend="inprocess")
+    fresh_csv = (tmp_path / "fresh" / "results.csv").read_text()
+    fresh_parquet = pq.read_table(tmp_path / "fresh" / "results.parquet")
+    # resume everything: the same table, whether a row was run now or read back
+    run_suite(suite, tmp_path / "fresh", backend="inprocess")
+    resumed_csv = (tmp_path / "fresh" / "results.csv").read_text()
+    resumed_parquet = pq.read_table(tmp_path / "fresh" / "results.parquet")
+    assert resumed_csv == fresh_csv
+    assert resumed_parquet.equals(fresh_parquet)
+    assert "nan" not in fresh_csv.split("\n", 1)[1]  # missing values: empty cells, as resumed
