@@ -14,14 +14,20 @@ __all__ = ["check_estimable"]
 
 
 def check_estimable(recording: Recording, *, window: float, signal: str = "u") -> None:
-    """Refuse a recording shorter than one ``window`` (s) or whose ``signal`` is all NaN."""
+    """Refuse a recording shorter than 1 s (or ``window``) or whose ``signal`` is all NaN.
+
+    The initial noise levels come from the variances over the first ``window``; a
+    recording of a few samples gives them no meaning, and the filter's own message
+    (about its initial values) would send the user to the wrong place.
+    """
     if not isinstance(recording, Recording):
         raise TypeError(f"recording must be a Recording, got {recording!r}")
-    needed = round(window / recording.dt) + 1
+    span = min(window, 1.0)
+    needed = round(span / recording.dt) + 1
     if len(recording) < needed:
         raise ValueError(
             f"the recording has {len(recording)} samples; the estimator needs at least "
-            f"{needed} (its {window:g}-s window at dt = {recording.dt:g} s)"
+            f"{needed} ({span:g} s at dt = {recording.dt:g} s)"
         )
     if signal in recording and not np.any(np.isfinite(recording[signal])):
         raise ValueError(
