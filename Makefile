@@ -17,12 +17,14 @@ export OMP_NUM_THREADS := 1
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 
+# dist (ray, a 79 MB wheel) is installed so the Ray backend's equivalence test runs on
+# every commit, not only on machines where someone installed ray by hand.
 # torch first and pinned: a local CPU wheel of 2.13.0 satisfies the `torch>=2.2` range
 # below, so pip never fetches another (multi-GB) build.
 $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet torch==2.13.0
-	$(BIN)/python -m pip install --quiet -e ".[dev,rl,plot,render]"
+	$(BIN)/python -m pip install --quiet -e ".[dev,rl,plot,render,dist]"
 	touch $(STAMP)
 
 demo: $(STAMP)

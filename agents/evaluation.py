@@ -66,7 +66,45 @@ class Evaluation:
             "identification_vaf": self.identified.vaf,
             "dekf": dict(self.dekf),
             "limitations": [dict(limit) for limit in self.limitations],
+            "implausible": implausible(
+                self.identified.model,
+                {
+                    **{f"fit {k}": v for k, v in self.identified.parameters.items()},
+                    **{f"DEKF {k}": v for k, v in self.dekf.items()},
+                },
+            ),
         }
+
+
+def implausible(model: str, values: dict[str, float]) -> list[str]:
+    """Identified values a user should not trust, each as a sentence.
+
+    Flagged: below the valid or human range, beyond twice the human maximum, or under
+    half the human minimum (a negative gain, a neuromuscular damping of 80 ...). Keys
+    may carry a prefix ("fit K_p").
+    """
+    from manualcontrol.pilots import make_model
+
+    structure = make_model(model)
+    flags = []
+    for key, value in values.items():
+        name = key.split()[-1]
+        if name not in structure.parameter_names or not np.isfinite(value):
+            if not np.isfinite(value):
+                flags.append(f"{key} = {value} is not finite")
+            continue
+        spec = structure.spec(name)
+        low, high = spec.human
+        if (
+            value < min(spec.valid[0], low)
+            or value > max(2.0 * high, spec.valid[0])
+            or (low > 0.0 and value < 0.5 * low)
+        ):
+            flags.append(
+                f"{key} = {value:.4g} {spec.unit} is far outside the human range "
+                f"[{low:g}, {high:g}]"
+            )
+    return flags
 
 
 def _run(actor: Any, env: Any, seed: int) -> Recording:
@@ -190,6 +228,10 @@ def write_report(evaluation: Evaluation, folder: str | Path) -> Path:
             f"- precision-model pilot, typical parameters: {summary['reference_rms_error']:.4f} "
             f"(agent / pilot = {summary['rms_ratio']:.2f})"
         )
+    if summary["implausible"]:
+        lines += ["", "**Implausible identifications (do not trust these values):**", ""]
+        lines += [f"- {flag}" for flag in summary["implausible"]]
+        lines.append("")
     lines += [
         f"- crossover frequency: {summary['crossover_frequency']:.2f} rad/s, "
         f"phase margin {summary['phase_margin']:.1f} deg",

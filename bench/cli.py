@@ -15,11 +15,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 __all__ = ["main"]
 
@@ -30,12 +33,88 @@ class UsageError(Exception):
     """A mistake of the user: reported as a one-line message, exit code 2."""
 
 
+_WORDS = {"true": True, "false": False, "null": None, "none": None}
+
+
 def _value(text: str) -> Any:
-    """A command-line value: JSON when it parses (numbers, lists, tables), else the string."""
+    """A command-line value: JSON when it parses (numbers, lists, tables), else the string.
+
+    ``true``/``false``/``null`` are read in any case (``False`` as Python writes it).
+    """
+    if text.strip().lower() in _WORDS:
+        return _WORDS[text.strip().lower()]
     try:
         return json.loads(text)
     except json.JSONDecodeError:
         return text
+
+
+def _env_options(items: Sequence[str] | None) -> dict[str, Any]:
+    """``--env KEY=VALUE`` items parsed to the type each environment keyword takes.
+
+    A switch takes true/false (yes/no, 1/0), a number a number, an optional number
+    also null; anything else is refused naming the option, so ``include_rates=False``
+    can no longer arrive as the (truthy) string "False".
+    """
+    import inspect
+
+    from manualcontrol.envs.tracking import TrackingEnv
+
+    signature = inspect.signature(TrackingEnv.__init__)
+    known = {name: p for name, p in signature.parameters.items() if name != "self"}
+    out = {}
+    for item in items or ():
+        if "=" not in item:
+            raise UsageError(f"--env must look like KEY=VALUE, got {item!r}")
+        name, text = (part.strip() for part in item.split("=", 1))
+        if name not in known:
+            raise UsageError(
+                f"--env {name}: unknown environment keyword; known: {', '.join(sorted(known))}"
+            )
+        default = known[name].default
+        word = text.lower()
+        if isinstance(default, bool):
+            switches = {
+                "true": True,
+                "yes": True,
+                "1": True,
+                "false": False,
+                "no": False,
+                "0": False,
+            }
+            if word not in switches:
+                raise UsageError(f"--env {name} must be true or false, got {text!r}")
+            out[name] = switches[word]
+        elif isinstance(default, float) or (
+            default is None and "float" in str(known[name].annotation)
+        ):
+            if word in ("null", "none") and default is None:
+                out[name] = None
+                continue
+            try:
+                out[name] = float(text)
+            except ValueError:
+                allowed = "a number or null" if default is None else "a number"
+                raise UsageError(f"--env {name} must be {allowed}, got {text!r}") from None
+        else:
+            out[name] = _value(text)
+    return out
+
+
+def _check_output(option: str, path: Path, *, folder: bool) -> None:
+    """Refuse an output path that cannot be written, before any work or any folder is made."""
+    path = Path(path)
+    if folder and path.exists() and not path.is_dir():
+        raise UsageError(f"{option} {path}: is a file; give a folder")
+    if not folder and path.is_dir():
+        raise UsageError(f"{option} {path}: is a folder; give a file name")
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UsageError(f"{option} {path}: {parent} is a file, not a folder")
+            if not os.access(parent, os.W_OK | os.X_OK):
+                raise UsageError(f"{option} {path}: {parent} is not writable")
+            break
 
 
 def _assignments(items: Sequence[str] | None, what: str) -> dict[str, Any]:
@@ -82,13 +161,48 @@ def _cmd_suites(args: argparse.Namespace) -> int:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from manualcontrol.pilots import Pilot, simulate
+    import warnings
 
+    from manualcontrol.pilots import Pilot
+    from manualcontrol.pilots.stability import UnstableLoopWarning
+
+    _check_output("--out", args.out, folder=False)
+    if args.plot is not None:
+        _check_output("--plot", args.plot, folder=False)
     parameters = {
         name: _schedule(value) for name, value in _assignments(args.param, "--param").items()
     }
-    pilot = Pilot(args.model, parameters, remnant=args.remnant, delay_order=args.delay_order)
-    recording = simulate(
+    # unset parameters take typical values for the element: a stable loop by default
+    pilot = Pilot.typical(
+        args.model, args.element, parameters, remnant=args.remnant, delay_order=args.delay_order
+    )
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UnstableLoopWarning)
+        recording = _simulate_run(args, pilot)
+    for warning in caught:
+        if issubclass(warning.category, UnstableLoopWarning):
+            print(f"manualcontrol simulate: warning: {warning.message}", file=sys.stderr)
+    figure = None
+    if args.plot:
+        from manualcontrol.bench.report import plot_recording
+
+        figure = plot_recording(recording, args.plot)
+    try:
+        path = recording.save(args.out)
+    except BaseException:
+        if figure is not None:
+            figure.unlink(missing_ok=True)  # nothing left behind when the command fails
+        raise
+    print(f"wrote {path} ({recording.duration:g} s, {len(recording)} samples)")
+    if figure is not None:
+        print(f"wrote {figure}")
+    return EXIT_OK
+
+
+def _simulate_run(args: argparse.Namespace, pilot: Any) -> Any:
+    from manualcontrol.pilots import simulate
+
+    return simulate(
         pilot,
         args.element,
         args.forcing,
@@ -100,42 +214,169 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         measurement_time=args.measurement_time,
         seed=args.seed,
         loop=args.loop,
+        on_unstable="warn" if args.allow_unstable else "raise",
     )
-    path = recording.save(args.out)
-    print(f"wrote {path} ({recording.duration:g} s, {len(recording)} samples)")
-    if args.plot:
-        from manualcontrol.bench.report import plot_recording
-
-        print(f"wrote {plot_recording(recording, args.plot)}")
-    return EXIT_OK
 
 
-def _cmd_identify(args: argparse.Namespace) -> int:
-    from manualcontrol.bench.report import plot_estimation
-    from manualcontrol.bench.runner import make_estimator
-    from manualcontrol.envs._files import atomic_write
+def _load_trial(args: argparse.Namespace) -> Any:
+    """The recording named on the command line, time in seconds, error signal formed."""
     from manualcontrol.envs.recording import Recording
 
     columns = _assignments(args.column, "--column")
+    for name, value in columns.items():
+        if not isinstance(value, str):
+            columns[name] = str(value)  # a numeric column name such as 2
     recording = Recording.load(args.recording, columns=columns or None, dt=args.dt)
+    if args.time_unit == "ms":
+        recording = Recording(
+            {**{n: recording[n] for n in recording.signal_names}, "t": recording.t / 1000.0},
+            recording.dt / 1000.0,
+            dict(recording.parameters),
+            dict(recording.metadata),
+        )
+    elif recording.dt >= 1.0:
+        raise UsageError(
+            f"{args.recording}: the sample time is {recording.dt:g} s; manual-control data "
+            "are sampled at tens of Hz or faster. If the time column is in milliseconds, "
+            "pass --time-unit ms; if there is no time column, pass --dt SECONDS"
+        )
     if "e" not in recording and "ft" in recording and "y" in recording:
         recording = recording.with_error_signal()
+    return recording
+
+
+def _target_source(args: argparse.Namespace) -> dict[str, Any]:
+    """Where a preview fit reads the target ahead: ``--forcing`` or ``--target-period``."""
+    if args.forcing is not None and args.target_period is not None:
+        raise UsageError("give --forcing or --target-period, not both")
+    if args.forcing is not None:
+        from manualcontrol.envs.signals import forcing_preset
+
+        return {"forcing": forcing_preset(args.forcing, args.realisation)}
+    if args.target_period is not None:
+        return {"target_period": args.target_period}
+    return {}
+
+
+_PREVIEW_HINT = (
+    "the preview model reads the target ahead of each sample (ft at t + anticipation_time), "
+    "which the recording does not hold: pass --forcing PRESET [--realisation N] (the forcing "
+    "the trial was run with) or --target-period SECONDS (the recording lasts whole periods "
+    "of the target). A pursuit display shows no target ahead: fit --model precision to the "
+    "error instead."
+)
+
+
+def _cmd_identify(args: argparse.Namespace) -> int:
+    import warnings
+
+    from manualcontrol.bench.report import plot_estimation
+    from manualcontrol.bench.runner import make_estimator
+    from manualcontrol.envs._files import atomic_write
+    from manualcontrol.estimators.metrics import innovation_whiteness, resimulate, vaf
+
+    _check_output("--out", args.out, folder=True)
+    recording = _load_trial(args)
+    target = _target_source(args)
     settings = _assignments(args.set, "--set")
     estimator = make_estimator({"name": args.estimator, "model": args.model, **settings})
-    result = estimator.estimate(recording)
-    out = Path(args.out)
-    path = result.save(out / "estimation.npz")
+    try:
+        result = estimator.estimate(recording, **target)
+    except ValueError as error:
+        if "target ahead of the samples is unknown" in str(error):
+            raise UsageError(_PREVIEW_HINT) from None
+        raise
+    finite = np.isfinite(recording.u) & np.isfinite(result.prediction)
+    one_step = vaf(recording.u[finite], result.prediction[finite]) if finite.any() else math.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a diverged fit may overflow its resimulation
+        try:
+            model_output = resimulate(result, recording, **target)
+            resimulated = vaf(recording.u[finite], model_output[finite])
+        except (ValueError, FloatingPointError):
+            model_output, resimulated = None, math.nan
+    r_1, outside = innovation_whiteness(result.innovation, result.innovation_variance)
     final = {name: round(float(value), 5) for name, value in result.final().items()}
+    health = result.health
+    stability = _identified_loop(recording, result, args)
     summary = {
         "final": final,
         "estimated": list(result.estimated),
-        "health": result.health.to_dict(),
+        "fit": {
+            "vaf_one_step_percent": _rounded(one_step),
+            "vaf_resimulated_percent": _rounded(resimulated),
+            "innovation_lag1_autocorrelation": _rounded(r_1),
+            "innovation_lags_outside_95_percent": _rounded(outside),
+        },
+        "closed_loop": stability,
+        "health": health.to_dict(),
     }
+    out = Path(args.out)
+    path = result.save(out / "estimation.npz")
     atomic_write(out / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
-    figure = plot_estimation(recording, result, out / "parameters.png")
+    figure = plot_estimation(recording, result, out / "parameters.png", model_output=model_output)
     print(f"estimated {', '.join(result.estimated)}; final values {final}")
+    print(
+        f"fit: one-step VAF {one_step:.1f} %, resimulated VAF {resimulated:.1f} %; "
+        f"innovation lag-1 autocorrelation {r_1:.2f}, {100 * outside:.0f} % of lags 1-50 "
+        "outside the white-noise band (white innovations give about 5 %)"
+    )
     print(f"wrote {path}, {out / 'summary.json'}, {figure}")
-    return EXIT_OK if not result.health.diverged else EXIT_RUNS_FAILED
+    code = EXIT_OK
+    if health.diverged:
+        print(
+            f"manualcontrol identify: error: the filter diverged at t = "
+            f"{health.divergence_time:.2f} s ({health.divergence_reason}); the traces after "
+            "that are not estimates. Try a smaller --set q2=..., a larger --set r2=..., or "
+            "initial values nearer the pilot (--set initial='{\"K_p\": ...}')",
+            file=sys.stderr,
+        )
+        code = EXIT_RUNS_FAILED
+    if stability.get("stable") is False:
+        level = "warning" if args.allow_unstable else "error"
+        print(
+            f"manualcontrol identify: {level}: {stability['message']}"
+            + ("" if args.allow_unstable else " (--allow-unstable to accept it)"),
+            file=sys.stderr,
+        )
+        if not args.allow_unstable:
+            code = EXIT_RUNS_FAILED
+    return code
+
+
+def _rounded(value: float) -> float | None:
+    return round(float(value), 4) if math.isfinite(value) else None
+
+
+def _identified_loop(recording: Any, result: Any, args: argparse.Namespace) -> dict[str, Any]:
+    """Whether the identified pilot (final values) closes a stable loop with the element.
+
+    The element comes from the recording's metadata or the estimator's ``ce`` setting;
+    without either nothing can be said.
+    """
+    from manualcontrol.pilots import Pilot, SimulationSetup
+    from manualcontrol.pilots.stability import UnstableLoopError, check_stable
+
+    settings = dict(result.settings.get("settings", result.settings))
+    element = recording.metadata.get("controlled_element") or settings.get("ce")
+    if element is None:
+        return {"stable": None, "message": "no controlled element known (--set ce=...)"}
+    try:
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            pilot = Pilot(settings["model"], dict(result.final()))
+            task = "compensatory" if pilot.model.task == "compensatory" else "preview"
+            preview = 5.0 if task == "preview" else None  # room for any identified tau_f
+            setup = SimulationSetup.create(pilot, element, task=task, available_preview=preview)
+            check_stable(setup)
+    except UnstableLoopError as error:
+        message = str(error).split("; use typical")[0]
+        return {"stable": False, "message": f"the identified {message}: the fit is not credible"}
+    except (TypeError, ValueError, KeyError) as error:
+        return {"stable": None, "message": f"not checked: {error}"}
+    return {"stable": True, "message": "the identified pilot closes a stable loop"}
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -143,8 +384,17 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     from manualcontrol.bench.runner import run_suite
     from manualcontrol.bench.scenarios import load_suite
 
+    if args.backend == "ray":
+        import importlib.util
+
+        if importlib.util.find_spec("ray") is None:
+            raise UsageError(
+                "--backend ray needs Ray: pip install 'manualcontrol[dist]' (or use the "
+                "default --backend process)"
+            )
     suite = load_suite(args.suite)
     out = Path(args.out or f"results/{suite.name}{'-quick' if args.quick else ''}")
+    _check_output("--out", out, folder=True)
     total = len(suite.scenarios(args.quick))
     bar = _progress(total, f"{suite.name}", args.quiet)
 
@@ -167,6 +417,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 def _cmd_train(args: argparse.Namespace) -> int:
     from manualcontrol.agents.training import TrainingConfig, train
 
+    _check_output("--out", args.out, folder=True)
     wrappers = []
     if args.delay:
         wrappers.append(
@@ -181,7 +432,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         wrappers.append({"kind": "motor_noise", "power_ratio": args.motor_noise})
     config = TrainingConfig(
         task=args.task,
-        env_kwargs=_assignments(args.env, "--env"),
+        env_kwargs=_env_options(args.env),
         wrappers=tuple(wrappers),
         algorithm=args.algorithm,
         total_timesteps=args.steps,
@@ -200,11 +451,17 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from manualcontrol.agents.evaluation import evaluate, write_report
     from manualcontrol.agents.training import load_agent
 
+    if args.out is not None:
+        _check_output("--out", args.out, folder=True)
     agent = load_agent(args.agent, trust_pickle=args.trust_pickle)
     evaluation = evaluate(agent, seed=args.seed)
     path = write_report(evaluation, args.out or Path(args.agent) / "evaluation")
     summary = evaluation.summary()
     print(f"RMS error {summary['rms_error']:.4f}; identified {summary['identified']}")
+    for flag in summary["implausible"]:
+        print(
+            f"manualcontrol evaluate: warning: implausible identification: {flag}", file=sys.stderr
+        )
     print(f"report: {path}")
     return EXIT_OK
 
@@ -216,6 +473,26 @@ def _progress(total: int, description: str, quiet: bool) -> Any:
 
 
 # --------------------------------------------------------------------- parser
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text!r}") from None
+    if not (value > 0.0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -237,7 +514,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--model",
         default="precision",
-        help="pilot model: precision, preview, schiess-roland, gain-delay",
+        help="pilot model: precision, preview, schiess-roland, gain-delay; its parameters "
+        "default to typical values for the element (thesis SI and DI pilots, ...)",
     )
     p.add_argument(
         "--param",
@@ -273,6 +551,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=0, help="remnant seed")
     p.add_argument("--loop", default="continuous", help="continuous or sampled")
+    p.add_argument(
+        "--allow-unstable",
+        action="store_true",
+        help="keep a run whose loop diverges (a warning, flagged in the recording's "
+        "metadata) instead of refusing it",
+    )
     p.add_argument("--out", required=True, type=Path, help="recording file (.npz, .csv or .mat)")
     p.add_argument("--plot", type=Path, default=None, help="also draw the run to this PNG")
     p.set_defaults(run=_cmd_simulate)
@@ -301,7 +585,34 @@ def build_parser() -> argparse.ArgumentParser:
         help="map a file column to a signal, e.g. u=stick; repeatable",
     )
     p.add_argument(
-        "--dt", type=float, default=None, help="sample time when the file has no time column"
+        "--dt",
+        type=_positive_float,
+        default=None,
+        help="sample time (s) when the file has no time column",
+    )
+    p.add_argument(
+        "--time-unit",
+        choices=("s", "ms"),
+        default="s",
+        help="unit of the file's time column (default s)",
+    )
+    p.add_argument(
+        "--forcing",
+        default=None,
+        help="forcing preset the trial was run with: the target ahead a preview fit reads",
+    )
+    p.add_argument("--realisation", type=int, default=0, help="realisation of --forcing")
+    p.add_argument(
+        "--target-period",
+        type=_positive_float,
+        default=None,
+        help="period (s) of the target, for the target ahead a preview fit reads; the "
+        "recording must last whole periods",
+    )
+    p.add_argument(
+        "--allow-unstable",
+        action="store_true",
+        help="accept an identified pilot that closes an unstable loop (a warning)",
     )
     p.add_argument("--out", type=Path, default=Path("results/identify"), help="output folder")
     p.set_defaults(run=_cmd_identify)
@@ -317,7 +628,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="process pool (default), in this process, or Ray",
     )
     p.add_argument(
-        "--workers", type=int, default=None, help="process-pool size (default: all cores)"
+        "--workers",
+        type=_positive_int,
+        default=None,
+        help="process-pool size (default: all cores)",
     )
     p.add_argument("--no-report", action="store_true", help="skip the Markdown/PNG report")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -391,11 +705,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command; return its exit code."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exit_:  # argparse has printed its message (or the help)
+        return exit_.code if isinstance(exit_.code, int) else EXIT_USAGE
     try:
         return args.run(args)
-    except (UsageError, ValueError, TypeError, KeyError, FileNotFoundError) as error:
-        # our checks raise these for bad input; MANUALCONTROL_DEBUG=1 shows the traceback
+    except (UsageError, ValueError, TypeError, KeyError, OSError) as error:
+        # our checks raise these for bad input, the file system OSError for paths that
+        # cannot be read or written; MANUALCONTROL_DEBUG=1 shows the traceback
         if os.environ.get("MANUALCONTROL_DEBUG"):
             raise
         message = error.args[0] if isinstance(error, KeyError) and error.args else error

@@ -35,7 +35,15 @@ def main(argv: list[str] | None = None) -> int:
     for name in args.suite or BUILTIN_SUITES:
         suite = load_suite(name)
         folder = args.out / name
-        rows = run_suite(suite, folder, quick=True, workers=args.workers)
+        total = len(suite.scenarios(quick=True))
+        print(f"{name}: {total} runs ...", flush=True)
+
+        def progress(done: int, total: int, row: dict, name: str = name) -> None:
+            # one line per run: make shows it at once, no progress bar needed
+            state = "" if row.get("status", "ok") == "ok" else f" ({row.get('error', '')})"
+            print(f"  {name}: {done}/{total}{state}", flush=True)
+
+        rows = run_suite(suite, folder, quick=True, workers=args.workers, progress=progress)
         report = write_report(suite, rows, folder)
         bad = sum(row.get("status") != "ok" for row in rows)
         failed += bad
@@ -45,7 +53,8 @@ def main(argv: list[str] | None = None) -> int:
         )
     lines += [
         "",
-        f"Full suites: `manualcontrol bench SUITE` ({time.perf_counter() - started:.0f} s here).",
+        f"These quick subsets took {time.perf_counter() - started:.0f} s here. The full "
+        "suites (hundreds of runs each) are `.venv/bin/manualcontrol bench SUITE`.",
     ]
     index = atomic_write(args.out / "README.md", lambda p: p.write_text("\n".join(lines) + "\n"))
     print(f"index: {index}")

@@ -60,11 +60,31 @@ def plot_recording(recording: Recording, path: str | Path) -> Path:
     return _save(fig, Path(path))
 
 
-def plot_estimation(recording: Recording, result: Any, path: str | Path) -> Path:
-    """Estimated parameter traces (with one-sigma band, truth when known) and the innovation."""
+def _unit(name: str) -> str:
+    from manualcontrol.pilots.models import MODEL_NAMES, make_model
+
+    for model in MODEL_NAMES:
+        structure = make_model(model)
+        if name in structure.parameter_names:
+            unit = structure.spec(name).unit
+            return f"{name} [{unit}]" if unit and unit != "-" else name
+    return name
+
+
+def plot_estimation(
+    recording: Recording, result: Any, path: str | Path, *, model_output: Any = None
+) -> Path:
+    """Estimated parameter traces (one-sigma band, truth when known), innovation, and fit.
+
+    With ``model_output`` (the identified model resimulated) a last panel shows the
+    measured ``u`` against it, so the quality of the fit can be seen. The innovation
+    panel is scaled to the 0.5-99.5 % range of its values, so the start-up transient
+    of the filter does not flatten the rest.
+    """
     plt = _pyplot()
     names = list(result.estimated)
-    fig, axes = plt.subplots(len(names) + 1, 1, figsize=(9, 1.8 * (len(names) + 1)), sharex=True)
+    panels = len(names) + 1 + (model_output is not None)
+    fig, axes = plt.subplots(panels, 1, figsize=(9, 1.8 * panels), sharex=True)
     axes = np.atleast_1d(axes)
     t = result.t
     for axis, name in zip(axes, names, strict=False):
@@ -75,11 +95,25 @@ def plot_estimation(recording: Recording, result: Any, path: str | Path) -> Path
             axis.plot(
                 recording.t, recording.parameters[name], color="tab:red", lw=1.0, label="true"
             )
-        axis.set_ylabel(name)
+        axis.set_ylabel(_unit(name))
     axes[0].legend(loc="upper right")
-    axes[-1].plot(t, result.innovation, color="tab:red", lw=0.5, label="innovation")
-    axes[-1].plot(t, np.sqrt(result.innovation_variance), color="k", lw=0.8, label="sqrt(variance)")
-    axes[-1].legend(loc="upper right")
+    innovation_axis = axes[len(names)]
+    innovation_axis.plot(t, result.innovation, color="tab:red", lw=0.5, label="innovation")
+    spread = np.sqrt(result.innovation_variance)
+    innovation_axis.plot(t, spread, color="k", lw=0.8, label="sqrt(variance)")
+    both = np.concatenate([np.asarray(result.innovation), spread])
+    both = both[np.isfinite(both)]
+    if both.size:
+        low, high = np.percentile(both, [0.5, 99.5])
+        margin = 0.1 * (high - low) or 1.0
+        innovation_axis.set_ylim(low - margin, high + margin)
+    innovation_axis.set_ylabel("innovation [stick]")
+    innovation_axis.legend(loc="upper right")
+    if model_output is not None:
+        axes[-1].plot(recording.t, recording.u, color="k", lw=0.6, label="measured u")
+        axes[-1].plot(recording.t, model_output, color="tab:blue", lw=0.8, label="identified model")
+        axes[-1].set_ylabel("u [stick]")
+        axes[-1].legend(loc="upper right")
     axes[-1].set_xlabel("time [s]")
     fig.tight_layout()
     return _save(fig, Path(path))

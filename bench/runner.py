@@ -185,6 +185,8 @@ def run_suite(
     suite's scenario order.
     """
     check_choice("backend", backend, BACKENDS)
+    if workers is not None:
+        check_int("workers", workers, minimum=1)  # before any folder is made
     scenarios = suite.scenarios(quick) if isinstance(suite, Suite) else list(suite)
     out = Path(out)
     (out / "runs").mkdir(parents=True, exist_ok=True)
@@ -196,7 +198,8 @@ def run_suite(
 
     def collect(row: dict[str, Any]) -> None:
         nonlocal done
-        rows[row["key"]] = row
+        # as stored (NaN -> null): a fresh row then equals the same row resumed
+        rows[row["key"]] = json.loads(json.dumps(_json_safe(row)))
         done += 1
         if progress is not None:
             progress(done, total, row)

@@ -66,7 +66,7 @@ from typing import Any
 from manualcontrol.envs._validation import check_choice, check_int, check_positive
 from manualcontrol.envs.elements import make_element
 from manualcontrol.envs.signals import FORCING_PRESETS, preset_realisation_count
-from manualcontrol.pilots import Pilot, make_remnant
+from manualcontrol.pilots import Pilot
 from manualcontrol.pilots.simulation import LOOPS, TASKS
 
 if sys.version_info >= (3, 11):
@@ -194,31 +194,49 @@ class Suite:
 
 
 def _pilot_from(data: Mapping[str, Any]) -> Pilot:
-    from manualcontrol.envs.schedules import Schedule
-    from manualcontrol.pilots import make_model
+    """The pilot of a suite's ``[batch.pilot]`` table, built by :meth:`Pilot.from_dict`.
 
-    options = {"near_view": bool(data["near_view"])} if "near_view" in data else {}
-    model = make_model(data["model"], **options)
-    parameters = {
-        name: Schedule.from_dict(value) for name, value in dict(data.get("parameters", {})).items()
-    }
-    return Pilot(model, parameters, make_remnant(data.get("remnant")), data.get("delay_order"))
+    The suite table is :meth:`Pilot.to_dict`'s layout with ``near_view`` written at the
+    top level (the only model option) instead of under ``model_options``.
+    """
+    data = dict(data)
+    options = {"near_view": data.pop("near_view")} if "near_view" in data else {}
+    return Pilot.from_dict({**data, "model_options": options})
 
 
 def _fail(where: str, message: str) -> SuiteError:
     return SuiteError(f"{where}: {message}")
 
 
+def _table(where: str, key: str, value: Any) -> dict[str, Any]:
+    """``value`` as a dict, or an error naming the key (TOML: a table ``{...}`` or ``[key]``)."""
+    if not isinstance(value, Mapping):
+        raise _fail(where, f"{key} must be a table ({{...}} or [{key}]), got {value!r}")
+    return dict(value)
+
+
 def _int_list(where: str, key: str, value: Any) -> tuple[int, ...]:
     if not isinstance(value, list) or not value:
         raise _fail(where, f"{key} must be a non-empty list of integers, got {value!r}")
     try:
-        return tuple(check_int(key, item, minimum=0) for item in value)
+        items = tuple(check_int(key, item, minimum=0) for item in value)
     except (TypeError, ValueError) as error:
         raise _fail(where, str(error)) from None
+    repeated = sorted({item for item in items if items.count(item) > 1})
+    if repeated:
+        # a repeated realisation or seed would run the same scenario twice: duplicate rows
+        raise _fail(where, f"{key} must not repeat a value, repeated: {repeated}")
+    return items
 
 
-def _parse_batch(where: str, raw: Mapping[str, Any], defaults: Mapping[str, Any]) -> Batch:
+def _check_subset(where: str, key: str, subset: tuple[int, ...], full: tuple[int, ...]) -> None:
+    outside = sorted(set(subset) - set(full))
+    if outside:
+        raise _fail(where, f"quick.{key} must be taken from {key} {list(full)}, got {outside}")
+
+
+def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
+    raw = _table(where, "each [[batch]]", raw)
     unknown = sorted(set(raw) - _BATCH_KEYS)
     if unknown:
         raise _fail(where, f"unknown key(s) {unknown}; allowed: {sorted(_BATCH_KEYS)}")
@@ -234,7 +252,10 @@ def _parse_batch(where: str, raw: Mapping[str, Any], defaults: Mapping[str, Any]
     where = f"{where} ({name})"
     try:
         check_choice("task", merged["task"], TASKS)
-        make_element(merged["element"])
+        try:
+            make_element(merged["element"])
+        except (TypeError, ValueError, KeyError) as error:
+            raise ValueError(f"element: {error}") from None
         check_choice("forcing", merged["forcing"], FORCING_PRESETS)
         loop = check_choice("loop", merged.get("loop", "continuous"), LOOPS)
         dt = check_positive("dt", merged.get("dt", 0.01))
@@ -257,27 +278,31 @@ def _parse_batch(where: str, raw: Mapping[str, Any], defaults: Mapping[str, Any]
             f"got {max(realisations)}",
         )
     seeds = _int_list(where, "remnant_seeds", merged.get("remnant_seeds", [0]))
-    quick = dict(merged.get("quick", {}))
+    quick = _table(where, "quick", merged.get("quick", {}))
     unknown = sorted(set(quick) - {"realisations", "remnant_seeds"})
     if unknown:
-        raise _fail(where, f"quick has unknown key(s) {unknown}")
+        raise _fail(
+            where, f"quick has unknown key(s) {unknown}; allowed: ['realisations', 'remnant_seeds']"
+        )
     quick_realisations = _int_list(
         where, "quick.realisations", quick.get("realisations", [realisations[0]])
     )
     quick_seeds = _int_list(where, "quick.remnant_seeds", quick.get("remnant_seeds", [seeds[0]]))
-    pilot = dict(merged["pilot"])
+    _check_subset(where, "realisations", quick_realisations, realisations)
+    _check_subset(where, "remnant_seeds", quick_seeds, seeds)
+    pilot = _table(where, "pilot", merged["pilot"])
     unknown = sorted(set(pilot) - _PILOT_KEYS)
     if unknown:
         raise _fail(where, f"pilot has unknown key(s) {unknown}; allowed: {sorted(_PILOT_KEYS)}")
     if "model" not in pilot:
         raise _fail(where, "pilot needs a model")
+    if "parameters" in pilot:
+        _table(where, "pilot.parameters", pilot["parameters"])
     try:
         built = _pilot_from(pilot)
     except (TypeError, ValueError, KeyError) as error:
         raise _fail(where, f"pilot: {error}") from None
-    if built.model.task != "compensatory" and merged["task"] == "compensatory":
-        raise _fail(where, f"task 'compensatory' does not fit pilot model {pilot['model']!r}")
-    estimator = dict(merged["estimator"])
+    estimator = _table(where, "estimator", merged["estimator"])
     if "name" not in estimator:
         raise _fail(where, "estimator needs a name")
     from manualcontrol.bench.runner import ESTIMATORS, make_estimator
@@ -287,6 +312,7 @@ def _parse_batch(where: str, raw: Mapping[str, Any], defaults: Mapping[str, Any]
         make_estimator(estimator)
     except (TypeError, ValueError) as error:
         raise _fail(where, f"estimator: {error}") from None
+    reference = _table(where, "reference", merged.get("reference", {}))
     template = {
         "task": merged["task"],
         "element": merged["element"],
@@ -300,6 +326,7 @@ def _parse_batch(where: str, raw: Mapping[str, Any], defaults: Mapping[str, Any]
         "estimator": estimator,
         "score_from": score_from,
     }
+    _check_runs(where, built, template, realisations[0])
     return Batch(
         name,
         template,
@@ -307,12 +334,41 @@ def _parse_batch(where: str, raw: Mapping[str, Any], defaults: Mapping[str, Any]
         seeds,
         quick_realisations,
         quick_seeds,
-        dict(merged.get("reference", {})),
+        reference,
     )
 
 
+def _check_runs(where: str, pilot: Pilot, template: Mapping[str, Any], realisation: int) -> None:
+    """What would otherwise fail only at run time: the task, the pilot's schedules, the loop.
+
+    The whole simulation set-up is resolved once per batch (task and model, preview
+    times within the available preview, measurement time against dt) and the closed
+    loop's stability checked, so a suite that cannot run stops at load, not as a
+    column of failed rows.
+    """
+    from manualcontrol.pilots.simulation import SimulationSetup
+    from manualcontrol.pilots.stability import check_stable
+
+    try:
+        setup = SimulationSetup.create(
+            pilot,
+            template["element"],
+            template["forcing"],
+            realisation=realisation,
+            task=template["task"],
+            available_preview=template["available_preview"],
+            dt=template["dt"],
+            run_in=template["run_in"],
+            measurement_time=template["measurement_time"],
+        )
+        setup.parameter_traces()
+        check_stable(setup)
+    except (TypeError, ValueError) as error:
+        raise _fail(where, str(error)) from None
+
+
 def parse_suite(data: Mapping[str, Any], source: str = "<table>") -> Suite:
-    """Validate a suite given as a (TOML-parsed) table."""
+    """Validate a suite given as a (TOML-parsed) table; every message names the key."""
     unknown = sorted(set(data) - {"name", "description", "defaults", "batch"})
     if unknown:
         raise _fail(
@@ -322,7 +378,10 @@ def parse_suite(data: Mapping[str, Any], source: str = "<table>") -> Suite:
     name = data.get("name")
     if not isinstance(name, str) or not name:
         raise _fail(source, f"name must be a non-empty string, got {name!r}")
-    defaults = dict(data.get("defaults", {}))
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise _fail(source, f"description must be a string, got {description!r}")
+    defaults = _table(source, "defaults", data.get("defaults", {}))
     unknown = sorted(set(defaults) - _DEFAULT_KEYS)
     if unknown:
         raise _fail(
@@ -330,7 +389,9 @@ def parse_suite(data: Mapping[str, Any], source: str = "<table>") -> Suite:
         )
     raw_batches = data.get("batch")
     if not isinstance(raw_batches, list) or not raw_batches:
-        raise _fail(source, "a suite needs at least one [[batch]]")
+        raise _fail(
+            source, f"a suite needs at least one [[batch]] table, got batch = {raw_batches!r}"
+        )
     batches = tuple(
         _parse_batch(f"{source}: batch {i + 1}", raw, defaults) for i, raw in enumerate(raw_batches)
     )
@@ -338,7 +399,7 @@ def parse_suite(data: Mapping[str, Any], source: str = "<table>") -> Suite:
     duplicated = sorted({n for n in names if names.count(n) > 1})
     if duplicated:
         raise _fail(source, f"batch names must be unique, repeated: {duplicated}")
-    return Suite(name, str(data.get("description", "")), batches, source)
+    return Suite(name, description, batches, source)
 
 
 def _builtin_names() -> tuple[str, ...]:
@@ -366,8 +427,8 @@ def load_suite(spec: str | Path) -> Suite:
             f"got {str(spec)!r}"
         )
     try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as error:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
         raise SuiteError(f"{path}: not valid TOML: {error}") from None
     return parse_suite(data, str(path))
 

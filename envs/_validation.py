@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
@@ -18,8 +18,9 @@ from numpy.typing import NDArray
 
 def _describe(value: Any) -> str:
     if isinstance(value, np.ndarray):
-        return f"array of shape {value.shape}"
-    return repr(value)
+        return f"array of shape {value.shape} and dtype {value.dtype}"
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def check_real(name: str, value: Any) -> float:
@@ -63,6 +64,13 @@ def check_range(
     return value
 
 
+def check_duration(name: str, value: float, dt: float) -> float:
+    """A duration that holds at least one sample of ``dt`` (both already checked > 0)."""
+    if round(value / dt) < 1:
+        raise ValueError(f"{name} must hold at least one sample (dt = {dt:g} s), got {value!r} s")
+    return value
+
+
 def check_int(name: str, value: Any, *, minimum: int | None = None) -> int:
     """Return ``value`` as an int (bools rejected), at least ``minimum`` when given."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
@@ -71,6 +79,17 @@ def check_int(name: str, value: Any, *, minimum: int | None = None) -> int:
     if minimum is not None and value < minimum:
         raise ValueError(f"{name} must be >= {minimum}, got {value!r}")
     return value
+
+
+def check_bool(name: str, value: Any) -> bool:
+    """Return ``value`` if it is a bool (numpy's too); strings such as ``"False"`` are refused.
+
+    ``bool("False")`` is True, so a truthiness test would silently turn a
+    mistyped switch on.
+    """
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True or False, got {_describe(value)}")
+    return bool(value)
 
 
 def check_choice(name: str, value: Any, choices: Iterable[str]) -> str:
@@ -131,6 +150,27 @@ def check_matrix(name: str, value: Any, shape: tuple[int | None, ...]) -> NDArra
     return array
 
 
+def check_action(name: str, value: Any, shape: tuple[int, ...]) -> NDArray[np.float64]:
+    """``value`` as a float64 array of ``shape`` (real numbers only), or a clear error.
+
+    Bool, complex, object and string arrays are refused rather than cast: ``True`` or
+    ``1+2j`` as a stick deflection is a bug in the caller. Finiteness is the caller's
+    check (it knows the bounds).
+    """
+    expected = f"a real array of shape {shape} (float64)"
+    if isinstance(value, (bool, np.bool_, str, bytes)) or value is None:
+        raise TypeError(f"{name} must be {expected}, got {_describe(value)}")
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError) as error:
+        raise TypeError(f"{name} must be {expected}, got {_describe(value)}") from error
+    if array.dtype.kind not in "iuf":
+        raise TypeError(f"{name} must be {expected}, got dtype {array.dtype} ({_describe(value)})")
+    if array.shape != shape:
+        raise ValueError(f"{name} must be {expected}, got shape {array.shape}")
+    return array.astype(np.float64, copy=False)
+
+
 def reject_unknown(name: str, given: Iterable[str], known: Iterable[str]) -> None:
     """Raise ``TypeError`` listing keys of ``given`` that are not in ``known``."""
     known_set = set(known)
@@ -140,6 +180,19 @@ def reject_unknown(name: str, given: Iterable[str], known: Iterable[str]) -> Non
             f"{name} got unknown key(s) {', '.join(map(repr, unknown))}; "
             f"known: {', '.join(map(repr, sorted(known_set)))}"
         )
+
+
+def check_options(options: Any, known: Iterable[str]) -> dict[str, Any]:
+    """``reset(options=...)`` as a dict with known keys only (None gives ``{}``)."""
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise TypeError(
+            f"options must be a dict such as {{'realisation': 0}} or None, got {_describe(options)}"
+        )
+    options = dict(options)
+    reject_unknown("reset options", options, known)
+    return options
 
 
 def check_times(t: Any) -> NDArray[np.float64]:

@@ -54,6 +54,7 @@ target track ahead of the cursor over the preview window (time runs up the scree
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from typing import Any, ClassVar
@@ -61,13 +62,17 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.envs.registration import EnvSpec
 from numpy.typing import NDArray
 
 from manualcontrol.envs._validation import (
+    check_action,
+    check_bool,
     check_choice,
+    check_duration,
     check_int,
+    check_options,
     check_positive,
-    reject_unknown,
 )
 from manualcontrol.envs.elements import ControlledElement, UnstableFirstOrder, make_element
 from manualcontrol.envs.recording import Recording
@@ -135,8 +140,9 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
 
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 100}
     task: ClassVar[str] = ""
+    _spec: EnvSpec | None = None
 
     def __init__(
         self,
@@ -195,8 +201,10 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         self.action_bound = check_positive("action_bound", action_bound)
         self.reward_kind = check_choice("reward", reward, REWARDS)
         self.effort_weight = check_positive("effort_weight", effort_weight, allow_zero=True)
-        self.include_rates = bool(include_rates)
-        self.include_previous_action = bool(include_previous_action)
+        self.include_rates = check_bool("include_rates", include_rates)
+        self.include_previous_action = check_bool(
+            "include_previous_action", include_previous_action
+        )
         if loss_of_control is None and isinstance(self.element, UnstableFirstOrder):
             loss_of_control = 10.0 * math.sqrt(self._forcing_variance(forcing_pair))
         self.loss_of_control = (
@@ -206,6 +214,9 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
             check_choice("render_mode", render_mode, self.metadata["render_modes"])
         self.render_mode = render_mode
 
+        check_duration("measurement_time", self.measurement_time, self.dt)
+        # "human" mode plays one frame per sample, in real time
+        self.metadata = {**type(self).metadata, "render_fps": 1.0 / self.dt}
         self.n_run_in = round(self.run_in / self.dt)
         self.episode_steps = self.n_run_in + round(self.measurement_time / self.dt)
         self.preview_window = round(self.available_preview / self.dt) + 1
@@ -224,6 +235,21 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         self._screen = None
         self._clock = None
         self._k = -1
+
+    @property
+    def spec(self) -> EnvSpec | None:
+        """The registration spec; ``max_episode_steps`` is this env's own episode length.
+
+        The length depends on the keywords (run-in + measurement time over dt), so it
+        cannot be registered; the env truncates itself and says so here.
+        """
+        return self._spec
+
+    @spec.setter
+    def spec(self, value: EnvSpec | None) -> None:
+        if value is not None and value.max_episode_steps is None:
+            value = dataclasses.replace(value, max_episode_steps=self.episode_steps)
+        self._spec = value
 
     # ------------------------------------------------------------------ set-up
 
@@ -280,8 +306,7 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
     ) -> tuple[FloatArray, dict[str, Any]]:
         """Start an episode at rest; ``options={"realisation": i}`` picks the realisation."""
         super().reset(seed=seed)
-        options = dict(options or {})
-        reject_unknown("reset options", options, _RESET_OPTIONS)
+        options = check_options(options, _RESET_OPTIONS)
         realisation = options.get("realisation", self.realisation)
         if realisation is None:
             realisation = int(self.np_random.integers(self._realisations))
@@ -316,7 +341,10 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
             raise RuntimeError("call reset() before step()")
         if k >= self.episode_steps:
             raise RuntimeError("the episode is over (truncated); call reset()")
-        u = float(action[0])
+        if type(action) is np.ndarray and action.shape == (1,) and action.dtype.kind == "f":
+            u = float(action[0])  # the common case, kept free of call overhead
+        else:
+            u = float(check_action("action", action, (1,))[0])
         bound = self.action_bound
         if not -bound <= u <= bound:
             if u != u or u in (math.inf, -math.inf):

@@ -24,7 +24,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
-from manualcontrol.envs._validation import check_int, reject_unknown
+from manualcontrol.envs._validation import check_action, check_int, check_options
 from manualcontrol.envs.signals import forcing_preset
 from manualcontrol.envs.tracking import (
     CompensatoryTracking,
@@ -52,7 +52,13 @@ class TrackingVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
     }
     single_env: ClassVar[type[TrackingEnv]]
 
-    def __init__(self, num_envs: int = 1, render_mode: str | None = None, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        num_envs: int = 1,
+        render_mode: str | None = None,
+        max_episode_steps: int | None = None,
+        **kwargs: Any,
+    ) -> None:
         if render_mode is not None:
             raise ValueError(
                 f"render_mode must be None for the batched environment, got {render_mode!r}; "
@@ -68,6 +74,15 @@ class TrackingVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
         self.render_mode = None
         self.dt = template.dt
         self.episode_steps = template.episode_steps
+        # gym.make_vec passes max_episode_steps (TimeLimit's job for single envs): a copy
+        # is truncated after that many steps, or at the end of its run when that is sooner
+        self.max_episode_steps = (
+            self.episode_steps
+            if max_episode_steps is None
+            else min(
+                self.episode_steps, check_int("max_episode_steps", max_episode_steps, minimum=1)
+            )
+        )
         self.window = template.preview_window
         # every realisation's forcing, sampled once: rows are realisations
         realisations = template._realisations
@@ -99,8 +114,7 @@ class TrackingVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[FloatArray, dict[str, Any]]:
         """Reset every copy; copy ``i`` is seeded ``seed + i``."""
-        options = dict(options or {})
-        reject_unknown("reset options", options, ("realisation",))
+        options = check_options(options, ("realisation",))
         if seed is not None or not self._generators:
             self._generators = [
                 seeding.np_random(None if seed is None else seed + i)[0]
@@ -137,7 +151,17 @@ class TrackingVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
     ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], NDArray[np.bool_], dict[str, Any]]:
         """Step every copy; copies whose episode ended last step are reset instead."""
         template = self.template
-        u = np.asarray(actions, dtype=np.float64).reshape(self.num_envs)
+        if not (
+            type(actions) is np.ndarray
+            and actions.dtype.kind == "f"
+            and actions.shape == (self.num_envs, 1)
+        ):
+            # (num_envs,) is accepted too: one stick per copy either way
+            shape = (
+                (self.num_envs,) if np.shape(actions) == (self.num_envs,) else (self.num_envs, 1)
+            )
+            actions = check_action("actions", actions, shape)
+        u = actions.astype(np.float64, copy=False).reshape(self.num_envs)
         if not np.all(np.isfinite(u)):
             bad = np.flatnonzero(~np.isfinite(u)).tolist()
             raise ValueError(f"actions must be finite, got non-finite values for copies {bad}")
@@ -170,7 +194,7 @@ class TrackingVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
             reward = -(e * e + template.effort_weight * u * u) * variance
         limit = template.loss_of_control
         terminated = np.abs(e) > limit if limit is not None else np.zeros(self.num_envs, dtype=bool)
-        truncated = k >= self.episode_steps
+        truncated = k >= self.max_episode_steps
         self._x, self._k, self._y, self._e, self._u = x, k, y, e, u
 
         done = self._done

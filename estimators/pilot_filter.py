@@ -71,6 +71,7 @@ from manualcontrol.envs._validation import (
 )
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _pilot_core as core
+from manualcontrol.estimators._recording_checks import check_estimable
 from manualcontrol.estimators._targets import target_function
 from manualcontrol.estimators.filters import monitor
 from manualcontrol.estimators.internal_model import (
@@ -967,8 +968,7 @@ class PilotFilter:
         target_period: float | None = None,
     ) -> dict[str, FloatArray]:
         """The sample signals :meth:`estimate` feeds the filter (see :meth:`update`)."""
-        if not isinstance(recording, Recording):
-            raise TypeError(f"recording must be a Recording, got {recording!r}")
+        check_estimable(recording, window=self._settings.window)
         if "u" not in recording:
             raise ValueError("the recording has no control signal u to estimate from")
         if "e" not in recording:

@@ -25,6 +25,11 @@ from manualcontrol.pilots.simulation import (
     remnant_power_ratio,
     simulate,
 )
+from manualcontrol.pilots.stability import (
+    UnstableLoopError,
+    UnstableLoopWarning,
+    typical_parameters,
+)
 
 __all__ = [
     "INJECTION_POINTS",
@@ -41,10 +46,13 @@ __all__ = [
     "SchiessRolandModel",
     "SchiessRolandRemnant",
     "SimulationSetup",
+    "UnstableLoopError",
+    "UnstableLoopWarning",
     "ZaalRemnant",
     "closed_loop",
     "make_model",
     "make_remnant",
     "remnant_power_ratio",
     "simulate",
+    "typical_parameters",
 ]

@@ -25,6 +25,7 @@ from manualcontrol.pilots.simulation import (
     matrix_parameters,
     simulate,
 )
+from manualcontrol.pilots.stability import check_stable
 
 __all__ = ["PilotController"]
 
@@ -92,6 +93,25 @@ def _step(
     return outputs
 
 
+def _check_episode_growth(setup: SimulationSetup, on_unstable: str) -> None:
+    """Growth check of a time-varying loop: the episode simulated once, remnant-free."""
+    from manualcontrol.pilots.pilot import Pilot
+
+    pilot = setup.pilot
+    simulate(
+        Pilot(pilot.model, dict(pilot.parameters), None, pilot.delay_order),
+        setup.element,
+        setup.forcing,
+        task=setup.task,
+        available_preview=setup.available_preview if setup.task == "preview" else None,
+        dt=setup.dt,
+        run_in=setup.run_in,
+        measurement_time=setup.measurement_time,
+        loop="sampled",
+        on_unstable=on_unstable,
+    )
+
+
 class PilotController:
     """Runtime state of a pilot in one episode of a tracking environment.
 
@@ -101,7 +121,13 @@ class PilotController:
     sampled loop of the same episode (so both loops use the same gain).
     """
 
-    def __init__(self, pilot: Any, env: Any, seed: int | np.random.Generator | None = None) -> None:
+    def __init__(
+        self,
+        pilot: Any,
+        env: Any,
+        seed: int | np.random.Generator | None = None,
+        on_unstable: str = "raise",
+    ) -> None:
         base = getattr(env, "unwrapped", env)
         for attribute in ("task", "element", "forcing", "dt", "run_in", "measurement_time"):
             if not hasattr(base, attribute):
@@ -121,6 +147,8 @@ class PilotController:
         )
         rng, _ = _as_generator(seed)
         traces = setup.parameter_traces()
+        if check_stable(setup, on_unstable=on_unstable) is None:
+            _check_episode_growth(setup, on_unstable)
         n = setup.n_samples
         remnant = pilot.remnant
         if remnant is not None:

@@ -129,21 +129,52 @@ class Pilot:
             traces[name] = values
         return traces
 
-    def reset(self, seed: int | np.random.Generator | None = None, *, env: Any) -> None:
+    def reset(
+        self,
+        seed: int | np.random.Generator | None = None,
+        *,
+        env: Any,
+        on_unstable: str = "raise",
+    ) -> None:
         """Start acting in ``env``'s current episode (call after ``env.reset()``).
 
         ``seed`` drives the remnant exactly as in :func:`~manualcontrol.pilots.simulate`:
-        the same seed in both gives the same recording (``loop="sampled"``).
+        the same seed in both gives the same recording (``loop="sampled"``). A pilot
+        that would close a diverging loop with the env's element raises
+        :class:`~manualcontrol.pilots.stability.UnstableLoopError` here (closed-loop
+        poles; a growth check of the episode when something varies), or warns with
+        ``on_unstable="warn"``.
         """
         from manualcontrol.pilots.controller import PilotController
 
-        object.__setattr__(self, "_controller", PilotController(self, env, seed))
+        controller = PilotController(self, env, seed, on_unstable)
+        object.__setattr__(self, "_controller", controller)
 
     def act(self, observation: ArrayLike) -> FloatArray:
         """The pilot's stick for an environment observation, shape ``(1,)``."""
         if self._controller is None:
             raise RuntimeError("call pilot.reset(seed, env=env) after env.reset() before act()")
         return self._controller.act(observation)
+
+    @classmethod
+    def typical(
+        cls,
+        model: PilotModel | str,
+        element: Any,
+        parameters: Mapping[str, float | Schedule] | None = None,
+        remnant: Remnant | str | None = None,
+        delay_order: int | None = None,
+    ) -> Pilot:
+        """A pilot with typical parameters for ``element`` (a stable loop), some replaced.
+
+        ``Pilot.typical("precision", "DI")`` is the thesis's DI pilot; see
+        :func:`~manualcontrol.pilots.stability.typical_parameters` for the table.
+        """
+        from manualcontrol.pilots.stability import typical_parameters
+
+        values: dict[str, Any] = dict(typical_parameters(model, element))
+        values.update(parameters or {})
+        return cls(model, values, remnant, delay_order)
 
     def with_parameters(self, **values: float | Schedule) -> Pilot:
         """Copy with some parameters replaced."""
@@ -167,8 +198,17 @@ class Pilot:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Pilot:
         """Inverse of :meth:`to_dict`."""
-        model = make_model(data["model"], **dict(data.get("model_options") or {}))
-        parameters = {
-            name: Schedule.from_dict(value) for name, value in data.get("parameters", {}).items()
-        }
+        options = data.get("model_options") or {}
+        if not isinstance(options, Mapping):
+            raise TypeError(f"model_options must be a dict, got {options!r}")
+        model = make_model(data["model"], **dict(options))
+        raw = data.get("parameters") or {}
+        if not isinstance(raw, Mapping):
+            raise TypeError(f"parameters must be a dict of name: value or schedule, got {raw!r}")
+        parameters = {}
+        for name, value in raw.items():
+            try:
+                parameters[name] = Schedule.from_dict(value)
+            except (TypeError, ValueError) as error:
+                raise type(error)(f"pilot parameter {name}: {error}") from None
         return cls(model, parameters, make_remnant(data.get("remnant")), data.get("delay_order"))

@@ -36,6 +36,7 @@ so recordings start at ``t = 0`` and parameter schedules are written in that tim
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -45,7 +46,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from manualcontrol.envs._interpolation import interpolate_at
-from manualcontrol.envs._validation import check_choice, check_positive, check_vector
+from manualcontrol.envs._validation import (
+    check_choice,
+    check_duration,
+    check_int,
+    check_positive,
+    check_vector,
+)
 from manualcontrol.envs.dynamics import (
     Block,
     DelayChannel,
@@ -64,6 +71,7 @@ from manualcontrol.envs.signals import ForcingPair, forcing_preset
 from manualcontrol.pilots.models import PilotModel, make_model
 from manualcontrol.pilots.pilot import Pilot
 from manualcontrol.pilots.remnant import Remnant
+from manualcontrol.pilots.stability import UnstableLoopWarning, check_growth, check_stable
 
 __all__ = [
     "LOOPS",
@@ -168,6 +176,7 @@ class SimulationSetup:
             target = forcing.target or forcing.disturbance
             measurement_time = getattr(target, "measurement_time", None) or 120.0
         measurement_time = check_positive("measurement_time", measurement_time)
+        check_duration("measurement_time", measurement_time, dt)
         return cls(pilot, element, forcing, task, preview, dt, run_in, measurement_time)
 
     @property
@@ -629,7 +638,8 @@ def _as_generator(seed: int | np.random.Generator | None) -> tuple[np.random.Gen
         seed = int(np.random.SeedSequence().generate_state(1)[0])
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
         raise TypeError(f"seed must be an int, a numpy Generator or None, got {seed!r}")
-    return np.random.default_rng(int(seed)), int(seed)
+    seed = check_int("seed", seed, minimum=0)
+    return np.random.default_rng(seed), seed
 
 
 def simulate(
@@ -647,6 +657,7 @@ def simulate(
     loop: str = "continuous",
     remnant_signal: Sequence[float] | FloatArray | None = None,
     keep_run_in: bool = False,
+    on_unstable: str = "raise",
 ) -> Recording:
     """Simulate a closed-loop tracking run and return its :class:`Recording`.
 
@@ -679,6 +690,11 @@ def simulate(
     keep_run_in
         Keep the run-in in the recording (times from ``-run_in``), e.g. to let an
         estimator converge on it as the thesis does; metrics then start at ``t = 0``.
+    on_unstable
+        A diverging loop (closed-loop poles of a constant pilot and element, else a
+        growth check on the run; see :mod:`~manualcontrol.pilots.stability`) raises
+        :class:`~manualcontrol.pilots.stability.UnstableLoopError` (``"raise"``,
+        default) or warns and sets ``metadata["diverging"]`` to the reason (``"warn"``).
 
     The recording holds ``t, ft, fd, y, e, u, n`` (plus ``ft_far``, the previewed
     target the pilot used, in preview tasks, and ``u_n``, the part of ``u`` the remnant
@@ -705,6 +721,9 @@ def simulate(
     check_choice("loop", loop, LOOPS)
     rng, seed_used = _as_generator(seed)
     traces = setup.parameter_traces()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UnstableLoopWarning)
+        stable = check_stable(setup, on_unstable=on_unstable)
     signals = setup.forcing_signals(traces)
     n = setup.n_samples
     remnant = pilot.remnant
@@ -746,6 +765,19 @@ def simulate(
             remnant.with_gain(gain).to_dict() if remnant_signal is None else "signal"
         )
         metadata.update({"remnant": remnant_description, "remnant_power_ratio": ratio})
+    if stable is None:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", UnstableLoopWarning)
+            check_growth(
+                setup.time,
+                outputs["e"],
+                float(np.max(np.abs(columns["ft"])) + np.max(np.abs(columns["fd"]))),
+                what="the closed loop",
+                on_unstable=on_unstable,
+            )
+    for warning in caught:
+        metadata["diverging"] = str(warning.message)
+        warnings.warn(warning.message, UnstableLoopWarning, stacklevel=2)
     part = slice(0, n) if keep_run_in else measured
     recorded = {"t": setup.time[part], "ft": columns["ft"][part], "fd": columns["fd"][part]}
     for name in ("y", "e", "u", "n"):

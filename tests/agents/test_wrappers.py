@@ -164,3 +164,12 @@ def test_non_finite_commands_raise():
     env.reset(seed=0)
     with pytest.raises(ValueError, match="action must be finite"):
         env.step(np.array([np.nan]))
+
+
+def test_implausible_identifications_are_flagged():
+    from manualcontrol.agents.evaluation import implausible
+
+    flags = implausible("precision", {"fit K_p": -0.016, "fit zeta_nms": 83.6, "fit tau_v": 0.2})
+    assert len(flags) == 2
+    assert "fit K_p = -0.016" in flags[0] and "far outside the human range" in flags[0]
+    assert "fit zeta_nms = 83.6" in flags[1]

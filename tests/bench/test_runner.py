@@ -3,6 +3,7 @@
 import json
 import math
 
+import pyarrow.parquet as pq
 import pytest
 
 from manualcontrol.bench import runner
@@ -152,3 +153,17 @@ def test_paper_sections_are_found_by_suite_name(monkeypatch):
     module.report_section = lambda suite, rows, out: ["## extra"]
     monkeypatch.setitem(sys.modules, module.__name__, module)
     assert section_writer("made-up-2099")(None, [], None) == ["## extra"]
+
+
+def test_a_resumed_table_equals_a_fresh_one(tmp_path):
+    suite = parse_suite(SMALL)
+    run_suite(suite, tmp_path / "fresh", backend="inprocess")
+    fresh_csv = (tmp_path / "fresh" / "results.csv").read_text()
+    fresh_parquet = pq.read_table(tmp_path / "fresh" / "results.parquet")
+    # resume everything: the same table, whether a row was run now or read back
+    run_suite(suite, tmp_path / "fresh", backend="inprocess")
+    resumed_csv = (tmp_path / "fresh" / "results.csv").read_text()
+    resumed_parquet = pq.read_table(tmp_path / "fresh" / "results.parquet")
+    assert resumed_csv == fresh_csv
+    assert resumed_parquet.equals(fresh_parquet)
+    assert "nan" not in fresh_csv.split("\n", 1)[1]  # missing values: empty cells, as resumed

@@ -87,7 +87,10 @@ def test_scenario_key_changes_with_any_setting(tmp_path):
             ('task = "compensatory"', 'task = "gap"'),
             "batch 1 (one): task must be one of 'compensatory', 'pursuit', 'preview', got 'gap'",
         ),
-        (('element = "DI"', 'element = "TI"'), "batch 1 (one): controlled element must be one of"),
+        (
+            ('element = "DI"', 'element = "TI"'),
+            "batch 1 (one): element: controlled element must be one of",
+        ),
         (
             ("realisations = [0, 1]", "realisations = [0, 12]"),
             "realisations must lie in [0, 9] for forcing 'vanderel-bw4', got 12",
@@ -127,3 +130,129 @@ def test_not_a_suite(tmp_path):
         load_suite(path)
     with pytest.raises(SuiteError, match=re.escape("a suite needs at least one [[batch]]")):
         load_suite(write(tmp_path, 'name = "empty"'))
+
+
+SMALL = """
+name = "mine"
+[[batch]]
+name = "one"
+task = "compensatory"
+element = "SI"
+forcing = "vanderel-bw4"
+realisations = [0, 1]
+[batch.pilot]
+model = "precision"
+parameters = { K_p = 1.3, K_v = 0.0, tau_v = 0.26, omega_nms = 10.5, zeta_nms = 0.35 }
+[batch.estimator]
+name = "dekf"
+model = "precision"
+ce = "SI"
+"""
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (SMALL.replace('name = "mine"', 'name = "mine"\nquick = 5'), "unknown top-level key(s)"),
+        (
+            SMALL.replace("realisations = [0, 1]", "realisations = [0, 1]\nquick = 5"),
+            "batch 1 (one): quick must be a table ({...} or [quick]), got 5",
+        ),
+        (
+            SMALL.replace('name = "mine"', 'name = "mine"\ndefaults = 5'),
+            "suite.toml: defaults must be a table ({...} or [defaults]), got 5",
+        ),
+        (
+            'name = "mine"\nbatch = [1]\n',
+            "batch 1: each [[batch]] must be a table ({...} or [each [[batch]]]), got 1",
+        ),
+        (
+            'name = "mine"\nbatch = 3\n',
+            "a suite needs at least one [[batch]] table, got batch = 3",
+        ),
+        (
+            SMALL.replace(
+                '[batch.pilot]\nmodel = "precision"\nparameters = { K_p = 1.3, K_v = 0.0, tau_v = '
+                "0.26, omega_nms = 10.5, zeta_nms = 0.35 }",
+                'pilot = "precision"',
+            ),
+            "batch 1 (one): pilot must be a table ({...} or [pilot]), got 'precision'",
+        ),
+        (
+            SMALL.replace("parameters = {", "parameters = 3\nx = {"),
+            "pilot has unknown key(s) ['x']",
+        ),
+        (
+            SMALL.replace("K_p = 1.3,", 'K_p = "fast",'),
+            "batch 1 (one): pilot: pilot parameter K_p: schedule must be a number or a dict",
+        ),
+        (
+            SMALL.replace("realisations = [0, 1]", "realisations = [0, 1, 1]"),
+            "batch 1 (one): realisations must not repeat a value, repeated: [1]",
+        ),
+        (
+            SMALL.replace("realisations = [0, 1]", "realisations = [0, 1]\nremnant_seeds = [2, 2]"),
+            "remnant_seeds must not repeat a value, repeated: [2]",
+        ),
+        (
+            SMALL.replace(
+                "realisations = [0, 1]", "realisations = [0, 1]\nquick = { realisations = [5] }"
+            ),
+            "quick.realisations must be taken from realisations [0, 1], got [5]",
+        ),
+        (
+            SMALL.replace('task = "compensatory"', 'task = "preview"'),
+            "batch 1 (one): task 'preview' does not fit the 'precision' pilot model",
+        ),
+        (
+            SMALL.replace("K_v = 0.0", "K_v = 0.5").replace("K_p = 1.3", "K_p = 1.5"),
+            "batch 1 (one): the precision pilot (K_p=1.5, K_v=0.5, tau_v=0.26, omega_nms=10.5, "
+            "zeta_nms=0.35) and the controlled element integrator (K=1.5) close an unstable loop",
+        ),
+        (
+            SMALL.replace('name = "dekf"', 'name = "dekf"\nr2 = "big"'),
+            "batch 1 (one): estimator: r2 must be a real number, got 'big'",
+        ),
+        (
+            SMALL.replace("realisations = [0, 1]", "realisations = [0, 1]\nreference = 3"),
+            "batch 1 (one): reference must be a table ({...} or [reference]), got 3",
+        ),
+        (
+            SMALL.replace('name = "mine"', "name = 5"),
+            "suite.toml: name must be a non-empty string, got 5",
+        ),
+        (
+            SMALL.replace('name = "mine"', 'name = "mine"\ndescription = 5'),
+            "suite.toml: description must be a string, got 5",
+        ),
+        (
+            SMALL.replace(
+                "realisations = [0, 1]", "realisations = [0, 1]\nmeasurement_time = 0.001"
+            ),
+            "batch 1 (one): measurement_time must hold at least one sample",
+        ),
+    ],
+)
+def test_whole_suite_is_validated_at_load_with_the_key_path(tmp_path, text, message):
+    with pytest.raises(SuiteError, match=re.escape(message)):
+        load_suite(write(tmp_path, text))
+
+
+def test_the_small_suite_itself_loads(tmp_path):
+    suite = load_suite(write(tmp_path, SMALL))
+    assert len(suite.scenarios()) == 2
+    assert suite.scenarios()[0].build_pilot().parameters["K_p"](0.0) == 1.3
+
+
+def test_suite_pilots_are_built_by_pilot_from_dict(monkeypatch):
+    from manualcontrol.bench import scenarios
+    from manualcontrol.pilots import Pilot
+
+    calls = []
+    original = Pilot.from_dict.__func__
+    monkeypatch.setattr(
+        Pilot, "from_dict", classmethod(lambda cls, data: calls.append(data) or original(cls, data))
+    )
+    pilot = scenarios._pilot_from({"model": "preview", "near_view": True, "parameters": {}})
+    assert calls and calls[0]["model_options"] == {"near_view": True}
+    assert pilot.model.near_view

@@ -106,3 +106,36 @@ def test_evaluate_collects_every_metric():
     assert 0.6 < metrics.within_1_sigma <= metrics.within_2_sigma <= 1.0
     with pytest.raises(ValueError, match="after the last sample"):
         evaluate(result, recording, start=1000.0)
+
+
+def test_dekf_refuses_recordings_it_cannot_use_with_the_reason():
+    import re
+
+    import numpy as np
+    import pytest
+
+    from manualcontrol.envs.recording import Recording
+    from manualcontrol.estimators import DEKF
+
+    dekf = DEKF(model="precision", ce="SI")
+    short = Recording({"t": np.arange(3) * 0.01, "u": np.zeros(3), "e": np.zeros(3)}, 0.01)
+    with pytest.raises(ValueError, match=re.escape("the recording has 3 samples; the estimator")):
+        dekf.estimate(short)
+    n = 2000
+    blank = Recording({"t": np.arange(n) * 0.01, "u": np.full(n, np.nan), "e": np.ones(n)}, 0.01)
+    with pytest.raises(ValueError, match=re.escape("the recording's u has no finite sample")):
+        dekf.estimate(blank)
+
+
+def test_innovation_whiteness_tells_white_from_coloured():
+    import numpy as np
+
+    from manualcontrol.estimators.metrics import innovation_whiteness
+
+    rng = np.random.default_rng(0)
+    white = rng.standard_normal(20000)
+    r1, outside = innovation_whiteness(white, np.ones_like(white))
+    assert abs(r1) < 0.03 and outside < 0.15  # 95 % band: about 5 % of lags outside
+    coloured = np.convolve(white, np.ones(20) / 20, "same")
+    r1, outside = innovation_whiteness(coloured, np.ones_like(coloured))
+    assert r1 > 0.9 and outside > 0.3

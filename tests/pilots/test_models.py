@@ -160,7 +160,9 @@ def test_injection_point_decides_where_n_enters(injection):
     # Starting at rest, nothing goes round the loop before the pilot delay has passed:
     # remnant at the output is in u at once, remnant at the input or the feedback
     # only after tau_v (20 samples).
-    pilot = Pilot("precision", remnant=LevisonRemnant(K_r=1.0, injection=injection))
+    pilot = Pilot.typical(
+        "precision", "SI", {"tau_v": 0.2}, remnant=LevisonRemnant(K_r=1.0, injection=injection)
+    )
     kwargs = dict(run_in=0.0, measurement_time=5.0)
     noisy = simulate(pilot, "SI", "plaetinck2018", seed=4, **kwargs)
     free = simulate(pilot.with_remnant(None), "SI", "plaetinck2018", **kwargs)

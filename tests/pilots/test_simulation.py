@@ -31,6 +31,7 @@ from manualcontrol.pilots import (
     LevisonRemnant,
     Pilot,
     SimulationSetup,
+    UnstableLoopWarning,
     remnant_power_ratio,
     simulate,
 )
@@ -293,7 +294,7 @@ class _NotANumber(Schedule):
             "controlled element must be one of",
         ),
         (
-            lambda: simulate(Pilot("precision"), remnant_signal=np.zeros(10)),
+            lambda: simulate(Pilot.typical("precision", "SI"), remnant_signal=np.zeros(10)),
             ValueError,
             "remnant_signal must have length 18000, got length 10",
         ),
@@ -315,11 +316,11 @@ def test_parameters_outside_human_limits_warn():
         match=re.escape("omega_nms = 20 rad/s is outside the human range [6, 15]"),
     ):
         Pilot("precision", {"omega_nms": 20.0})
-    pilot = Pilot(
-        "precision", {"tau_v": Sigmoid(0.2, 0.9, 30.0, 5.0)}
-    )  # schedules warn when evaluated
-    with pytest.warns(HumanLimitWarning, match="tau_v"):
-        simulate(pilot, "DI", run_in=0.0, measurement_time=60.0)
+    # schedules warn when evaluated
+    pilot = Pilot.typical("precision", "DI", {"tau_v": Sigmoid(0.2, 0.9, 30.0, 5.0)})
+    # tau_v 0.9 s on a DI also diverges: flagged, kept with on_unstable="warn"
+    with pytest.warns(UnstableLoopWarning), pytest.warns(HumanLimitWarning, match="tau_v"):
+        simulate(pilot, "DI", run_in=0.0, measurement_time=60.0, on_unstable="warn")
 
 
 def test_closed_loop_model_has_the_analytic_response():

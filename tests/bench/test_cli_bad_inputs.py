@@ -1,0 +1,218 @@
+"""Issue 17: every user mistake exits 2 with one line, no traceback, nothing left behind."""
+
+import json
+
+import numpy as np
+import pytest
+
+from manualcontrol.bench.cli import EXIT_OK, EXIT_RUNS_FAILED, EXIT_USAGE, _env_options, main
+from manualcontrol.envs.recording import Recording
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def listing(folder):
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*"))
+
+
+@pytest.fixture
+def blocker(tmp_path):
+    path = tmp_path / "file"
+    path.write_text("")
+    return path
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ("simulate", "--out", "{b}/x.npz", "--measurement-time", "1"),
+        ("identify", "{rec}", "--out", "{b}/o"),
+        ("bench", "popovici2017", "--quick", "--out", "{b}/r"),
+        ("train", "--out", "{b}/agent", "--steps", "8"),
+    ],
+)
+def test_output_under_a_file_is_a_usage_error(tmp_path, capsys, blocker, argv):
+    recording = tmp_path / "rec.npz"
+    Recording({"t": np.arange(10) * 0.01, "u": np.zeros(10), "e": np.zeros(10)}, 0.01).save(
+        recording
+    )
+    before = listing(tmp_path)
+    code, _, err = run(capsys, *(a.format(b=blocker, rec=recording) for a in argv))
+    assert code == EXIT_USAGE
+    assert f"--out {blocker}/" in err and f"{blocker} is a file, not a folder" in err
+    assert "Traceback" not in err
+    assert listing(tmp_path) == before
+
+
+def test_bench_refusals_leave_no_folder(tmp_path, capsys, monkeypatch):
+    import importlib.util
+
+    code, _, err = run(capsys, "bench", "popovici2017", "--workers", "0", "--out", tmp_path / "r")
+    assert code == EXIT_USAGE and "--workers: must be >= 1, got 0" in err
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "ray" else real(name, *a)
+    )
+    code, _, err = run(capsys, "bench", "popovici2017", "--backend", "ray", "--out", tmp_path / "r")
+    assert code == EXIT_USAGE and "--backend ray needs Ray: pip install" in err
+    assert not (tmp_path / "r").exists()
+
+
+def test_empty_npz_names_the_file(tmp_path, capsys):
+    empty = tmp_path / "empty.npz"
+    empty.write_bytes(b"")
+    code, _, err = run(capsys, "identify", empty, "--out", tmp_path / "o")
+    assert code == EXIT_USAGE
+    assert f"{empty} is not a readable .npz file" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_simulate_plot_failure_names_the_path_and_leaves_no_recording(tmp_path, capsys):
+    code, _, err = run(
+        capsys,
+        "simulate",
+        "--out",
+        tmp_path / "x.npz",
+        "--plot",
+        "/proc/x.png",
+        "--measurement-time",
+        "1",
+    )
+    assert code == EXIT_USAGE
+    assert "cannot write /proc/x.png" in err and ".part" not in err
+    assert not (tmp_path / "x.npz").exists()
+
+
+def test_simulate_defaults_are_a_stable_typical_pilot(tmp_path, capsys):
+    for element in ("SI", "DI"):
+        out = tmp_path / f"{element}.npz"
+        code, _, _ = run(capsys, "simulate", "--element", element, "--out", out)
+        assert code == EXIT_OK
+        recording = Recording.load(out)
+        # bounded, of the order of the forcing (the issue's default run reached 1e50)
+        assert np.abs(recording.y).max() < 10 * np.abs(recording.ft).max()
+    assert recording.metadata["pilot"]["parameters"]["K_p"]["value"] == pytest.approx(0.24)
+
+
+def test_simulate_refuses_an_unstable_pilot_unless_allowed(tmp_path, capsys):
+    argv = ("simulate", "--param", "K_v=0.5", "--param", "K_p=1.5", "--measurement-time", "10")
+    code, _, err = run(capsys, *argv, "--out", tmp_path / "u.npz")
+    assert code == EXIT_USAGE and "close an unstable loop" in err
+    assert not (tmp_path / "u.npz").exists()
+    code, _, err = run(capsys, *argv, "--allow-unstable", "--out", tmp_path / "u.npz")
+    assert code == EXIT_OK and "warning: " in err
+    assert "unstable loop" in Recording.load(tmp_path / "u.npz").metadata["diverging"]
+
+
+@pytest.mark.parametrize(
+    ("item", "expected"),
+    [
+        ("include_rates=False", {"include_rates": False}),
+        ("include_rates=false", {"include_rates": False}),
+        ("include_rates=yes", {"include_rates": True}),
+        ("loss_of_control=7.5", {"loss_of_control": 7.5}),
+        ("loss_of_control=null", {"loss_of_control": None}),
+        ("realisation=null", {"realisation": None}),
+        ("forcing=popovici2017", {"forcing": "popovici2017"}),
+    ],
+)
+def test_env_options_are_parsed_to_their_type(item, expected):
+    assert _env_options([item]) == expected
+
+
+@pytest.mark.parametrize(
+    ("item", "message"),
+    [
+        ("include_rates=maybe", "--env include_rates must be true or false, got 'maybe'"),
+        ("action_bound=big", "--env action_bound must be a number, got 'big'"),
+        ("loss_of_control=far", "--env loss_of_control must be a number or null, got 'far'"),
+        ("colour=red", "--env colour: unknown environment keyword; known:"),
+        ("include_rates", "--env must look like KEY=VALUE, got 'include_rates'"),
+    ],
+)
+def test_bad_env_options_are_refused(tmp_path, capsys, item, message):
+    code, _, err = run(capsys, "train", "--env", item, "--steps", "8", "--out", tmp_path / "a")
+    assert code == EXIT_USAGE and message in err
+    assert not (tmp_path / "a").exists()
+
+
+@pytest.fixture
+def long_run(tmp_path, capsys):
+    path = tmp_path / "run.npz"
+    assert run(capsys, "simulate", "--out", path, "--measurement-time", "60")[0] == EXIT_OK
+    return path
+
+
+def test_identify_reports_the_fit(tmp_path, capsys, long_run):
+    code, out, _ = run(capsys, "identify", long_run, "--set", "ce=SI", "--out", tmp_path / "o")
+    assert code == EXIT_OK
+    assert "one-step VAF" in out and "resimulated VAF" in out and "lag-1 autocorrelation" in out
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["fit"]["vaf_one_step_percent"] > 95.0
+    assert summary["fit"]["vaf_resimulated_percent"] > 90.0
+    assert 0.0 <= summary["fit"]["innovation_lags_outside_95_percent"] <= 1.0
+    assert summary["closed_loop"]["stable"] is True
+
+
+def test_identify_says_when_the_filter_diverged(tmp_path, capsys, long_run):
+    code, _, err = run(
+        capsys,
+        "identify",
+        long_run,
+        "--set",
+        "ce=SI",
+        "--set",
+        "max_covariance=1e-6",
+        "--out",
+        tmp_path / "o",
+    )
+    assert code == EXIT_RUNS_FAILED
+    assert "error: the filter diverged at t = " in err and "Try a smaller --set q2" in err
+
+
+def test_identify_time_in_milliseconds(tmp_path, capsys):
+    t = np.arange(6000) * 10.0  # ms
+    rng = np.random.default_rng(0)
+    e = np.convolve(rng.standard_normal(6000), np.ones(50) / 50, "same")
+    csv = tmp_path / "trial.csv"
+    csv.write_text(
+        "time_ms,error,stick\n"
+        + "\n".join(f"{a},{b},{c}" for a, b, c in zip(t, e, 1.3 * e, strict=True))
+    )
+    argv = ("identify", csv, "--column", "t=time_ms", "--column", "e=error", "--column", "u=stick")
+    code, _, err = run(capsys, *argv, "--out", tmp_path / "o")
+    assert code == EXIT_USAGE
+    assert "the sample time is 10 s" in err and "--time-unit ms" in err
+    code, _, _ = run(capsys, *argv, "--time-unit", "ms", "--set", "ce=SI", "--out", tmp_path / "o")
+    assert code in (EXIT_OK, EXIT_RUNS_FAILED)
+    assert (tmp_path / "o" / "summary.json").is_file()
+
+
+def test_identify_preview_hint_speaks_the_command_line(tmp_path, capsys):
+    t = np.arange(3000) * 0.01
+    csv = tmp_path / "pursuit.csv"
+    ft, y = np.sin(t), 0.9 * np.sin(t - 0.1)
+    csv.write_text(
+        "t,ft,y,u\n" + "\n".join(f"{a},{b},{c},{b - c}" for a, b, c in zip(t, ft, y, strict=True))
+    )
+    code, _, err = run(
+        capsys,
+        "identify",
+        csv,
+        "--model",
+        "preview",
+        "--set",
+        "anticipation_time=0.5",
+        "--set",
+        "ce=SI",
+        "--out",
+        tmp_path / "o",
+    )
+    assert code == EXIT_USAGE
+    assert "--forcing PRESET" in err and "--target-period SECONDS" in err
+    assert "forcing=" not in err and "target_period=" not in err
+    assert not (tmp_path / "o").exists()
