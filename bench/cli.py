@@ -160,6 +160,15 @@ def _cmd_suites(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_estimators(args: argparse.Namespace) -> int:
+    from manualcontrol.estimators.registry import ESTIMATORS
+
+    width = max(len(name) for name in ESTIMATORS)
+    for entry in ESTIMATORS.values():
+        print(f"{entry.name:<{width}}  {entry.summary} [{entry.reference}]")
+    return EXIT_OK
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
     import warnings
 
@@ -393,6 +402,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                 "default --backend process)"
             )
     suite = load_suite(args.suite)
+    if args.estimators is not None:
+        names = [name.strip() for name in args.estimators.split(",") if name.strip()]
+        suite = suite.with_estimators(names)
     out = Path(args.out or f"results/{suite.name}{'-quick' if args.quick else ''}")
     _check_output("--out", out, folder=True)
     total = len(suite.scenarios(args.quick))
@@ -508,6 +520,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = commands.add_parser("suites", help="list the built-in benchmark suites")
     p.set_defaults(run=_cmd_suites)
 
+    p = commands.add_parser("estimators", help="list the estimator family, one line each")
+    p.set_defaults(run=_cmd_estimators)
+
     p = commands.add_parser(
         "simulate", help="simulate a pilot in a tracking task, write a recording"
     )
@@ -567,7 +582,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "recording", type=Path, help="a Recording or an experiment file (.npz, .csv, .mat)"
     )
-    p.add_argument("--estimator", default="dekf", help="estimator name (default dekf)")
+    p.add_argument(
+        "--estimator",
+        default="dekf",
+        help="estimator name (default dekf; `manualcontrol estimators` lists the family)",
+    )
     p.add_argument(
         "--model", default="precision", help="pilot model structure: precision or preview"
     )
@@ -632,6 +651,13 @@ def build_parser() -> argparse.ArgumentParser:
         type=_positive_int,
         default=None,
         help="process-pool size (default: all cores)",
+    )
+    p.add_argument(
+        "--estimators",
+        default=None,
+        metavar="NAME,NAME",
+        help="run these estimators in every batch instead of the suite's (see "
+        "`manualcontrol estimators`); each reads the same simulated runs",
     )
     p.add_argument("--no-report", action="store_true", help="skip the Markdown/PNG report")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

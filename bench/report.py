@@ -134,9 +134,18 @@ def _finite(statistic: Any, values: Sequence[Any]) -> float:
     return float(statistic(known)) if known.size else math.nan
 
 
-def summarise(rows: Sequence[Mapping[str, Any]], batch: str) -> dict[str, Any]:
-    """Batch means of the scores (successful runs only) and run counts."""
-    runs = [row for row in rows if row.get("batch") == batch]
+def summarise(
+    rows: Sequence[Mapping[str, Any]], batch: str, estimator: str | None = None
+) -> dict[str, Any]:
+    """Batch means of the scores (successful runs only) and run counts.
+
+    ``estimator``: only that estimator's rows (default: every row of the batch).
+    """
+    runs = [
+        row
+        for row in rows
+        if row.get("batch") == batch and (estimator is None or row.get("estimator") == estimator)
+    ]
     ok = [row for row in runs if row.get("status") == "ok"]
     summary: dict[str, Any] = {"runs": len(runs), "failed": len(runs) - len(ok), "parameters": {}}
     names = sorted({key[len("nrmse_") :] for row in ok for key in row if key.startswith("nrmse_")})
@@ -157,6 +166,10 @@ def summarise(rows: Sequence[Mapping[str, Any]], batch: str) -> dict[str, Any]:
         summary[f"{key}_median"] = _finite(np.median, values)
     summary["diverged"] = sum(bool(row.get("diverged")) for row in ok)
     return summary
+
+
+def _runs(count: int) -> str:
+    return f"{count} run" if count == 1 else f"{count} runs"
 
 
 def _cell(value: Any, signed: bool = False) -> str:
@@ -194,6 +207,133 @@ def _batch_table(summary: Mapping[str, Any], reference: Mapping[str, Any]) -> li
     return lines
 
 
+def _comparison_table(
+    summaries: Mapping[str, Mapping[str, Any]], reference: Mapping[str, Any]
+) -> list[str]:
+    """Parameters down, estimators across: NRMSE (relative bias), the paper's last.
+
+    The smallest NRMSE of a row, and the largest VAF, are set in bold.
+    """
+    paper = dict(reference.get("parameters", {}))
+    names: list[str] = []
+    for summary in summaries.values():
+        names += [n for n in summary["parameters"] if n not in names]
+    names += [n for n in paper if n not in names]
+    estimators = list(summaries)
+    lines = [
+        "| NRMSE (rel. bias) | " + " | ".join(estimators) + " | paper |",
+        "| --- | " + " | ".join("---:" for _ in estimators) + " | ---: |",
+    ]
+
+    def best(values: list[float], largest: bool) -> float:
+        finite = [v for v in values if math.isfinite(v)]
+        if not finite:
+            return math.nan
+        return max(finite) if largest else min(finite)
+
+    for name in names:
+        values = [
+            _number(summaries[e]["parameters"].get(name, {}).get("nrmse")) for e in estimators
+        ]
+        top = best(values, largest=False)
+        cells = []
+        for e, value in zip(estimators, values, strict=True):
+            bias = summaries[e]["parameters"].get(name, {}).get("rel_bias")
+            text = f"{_cell(value)} ({_cell(bias, True)})" if math.isfinite(value) else "—"
+            cells.append(f"**{text}**" if value == top else text)
+        theirs = paper.get(name, {})
+        paper_cell = (
+            f"{_cell(theirs.get('nrmse'))} ({_cell(theirs.get('rel_bias'), True)})"
+            if theirs
+            else "—"
+        )
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {paper_cell} |")
+    for key, label in (
+        ("vaf_resimulated", "VAF resimulated vs u [%]"),
+        ("vaf_resimulated_ideal", "VAF resimulated vs remnant-free u [%]"),
+        ("vaf_one_step", "VAF one-step [%]"),
+    ):
+        values = [_number(summaries[e][key]) for e in estimators]
+        paper_value = reference.get(key)
+        if paper_value is None and not any(math.isfinite(v) for v in values):
+            continue  # e.g. no remnant-free VAF without remnant
+        top = best(values, largest=True)
+        cells = [f"**{_cell(v)}**" if v == top and math.isfinite(v) else _cell(v) for v in values]
+        lines.append(
+            f"| {label} | "
+            + " | ".join(cells)
+            + f" | {'—' if paper_value is None else f'{paper_value:.2f}'} |"
+        )
+    counts = [f"{summaries[e]['runs']} ({summaries[e]['diverged']} diverged)" for e in estimators]
+    lines.append("| runs | " + " | ".join(counts) + " | |")
+    return lines
+
+
+def _load_results(out: Path, rows: Sequence[Mapping[str, Any]]) -> list[Any]:
+    from manualcontrol.estimators.protocol import load_result
+
+    results = []
+    for row in rows:
+        path = out / "runs" / f"{row['key']}.npz"
+        if path.is_file():
+            results.append(load_result(path))
+    return results
+
+
+_ESTIMATOR_COLOURS = ("k", "tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown")
+
+
+def _comparison_figure(
+    suite: Suite,
+    batch: str,
+    estimators: Sequence[str],
+    rows: Sequence[Mapping[str, Any]],
+    out: Path,
+) -> Path | None:
+    """Each estimator's median trace and 25-75 % band per parameter, against the truth."""
+    ok = [row for row in rows if row.get("batch") == batch and row.get("status") == "ok"]
+    by_estimator = {
+        name: _load_results(out, [row for row in ok if row.get("estimator") == name])
+        for name in estimators
+    }
+    by_estimator = {name: results for name, results in by_estimator.items() if results}
+    if not by_estimator:
+        return None
+    first = next(iter(by_estimator.values()))[0]
+    names: list[str] = []
+    for results in by_estimator.values():
+        names += [n for n in results[0].estimated if n not in names]
+    scenario = scenario_from_dict(ok[0]["scenario"])
+    truth = {
+        name: schedule(first.t) for name, schedule in scenario.build_pilot().parameters.items()
+    }
+    plt = _pyplot()
+    fig, axes = plt.subplots(len(names), 1, figsize=(9, 1.8 * len(names) + 0.6), sharex=True)
+    axes = np.atleast_1d(axes)
+    for axis, name in zip(axes, names, strict=True):
+        if name in truth:
+            axis.plot(first.t, truth[name], color="tab:red", lw=1.2, label="true")
+        for colour, (estimator, results) in zip(
+            _ESTIMATOR_COLOURS, by_estimator.items(), strict=False
+        ):
+            same = [r for r in results if len(r) == len(first) and name in r.estimated]
+            if not same:
+                continue
+            stack = np.array([r.mean_of(name) for r in same])
+            median = np.nanmedian(stack, axis=0)
+            label = f"{estimator} (median of {len(stack)})" if len(stack) > 1 else estimator
+            if len(stack) > 1:
+                low, high = np.nanpercentile(stack, [25, 75], axis=0)
+                axis.fill_between(first.t, low, high, color=colour, alpha=0.15, lw=0)
+            axis.plot(first.t, median, color=colour, lw=1.0, label=label)
+        axis.set_ylabel(_unit(name))
+    axes[0].legend(loc="upper right", fontsize=7, ncol=2)
+    axes[0].set_title(f"{suite.name}: {batch} (bands: 25-75 % of the runs)")
+    axes[-1].set_xlabel("time [s]")
+    fig.tight_layout()
+    return _save(fig, out / "figures" / f"{batch}-estimators.png")
+
+
 def _trace_figure(
     suite: Suite, batch: str, rows: Sequence[Mapping[str, Any]], out: Path
 ) -> Path | None:
@@ -220,9 +360,12 @@ def _trace_figure(
     for axis, name in zip(axes, names, strict=False):
         stack = np.array([result.mean_of(name) for result in results if len(result) == len(first)])
         median = np.nanmedian(stack, axis=0)
-        low, high = np.nanpercentile(stack, [25, 75], axis=0)
-        axis.fill_between(first.t, low, high, color="k", alpha=0.2, lw=0, label="25-75 %")
-        axis.plot(first.t, median, color="k", lw=1.0, label=f"median of {len(stack)}")
+        if len(stack) > 1:  # a band of one run would be a line mislabelled as a spread
+            low, high = np.nanpercentile(stack, [25, 75], axis=0)
+            axis.fill_between(first.t, low, high, color="k", alpha=0.2, lw=0, label="25-75 %")
+            axis.plot(first.t, median, color="k", lw=1.0, label=f"median of {len(stack)}")
+        else:
+            axis.plot(first.t, median, color="k", lw=1.0, label="estimate (one run)")
         if name in truth:
             axis.plot(first.t, truth[name], color="tab:red", lw=1.0, label="true")
         axis.set_ylabel(name)
@@ -239,7 +382,8 @@ def _trace_figure(
             quartiles = np.nanpercentile(stack, [25, 75], axis=0)
             median = np.nanmedian(stack, axis=0)
             lowest = float(np.nanmin(quartiles[0]))  # NaN when no window is complete
-        axes[-1].fill_between(times, *quartiles, color="tab:blue", alpha=0.2, lw=0)
+        if len(stack) > 1:
+            axes[-1].fill_between(times, *quartiles, color="tab:blue", alpha=0.2, lw=0)
         axes[-1].plot(times, median, color="tab:blue", lw=1.0)
         axes[-1].set_ylim(max(0.0, lowest - 5.0), 101.0)
     axes[-1].set_ylabel("10-s VAF [%]")
@@ -265,16 +409,32 @@ def write_report(suite: Suite, rows: Sequence[Mapping[str, Any]], out: str | Pat
             continue
         reference = dict(batch.reference)
         source = reference.get("source", "")
-        lines += [
-            f"## {batch.name}",
-            "",
-            f"{summary['runs']} runs ({summary['failed']} failed, {summary['diverged']} diverged)"
-            + (f"; paper: {source}" if source else ""),
-            "",
-            *_batch_table(summary, reference),
-            "",
-        ]
-        figure = _trace_figure(suite, batch.name, rows, out)
+        present = {row.get("estimator") for row in rows if row.get("batch") == batch.name}
+        estimators = [name for name in batch.estimator_names if name in present]
+        estimators += sorted(name for name in present if name not in estimators and name)
+        lines += [f"## {batch.name}", ""]
+        if len(estimators) > 1:
+            summaries = {name: summarise(rows, batch.name, name) for name in estimators}
+            runs = summaries[estimators[0]]["runs"]
+            lines += [
+                f"{_runs(runs)} simulated, each identified by {len(estimators)} estimators "
+                f"({', '.join(estimators)})" + (f"; paper: {source}" if source else ""),
+                "",
+                *_comparison_table(summaries, reference),
+                "",
+            ]
+            figure = _comparison_figure(suite, batch.name, estimators, rows, out)
+        else:
+            lines += [
+                f"{_runs(summary['runs'])} ({summary['failed']} failed, "
+                f"{summary['diverged']} diverged)"
+                + (f", estimator {estimators[0]}" if estimators else "")
+                + (f"; paper: {source}" if source else ""),
+                "",
+                *_batch_table(summary, reference),
+                "",
+            ]
+            figure = _trace_figure(suite, batch.name, rows, out)
         if figure is not None:
             lines += [f"![{batch.name}](figures/{figure.name})", ""]
     from manualcontrol.bench.papers import section_writer

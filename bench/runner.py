@@ -10,8 +10,11 @@
     `Ray <https://www.ray.io>`_ tasks, for clusters (``pip install 'manualcontrol[dist]'``;
     connects to ``RAY_ADDRESS`` or starts a local instance).
 
-Each scenario is seeded by its own settings only, so the numbers are identical
-whatever the backend and the number of workers. Every finished run is stored at once
+Scenarios that differ only in their estimator share one simulation: a worker
+simulates it once and runs every estimator on the same recording (one row per
+estimator, the ``estimator`` column naming it). Each scenario is seeded by its own
+settings only, so the numbers are identical whatever the backend and the number of
+workers. Every finished run is stored at once
 under ``<out>/runs/<key>.json`` (its row) and ``<key>.npz`` (the estimator's
 traces); a suite run again skips those (resume), and a failing scenario is recorded
 as failed with its error while the batch goes on. At the end the rows are written to
@@ -38,11 +41,17 @@ from manualcontrol.envs._validation import check_choice, check_int
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
 
-__all__ = ["BACKENDS", "ESTIMATORS", "make_estimator", "run_scenario", "run_suite", "write_table"]
+__all__ = [
+    "BACKENDS",
+    "ESTIMATORS",
+    "make_estimator",
+    "run_scenario",
+    "run_scenarios",
+    "run_suite",
+    "write_table",
+]
 
 BACKENDS: tuple[str, ...] = ("process", "inprocess", "ray")
-
-
 
 
 def simulate_scenario(scenario: Scenario) -> Recording:
@@ -71,49 +80,82 @@ def run_scenario(scenario: Scenario, out: Path | None = None) -> dict[str, Any]:
     Errors become a row with ``status = "failed"`` and the message, never an exception.
     With ``out``, the row and the estimator's traces are stored under ``out/runs``.
     """
+    (row,) = run_scenarios([scenario], out)
+    return row
+
+
+def run_scenarios(scenarios: Sequence[Scenario], out: Path | None = None) -> list[dict[str, Any]]:
+    """Scenarios sharing one simulation: simulate once, run every estimator on it.
+
+    Returns one row per scenario, in order (see :func:`run_scenario`). A failed
+    simulation fails every row; a failed estimator fails its own row only.
+    """
     from manualcontrol.bench.scoring import score
 
-    row: dict[str, Any] = {
-        "key": scenario.key,
-        "suite": scenario.suite,
-        "batch": scenario.batch,
-        "realisation": scenario.realisation,
-        "remnant_seed": scenario.remnant_seed,
-        "task": scenario.task,
-        "element": scenario.element
-        if isinstance(scenario.element, str)
-        else json.dumps(scenario.element),
-        "forcing": scenario.forcing,
-        "estimator": scenario.estimator["name"],
-    }
+    if len({scenario.simulation_key for scenario in scenarios}) > 1:
+        raise ValueError("run_scenarios takes scenarios that share one simulation")
     started = time.perf_counter()
+    recording = None
+    failure = None
     try:
-        recording = simulate_scenario(scenario)
-        simulated = time.perf_counter()
-        estimator = make_estimator(scenario.estimator)
-        result = estimator.estimate(recording)
-        finished = time.perf_counter()
-        row.update(score(scenario, recording, result))
-        row.update(
-            status="ok",
-            error="",
-            simulation_time_s=simulated - started,
-            estimation_time_s=finished - simulated,
-        )
-        if out is not None:
-            result.save(out / "runs" / f"{scenario.key}.npz")
+        recording = simulate_scenario(scenarios[0])
     except Exception as error:
-        row.update(
-            status="failed",
-            error=f"{type(error).__name__}: {error}",
-            traceback=traceback.format_exc(limit=6),
-        )
-    row["run_time_s"] = time.perf_counter() - started
-    row["scenario"] = scenario.to_dict()
-    if out is not None:
-        text = json.dumps(_json_safe(row), indent=1)
-        atomic_write(out / "runs" / f"{scenario.key}.json", lambda p: p.write_text(text))
-    return row
+        failure = error, traceback.format_exc(limit=6)
+    simulation_time = time.perf_counter() - started
+    rows = []
+    for scenario in scenarios:
+        row: dict[str, Any] = {
+            "key": scenario.key,
+            "suite": scenario.suite,
+            "batch": scenario.batch,
+            "realisation": scenario.realisation,
+            "remnant_seed": scenario.remnant_seed,
+            "task": scenario.task,
+            "element": scenario.element
+            if isinstance(scenario.element, str)
+            else json.dumps(scenario.element),
+            "forcing": scenario.forcing,
+            "estimator": scenario.estimator["name"],
+        }
+        begun = time.perf_counter()
+        try:
+            if failure is not None:
+                raise failure[0]
+            estimator = make_estimator(scenario.estimator)
+            result = estimator.estimate(recording)
+            finished = time.perf_counter()
+            row.update(score(scenario, recording, result))
+            row.update(
+                status="ok",
+                error="",
+                simulation_time_s=simulation_time,
+                estimation_time_s=finished - begun,
+            )
+            if out is not None:
+                result.save(out / "runs" / f"{scenario.key}.npz")
+        except Exception as error:
+            row.update(
+                status="failed",
+                error=f"{type(error).__name__}: {error}",
+                traceback=failure[1] if failure is not None else traceback.format_exc(limit=6),
+            )
+        # the simulation's cost is shared: each row carries its own estimation plus the
+        # simulation once, so a batch's run times add up per estimator
+        row["run_time_s"] = time.perf_counter() - begun + simulation_time
+        row["scenario"] = scenario.to_dict()
+        if out is not None:
+            text = json.dumps(_json_safe(row), indent=1)
+            atomic_write(out / "runs" / f"{scenario.key}.json", lambda p, t=text: p.write_text(t))
+        rows.append(row)
+    return rows
+
+
+def _groups(scenarios: Sequence[Scenario]) -> list[list[Scenario]]:
+    """Scenarios grouped by their simulation, in first-seen order."""
+    groups: dict[str, list[Scenario]] = {}
+    for scenario in scenarios:
+        groups.setdefault(scenario.simulation_key, []).append(scenario)
+    return list(groups.values())
 
 
 def _json_safe(value: Any) -> Any:
@@ -152,7 +194,9 @@ def _one_thread() -> None:
     threadpool_limits(1)
 
 
-def _run_with_ray(scenarios: Sequence[Scenario], out: Path) -> Iterable[dict[str, Any]]:
+def _run_with_ray(
+    groups: Sequence[Sequence[Scenario]], out: Path
+) -> Iterable[list[dict[str, Any]]]:
     try:
         import ray
     except ImportError as error:
@@ -163,8 +207,8 @@ def _run_with_ray(scenarios: Sequence[Scenario], out: Path) -> Iterable[dict[str
         ray.init(
             address=os.environ.get("RAY_ADDRESS"), ignore_reinit_error=True, log_to_driver=False
         )
-    remote = ray.remote(run_scenario)
-    pending = [remote.remote(scenario, out) for scenario in scenarios]
+    remote = ray.remote(run_scenarios)
+    pending = [remote.remote(group, out) for group in groups]
     while pending:
         ready, pending = ray.wait(pending, num_returns=1)
         yield ray.get(ready[0])
@@ -204,9 +248,11 @@ def run_suite(
         if progress is not None:
             progress(done, total, row)
 
-    if backend == "inprocess" or (backend == "process" and len(todo) <= 1):
-        for scenario in todo:
-            collect(run_scenario(scenario, out))
+    groups = _groups(todo)
+    if backend == "inprocess" or (backend == "process" and len(groups) <= 1):
+        for group in groups:
+            for row in run_scenarios(group, out):
+                collect(row)
     elif backend == "process":
         count = (
             check_int("workers", workers, minimum=1)
@@ -214,14 +260,16 @@ def run_suite(
             else (os.cpu_count() or 1)
         )
         with ProcessPoolExecutor(
-            max_workers=min(count, len(todo)), initializer=_one_thread
+            max_workers=min(count, len(groups)), initializer=_one_thread
         ) as pool:
-            futures = [pool.submit(run_scenario, scenario, out) for scenario in todo]
+            futures = [pool.submit(run_scenarios, group, out) for group in groups]
             for future in as_completed(futures):
-                collect(future.result())
+                for row in future.result():
+                    collect(row)
     else:
-        for row in _run_with_ray(todo, out):
-            collect(row)
+        for group_rows in _run_with_ray(groups, out):
+            for row in group_rows:
+                collect(row)
     ordered = [rows[scenario.key] for scenario in scenarios]
     write_table(ordered, out)
     return ordered

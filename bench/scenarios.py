@@ -1,11 +1,14 @@
 """Scenarios and suites: benchmark runs as data.
 
-A :class:`Scenario` is one simulated run plus the estimator applied to it: task,
+A :class:`Scenario` is one simulated run plus one estimator applied to it: task,
 controlled element, forcing realisation, pilot and its schedules, remnant and its
 power ratio, run-in and measurement time, sample time, estimator and its settings,
 and the remnant seed. A :class:`Suite` is a named list of *batches*, each a scenario
-template crossed with forcing realisations and remnant seeds, plus (optionally) the
-paper's numbers for the batch so reports can put ours beside them.
+template crossed with forcing realisations, remnant seeds and the batch's estimators,
+plus (optionally) the paper's numbers for the batch so reports can put ours beside
+them. Scenarios that differ only in their estimator share one simulation
+(:attr:`Scenario.simulation_key`): the runner simulates it once and every estimator
+reads the same recording.
 
 Suites are TOML files a user can copy and edit (see ``bench/suites/*.toml`` for the
 built-in ones, :func:`load_suite` for the schema); everything is validated where it is
@@ -42,8 +45,16 @@ Schema of a suite file::
     K_f = 1.0
 
     [batch.estimator]
-    name = "dekf"              # see bench.runner.ESTIMATORS
+    name = "dekf"              # see `manualcontrol estimators`
     anticipation_time = 0.9    # every other key is an estimator setting
+
+    # or several estimators on the same recordings: [batch.estimator] then holds the
+    # settings they share (no name), and each entry names one and adds its own
+    [[batch.estimators]]
+    name = "dekf"
+    total_derivative = "dimensional"
+    [[batch.estimators]]
+    name = "joint-ukf"         # a plain string "joint-ukf" in a list works too
 
     [batch.reference]          # optional: the paper's numbers for this batch
     source = "thesis Table II"
@@ -87,6 +98,7 @@ _BATCH_KEYS = {
     "available_preview",
     "pilot",
     "estimator",
+    "estimators",
     "reference",
     "quick",
     "dt",
@@ -129,15 +141,23 @@ class Scenario:
 
     @property
     def key(self) -> str:
-        """Stable identifier: batch, realisation, seed and a hash of the whole scenario.
+        """Stable identifier: batch, realisation, seed, estimator and a hash of it all.
 
         Resuming a suite skips scenarios whose key already has a result; editing any
         setting of a scenario changes its key, so it is run again.
         """
-        digest = hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[
-            :12
-        ]
-        return f"{self.batch}-r{self.realisation}-s{self.remnant_seed}-{digest}"
+        digest = _digest(self.to_dict())
+        return (
+            f"{self.batch}-r{self.realisation}-s{self.remnant_seed}-"
+            f"{self.estimator['name']}-{digest}"
+        )
+
+    @property
+    def simulation_key(self) -> str:
+        """Hash of everything but the estimator: scenarios sharing it share a recording."""
+        data = self.to_dict()
+        del data["estimator"]
+        return _digest(data)
 
     def build_pilot(self) -> Pilot:
         """The :class:`~manualcontrol.pilots.Pilot` of this scenario."""
@@ -155,6 +175,13 @@ class Batch:
     quick_realisations: tuple[int, ...]
     quick_remnant_seeds: tuple[int, ...]
     reference: Mapping[str, Any] = field(default_factory=dict)
+    estimators: tuple[Mapping[str, Any], ...] = ()
+    shared_estimator_settings: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def estimator_names(self) -> tuple[str, ...]:
+        """The batch's estimators, in order."""
+        return tuple(spec["name"] for spec in self.estimators)
 
 
 @dataclass(frozen=True)
@@ -174,16 +201,51 @@ class Suite:
             seeds = batch.quick_remnant_seeds if quick else batch.remnant_seeds
             for realisation in realisations:
                 for seed in seeds:
-                    out.append(
-                        Scenario(
-                            suite=self.name,
-                            batch=batch.name,
-                            realisation=realisation,
-                            remnant_seed=seed,
-                            **batch.template,
+                    for estimator in batch.estimators:
+                        out.append(
+                            Scenario(
+                                suite=self.name,
+                                batch=batch.name,
+                                realisation=realisation,
+                                remnant_seed=seed,
+                                estimator=estimator,
+                                **batch.template,
+                            )
                         )
-                    )
         return out
+
+    def with_estimators(self, names: Sequence[str]) -> Suite:
+        """The suite with every batch's estimators replaced by ``names``.
+
+        A name the batch lists already keeps its own settings; another gets the batch's
+        shared estimator settings. Raises :class:`SuiteError` naming the batch when an
+        estimator cannot run there.
+        """
+        from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
+
+        names = list(names)
+        if not names:
+            raise SuiteError("estimators must name at least one estimator")
+        unknown = [name for name in names if name not in ESTIMATORS]
+        if unknown:
+            raise SuiteError(f"unknown estimator(s) {unknown}; the family: {', '.join(ESTIMATORS)}")
+        if len(set(names)) != len(names):
+            raise SuiteError(f"estimators names one twice: {names}")
+        batches = []
+        for batch in self.batches:
+            own = {spec["name"]: spec for spec in batch.estimators}
+            specs = []
+            for name in names:
+                spec = own.get(name, {**batch.shared_estimator_settings, "name": name})
+                try:
+                    make_estimator(spec)
+                except (TypeError, ValueError) as error:
+                    raise SuiteError(
+                        f"{self.source or self.name}: batch {batch.name}: estimator {name}: {error}"
+                    ) from None
+                specs.append(dict(spec))
+            batches.append(dataclasses.replace(batch, estimators=tuple(specs)))
+        return dataclasses.replace(self, batches=tuple(batches))
 
     def batch(self, name: str) -> Batch:
         """The batch called ``name``."""
@@ -191,6 +253,10 @@ class Suite:
             if batch.name == name:
                 return batch
         raise KeyError(f"suite {self.name!r} has no batch {name!r}")
+
+
+def _digest(data: Mapping[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:12]
 
 
 def _pilot_from(data: Mapping[str, Any]) -> Pilot:
@@ -302,16 +368,7 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
         built = _pilot_from(pilot)
     except (TypeError, ValueError, KeyError) as error:
         raise _fail(where, f"pilot: {error}") from None
-    estimator = _table(where, "estimator", merged["estimator"])
-    if "name" not in estimator:
-        raise _fail(where, "estimator needs a name")
-    from manualcontrol.bench.runner import ESTIMATORS, make_estimator
-
-    try:
-        check_choice("estimator name", estimator["name"], tuple(ESTIMATORS))
-        make_estimator(estimator)
-    except (TypeError, ValueError) as error:
-        raise _fail(where, f"estimator: {error}") from None
+    shared, estimators = _estimators(where, merged)
     reference = _table(where, "reference", merged.get("reference", {}))
     template = {
         "task": merged["task"],
@@ -323,7 +380,6 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
         "measurement_time": measurement_time,
         "loop": loop,
         "available_preview": preview,
-        "estimator": estimator,
         "score_from": score_from,
     }
     _check_runs(where, built, template, realisations[0])
@@ -335,7 +391,55 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
         quick_realisations,
         quick_seeds,
         reference,
+        estimators,
+        shared,
     )
+
+
+def _estimators(
+    where: str, merged: Mapping[str, Any]
+) -> tuple[dict[str, Any], tuple[dict[str, Any], ...]]:
+    """The batch's shared estimator settings and its estimators (each validated)."""
+    from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
+
+    shared = _table(where, "estimator", merged.get("estimator", {}))
+    if "estimators" not in merged:
+        if "name" not in shared:
+            raise _fail(where, "estimator needs a name (or list the batch's estimators)")
+        listed: list[Any] = [shared]
+        shared = {key: value for key, value in shared.items() if key != "name"}
+    else:
+        listed = merged["estimators"]
+        if not isinstance(listed, list) or not listed:
+            raise _fail(
+                where,
+                f"estimators must be a non-empty list of names or tables with a name, got "
+                f"{listed!r}",
+            )
+        if "name" in shared:
+            raise _fail(
+                where,
+                "with estimators listed, [batch.estimator] holds their shared settings "
+                f"and takes no name, got name = {shared['name']!r}",
+            )
+    specs = []
+    for i, item in enumerate(listed):
+        label = "estimator" if "estimators" not in merged else f"estimators[{i}]"
+        entry = {"name": item} if isinstance(item, str) else _table(where, label, item)
+        if "name" not in entry:
+            raise _fail(where, f"{label} needs a name")
+        spec = {**shared, **entry}
+        try:
+            check_choice("estimator name", spec["name"], tuple(ESTIMATORS))
+            make_estimator(spec)
+        except (TypeError, ValueError) as error:
+            raise _fail(where, f"{label} ({entry['name']}): {error}") from None
+        specs.append(spec)
+    names = [spec["name"] for spec in specs]
+    repeated = sorted({name for name in names if names.count(name) > 1})
+    if repeated:
+        raise _fail(where, f"estimators must not repeat a name, repeated: {repeated}")
+    return shared, tuple(specs)
 
 
 def _check_runs(where: str, pilot: Pilot, template: Mapping[str, Any], realisation: int) -> None:

@@ -49,7 +49,9 @@ def test_builtin_suites_have_the_papers_batch_sizes():
         "preview-SI",
         "preview-DI",
     ]
-    assert len(feasibility.scenarios()) == 40  # 4 batches x 10 realisations (Table II)
+    # 4 batches x 10 realisations (Table II), each identified by three estimators
+    assert len({s.simulation_key for s in feasibility.scenarios()}) == 40
+    assert len(feasibility.scenarios()) == 120
     performance = load_suite("vertregt2020-performance")
     assert len(performance.batches) == 8 and len(performance.scenarios()) == 800  # 5 x 20 each
     assert performance.batch("all-SI-full").reference["parameters"]["tau_f"] == {
@@ -106,9 +108,10 @@ def test_scenario_key_changes_with_any_setting(tmp_path):
         (("K_p = 0.24", "K_q = 0.24"), "pilot: PrecisionModel has no parameter(s) 'K_q'"),
         (
             ('name = "dekf"', 'name = "ukf"'),
-            "estimator: estimator name must be one of 'dekf', got 'ukf'",
+            "estimator (ukf): estimator name must be one of 'dekf', 'joint-ukf', 'dual-ukf', "
+            "got 'ukf'",
         ),
-        (('ce = "DI"', 'ce = "DI"\nq2 = -1.0'), "estimator: q2 must be > 0, got -1.0"),
+        (('ce = "DI"', 'ce = "DI"\nq2 = -1.0'), "estimator (dekf): q2 must be > 0, got -1.0"),
         (
             ('forcing = "vanderel-bw4"', 'forcing = "vanderel-bw4"\nrun_time = 3'),
             "unknown key(s) ['run_time']",
@@ -211,7 +214,7 @@ ce = "SI"
         ),
         (
             SMALL.replace('name = "dekf"', 'name = "dekf"\nr2 = "big"'),
-            "batch 1 (one): estimator: r2 must be a real number, got 'big'",
+            "batch 1 (one): estimator (dekf): r2 must be a real number, got 'big'",
         ),
         (
             SMALL.replace("realisations = [0, 1]", "realisations = [0, 1]\nreference = 3"),

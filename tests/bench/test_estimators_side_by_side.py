@@ -1,0 +1,133 @@
+"""Several estimators a batch: one simulation each, rows keyed by estimator, a joint report."""
+
+import json
+import re
+
+import pytest
+
+from manualcontrol.bench import runner
+from manualcontrol.bench.cli import EXIT_OK, EXIT_USAGE, main
+from manualcontrol.bench.report import write_report
+from manualcontrol.bench.runner import run_suite
+from manualcontrol.bench.scenarios import SuiteError, load_suite, parse_suite
+
+SUITE = {
+    "name": "three",
+    "defaults": {"run_in": 3.0, "measurement_time": 12.0},
+    "batch": [
+        {
+            "name": "comp",
+            "task": "compensatory",
+            "element": "popovici2017",
+            "forcing": "popovici2017",
+            "realisations": [0, 1],
+            "pilot": {"model": "precision"},
+            "estimator": {"model": "precision", "preset": "vertregt2020"},
+            "estimators": [
+                {"name": "dekf", "total_derivative": "dimensional"},
+                "joint-ukf",
+                {"name": "dual-ukf", "r2_parameter": 2.0},
+            ],
+            "reference": {"source": "made up", "parameters": {"K_p": {"nrmse": 0.1}}},
+        }
+    ],
+}
+
+
+def test_each_run_is_simulated_once_and_read_by_every_estimator(tmp_path, monkeypatch):
+    suite = parse_suite(SUITE)
+    assert suite.batches[0].estimator_names == ("dekf", "joint-ukf", "dual-ukf")
+    scenarios = suite.scenarios()
+    assert len(scenarios) == 6
+    assert len({s.simulation_key for s in scenarios}) == 2
+    assert scenarios[0].estimator == {
+        "model": "precision",
+        "preset": "vertregt2020",
+        "name": "dekf",
+        "total_derivative": "dimensional",
+    }
+    simulated = []
+    original = runner.simulate_scenario
+
+    def counting(scenario):
+        simulated.append(scenario.simulation_key)
+        return original(scenario)
+
+    monkeypatch.setattr(runner, "simulate_scenario", counting)
+    rows = run_suite(suite, tmp_path, backend="inprocess")
+    assert sorted(simulated) == sorted({s.simulation_key for s in scenarios})
+    assert [row["estimator"] for row in rows] == ["dekf", "joint-ukf", "dual-ukf"] * 2
+    assert all(row["status"] == "ok" for row in rows), [row.get("error") for row in rows]
+    keys = [row["key"] for row in rows]
+    assert len(set(keys)) == 6 and all(f"-{row['estimator']}-" in row["key"] for row in rows)
+    # the same recording: every estimator's stored scenario differs in its estimator only
+    stored = [json.loads((tmp_path / "runs" / f"{k}.json").read_text()) for k in keys[:3]]
+    for row in stored[1:]:
+        assert {**row["scenario"], "estimator": None} == {
+            **stored[0]["scenario"],
+            "estimator": None,
+        }
+    report = write_report(suite, rows, tmp_path).read_text()
+    assert "| NRMSE (rel. bias) | dekf | joint-ukf | dual-ukf | paper |" in report
+    assert re.search(r"\| K_p \| .* \| 0\.100 \(—\) \|", report)
+    assert "2 runs simulated, each identified by 3 estimators" in report
+    assert (tmp_path / "figures" / "comp-estimators.png").is_file()
+
+
+def test_the_estimators_of_a_suite_can_be_replaced():
+    suite = load_suite("vertregt2020-feasibility")
+    only = suite.with_estimators(["joint-ukf"])
+    assert {batch.estimator_names for batch in only.batches} == {("joint-ukf",)}
+    assert len(only.scenarios()) == len(suite.scenarios()) // 3
+    # a listed estimator keeps its own settings
+    dekf = suite.with_estimators(["dekf"]).batches[0].estimators[0]
+    assert dekf["total_derivative"] == "dimensional"
+    with pytest.raises(SuiteError, match=re.escape("unknown estimator(s) ['kalman']")):
+        suite.with_estimators(["kalman"])
+    with pytest.raises(SuiteError, match="names one twice"):
+        suite.with_estimators(["dekf", "dekf"])
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"estimator": {"name": "dekf"}}, "takes no name, got name = 'dekf'"),
+        ({"estimators": []}, "estimators must be a non-empty list"),
+        ({"estimators": ["dekf", "dekf"]}, "must not repeat a name, repeated: ['dekf']"),
+        ({"estimators": [{"model": "precision"}]}, "estimators[0] needs a name"),
+        ({"estimators": ["kalman"]}, "estimators[0] (kalman): estimator name must be one of"),
+        (
+            {"estimators": [{"name": "joint-ukf", "sigma_points": "many"}]},
+            "estimators[0] (joint-ukf): sigma_points must be one of",
+        ),
+        (
+            {"estimators": [{"name": "joint-ukf", "total_derivative": "printed"}]},
+            "total_derivative",
+        ),
+    ],
+)
+def test_bad_estimator_lists_name_the_batch_and_entry(change, message):
+    batch = {**SUITE["batch"][0], **change}
+    with pytest.raises(SuiteError, match=re.escape(message)) as error:
+        parse_suite({**SUITE, "batch": [batch]})
+    assert "batch 1 (comp)" in str(error.value)
+
+
+def test_the_cli_lists_the_family_and_overrides_a_suites_estimators(tmp_path, capsys):
+    assert main(["estimators"]) == EXIT_OK
+    out = capsys.readouterr().out
+    for name in ("dekf", "joint-ukf", "dual-ukf"):
+        assert re.search(rf"^{name} +\S", out, re.MULTILINE)
+    code = main(
+        [
+            "bench",
+            "vertregt2020-feasibility",
+            "--estimators",
+            "dekf,kalman",
+            "--out",
+            str(tmp_path / "x"),
+        ]
+    )
+    assert code == EXIT_USAGE
+    assert "unknown estimator(s) ['kalman']" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
