@@ -2,15 +2,32 @@
 
 The analytic closed-loop transfer functions are built here from the papers' formulas
 with numpy polynomials (Popovici eq. 1, thesis eqs. 1-4), not from the package's
-block diagrams, and simulated with scipy.signal.lsim / dlsim.
+block diagrams, and simulated with scipy.signal.lsim / dlsim. Nothing of the package
+is imported: the Padé approximant too comes from thesis eq. 4's factorials here.
 """
+
+from math import factorial
 
 import numpy as np
 import scipy.signal
 
-from manualcontrol.envs.dynamics import pade
-
 P = np.polymul
+
+
+def pade(tau, order):
+    """Thesis eq. 4: e^{-tau s} ~ N(s)/D(s), descending powers of s.
+
+    c_k = (2m - k)! m! / ((2m)! k! (m - k)!); N has (-tau s)^k, D has (tau s)^k.
+    """
+    c = [
+        factorial(2 * order - k)
+        * factorial(order)
+        / (factorial(2 * order) * factorial(k) * factorial(order - k))
+        for k in range(order + 1)
+    ]
+    num = np.array([c[k] * (-tau) ** k for k in range(order, -1, -1)])
+    den = np.array([c[k] * tau**k for k in range(order, -1, -1)])
+    return num, den
 
 
 def pilot_polynomials(values, delay_order):
