@@ -69,7 +69,8 @@ _CHECK_POINTS = 7
 
 #: What the compiled kernels read and write, one record per filter (each filter owns its
 #: scratch): the model's tables (monomials, chains, branches), ``active`` (which
-#: gradients to compute, see :meth:`InternalModel.active_table`), the scratch of the
+#: gradients to compute, see :meth:`InternalModel.active_table`), ``gradients`` (False:
+#: values only, the unscented filters' case, which skips every derivative), the scratch of the
 #: coefficient evaluation and its outputs ``negA, C, d`` with their gradients.
 ModelKernel = namedtuple(
     "ModelKernel",
@@ -89,6 +90,7 @@ ModelKernel = namedtuple(
         "branch_chain",
         "branch_input",
         "active",
+        "gradients",
         # scratch
         "raw",
         "raw_grad",
@@ -252,6 +254,7 @@ class InternalModel:
             self.branch_chain,
             self.branch_input,
             self.active_table(needed),
+            needed is None or len(needed) > 0,
             np.zeros(self.n_raw),
             np.zeros((self.n_raw, n_p)),
             np.zeros((n_chain, longest)),
@@ -591,8 +594,11 @@ def evaluate_coefficients(p, kernel):
     negA, negA_grad, C, C_grad = kernel.negA, kernel.negA_grad, kernel.C, kernel.C_grad
     d, d_grad = kernel.d, kernel.d_grad
     n_p = p.shape[0]
+    gradients = kernel.gradients
     for t in range(term_coef.shape[0]):
         raw[term_slot[t]] = 0.0
+        if not gradients:
+            continue
         for i in range(n_p):
             j = term_var[t, i]
             if j < 0:
@@ -611,6 +617,8 @@ def evaluate_coefficients(p, kernel):
                 value *= p[j]
         slot = term_slot[t]
         raw[slot] += value
+        if not gradients:
+            continue
         for i in range(n_var):
             j = term_var[t, i]
             derivative = term_coef[t] * term_exp[t, i]
