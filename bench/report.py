@@ -20,7 +20,7 @@ from manualcontrol.bench.scenarios import Suite, scenario_from_dict
 from manualcontrol.envs._files import atomic_path, atomic_write
 from manualcontrol.envs.recording import Recording
 
-__all__ = ["plot_estimation", "plot_recording", "summarise", "write_report"]
+__all__ = ["best_estimators", "plot_estimation", "plot_recording", "summarise", "write_report"]
 
 
 def _pyplot() -> Any:
@@ -156,7 +156,9 @@ def summarise(
         }
     for key in (
         "vaf_resimulated",
+        "vaf_resimulated_ceiling",
         "vaf_resimulated_ideal",
+        "vaf_resimulated_ideal_ceiling",
         "vaf_one_step",
         "innovations_within_1sigma",
         "run_time_s",
@@ -165,6 +167,7 @@ def summarise(
         summary[key] = _finite(np.mean, values)
         summary[f"{key}_median"] = _finite(np.median, values)
     summary["diverged"] = sum(bool(row.get("diverged")) for row in ok)
+    summary["smoothed"] = any(bool(row.get("smoothed")) for row in ok)
     return summary
 
 
@@ -204,6 +207,11 @@ def _batch_table(summary: Mapping[str, Any], reference: Mapping[str, Any]) -> li
             f"| {label} | {_cell(summary[key])} % (median {_cell(summary[key + '_median'])} %) | "
             f"{'—' if paper is None else f'{paper:.2f} %'} | | |"
         )
+        ceiling = summary.get(f"{key}_ceiling")
+        if ceiling is not None and math.isfinite(_number(ceiling)):
+            lines.append(
+                f"| ceiling: the same with the true parameters | {_cell(ceiling)} % | | | |"
+            )
     return lines
 
 
@@ -264,8 +272,102 @@ def _comparison_table(
             + " | ".join(cells)
             + f" | {'—' if paper_value is None else f'{paper_value:.2f}'} |"
         )
+        ceilings = [_number(summaries[e].get(f"{key}_ceiling")) for e in estimators]
+        if any(math.isfinite(v) for v in ceilings):
+            lines.append(
+                "| ceiling (true parameters) [%] | "
+                + " | ".join(_cell(v) for v in ceilings)
+                + " | |"
+            )
     counts = [f"{summaries[e]['runs']} ({summaries[e]['diverged']} diverged)" for e in estimators]
     lines.append("| runs | " + " | ".join(counts) + " | |")
+    return lines
+
+
+def _ranking_score(summaries: Mapping[str, Mapping[str, Any]]) -> dict[str, float]:
+    """Mean NRMSE of each estimator over the parameters every one of them estimates."""
+    common: set[str] | None = None
+    for summary in summaries.values():
+        names = {
+            name
+            for name, values in summary["parameters"].items()
+            if math.isfinite(_number(values.get("nrmse")))
+        }
+        common = names if common is None else common & names
+    if not common:
+        return {name: math.nan for name in summaries}
+    return {
+        name: float(np.mean([_number(summary["parameters"][p]["nrmse"]) for p in sorted(common)]))
+        for name, summary in summaries.items()
+    }
+
+
+def best_estimators(suite: Suite, rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The report's ranking section: the best online and the best smoothed estimator.
+
+    Per batch, estimators are ranked by their mean NRMSE over the parameters all of
+    them estimate; online filters (results filtered sample by sample, what runs in real
+    time) and smoothed ones (results that used the whole run) are ranked apart. The
+    suite's best of each kind is the one best in most batches (ties: the lower mean
+    NRMSE relative to each batch's best). Empty when no batch has a scored estimator.
+    """
+    table: list[str] = []
+    wins: dict[str, dict[str, int]] = {"online": {}, "smoothed": {}}
+    ratios: dict[str, dict[str, list[float]]] = {"online": {}, "smoothed": {}}
+    for batch in suite.batches:
+        present = sorted({row.get("estimator") for row in rows if row.get("batch") == batch.name})
+        summaries = {
+            name: summarise(rows, batch.name, name) for name in present if name is not None
+        }
+        cells = []
+        for kind in ("online", "smoothed"):
+            group = {
+                name: summary
+                for name, summary in summaries.items()
+                if summary["runs"] > summary["failed"]
+                and summary["smoothed"] == (kind == "smoothed")
+            }
+            scores = {k: v for k, v in _ranking_score(group).items() if math.isfinite(v)}
+            if not scores:
+                cells.append("—")
+                continue
+            best = min(scores, key=lambda name: (scores[name], name))
+            wins[kind][best] = wins[kind].get(best, 0) + 1
+            for name, value in scores.items():
+                ratios[kind].setdefault(name, []).append(
+                    value / scores[best] if scores[best] else 1.0
+                )
+            cells.append(f"{best} ({scores[best]:.3f})")
+        if any(cell != "—" for cell in cells):
+            table.append(f"| {batch.name} | {cells[0]} | {cells[1]} |")
+    if not table:
+        return []
+    lines = [
+        "## Best estimator",
+        "",
+        "Per batch, the estimator with the lowest mean NRMSE over the parameters every "
+        "estimator of the batch estimates; online filters (each estimate from the samples "
+        "up to it, as in real time) and smoothed results (from the whole run, offline) "
+        "are ranked apart.",
+        "",
+        "| batch | best online (mean NRMSE) | best smoothed (mean NRMSE) |",
+        "| --- | --- | --- |",
+        *table,
+        "",
+    ]
+    for kind in ("online", "smoothed"):
+        if not wins[kind]:
+            continue
+        best = min(
+            wins[kind],
+            key=lambda name: (-wins[kind][name], float(np.mean(ratios[kind][name])), name),
+        )
+        batches = sum(wins[kind].values())
+        lines.append(
+            f"**Best {kind} estimator of the suite: {best}** (best in {wins[kind][best]} of "
+            f"{batches} batches)."
+        )
+    lines.append("")
     return lines
 
 
@@ -437,6 +539,7 @@ def write_report(suite: Suite, rows: Sequence[Mapping[str, Any]], out: str | Pat
             figure = _trace_figure(suite, batch.name, rows, out)
         if figure is not None:
             lines += [f"![{batch.name}](figures/{figure.name})", ""]
+    lines += best_estimators(suite, rows)
     from manualcontrol.bench.papers import section_writer
 
     writer = section_writer(suite.name)

@@ -4,10 +4,22 @@ Computed by :func:`manualcontrol.estimators.metrics.evaluate` from
 ``scenario.score_from`` on (``t >= 0`` by default: the run-in before it lets the
 filter converge, as in the thesis; Popovici et al. leave out the first 15 s of runs
 without run-in): per estimated parameter the relative bias and the NRMSE (eq. 37; RMSE
-for near-zero parameters), the VAF of the one-step filter output and of the
-resimulated pilot output (eq. 38), and the innovation consistency. Added here: the
-10-s moving VAF of the one-step output (1-s steps, for the report's figure), the
-run's health and the realised remnant power ratio.
+for near-zero parameters), the VAFs (eq. 38) and the innovation consistency. Added
+here: the 10-s moving VAF of the one-step output (1-s steps, for the report's figure),
+the run's health and the realised remnant power ratio.
+
+Row columns of the VAFs (definitions in :mod:`manualcontrol.estimators.metrics`):
+
+``vaf_one_step``
+    the filter's one-step prediction against ``u`` as measured;
+``vaf_resimulated``, ``vaf_resimulated_ceiling``
+    the isolated model driven by the recorded perceptions, against ``u`` as measured,
+    with the identified parameter traces and with the true ones (what a perfect
+    estimator scores on this run);
+``vaf_resimulated_ideal``, ``vaf_resimulated_ideal_ceiling``
+    the isolated model driven by the remnant-free perceptions, against the
+    remnant-free ``u - u_n`` (the thesis's Table III and IV VAF), identified and true
+    traces.
 """
 
 from __future__ import annotations
@@ -35,7 +47,9 @@ def score(scenario: Scenario, recording: Recording, result: Any) -> dict[str, An
         row[f"rel_bias_{name}"] = measured.relative_bias[name]
     row["vaf_one_step"] = measured.one_step_vaf
     row["vaf_resimulated"] = measured.resimulated_vaf
-    row["vaf_resimulated_ideal"] = measured.ideal_resimulated_vaf
+    row["vaf_resimulated_ceiling"] = measured.resimulated_vaf_ceiling
+    row["vaf_resimulated_ideal"] = measured.remnant_free_vaf
+    row["vaf_resimulated_ideal_ceiling"] = measured.remnant_free_vaf_ceiling
     row["innovations_within_1sigma"] = measured.within_1_sigma
     row["innovations_within_2sigma"] = measured.within_2_sigma
     moving = metrics.moving_vaf(
@@ -48,6 +62,7 @@ def score(scenario: Scenario, recording: Recording, result: Any) -> dict[str, An
     row["moving_vaf"] = [float(v) for v in moving[::step]]
     row["moving_vaf_t"] = [float(v) for v in np.asarray(recording.t)[window][::step]]
     health = result.health
+    row["smoothed"] = bool(getattr(result, "smoothed", False))
     row["diverged"] = bool(health.diverged)
     row["divergence_time"] = health.divergence_time
     row["remnant_power_ratio"] = recording.metadata.get("remnant_power_ratio")

@@ -1,9 +1,10 @@
 """Online identification of pilot parameters: the estimator protocol, the family, metrics.
 
 The family (``manualcontrol estimators`` lists it; :data:`ESTIMATORS` holds it): the
-DEKF, the joint and dual UKF, and the papers' other members, all on the shared Kalman
-core :mod:`manualcontrol.estimators.filters`; :func:`smooth` turns a filtered result of
-any of them into a smoothed one.
+DEKF, the joint and dual UKF, the recursive maximum-likelihood filter bank (:class:`RML`,
+remnant modelled) and the papers' other members, all on the shared Kalman core
+:mod:`manualcontrol.estimators.filters`; :func:`smooth` turns a filtered result of any
+of them into a smoothed one (registered as ``"<name>-smoothed"`` for the bench).
 """
 
 from manualcontrol.estimators.dekf import DEKF, DEKFSettings, ResolvedSettings
@@ -27,12 +28,17 @@ from manualcontrol.estimators.protocol import (
     load_result,
 )
 from manualcontrol.estimators.registry import ESTIMATORS, EstimatorEntry, make_estimator
+from manualcontrol.estimators.rml import RML, RMLSettings
 from manualcontrol.estimators.smoothing import smooth
 from manualcontrol.estimators.ukf import DualUKF, DualUKFSettings, JointUKF, UKFSettings
+
+# after every member: the offline (smoothed) variants of the registered estimators
+from manualcontrol.estimators import smoothed as _smoothed  # noqa: F401  isort: skip
 
 __all__ = [
     "DEKF",
     "ESTIMATORS",
+    "RML",
     "DEKFSettings",
     "DualUKF",
     "DualUKFSettings",
@@ -45,6 +51,7 @@ __all__ = [
     "HealthSummary",
     "InternalModel",
     "JointUKF",
+    "RMLSettings",
     "ResolvedSettings",
     "UKFSettings",
     "build_internal_model",

@@ -366,6 +366,10 @@ def build_internal_model(model: str | PilotModel, delay_order: int = 3) -> Inter
         Padé order (>= 1) of the model delay and of the anticipation delay ``tau_f*``;
         3 as in Popovici et al. and the thesis. A branch fed by ``ft_far`` is always
         fed the anticipated target through ``exp(-tau_f* s)`` (thesis eq. 26).
+        ``0`` leaves both delays out of the model: its inputs are then the perceptions
+        already delayed by the model delay (and ``ft_ahead`` by ``tau_f*`` besides), for
+        filters that read them from delay lines (the delays commute with the
+        model's linear branches); the delay parameters then enter no coefficient.
 
     Raises
     ------
@@ -376,7 +380,7 @@ def build_internal_model(model: str | PilotModel, delay_order: int = 3) -> Inter
 
     """
     model = make_model(model)
-    delay_order = check_int("delay_order", delay_order, minimum=1)
+    delay_order = check_int("delay_order", delay_order, minimum=0)
     names = model.parameter_names
     probe = {name: np.array(1.0) for name in names}
     channels = model.channels(probe)
@@ -434,7 +438,7 @@ def build_internal_model(model: str | PilotModel, delay_order: int = 3) -> Inter
     pade_degree = delay_order
     chain_num = [0]
     chain_den = [1]
-    chain_pade = [names.index(delay)]
+    chain_pade = [names.index(delay) if pade_degree else -1]
     inputs: list[str] = []
     branch_chain: list[int] = []
     branch_input: list[int] = []
@@ -444,7 +448,8 @@ def build_internal_model(model: str | PilotModel, delay_order: int = 3) -> Inter
             inputs.append(signal)
         chain_num.append(2 + 2 * b)
         chain_den.append(3 + 2 * b)
-        chain_pade.append(names.index(ANTICIPATED_PARAMETER) if branch.signal == "ft_far" else -1)
+        anticipates = branch.signal == "ft_far" and pade_degree > 0
+        chain_pade.append(names.index(ANTICIPATED_PARAMETER) if anticipates else -1)
         branch_chain.append(b + 1)
         branch_input.append(inputs.index(signal))
     if anticipated and ANTICIPATED_PARAMETER not in names:

@@ -1,23 +1,69 @@
 """How good an estimate is: VAF, moving VAF, NRMSE, relative bias, innovation consistency.
 
-Definitions (thesis Part I Sec. IV-E; Part II Sec. 5.3):
+Parameter errors (thesis Part I Sec. IV-E; Part II Sec. 5.3)
+--------------------------------------------------------------
+* NRMSE, eq. 37 (Part II eq. 5.6): the RMS of ``estimate - truth`` divided by
+  ``|mean(truth)|``; for parameters whose mean true value is near zero
+  (``|mean| < 0.05``) the plain RMSE instead (Part II eq. 5.7).
+* Relative bias: the mean of ``estimate - truth`` divided by ``|mean(truth)|`` (the plain
+  mean error for near-zero parameters), the "mean relative parameter bias" of Sec.
+  IV-E-1: positive when the parameter is overestimated.
 
-* VAF, eq. 38: ``(1 - sum (u - u_hat)^2 / sum u^2) * 100 %`` over the samples where
-  both are finite. Eq. 38 normalises by ``sum u^2`` rather than the variance; for the
-  zero-mean control signals of tracking tasks the two agree.
-* One-step VAF: of the filter's one-step prediction ``g(x^-_k, theta^-_k)``
-  (:attr:`EstimationResult.prediction`), Popovici et al.'s "filter output".
-* Resimulated VAF: of the isolated pilot model driven by the measured perceptions
-  with the identified parameter traces (:func:`resimulate`), the thesis's VAF.
+Variance accounted for
+----------------------
+Every VAF is eq. 38, ``(1 - sum (a - b)^2 / sum a^2) * 100 %`` of a reference signal
+``a`` and a model signal ``b``, over the scored samples where both are finite (eq. 38
+divides by ``sum a^2``, not the variance; for the zero-mean control signals of
+tracking tasks the two agree). They differ in what ``a`` and ``b`` are:
+
+* **one-step VAF**: ``b`` is the filter's one-step prediction ``g(x^-_k, theta^-_k)``
+  (:attr:`EstimationResult.prediction`, Popovici et al.'s "filter output"), made from
+  the states corrected with every earlier sample of ``u``; ``a`` is ``u`` as measured,
+  remnant included. It tells how well the filter follows the stick one sample ahead,
+  not how good the identified parameters are: a filter whose states absorb the
+  remnant scores high with wrong parameters. It has no ceiling of its own.
+* **resimulated VAF against u** (``resimulated_vaf``): ``b`` is the output of the
+  isolated pilot model with the identified parameter traces, started at rest and
+  driven by the perceptions as recorded (the error ``e``; or the previewed target
+  ``ft(t + tau_f)`` at the identified ``tau_f`` and the output ``y``), see
+  :func:`resimulate`; ``a`` is ``u`` as measured, remnant included. The recorded
+  perceptions carry the remnant's effect on the loop but not the remnant itself, so
+  even the true parameters leave the open-loop response to the remnant unexplained:
+  its **ceiling** (``resimulated_vaf_ceiling``, the same resimulation with the true
+  parameter traces, what a perfect estimator scores on that run) is below 100 %:
+  about 79 % for the thesis's single-integrator preview pilot with 35 % remnant, and
+  far below zero for its double integrator with 55 % remnant at 0.01 rad/s, whose
+  slowly drifting remnant the closed loop suppresses but the open-loop resimulation
+  integrates.
+* **remnant-free resimulated VAF** (``remnant_free_vaf``, the results column
+  ``vaf_resimulated_ideal``): ``b`` is the isolated model with the identified
+  parameter traces driven by the perceptions of the remnant-free run (``y - y_n``,
+  ``e + y_n``; the target is unchanged), ``a`` the remnant-free control signal ``u -
+  u_n``. Simulations record ``u_n`` and ``y_n``, the parts of ``u`` and ``y`` the
+  remnant caused (thesis eq. 6); the loop is linear in its signals, so ``u - u_n``,
+  ``y - y_n`` is exactly the run without remnant. With the true parameters the model
+  reproduces ``u - u_n`` up to its delay approximation: the **ceiling** is near 100 %
+  (99.99 % on the thesis's pilots with the exact delay), whatever the remnant's level
+  or colour. This is the score that means something with coloured remnant; NaN
+  without ``u_n`` and ``y_n``.
+
+The thesis's Tables III and IV VAF (17.8/40.3 % and 90.3/76.4 %) is the remnant-free
+one. Its eq. 38 compares the resimulated ``u`` with "the true simulated HO input
+signal", and its simulation framework computes the VAF both against ``u`` and
+against "the idealised u-signal, without added remnant noise" (Part III App. H.2.3).
+Against ``u`` the ceilings above (79 % and below zero) make 90.3 % and 76.4 %
+unreachable; the thesis also notes that on the double integrator "even with a gain
+K_p at only a fraction of its true value, the VAF is still very high", which holds for
+the remnant-free score (``K_p`` acts mostly below the forcing band) and not against
+``u`` (where ``K_p`` multiplies the open-loop remnant drift).
+
+Other metrics
+-------------
 * Moving VAF: eq. 38 over a retrospective window (10 s in the thesis, Fig. 7).
-* NRMSE, eq. 37 (Part II eq. 5.6): RMS error divided by the magnitude of the mean true
-  value; for parameters whose mean true value is near zero (``|mean| < 0.05``) the
-  plain RMSE instead (Part II eq. 5.7).
-* Relative bias: mean error divided by the magnitude of the mean true value (the
-  plain mean error for near-zero parameters), the "mean relative parameter bias" of
-  Sec. IV-E-1.
 * Innovation consistency: the fractions of innovations within one and two predicted
-  standard deviations (about 68 % and 95 % for a consistent filter).
+  standard deviations (about 68 % and 95 % for a consistent filter); innovation
+  whiteness: the lag-1 autocorrelation of the normalised innovations and the fraction
+  of lags outside the white-noise band.
 """
 
 from __future__ import annotations
@@ -40,13 +86,17 @@ from manualcontrol.pilots.simulation import isolated_pilot_output
 
 __all__ = [
     "NEAR_ZERO",
+    "REMNANT_PARTS",
     "EstimationMetrics",
     "evaluate",
+    "has_remnant_parts",
     "innovation_fractions",
+    "innovation_whiteness",
     "moving_vaf",
     "nrmse",
     "relative_bias",
     "resimulate",
+    "resimulate_parameters",
     "vaf",
 ]
 
@@ -189,10 +239,92 @@ def _held(values: FloatArray) -> FloatArray:
     return out
 
 
+#: Signals a simulation records for the remnant-free run (``u - u_n``, ``y - y_n``).
+REMNANT_PARTS = ("u_n", "y_n")
+
+
+def has_remnant_parts(recording: Recording) -> bool:
+    """True when ``recording`` holds ``u_n`` and ``y_n`` (the remnant-free run is known)."""
+    return all(name in recording for name in REMNANT_PARTS)
+
+
+def _perceptions(
+    model: PilotModel,
+    tau_f: FloatArray | None,
+    recording: Recording,
+    remnant_free: bool,
+    forcing: Any,
+    target_period: float | None,
+) -> dict[str, FloatArray]:
+    """The model's perceptions as recorded, or those of the remnant-free run."""
+    if remnant_free and not has_remnant_parts(recording):
+        raise ValueError(
+            "the remnant-free resimulation needs the recording's u_n and y_n (the parts of "
+            "u and y the remnant caused, recorded by simulate)"
+        )
+    y_n = np.asarray(recording["y_n"]) if remnant_free else 0.0
+    perceptions: dict[str, FloatArray] = {}
+    for signal in model.perceptions:
+        if signal == "ft_far":
+            target = target_function(recording, forcing, target_period)
+            perceptions[signal] = np.asarray(target(recording.t + tau_f), dtype=float)
+        elif signal == "y":
+            perceptions[signal] = _held(np.asarray(recording.y) - y_n)
+        elif signal == "e":
+            if "e" not in recording:
+                recording = recording.with_error_signal()
+            # e = ft - y, so the remnant-free error is e + y_n
+            perceptions[signal] = _held(np.asarray(recording.e) + y_n)
+        else:
+            raise ValueError(f"cannot resimulate a model that reads {signal!r}")
+    return perceptions
+
+
+def resimulate_parameters(
+    model: PilotModel | str,
+    parameters: Mapping[str, ArrayLike],
+    recording: Recording,
+    *,
+    remnant_free: bool = False,
+    delay_order: int | None = None,
+    forcing: Any = None,
+    target_period: float | None = None,
+) -> FloatArray:
+    """Output of the isolated pilot ``model`` with these parameter traces (eq. 38).
+
+    ``parameters`` gives every parameter of the model, a constant or one value per
+    sample. The model runs in
+    :func:`~manualcontrol.pilots.simulation.isolated_pilot_output` (the simulation's own
+    isolated pilot, started at rest), driven by the recorded perceptions (the error
+    ``e``, or the previewed target ``ft(t + tau_f(t))`` at the given preview time and
+    the output ``y``; target from ``forcing``, the recording's metadata, or its periodic
+    extension, as for the DEKF), or with ``remnant_free`` by those of the remnant-free
+    run (``y - y_n``, ``e + y_n``; see the module docstring). Perceptions are held over
+    each sample; dropped samples hold the last value. The model delay is exact (a
+    fractional delay line, as in the simulation; ``delay_order=None``, default) or a
+    Padé approximant.
+    """
+    if not isinstance(recording, Recording):
+        raise TypeError(f"recording must be a Recording, got {recording!r}")
+    model = make_model(model)
+    n = len(recording)
+    values = {}
+    for name in model.parameter_names:
+        if name not in parameters:
+            raise ValueError(f"parameters must include {name!r} for the {model.name} model")
+        values[name] = np.broadcast_to(np.asarray(parameters[name], dtype=np.float64), (n,))
+    perceptions = _perceptions(
+        model, values.get("tau_f"), recording, remnant_free, forcing, target_period
+    )
+    order = None if delay_order is None else check_int("delay_order", delay_order, minimum=1)
+    return isolated_pilot_output(model, values, perceptions, recording.dt, order)
+
+
 def resimulate(
     result: EstimationResult,
     recording: Recording,
     *,
+    remnant_free: bool = False,
     delay_order: int | None = None,
     forcing: Any = None,
     target_period: float | None = None,
@@ -200,14 +332,8 @@ def resimulate(
     """Output of the isolated pilot model with the identified parameter traces (eq. 38).
 
     The model structure of ``result`` (from its settings) with the parameters of every
-    sample, in :func:`~manualcontrol.pilots.simulation.isolated_pilot_output` (the
-    simulation's own isolated pilot, started at rest), driven by the recorded
-    perceptions: the error ``e``, or for the preview model the previewed target
-    ``ft(t + tau_f(t))`` at the identified preview time (target from ``forcing``, the
-    recording's metadata, or its periodic extension, as for the DEKF) and the output
-    ``y``. Perceptions are held over each sample; dropped samples hold the last value.
-    The model delay is exact (a fractional delay line, as in the simulation;
-    ``delay_order=None``, default) or a Padé approximant.
+    sample, in :func:`resimulate_parameters` (see there for ``remnant_free``,
+    ``delay_order``, ``forcing`` and ``target_period``).
     """
     if not isinstance(result, EstimationResult):
         raise TypeError(f"result must be an EstimationResult, got {result!r}")
@@ -219,19 +345,15 @@ def resimulate(
         )
     model = _model_of(result)
     values = {name: np.array(result.mean_of(name)) for name in model.parameter_names}
-    perceptions: dict[str, FloatArray] = {}
-    for signal in model.perceptions:
-        if signal == "ft_far":
-            target = target_function(recording, forcing, target_period)
-            perceptions[signal] = np.asarray(target(recording.t + values["tau_f"]), dtype=float)
-        elif signal in ("e", "y"):
-            if signal == "e" and "e" not in recording:
-                recording = recording.with_error_signal()
-            perceptions[signal] = _held(recording[signal])
-        else:
-            raise ValueError(f"cannot resimulate a model that reads {signal!r}")
-    order = None if delay_order is None else check_int("delay_order", delay_order, minimum=1)
-    return isolated_pilot_output(model, values, perceptions, recording.dt, order)
+    return resimulate_parameters(
+        model,
+        values,
+        recording,
+        remnant_free=remnant_free,
+        delay_order=delay_order,
+        forcing=forcing,
+        target_period=target_period,
+    )
 
 
 # ------------------------------------------------------------------------ summary
@@ -245,13 +367,16 @@ class EstimationMetrics:
     ----------
     start : float
         Time (s) from which the metrics are computed.
-    one_step_vaf, resimulated_vaf : float
-        VAF (%) of the one-step prediction and of the resimulated model output.
-    ideal_resimulated_vaf : float
-        VAF (%) of the resimulated output against the remnant-free control signal
-        ``u - u_n`` (simulations record ``u_n``, the part of ``u`` the remnant caused,
-        thesis eq. 6): the thesis's "idealised" comparison (Part III App. H.2.3); NaN
-        without ``u_n``.
+    one_step_vaf : float
+        VAF (%) of the one-step prediction against ``u`` as measured.
+    resimulated_vaf, resimulated_vaf_ceiling : float
+        VAF (%) against ``u`` as measured of the isolated model driven by the recorded
+        perceptions, with the identified parameter traces and (ceiling) with the true
+        ones; the ceiling is NaN without the true traces of every parameter.
+    remnant_free_vaf, remnant_free_vaf_ceiling : float
+        VAF (%) against the remnant-free ``u - u_n`` of the isolated model driven by the
+        remnant-free perceptions, identified and true traces; NaN without ``u_n`` and
+        ``y_n`` (or, for the ceiling, the true traces).
     nrmse, relative_bias : Mapping[str, float]
         Per estimated parameter with a known true trace.
     error_kind : Mapping[str, str]
@@ -264,7 +389,9 @@ class EstimationMetrics:
     start: float
     one_step_vaf: float
     resimulated_vaf: float
-    ideal_resimulated_vaf: float
+    resimulated_vaf_ceiling: float
+    remnant_free_vaf: float
+    remnant_free_vaf_ceiling: float
     nrmse: Mapping[str, float]
     relative_bias: Mapping[str, float]
     error_kind: Mapping[str, str]
@@ -275,6 +402,11 @@ class EstimationMetrics:
         for name in ("nrmse", "relative_bias", "error_kind"):
             object.__setattr__(self, name, MappingProxyType(dict(getattr(self, name))))
 
+    @property
+    def ideal_resimulated_vaf(self) -> float:
+        """Former name of :attr:`remnant_free_vaf` (the thesis's "VAFideal")."""
+        return self.remnant_free_vaf
+
 
 def evaluate(
     result: EstimationResult,
@@ -284,41 +416,57 @@ def evaluate(
     delay_order: int | None = None,
     forcing: Any = None,
     target_period: float | None = None,
+    ceilings: bool = True,
 ) -> EstimationMetrics:
     """Every metric of ``result`` against ``recording`` from time ``start`` on.
 
-    Parameter errors need the recording's true parameter traces (simulations); the
-    resimulation is run over the whole recording and scored from ``start``.
+    Parameter errors and the ceilings need the recording's true parameter traces
+    (simulations), the remnant-free VAF its ``u_n`` and ``y_n``; what cannot be computed
+    is NaN. Resimulations run over the whole recording and are scored from ``start``.
+    ``ceilings=False`` skips the two resimulations with the true traces (NaN).
     """
     start = check_real("start", start)
     mask = np.asarray(recording.t) >= start
     if not mask.any():
         raise ValueError(f"start = {start!r} s is after the last sample")
-    resimulated = resimulate(
-        result, recording, delay_order=delay_order, forcing=forcing, target_period=target_period
-    )
+    target = {"delay_order": delay_order, "forcing": forcing, "target_period": target_period}
+    model = _model_of(result)
+    truth = recording.parameters
+    known = all(name in truth for name in model.parameter_names)
     u = np.asarray(recording.u)
+    scores = {"resimulated": (u, False)}
+    if has_remnant_parts(recording):
+        scores["remnant_free"] = (u - np.asarray(recording["u_n"]), True)
+    vafs: dict[str, float] = {}
+    for kind in ("resimulated", "remnant_free"):
+        identified = ceiling = math.nan
+        if kind in scores:
+            reference, free = scores[kind]
+            output = resimulate(result, recording, remnant_free=free, **target)
+            identified = vaf(reference[mask], output[mask])
+            if ceilings and known:
+                output = resimulate_parameters(model, truth, recording, remnant_free=free, **target)
+                ceiling = vaf(reference[mask], output[mask])
+        vafs[kind], vafs[f"{kind}_ceiling"] = identified, ceiling
     errors, biases, kinds = {}, {}, {}
     for name in result.estimated:
-        if name not in recording.parameters:
+        if name not in truth:
             continue
-        truth = recording.parameters[name][mask]
+        true_trace = truth[name][mask]
         estimate = result.mean_of(name)[mask]
-        errors[name] = nrmse(estimate, truth)
-        biases[name] = relative_bias(estimate, truth)
-        kinds[name] = "rmse" if abs(float(np.mean(truth))) < NEAR_ZERO else "nrmse"
+        errors[name] = nrmse(estimate, true_trace)
+        biases[name] = relative_bias(estimate, true_trace)
+        kinds[name] = "rmse" if abs(float(np.mean(true_trace))) < NEAR_ZERO else "nrmse"
     within_1, within_2 = innovation_fractions(
         result.innovation[mask], result.innovation_variance[mask]
     )
     return EstimationMetrics(
         start=start,
         one_step_vaf=vaf(u[mask], result.prediction[mask]),
-        resimulated_vaf=vaf(u[mask], resimulated[mask]),
-        ideal_resimulated_vaf=(
-            vaf((u - np.asarray(recording["u_n"]))[mask], resimulated[mask])
-            if "u_n" in recording
-            else float("nan")
-        ),
+        resimulated_vaf=vafs["resimulated"],
+        resimulated_vaf_ceiling=vafs["resimulated_ceiling"],
+        remnant_free_vaf=vafs["remnant_free"],
+        remnant_free_vaf_ceiling=vafs["remnant_free_ceiling"],
         nrmse=errors,
         relative_bias=biases,
         error_kind=kinds,

@@ -697,8 +697,9 @@ def simulate(
         default) or warns and sets ``metadata["diverging"]`` to the reason (``"warn"``).
 
     The recording holds ``t, ft, fd, y, e, u, n`` (plus ``ft_far``, the previewed
-    target the pilot used, in preview tasks, and ``u_n``, the part of ``u`` the remnant
-    caused, thesis eq. 6, when there is one), the parameter traces of the pilot, and
+    target the pilot used, in preview tasks, and ``u_n`` and ``y_n``, the parts of ``u``
+    and ``y`` the remnant caused, thesis eq. 6, when there is one: ``u - u_n`` and
+    ``y - y_n`` are the remnant-free run), the parameter traces of the pilot, and
     metadata with everything needed to repeat the run, including the calibrated
     remnant gain and the realised remnant power ratio ``P_r`` (thesis eq. 6). When
     the pilot's remnant requests ``P_r``, ``K_r`` is calibrated as in the thesis
@@ -787,6 +788,7 @@ def simulate(
             recorded[name] = columns[name][part]
     if noise is not None:
         recorded["u_n"] = gain * unit["u"][part]
+        recorded["y_n"] = gain * unit["y"][part]
     return Recording(
         signals=recorded,
         dt=setup.dt,

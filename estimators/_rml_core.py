@@ -1,0 +1,510 @@
+"""Compiled core of the recursive maximum-likelihood filter bank (:mod:`.rml`).
+
+For fixed parameters the pilot's internal model with a remnant shaping filter is a
+linear state-space model, and a linear Kalman filter gives the exact one-step
+prediction ``z_k(theta)`` of the stick and its variance ``S_k(theta)``: the sample's
+likelihood is ``N(u_k; z_k, S_k)``. The parameters (and optionally the remnant's
+log intensity and log break frequency) are random walks with a Gaussian belief
+``N(theta, P)``; each sample updates it with that likelihood (a Bayesian, recursive
+maximum-likelihood step; Ljung & Söderström's recursive prediction-error method in
+its Gauss-Newton form):
+
+* a bank of ``2 n + 1`` Kalman filters runs at ``theta`` and ``theta +- h L e_j``
+  (``L L^T = P``, ``h`` in standard deviations), each carrying its own states and
+  covariance, so each has its own Kalman gain: the derivatives of the prediction
+  include how the filter's gain depends on the parameters, which a joint filter
+  (parameters as states) or a dual filter without that term leaves out, and which
+  biases them (Ljung 1979; here: a remnant state and the output gains trade
+  ``K -> a K``, remnant ``-> n/a``);
+* central differences across the bank give ``dz/dxi`` and ``dS/dxi`` along the
+  directions ``xi`` (``theta = theta^- + L xi``); the score of the sample is
+  ``g = nu/S dz - (1/S - nu^2/S^2) dS/2`` and its Fisher information
+  ``F = dz dz^T/S + dS dS^T/(2 S^2)``;
+* with the prior ``xi ~ N(0, I)`` the posterior is ``Lambda = I + F``,
+  ``xi = Lambda^-1 g``: ``theta^+ = theta^- + L xi``, ``P^+ = L Lambda^-1 L^T``.
+
+Delays on the inputs
+    The internal model is built without its delays (``delay_order = 0`` of
+    :func:`~manualcontrol.estimators.internal_model.build_internal_model`): the pilot's
+    delay ``tau`` and the anticipation delay ``tau_f*`` commute with the model's linear
+    branches, so they are applied to the inputs instead, read from delay lines of the
+    past samples with the bicubic kernel of Boer & Kenyon (1998, App.;
+    :mod:`~manualcontrol.envs._interpolation`): input ``i`` at time ``t`` is the recorded
+    signal at ``t - tau`` (``t - tau - tau_f*`` for ``ft_ahead``). Each bank member
+    reads at its own delays: no Padé approximant stands between the delays and the
+    data. The states advance over a sample in Euler substeps, each with the inputs
+    read at its midpoint; the remnant state follows its exact discrete transition.
+
+The remnant
+    A first-order shaping filter ``r' = -omega_r r + w`` (Levison et al. 1969, thesis
+    eq. 5) whose output enters where the remnant enters the pilot: added to the
+    delayed perception at the main chain's input (``"input"``; a remnant injected
+    before the delay is, for the filter, the same random process delayed) or to the
+    stick (``"output"``). Its intensity (and optionally its break frequency) is one of
+    the estimated parameters, in logarithms.
+
+The ``dS`` term is what identifies a noise intensity: it is zero for parameters that
+move the prediction only. Limits are imposed by projection of the mean and of the bank
+points.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import namedtuple
+
+import numba
+import numpy as np
+
+from manualcontrol.envs._interpolation import bicubic_weights
+from manualcontrol.estimators._pilot_core import (
+    CFG_DT,
+    CFG_ERROR_STATE,
+    CFG_GAMMA2,
+    CFG_MAX_COV,
+    SC_FROZEN,
+    SC_K,
+    inputs_in_use,
+    noise_levels,
+    report_frozen,
+    report_row,
+)
+from manualcontrol.estimators._ukf_core import _store
+from manualcontrol.estimators.filters.kalman import predict_covariance
+from manualcontrol.estimators.filters.linalg import cholesky, cholesky_solve_rows, symmetrise
+from manualcontrol.estimators.internal_model import evaluate_coefficients, model_f, model_g
+
+#: Delay lines of the raw inputs: ``hist`` (n_in, H) ring of past samples (index
+#: ``k % H``); ``delay_slot``: model-order index of the pilot delay; ``extra_slot``
+#: (n_in,): index of a second delay added for that input (``tau_f*`` for ``ft_ahead``)
+#: or -1; ``point_in`` (n_in,): the delayed inputs of one point (scratch).
+DelayLines = namedtuple("DelayLines", ["hist", "delay_slot", "extra_slot", "point_in"])
+
+
+@numba.njit(cache=True, _nrt=False)
+def _read(hist, row, newest, position):
+    """Bicubic read of input ``row`` at fractional sample ``position`` (ring buffer).
+
+    Samples older than the ring or before the first are replaced by the oldest kept,
+    positions after ``newest`` by the newest sample.
+    """
+    size = hist.shape[1]
+    oldest = newest - size + 1
+    if oldest < 0:
+        oldest = 0
+    if position >= newest:
+        return hist[row, newest % size]
+    if position <= oldest:
+        return hist[row, oldest % size]
+    n = int(position)  # position > oldest >= 0: truncation is the floor
+    d = position - n
+    w_m1, w_0, w_1, w_2 = bicubic_weights(d)
+    i_m1 = max(n - 1, oldest)
+    i_1 = min(n + 1, newest)
+    i_2 = min(n + 2, newest)
+    return (
+        w_m1 * hist[row, i_m1 % size]
+        + w_0 * hist[row, n % size]
+        + w_1 * hist[row, i_1 % size]
+        + w_2 * hist[row, i_2 % size]
+    )
+
+
+@numba.njit(cache=True, _nrt=False)
+def _delayed_inputs(lines, point_p, newest, position, dt):
+    """The inputs of a point with parameters ``point_p`` at sample ``position``."""
+    tau = point_p[lines.delay_slot]
+    for i in range(lines.point_in.shape[0]):
+        delay = tau
+        if lines.extra_slot[i] >= 0:
+            delay += point_p[lines.extra_slot[i]]
+        lines.point_in[i] = _read(lines.hist, i, newest, position - delay / dt)
+
+
+#: Special parameter slots of the bank (besides model-order indices >= 0).
+SLOT_LOG_INTENSITY = -2
+SLOT_LOG_BREAK = -3
+
+INJECT_INPUT = 0
+INJECT_OUTPUT = 1
+
+#: ``cfg`` (the pilot filters' configuration vector); ``slot`` (n_t,): what each
+#: parameter is (model-order index or a ``SLOT_*`` code); ``lo``, ``hi`` (n_t,): its
+#: limits (internal values); ``q`` (n_t,): its random-walk variance (before
+#: ``Gamma^2``); ``step``: ``h``; ``substeps``: Euler substeps a sample; ``inject``:
+#: ``INJECT_*``; ``has_remnant``; ``remnant`` (2,): the log intensity and log break
+#: frequency used when they are not estimated; ``estimated`` (n_p,) per model
+#: parameter; ``noise_first``: samples at the start during which only the noise
+#: parameters learn.
+BankConfig = namedtuple(
+    "BankConfig",
+    [
+        "cfg",
+        "slot",
+        "lo",
+        "hi",
+        "q",
+        "step",
+        "substeps",
+        "inject",
+        "has_remnant",
+        "remnant",
+        "estimated",
+        "noise_first",
+    ],
+)
+#: ``th``, ``P``: the parameter belief; ``X`` (m, ns), ``PX`` (m, ns, ns): the m bank
+#: members' state beliefs (member 0 at ``th``, members ``1 + 2 j`` and ``2 + 2 j`` at
+#: ``th +- h L e_j``); ``prev_in``, ``p``, ``sc`` as in the other pilot filters.
+BankBelief = namedtuple("BankBelief", ["th", "P", "X", "PX", "prev_in", "p", "sc"])
+#: Scratch: ``L``, ``points`` (m, n_t), ``z``, ``S`` (m,), ``dz``, ``dS``, ``g`` (n_t,),
+#: ``Lam``, ``LamL``, ``B`` (n_t, n_t), ``xi`` (1, n_t), ``Phi``, ``sub``, ``Q``, ``T``
+#: (ns, ns), ``H``, ``K``, ``xs``, ``f``, ``F`` (model), ``dfdp``, ``dgdx``, ``dgdp``,
+#: ``point_p``, ``in_use``, ``variance``, ``scalars``.
+BankScratch = namedtuple(
+    "BankScratch",
+    [
+        "L",
+        "points",
+        "z",
+        "S",
+        "dz",
+        "dS",
+        "g",
+        "Lam",
+        "LamL",
+        "B",
+        "xi",
+        "Phi",
+        "sub",
+        "Q",
+        "T",
+        "H",
+        "K",
+        "xs",
+        "f",
+        "F",
+        "dfdp",
+        "dgdx",
+        "dgdp",
+        "point_p",
+        "in_use",
+        "variance",
+        "scalars",
+    ],
+)
+#: Per-row outputs as the other pilot filters', the parameter belief before and after
+#: each sample (random-walk smoothing), and ``extra`` (n, 3): the remnant estimate of
+#: the centre filter, its intensity and break frequency.
+BankOutput = namedtuple(
+    "BankOutput",
+    [
+        "mean",
+        "std",
+        "scalar",
+        "flag",
+        "pinned",
+        "th_prior",
+        "P_prior",
+        "th_post",
+        "P_post",
+        "extra",
+    ],
+)
+
+
+@numba.njit(cache=True, _nrt=False)
+def _member_parameters(config, th, point_p):
+    """Model parameters of a bank point into ``point_p``; returns (intensity, break)."""
+    log_q = config.remnant[0]
+    log_w = config.remnant[1]
+    for j in range(th.shape[0]):
+        slot = config.slot[j]
+        if slot >= 0:
+            point_p[slot] = th[j]
+        elif slot == SLOT_LOG_INTENSITY:
+            log_q = th[j]
+        elif slot == SLOT_LOG_BREAK:
+            log_w = th[j]
+    return math.exp(log_q), math.exp(log_w)
+
+
+@numba.njit(cache=True, _nrt=False)
+def _member_step(model, config, lines, belief, s, i, k, u_k, R, q_error, dropped, predict):
+    """Predict (unless the first sample) and correct member ``i``; its z and S to ``s``."""
+    cfg = config.cfg
+    dt = cfg[CFG_DT]
+    gamma2 = cfg[CFG_GAMMA2]
+    x = belief.X[i]
+    P = belief.PX[i]
+    ns = x.shape[0]
+    n_c = s.f.shape[0]
+    err = int(cfg[CFG_ERROR_STATE])
+    has_r = config.has_remnant
+    intensity, omega = _member_parameters(config, s.points[i], s.point_p)
+    evaluate_coefficients(s.point_p, model)
+    if predict:
+        substeps = config.substeps
+        h = dt / substeps
+        Phi, sub, T = s.Phi, s.sub, s.T
+        for a in range(ns):
+            for b in range(ns):
+                Phi[a, b] = 1.0 if a == b else 0.0
+        n = x[n_c] if has_r and config.inject == INJECT_INPUT else 0.0
+        for c in range(n_c):
+            s.xs[c] = x[c]
+        for m in range(substeps):
+            _delayed_inputs(lines, s.point_p, k, k - 1.0 + (m + 0.5) / substeps, dt)
+            model_f(s.xs, lines.point_in, model, s.f, s.F, s.dfdp, False)
+            for c in range(n_c):
+                s.xs[c] += s.f[c] * h
+            s.xs[err] += n * h
+            # sub = I + h [F, e_err (remnant)]; Phi <- sub Phi
+            for a in range(ns):
+                for b in range(ns):
+                    sub[a, b] = 1.0 if a == b else 0.0
+            for a in range(n_c):
+                for b in range(n_c):
+                    sub[a, b] += h * s.F[a, b]
+            if has_r and config.inject == INJECT_INPUT:
+                sub[err, n_c] += h
+            for a in range(ns):
+                for b in range(ns):
+                    acc = 0.0
+                    for c in range(ns):
+                        acc += sub[a, c] * Phi[c, b]
+                    T[a, b] = acc
+            for a in range(ns):
+                for b in range(ns):
+                    Phi[a, b] = T[a, b]
+        for c in range(n_c):
+            x[c] = s.xs[c]
+        Q = s.Q
+        for a in range(ns):
+            for b in range(ns):
+                Q[a, b] = 0.0
+        Q[err, err] = q_error * gamma2
+        if has_r:
+            decay = math.exp(-omega * dt)
+            Phi[n_c, n_c] = decay
+            for b in range(n_c):
+                Phi[n_c, b] = 0.0
+            x[n_c] = decay * x[n_c]
+            Q[n_c, n_c] = intensity * (1.0 - decay * decay) / (2.0 * omega)
+        predict_covariance(P, Phi, Q, T)
+    # measurement
+    _delayed_inputs(lines, s.point_p, k, float(k), dt)
+    for c in range(n_c):
+        s.xs[c] = x[c]
+    z = model_g(s.xs, lines.point_in, model, s.dgdx, s.dgdp, False)
+    for c in range(n_c):
+        s.H[c] = s.dgdx[c]  # model_g writes dg/dx whatever its last argument
+    if has_r:
+        s.H[n_c] = 1.0 if config.inject == INJECT_OUTPUT else 0.0
+        if config.inject == INJECT_OUTPUT:
+            z += x[n_c]
+    S = R
+    for a in range(ns):
+        acc = 0.0
+        for b in range(ns):
+            acc += P[a, b] * s.H[b]
+        s.K[a] = acc
+        S += s.H[a] * acc
+    s.z[i] = z
+    s.S[i] = S
+    if dropped or not S > 0.0:
+        return
+    nu = u_k - z
+    for a in range(ns):
+        s.K[a] /= S
+    for a in range(ns):
+        x[a] += s.K[a] * nu
+    # Joseph form: P <- (I - K H) P (I - K H)^T + K R K^T
+    for a in range(ns):
+        for b in range(ns):
+            s.sub[a, b] = (1.0 if a == b else 0.0) - s.K[a] * s.H[b]
+    for a in range(ns):
+        for b in range(ns):
+            acc = 0.0
+            for c in range(ns):
+                acc += s.sub[a, c] * P[c, b]
+            s.T[a, b] = acc
+    for a in range(ns):
+        for b in range(ns):
+            acc = 0.0
+            for c in range(ns):
+                acc += s.T[a, c] * s.sub[b, c]
+            P[a, b] = acc + s.K[a] * R * s.K[b]
+    symmetrise(P)
+
+
+@numba.njit(cache=True, _nrt=False)
+def _bank_points(config, belief, s):
+    """``L = chol(P)`` and the points ``theta``, ``theta +- h L e_j`` (projected)."""
+    th, P = belief.th, belief.P
+    n_t = th.shape[0]
+    if not cholesky(P, s.L):
+        return False
+    h = config.step
+    for a in range(n_t):
+        s.points[0, a] = th[a]
+    for j in range(n_t):
+        for a in range(n_t):
+            d = h * s.L[a, j]
+            s.points[1 + 2 * j, a] = th[a] + d
+            s.points[2 + 2 * j, a] = th[a] - d
+    for r in range(s.points.shape[0]):
+        for a in range(n_t):
+            if s.points[r, a] < config.lo[a]:
+                s.points[r, a] = config.lo[a]
+            elif s.points[r, a] > config.hi[a]:
+                s.points[r, a] = config.hi[a]
+    return True
+
+
+@numba.njit(cache=True, _nrt=False)
+def _update_parameters(config, belief, s, u_k, k):
+    """The Gauss-Newton (Bayesian) step of the module docstring.
+
+    Before sample ``config.noise_first`` only the noise parameters learn: the pilot
+    parameters' directions get no score and no information.
+    """
+    th, P = belief.th, belief.P
+    n_t = th.shape[0]
+    h = config.step
+    noise_only = k < config.noise_first
+    z0 = s.z[0]
+    S0 = s.S[0]
+    if not (S0 > 0.0) or not np.isfinite(z0):
+        return False
+    nu = u_k - z0
+    for j in range(n_t):
+        s.dz[j] = (s.z[1 + 2 * j] - s.z[2 + 2 * j]) / (2.0 * h)
+        s.dS[j] = (s.S[1 + 2 * j] - s.S[2 + 2 * j]) / (2.0 * h)
+    if noise_only:
+        # xi_j moves theta along L e_j: keep only the directions of the noise parameters
+        # (L is lower triangular with the noise parameters last, so those columns leave
+        # the pilot parameters alone)
+        for j in range(n_t):
+            if config.slot[j] >= 0:
+                s.dz[j] = 0.0
+                s.dS[j] = 0.0
+    w = 1.0 / S0 - nu * nu / (S0 * S0)
+    for j in range(n_t):
+        s.g[j] = nu / S0 * s.dz[j] - 0.5 * w * s.dS[j]
+    for a in range(n_t):
+        for b in range(n_t):
+            s.Lam[a, b] = s.dz[a] * s.dz[b] / S0 + 0.5 * s.dS[a] * s.dS[b] / (S0 * S0)
+        s.Lam[a, a] += 1.0
+    if not cholesky(s.Lam, s.LamL):
+        return False
+    # xi = Lambda^-1 g (g as a row), then theta += L xi
+    for j in range(n_t):
+        s.xi[0, j] = s.g[j]
+    cholesky_solve_rows(s.LamL, s.xi, s.xi)
+    for a in range(n_t):
+        acc = 0.0
+        for j in range(n_t):
+            acc += s.L[a, j] * s.xi[0, j]
+        th[a] += acc
+    # P = L Lambda^-1 L^T: the rows of B solve B Lambda = L
+    cholesky_solve_rows(s.LamL, s.L, s.B)
+    for a in range(n_t):
+        for b in range(n_t):
+            acc = 0.0
+            for j in range(n_t):
+                acc += s.B[a, j] * s.L[b, j]
+            P[a, b] = acc
+    symmetrise(P)
+    for a in range(n_t):
+        if th[a] < config.lo[a]:
+            th[a] = config.lo[a]
+        elif th[a] > config.hi[a]:
+            th[a] = config.hi[a]
+    return True
+
+
+@numba.njit(cache=True, _nrt=False)
+def bank_step(model, config, lines, belief, monitor, report, s, inputs_k, u_k, e_k, row, out):
+    """One sample of the filter bank; writes row ``row`` of ``out``."""
+    cfg = config.cfg
+    th, P, X, _, prev_in, p, sc = belief
+    n_t = th.shape[0]
+    k = int(sc[SC_K])
+    in_use = s.in_use
+    R, _, q_error = noise_levels(cfg, sc, monitor, u_k, e_k)
+    dropped = inputs_in_use(inputs_k, u_k, prev_in, in_use)
+    size = lines.hist.shape[1]
+    for i in range(in_use.shape[0]):
+        lines.hist[i, k % size] = in_use[i]
+    if sc[SC_FROZEN] > 0.0:
+        _store(row, th, P, out.th_prior, out.P_prior)
+        _store(row, th, P, out.th_post, out.P_post)
+        report_frozen(sc, monitor, prev_in, in_use, dropped, row, out)
+        return
+    gamma2 = cfg[CFG_GAMMA2]
+    if k > 0:
+        for a in range(n_t):
+            if k >= config.noise_first or config.slot[a] < 0:
+                P[a, a] += config.q[a] * gamma2
+    _store(row, th, P, out.th_prior, out.P_prior)
+    for j in range(p.shape[0]):
+        s.point_p[j] = p[j]
+    ok = _bank_points(config, belief, s)
+    if ok:
+        for i in range(s.points.shape[0]):
+            _member_step(model, config, lines, belief, s, i, k, u_k, R, q_error, dropped, k > 0)
+        if not dropped:
+            ok = _update_parameters(config, belief, s, u_k, k)
+    _store(row, th, P, out.th_post, out.P_post)
+    for i in range(prev_in.shape[0]):
+        prev_in[i] = in_use[i]
+
+    finite = np.isfinite(s.z[0]) and np.isfinite(s.S[0])
+    largest = 0.0
+    for a in range(n_t):
+        if not np.isfinite(th[a]) or not np.isfinite(P[a, a]):
+            finite = False
+        elif P[a, a] > largest:
+            largest = P[a, a]
+    for i in range(X.shape[0]):
+        for a in range(X.shape[1]):
+            if not np.isfinite(X[i, a]):
+                finite = False
+    cov_ok = ok and largest <= cfg[CFG_MAX_COV]
+    variance = s.variance
+    for a in range(n_t):
+        slot = config.slot[a]
+        if slot >= 0:
+            p[slot] = th[a]
+            variance[slot] = P[a, a]
+    prediction = s.z[0]
+    innovation = np.nan if dropped else u_k - prediction
+    s.scalars[0] = prediction
+    s.scalars[1] = innovation
+    s.scalars[2] = s.S[0]
+    report_row(
+        sc,
+        monitor,
+        report,
+        p,
+        variance,
+        config.estimated,
+        finite,
+        cov_ok,
+        dropped,
+        s.scalars,
+        row,
+        out,
+    )
+    intensity, omega = _member_parameters(config, th, s.point_p)
+    out.extra[row, 0] = X[0, X.shape[1] - 1] if config.has_remnant else 0.0
+    out.extra[row, 1] = intensity if config.has_remnant else 0.0
+    out.extra[row, 2] = omega if config.has_remnant else 0.0
+
+
+@numba.njit(cache=True, _nrt=False)
+def bank_run(model, config, lines, belief, monitor, report, s, inputs, u, e, out):
+    """:func:`bank_step` over every sample."""
+    for k in range(u.shape[0]):
+        bank_step(model, config, lines, belief, monitor, report, s, inputs[k], u[k], e[k], k, out)
