@@ -98,6 +98,7 @@ __all__ = [
     "resimulate",
     "resimulate_parameters",
     "vaf",
+    "vaf_ceilings",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -408,6 +409,38 @@ class EstimationMetrics:
         return self.remnant_free_vaf
 
 
+def vaf_ceilings(
+    model: PilotModel | str,
+    recording: Recording,
+    *,
+    start: float = 0.0,
+    delay_order: int | None = None,
+    forcing: Any = None,
+    target_period: float | None = None,
+) -> tuple[float, float]:
+    """What a perfect estimator scores: ``(resimulated, remnant-free)`` VAF ceilings (%).
+
+    The resimulations of :func:`evaluate` with the recording's true parameter traces,
+    scored from ``start``; NaN without the true trace of every parameter (both), or
+    without ``u_n`` and ``y_n`` (the remnant-free one).
+    """
+    model = make_model(model)
+    truth = recording.parameters
+    mask = np.asarray(recording.t) >= check_real("start", start)
+    if not all(name in truth for name in model.parameter_names) or not mask.any():
+        return math.nan, math.nan
+    target = {"delay_order": delay_order, "forcing": forcing, "target_period": target_period}
+    u = np.asarray(recording.u)
+    output = resimulate_parameters(model, truth, recording, **target)
+    measured = vaf(u[mask], output[mask])
+    free = math.nan
+    if has_remnant_parts(recording):
+        reference = u - np.asarray(recording["u_n"])
+        output = resimulate_parameters(model, truth, recording, remnant_free=True, **target)
+        free = vaf(reference[mask], output[mask])
+    return measured, free
+
+
 def evaluate(
     result: EstimationResult,
     recording: Recording,
@@ -432,22 +465,16 @@ def evaluate(
     target = {"delay_order": delay_order, "forcing": forcing, "target_period": target_period}
     model = _model_of(result)
     truth = recording.parameters
-    known = all(name in truth for name in model.parameter_names)
     u = np.asarray(recording.u)
-    scores = {"resimulated": (u, False)}
+    vafs = {"resimulated": vaf(u[mask], resimulate(result, recording, **target)[mask])}
+    vafs["remnant_free"] = math.nan
     if has_remnant_parts(recording):
-        scores["remnant_free"] = (u - np.asarray(recording["u_n"]), True)
-    vafs: dict[str, float] = {}
-    for kind in ("resimulated", "remnant_free"):
-        identified = ceiling = math.nan
-        if kind in scores:
-            reference, free = scores[kind]
-            output = resimulate(result, recording, remnant_free=free, **target)
-            identified = vaf(reference[mask], output[mask])
-            if ceilings and known:
-                output = resimulate_parameters(model, truth, recording, remnant_free=free, **target)
-                ceiling = vaf(reference[mask], output[mask])
-        vafs[kind], vafs[f"{kind}_ceiling"] = identified, ceiling
+        free = u - np.asarray(recording["u_n"])
+        output = resimulate(result, recording, remnant_free=True, **target)
+        vafs["remnant_free"] = vaf(free[mask], output[mask])
+    best = (math.nan, math.nan)
+    if ceilings:
+        best = vaf_ceilings(model, recording, start=start, **target)
     errors, biases, kinds = {}, {}, {}
     for name in result.estimated:
         if name not in truth:
@@ -464,9 +491,9 @@ def evaluate(
         start=start,
         one_step_vaf=vaf(u[mask], result.prediction[mask]),
         resimulated_vaf=vafs["resimulated"],
-        resimulated_vaf_ceiling=vafs["resimulated_ceiling"],
+        resimulated_vaf_ceiling=best[0],
         remnant_free_vaf=vafs["remnant_free"],
-        remnant_free_vaf_ceiling=vafs["remnant_free_ceiling"],
+        remnant_free_vaf_ceiling=best[1],
         nrmse=errors,
         relative_bias=biases,
         error_kind=kinds,
