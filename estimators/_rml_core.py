@@ -60,8 +60,10 @@ from manualcontrol.envs._interpolation import bicubic_weights
 from manualcontrol.estimators._pilot_core import (
     CFG_DT,
     CFG_ERROR_STATE,
+    CFG_FLOOR,
     CFG_GAMMA2,
     CFG_MAX_COV,
+    SC_E,
     SC_FROZEN,
     SC_K,
     inputs_in_use,
@@ -72,6 +74,7 @@ from manualcontrol.estimators._pilot_core import (
 from manualcontrol.estimators._ukf_core import _store
 from manualcontrol.estimators.filters.kalman import predict_covariance
 from manualcontrol.estimators.filters.linalg import cholesky, cholesky_solve_rows, symmetrise
+from manualcontrol.estimators.filters.monitor import window_variance
 from manualcontrol.estimators.internal_model import evaluate_coefficients, model_f, model_g
 
 #: Delay lines of the raw inputs: ``hist`` (n_in, H) ring of past samples (index
@@ -132,10 +135,12 @@ INJECT_OUTPUT = 1
 #: parameter is (model-order index or a ``SLOT_*`` code); ``lo``, ``hi`` (n_t,): its
 #: limits (internal values); ``q`` (n_t,): its random-walk variance (before
 #: ``Gamma^2``); ``step``: ``h``; ``substeps``: Euler substeps a sample; ``inject``:
-#: ``INJECT_*``; ``has_remnant``; ``remnant`` (2,): the log intensity and log break
-#: frequency used when they are not estimated; ``estimated`` (n_p,) per model
+#: ``INJECT_*``; ``has_remnant``; ``remnant`` (2,): the log relative intensity and the
+#: log break frequency used when they are not estimated; ``estimated`` (n_p,) per model
 #: parameter; ``noise_first``: samples at the start during which only the noise
-#: parameters learn.
+#: parameters learn; ``base`` (2,): the log error variance the intensity is relative
+#: to and the sample from which it is fixed (before it, on a causal start, the
+#: variance of the samples so far; no parameter learns before it).
 BankConfig = namedtuple(
     "BankConfig",
     [
@@ -151,6 +156,7 @@ BankConfig = namedtuple(
         "remnant",
         "estimated",
         "noise_first",
+        "base",
     ],
 )
 #: ``th``, ``P``: the parameter belief; ``X`` (m, ns), ``PX`` (m, ns, ns): the m bank
@@ -215,18 +221,23 @@ BankOutput = namedtuple(
 
 @numba.njit(cache=True, _nrt=False)
 def _member_parameters(config, th, point_p):
-    """Model parameters of a bank point into ``point_p``; returns (intensity, break)."""
-    log_q = config.remnant[0]
+    """Model parameters of a bank point into ``point_p``; returns (intensity, break).
+
+    The intensity parameter is relative: the remnant's stationary variance over the
+    error variance of the first window, ``intensity = exp(log_rel) var_e 2 omega_r``.
+    """
+    log_rel = config.remnant[0]
     log_w = config.remnant[1]
     for j in range(th.shape[0]):
         slot = config.slot[j]
         if slot >= 0:
             point_p[slot] = th[j]
         elif slot == SLOT_LOG_INTENSITY:
-            log_q = th[j]
+            log_rel = th[j]
         elif slot == SLOT_LOG_BREAK:
             log_w = th[j]
-    return math.exp(log_q), math.exp(log_w)
+    omega = math.exp(log_w)
+    return math.exp(log_rel + config.base[0]) * 2.0 * omega, omega
 
 
 @numba.njit(cache=True, _nrt=False)
@@ -443,7 +454,11 @@ def bank_step(model, config, lines, belief, monitor, report, s, inputs_k, u_k, e
         report_frozen(sc, monitor, prev_in, in_use, dropped, row, out)
         return
     gamma2 = cfg[CFG_GAMMA2]
-    if k > 0:
+    anchored = k >= config.base[1]
+    if not anchored:
+        # a causal start: the error variance of the samples so far, floored
+        config.base[0] = math.log(max(window_variance(sc, SC_E), cfg[CFG_FLOOR]))
+    if k > 0 and anchored:
         for a in range(n_t):
             if k >= config.noise_first or config.slot[a] < 0:
                 P[a, a] += config.q[a] * gamma2
@@ -454,7 +469,7 @@ def bank_step(model, config, lines, belief, monitor, report, s, inputs_k, u_k, e
     if ok:
         for i in range(s.points.shape[0]):
             _member_step(model, config, lines, belief, s, i, k, u_k, R, q_error, dropped, k > 0)
-        if not dropped:
+        if not dropped and anchored:
             ok = _update_parameters(config, belief, s, u_k, k)
     _store(row, th, P, out.th_post, out.P_post)
     for i in range(prev_in.shape[0]):

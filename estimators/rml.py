@@ -205,9 +205,12 @@ class RML(PilotFilter):
         dt = float(common.cfg[0])
         has_remnant = settings.remnant != "none"
         omega = settings.break_frequency
+        causal = resolved.var_e0 is None
         var_e0 = max(resolved.var_e0 or 0.0, settings.variance_floor)
-        # initial intensity: stationary variance remnant_variance * var(e) of the filter
-        log_intensity = math.log(settings.remnant_variance * var_e0 * 2.0 * omega)
+        # the intensity is learned relative to the error variance of the first window:
+        # the remnant's stationary variance is remnant_variance * var(e) to begin with
+        log_intensity = math.log(settings.remnant_variance)
+        window = round(settings.window / dt)
         slots, mean, p0, q, lo, hi, labels = [], [], [], [], [], [], []
         for name in resolved.estimated:
             j = names.index(name)
@@ -251,7 +254,8 @@ class RML(PilotFilter):
             has_remnant=has_remnant,
             remnant=np.array([log_intensity, math.log(omega)]),
             estimated=common.estimated,
-            noise_first=round(settings.noise_first / dt),
+            noise_first=round(settings.noise_first / dt) + (window if causal else 0),
+            base=np.array([math.log(var_e0), float(window if causal else 0)]),
         )
         state_covariance = np.zeros((members, n_s, n_s))
         for i in range(members):

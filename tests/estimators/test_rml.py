@@ -211,3 +211,33 @@ def test_the_remnant_break_defaults_by_element_type():
     assert RMLSettings.from_dict(RMLSettings(model="precision").to_dict()) == RMLSettings(
         model="precision"
     )
+
+
+def test_online_in_an_environment_with_a_causal_start():
+    """The observer's causal start: nothing learns before the first window's variance."""
+    import gymnasium as gym
+
+    import manualcontrol.envs  # noqa: F401
+    from manualcontrol.estimators.observer import EstimatorObserver
+
+    inner = gym.make(
+        "ManualControl/CompensatoryTracking-v0",
+        controlled_element="popovici2017",
+        forcing="popovici2017",
+        measurement_time=40.0,
+    )
+    estimator = RML(model="precision", initial_variance="causal", initial={"K_p": 1.2})
+    env = EstimatorObserver(inner, estimator)
+    observation, _ = env.reset(seed=1)
+    pilot = Pilot("precision", COMPENSATORY, remnant="popovici2017")
+    pilot.reset(seed=2, env=env)
+    done, means, pinned = False, [], []
+    while not done:
+        observation, _, terminated, truncated, info = env.step(pilot.act(observation))
+        means.append(info["estimates"]["mean"]["K_p"])
+        pinned.append(bool(info["estimates"]["health"]["pinned"]))
+        done = terminated or truncated
+    window = round(estimator.settings.window / inner.unwrapped.dt)
+    assert means[:window] == [1.2] * window  # held until the first window is known
+    assert not any(pinned) and not info["estimates"]["health"]["diverged"]
+    assert np.mean(means[-1000:]) == pytest.approx(TRUE["K_p"], rel=0.15)
