@@ -23,6 +23,19 @@ from manualcontrol.envs.recording import Recording
 __all__ = ["best_estimators", "plot_estimation", "plot_recording", "summarise", "write_report"]
 
 
+#: The report's VAF rows in words (definitions: :mod:`manualcontrol.estimators.metrics`).
+VAF_DEFINITIONS = (
+    "VAF rows (thesis eq. 38, over the scored samples): *one-step*: the filter's "
+    "prediction of each sample from the samples before it, against u as measured "
+    "(remnant included); *resimulated vs u*: the isolated pilot model with the "
+    "identified parameter traces, driven by the recorded perceptions, against u as "
+    "measured; *resimulated vs remnant-free u*: the same model driven by the "
+    "perceptions of the remnant-free run, against the remnant-free u (u - u_n), the "
+    "thesis's Table III/IV VAF. *Ceiling*: the same resimulation with the true parameter "
+    "traces, what a perfect estimator scores on those runs.",
+)
+
+
 def _pyplot() -> Any:
     import matplotlib
 
@@ -503,6 +516,8 @@ def write_report(suite: Suite, rows: Sequence[Mapping[str, Any]], out: str | Pat
     runtime = sum(_number(row.get("run_time_s")) for row in ok)
     lines += [
         f"{len(rows)} runs, {len(rows) - len(ok)} failed; {runtime:.0f} s of run time in total.",
+        "",
+        *VAF_DEFINITIONS,
         "",
     ]
     for batch in suite.batches:
