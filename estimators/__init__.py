@@ -20,9 +20,11 @@ from manualcontrol.estimators.protocol import (
     HealthSummary,
     load_result,
 )
+from manualcontrol.estimators.rdi import RDI, RDISettings
 
 __all__ = [
     "DEKF",
+    "RDI",
     "DEKFSettings",
     "Estimate",
     "EstimateHealth",
@@ -31,6 +33,7 @@ __all__ = [
     "Estimator",
     "HealthSummary",
     "InternalModel",
+    "RDISettings",
     "ResolvedSettings",
     "build_internal_model",
     "evaluate",
