@@ -365,35 +365,15 @@ class RandomWalk(Schedule):
     upper: float | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "initial", check_real("initial", self.initial))
-        object.__setattr__(
-            self,
-            "std_per_sqrt_s",
-            check_positive("std_per_sqrt_s", self.std_per_sqrt_s, allow_zero=True),
-        )
-        object.__setattr__(self, "duration", check_positive("duration", self.duration))
-        object.__setattr__(self, "seed", check_int("seed", self.seed, minimum=0))
-        object.__setattr__(self, "dt", check_positive("dt", self.dt))
-        if self.dt > self.duration:
-            raise ValueError(f"dt must be <= duration = {self.duration!r} s, got dt = {self.dt!r}")
-        _check_bounds(self)
+        _check_walk(self, "std_per_sqrt_s")
 
     @cached_property
     def grid(self) -> tuple[FloatArray, FloatArray]:
         """Generation grid times (s) and walk values there, both shape ``(n + 1,)``."""
-        steps = max(1, math.ceil(self.duration / self.dt - 1e-9))
+        steps = _walk_steps(self)
         h = self.duration / steps
         rng = np.random.default_rng(self.seed)
-        increments = rng.normal(0.0, self.std_per_sqrt_s * math.sqrt(h), steps)
-        free = self.initial + np.concatenate(([0.0], np.cumsum(increments)))
-        times = np.linspace(0.0, self.duration, steps + 1)
-        values = self._reflect(free)
-        times.setflags(write=False)
-        values.setflags(write=False)
-        return times, values
-
-    def _reflect(self, x: FloatArray) -> FloatArray:
-        return _reflect(x, self.lower, self.upper)
+        return _walk_grid(self, rng.normal(0.0, self.std_per_sqrt_s * math.sqrt(h), steps))
 
     def _evaluate(self, t: FloatArray) -> FloatArray:
         times, values = self.grid
@@ -406,8 +386,15 @@ class RandomWalk(Schedule):
         )
 
 
-def _check_bounds(walk: Any) -> None:
-    """Validate a walk's optional ``lower``/``upper`` reflecting bounds and its start."""
+def _check_walk(walk: Any, spread: str) -> None:
+    """Validate a walk's start, spread (>= 0), duration, seed, grid step and bounds."""
+    object.__setattr__(walk, "initial", check_real("initial", walk.initial))
+    object.__setattr__(walk, spread, check_positive(spread, getattr(walk, spread), allow_zero=True))
+    object.__setattr__(walk, "duration", check_positive("duration", walk.duration))
+    object.__setattr__(walk, "seed", check_int("seed", walk.seed, minimum=0))
+    object.__setattr__(walk, "dt", check_positive("dt", walk.dt))
+    if walk.dt > walk.duration:
+        raise ValueError(f"dt must be <= duration = {walk.duration!r} s, got dt = {walk.dt!r}")
     for name in ("lower", "upper"):
         value = getattr(walk, name)
         if value is not None:
@@ -426,6 +413,21 @@ def _describe_bounds(walk: Any) -> str:
     low = "-inf" if walk.lower is None else _g(walk.lower)
     high = "inf" if walk.upper is None else _g(walk.upper)
     return f", in [{low}, {high}]"
+
+
+def _walk_steps(walk: Any) -> int:
+    """Grid steps of a walk: ``ceil(duration / dt)``, at least one."""
+    return max(1, math.ceil(walk.duration / walk.dt - 1e-9))
+
+
+def _walk_grid(walk: Any, increments: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Grid times and the walk summed from ``initial`` over ``increments``, reflected."""
+    free = walk.initial + np.concatenate(([0.0], np.cumsum(increments)))
+    times = np.linspace(0.0, walk.duration, increments.shape[0] + 1)
+    values = _reflect(free, walk.lower, walk.upper)
+    times.setflags(write=False)
+    values.setflags(write=False)
+    return times, values
 
 
 def _reflect(x: FloatArray, lower: float | None, upper: float | None) -> FloatArray:
@@ -491,49 +493,28 @@ class BandLimitedRandomWalk(Schedule):
     upper: float | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "initial", check_real("initial", self.initial))
-        object.__setattr__(
-            self,
-            "increment_std",
-            check_positive("increment_std", self.increment_std, allow_zero=True),
-        )
         object.__setattr__(self, "cutoff_hz", check_positive("cutoff_hz", self.cutoff_hz))
-        object.__setattr__(self, "duration", check_positive("duration", self.duration))
-        object.__setattr__(self, "seed", check_int("seed", self.seed, minimum=0))
-        object.__setattr__(self, "dt", check_positive("dt", self.dt))
-        if self.dt > self.duration:
-            raise ValueError(f"dt must be <= duration = {self.duration!r} s, got dt = {self.dt!r}")
-        steps = self._steps
-        h = self.duration / steps
+        _check_walk(self, "increment_std")
+        h = self.duration / _walk_steps(self)
         if not 1.0 / self.duration <= self.cutoff_hz <= 0.5 / h:
             raise ValueError(
                 f"cutoff_hz must lie in [{1.0 / self.duration:g}, {0.5 / h:g}] Hz (from one "
                 f"cycle per duration to the Nyquist frequency of the grid), got {self.cutoff_hz!r}"
             )
-        _check_bounds(self)
-
-    @property
-    def _steps(self) -> int:
-        return max(1, math.ceil(self.duration / self.dt - 1e-9))
 
     @cached_property
     def grid(self) -> tuple[FloatArray, FloatArray]:
         """Generation grid times (s) and walk values there, both shape ``(n + 1,)``."""
         from manualcontrol.envs.signals import band_limited_noise
 
-        steps = self._steps
+        steps = _walk_steps(self)
         h = self.duration / steps
         if steps < 2 or self.increment_std == 0.0:
-            increments = np.zeros(steps)
-        else:
-            rng = np.random.default_rng(self.seed)
-            increments = band_limited_noise(steps, h, self.cutoff_hz, self.increment_std, rng)
-        free = self.initial + np.concatenate(([0.0], np.cumsum(increments)))
-        times = np.linspace(0.0, self.duration, steps + 1)
-        values = _reflect(free, self.lower, self.upper)
-        times.setflags(write=False)
-        values.setflags(write=False)
-        return times, values
+            return _walk_grid(self, np.zeros(steps))
+        rng = np.random.default_rng(self.seed)
+        return _walk_grid(
+            self, band_limited_noise(steps, h, self.cutoff_hz, self.increment_std, rng)
+        )
 
     def _evaluate(self, t: FloatArray) -> FloatArray:
         times, values = self.grid
@@ -542,7 +523,7 @@ class BandLimitedRandomWalk(Schedule):
     def describe(self) -> str:  # noqa: D102
         return (
             f"band-limited random walk(from {_g(self.initial)}, {_g(self.increment_std)} per "
-            f"step of {_g(self.duration / self._steps)} s below {_g(self.cutoff_hz)} Hz, "
+            f"step of {_g(self.duration / _walk_steps(self))} s below {_g(self.cutoff_hz)} Hz, "
             f"seed {self.seed}{_describe_bounds(self)})"
         )
 

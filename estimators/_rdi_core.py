@@ -51,6 +51,7 @@ from manualcontrol.estimators.filters.monitor import (
     REASON_NONFINITE,
     belief_health,
 )
+from manualcontrol.estimators.filters.smoothers import store_belief
 
 # ---- indices into the configuration vector ``cfg``
 CFG_DT = 0
@@ -181,16 +182,6 @@ def predict(cfg, p, ring_r, ring_y, k, gradient):
 
 
 @numba.njit(cache=True, _nrt=False)
-def _store(row, x, P, target_x, target_P):
-    if target_x.shape[0] == 0:
-        return
-    for i in range(x.shape[0]):
-        target_x[row, i] = x[i]
-        for j in range(x.shape[0]):
-            target_P[row, i, j] = P[i, j]
-
-
-@numba.njit(cache=True, _nrt=False)
 def _report(config, belief, scratch, row, out, prediction, innovation, S, flags):
     x, P, p = belief.x, belief.P, belief.p
     variance = scratch.variance
@@ -234,8 +225,8 @@ def rdi_step(config, belief, scratch, r_k, y_k, row, out):
 
     if sc[SC_FROZEN] > 0.0:
         # a diverged filter repeats its last estimate and predicts nothing
-        _store(row, x, P, out.x_prior, out.P_prior)
-        _store(row, x, P, out.x_post, out.P_post)
+        store_belief(row, x, P, out.x_prior, out.P_prior)
+        store_belief(row, x, P, out.x_post, out.P_post)
         flags[0] = sc[SC_DIV_REASON] != REASON_NONFINITE
         flags[1] = sc[SC_DIV_REASON] != REASON_COVARIANCE
         flags[3] = True
@@ -252,7 +243,7 @@ def rdi_step(config, belief, scratch, r_k, y_k, row, out):
         # time update, eqs. 1a/2a with f = I: P^- = P^+ + Q
         for i in range(n_s):
             P[i, i] += config.q[i]
-    _store(row, x, P, out.x_prior, out.P_prior)
+    store_belief(row, x, P, out.x_prior, out.P_prior)
 
     prediction = predict(cfg, p, ring_r, ring_y, k, gradient)
     for i in range(n_s):
@@ -289,7 +280,7 @@ def rdi_step(config, belief, scratch, r_k, y_k, row, out):
             clamp(x, config.limit, config.lo, config.hi)
             for i in range(n_s):
                 p[config.state_param[i]] = x[i]
-    _store(row, x, P, out.x_post, out.P_post)
+    store_belief(row, x, P, out.x_post, out.P_post)
 
     finite, cov_ok = belief_health(x, P, cfg[CFG_MAX_COV], False)
     if not correct_ok:

@@ -78,7 +78,8 @@ from manualcontrol.estimators.protocol import (
     Estimate,
     EstimateHealth,
     EstimationResult,
-    HealthSummary,
+    sample_values,
+    summarise_health,
 )
 from manualcontrol.estimators.registry import EstimatorEntry, register
 
@@ -469,29 +470,10 @@ class RDI:
         also spoils the predictions that read it, which are then skipped too).
         """
         self._require_reset()
-        if not isinstance(sample, Mapping):
-            raise TypeError(f"sample must be a mapping of signal values, got {sample!r}")
         keys = self.sample_keys
-        reject_unknown("RDI.update sample", sample, (*keys, "t"))
-        missing = [key for key in keys if key not in sample]
-        if missing:
-            raise ValueError(
-                f"RDI.update sample lacks {', '.join(map(repr, missing))}; it needs "
-                f"{', '.join(map(repr, keys))}"
-            )
-        values = []
-        for key in keys:
-            value = sample[key]
-            if isinstance(value, bool) or not isinstance(
-                value, (int, float, np.floating, np.integer)
-            ):
-                raise TypeError(f"sample[{key!r}] must be a number, got {value!r}")
-            value = float(value)
-            if math.isinf(value):
-                raise ValueError(f"sample[{key!r}] must be finite or NaN (dropped), got {value!r}")
-            values.append(value)
+        values = sample_values("RDI.update sample", sample, keys, (*keys, "t"))
         out = self._row
-        core.rdi_step(*self._records, values[0], values[1], 0, out)
+        core.rdi_step(*self._records, values[keys[0]], values[keys[1]], 0, out)
         t = float(sample["t"]) if "t" in sample else self._t0 + self._k * self._dt
         self._k += 1
         names = self.parameter_names
@@ -577,27 +559,16 @@ class RDI:
 
     def _health(self, t: FloatArray, flag: NDArray[np.bool_], pinned: NDArray[np.bool_]) -> Any:
         sc = self._records[1].sc
-        reason_code = int(sc[core.SC_DIV_REASON])
-        diverged = reason_code in _REASONS
-        index = int(sc[core.SC_DIV_INDEX])
-        dropped = flag[:, 2]
-        edges = np.diff(np.concatenate(([0], dropped.astype(np.int8), [0])))
-        starts = np.flatnonzero(edges == 1)
-        stops = np.flatnonzero(edges == -1)
-        stretches = tuple(
-            (float(t[a]), float((b - a) * self._dt)) for a, b in zip(starts, stops, strict=True)
-        )
-        return HealthSummary(
-            diverged=diverged,
-            divergence_time=float(t[index]) if diverged and 0 <= index < len(t) else math.nan,
-            divergence_reason=_REASONS.get(reason_code, ""),
-            stopped=diverged,
-            dropped_samples=int(dropped.sum()),
-            dropped_stretches=stretches,
-            pinned_fraction={
-                n: float(pinned[:, j].mean()) if len(t) else 0.0
-                for j, n in enumerate(self.parameter_names)
-            },
+        reason = _REASONS.get(int(sc[core.SC_DIV_REASON]), "")
+        return summarise_health(
+            t,
+            self._dt,
+            flag[:, 2],
+            pinned,
+            self.parameter_names,
+            reason=reason,
+            divergence_index=int(sc[core.SC_DIV_INDEX]),
+            stopped=bool(reason),
         )
 
     def _result(self, t: FloatArray, out: core.RDIOutput, store: bool) -> EstimationResult:
@@ -675,13 +646,9 @@ def resimulate(result: EstimationResult, recording: Recording) -> FloatArray:
     p = np.ascontiguousarray(
         np.column_stack([result.mean_of(name) for name in settings.parameter_names])
     )
-    held = np.array(r, copy=True)
-    bad = ~np.isfinite(held)
-    if bad.any():
-        index = np.where(~bad, np.arange(held.shape[0]), 0)
-        np.maximum.accumulate(index, out=index)
-        held = held[index]
-        held[~np.isfinite(held)] = 0.0
+    from manualcontrol.estimators.metrics import _held
+
+    held = _held(r)
     return core.simulate_output(
         p, np.ascontiguousarray(held), recording.dt, settings.decimation, settings.n_a, settings.n_b
     )
