@@ -83,7 +83,7 @@ from manualcontrol.estimators.protocol import (
 )
 from manualcontrol.estimators.registry import EstimatorEntry, register
 
-__all__ = ["RDI", "RDISettings", "parameter_symbols"]
+__all__ = ["RDI", "RDISettings", "ResolvedRDI", "parameter_symbols"]
 
 FloatArray = NDArray[np.float64]
 
@@ -295,6 +295,27 @@ class RDISettings:
                 items[name] = tuple(items[name])
         return cls(**items)
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        # read-only mappings do not pickle: rebuild from the plain dict
+        return (type(self).from_dict, (self.to_dict(),))
+
+
+@dataclass(frozen=True)
+class ResolvedRDI:
+    """What a reset resolved.
+
+    The estimated parameters and every initial value (by their reported names), and the
+    numbers in the filter's units (``Q``, ``P0`` in s^2 for the delay, the history length).
+    """
+
+    estimated: tuple[str, ...]
+    initial: Mapping[str, float]
+    numbers: Mapping[str, Any]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able form."""
+        return dict(self.numbers)
+
 
 class RDI:
     """Recursive delay identifier (Boer & Kenyon 1998); see the module docstring.
@@ -361,7 +382,19 @@ class RDI:
 
     # ----------------------------------------------------------------- reset
 
-    def resolved(self, dt: float) -> dict[str, Any]:
+    @property
+    def resolved(self) -> ResolvedRDI:
+        """The numbers of the last :meth:`reset` (as the pilot filters report theirs)."""
+        if self._records is None:
+            raise RuntimeError("the RDI has not been reset; call reset() first")
+        names = dict(zip(self._settings.symbols, self.parameter_names, strict=True))
+        return ResolvedRDI(
+            estimated=self._reported_estimated(),
+            initial={names[k]: v for k, v in self._resolved["initial"].items()},
+            numbers=dict(self._resolved),
+        )
+
+    def _resolve(self, dt: float) -> dict[str, Any]:
         """Every number a run at sample time ``dt`` uses, in the filter's units."""
         s = self._settings
         step = s.decimation * dt
@@ -388,7 +421,7 @@ class RDI:
         t0 = check_real("t0", t0)
         if s.delay_limits[0] + 0.0 < 0.0:  # pragma: no cover - validated in the settings
             raise ValueError("delay_limits low must be >= 0")
-        resolved = self.resolved(dt)
+        resolved = self._resolve(dt)
         symbols = s.symbols
         estimated = s.estimated_symbols
         n_p, n_s = len(symbols), len(estimated)

@@ -11,8 +11,10 @@ Tolerances, and why:
   these runs (see each test).
 """
 
+import copy
 import dataclasses
 import math
+import pickle
 import re
 import sys
 from pathlib import Path
@@ -284,9 +286,37 @@ def test_the_registry_builds_the_rdi_from_suite_keys():
     assert isinstance(rdi, RDI) and rdi.settings.estimated == ("d",)
 
 
-def test_settings_round_trip_through_json_dicts():
+def test_settings_round_trip_through_json_dicts_and_pickles():
     settings = RDISettings(n_a=2, n_b=0, estimated=("d", "a_2"), report_names={"b_0": "K"})
     assert RDISettings.from_dict(settings.to_dict()) == settings
+    assert pickle.loads(pickle.dumps(settings)) == settings
+    assert copy.deepcopy(RDI(settings)).settings == settings
+
+
+def test_the_rdi_runs_live_inside_a_postview_env():
+    # the observer wrapper feeds it the env's signals; online equals the batch estimate
+    import gymnasium as gym
+
+    import manualcontrol.envs  # noqa: F401
+    from manualcontrol.estimators.observer import EstimatorObserver
+    from manualcontrol.pilots import Pilot
+
+    rdi = RDI(n_a=0, n_b=0, input="ft", output="u", Q_d=0.5, Q_c=1e-6, R=0.5, initial={"d": 0.0})
+    env = EstimatorObserver(
+        gym.make("ManualControl/PostviewTracking-v0", gap=0.4, dt=1 / 36, measurement_time=15.0),
+        rdi,
+    )
+    observation, info = env.reset(seed=0)
+    pilot = Pilot("postview", {"K_v": 0.224})
+    pilot.reset(0, env=env)
+    done = False
+    while not done:
+        observation, _, terminated, truncated, info = env.step(pilot.act(observation))
+        done = terminated or truncated
+    batch = rdi.configure().estimate(env.unwrapped.recording())
+    assert info["estimates"]["mean"]["d"] == batch.final()["d"]
+    late = batch.t >= 5.0  # after recovering from 0; the filtered estimate is noisy (R .5)
+    assert np.mean(batch.mean_of("d")[late]) == pytest.approx(0.2, abs=0.02)  # gap - 0.2 s
 
 
 @pytest.mark.parametrize(
