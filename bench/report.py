@@ -350,9 +350,8 @@ def _trace_figure(
     first = results[0]
     names = list(first.estimated)
     scenario = scenario_from_dict(ok[0]["scenario"])
-    truth = {
-        name: schedule(first.t) for name, schedule in scenario.build_pilot().parameters.items()
-    }
+    pilot = scenario.build_pilot().parameters if scenario.system is None else {}
+    truth = {name: schedule(first.t) for name, schedule in pilot.items()}
     plt = _pyplot()
     rows_in_figure = len(names) + 1
     fig, axes = plt.subplots(rows_in_figure, 1, figsize=(9, 1.7 * rows_in_figure), sharex=True)

@@ -58,6 +58,20 @@ def simulate_scenario(scenario: Scenario) -> Recording:
     """The scenario's simulated run, run-in kept (the estimator converges on it)."""
     from manualcontrol.pilots import simulate
 
+    if scenario.system is not None:
+        from manualcontrol.pilots.open_loop import simulate_open_loop
+
+        return simulate_open_loop(
+            scenario.build_system(),
+            scenario.forcing,
+            realisation=scenario.realisation,
+            dt=scenario.dt,
+            run_in=scenario.run_in,
+            measurement_time=scenario.measurement_time or 60.0,
+            seed=scenario.remnant_seed,
+            keep_run_in=True,
+        )
+    postview = {} if scenario.gap is None else {"gap": scenario.build_gap()}
     return simulate(
         scenario.build_pilot(),
         scenario.element,
@@ -71,6 +85,8 @@ def simulate_scenario(scenario: Scenario) -> Recording:
         seed=scenario.remnant_seed,
         loop=scenario.loop,
         keep_run_in=True,
+        loss_of_control=scenario.loss_of_control,
+        **postview,
     )
 
 

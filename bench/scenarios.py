@@ -60,6 +60,15 @@ Schema of a suite file::
     source = "thesis Table II"
     [batch.reference.parameters]
     tau_f = {rel_bias = 0.312, nrmse = 0.252}
+
+Postview batches (``task = "postview"``, :mod:`manualcontrol.envs.postview`) take
+``gap = <number or schedule table>``; any closed-loop batch may end at loss of control,
+``loss_of_control = <|e| limit>``. An open-loop batch (``task = "open-loop"``,
+:func:`manualcontrol.pilots.open_loop.simulate_open_loop`) has no element or pilot but a
+``[batch.system]`` table (``a``, ``b``, ``delay``, ``step``, ``noise_std``,
+``noise_cutoff_hz``, ``simulation_rate``: an
+:class:`~manualcontrol.pilots.open_loop.ARMAXSystem`) driven by the forcing's target;
+its ``remnant_seeds`` seed the output noise.
 """
 
 from __future__ import annotations
@@ -106,7 +115,12 @@ _BATCH_KEYS = {
     "measurement_time",
     "loop",
     "score_from",
+    "system",
+    "gap",
+    "loss_of_control",
 }
+#: The task of open-loop batches: a system driven by the forcing, no pilot and no loop.
+OPEN_LOOP = "open-loop"
 _DEFAULT_KEYS = {"dt", "run_in", "measurement_time", "loop", "available_preview", "score_from"}
 _PILOT_KEYS = {"model", "parameters", "remnant", "delay_order", "near_view"}
 
@@ -134,10 +148,17 @@ class Scenario:
     available_preview: float | None
     estimator: Mapping[str, Any]
     score_from: float = 0.0
+    system: Mapping[str, Any] | None = None
+    gap: Any = None
+    loss_of_control: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able description."""
-        return json.loads(json.dumps(dataclasses.asdict(self)))
+        """Plain JSON-able description (the optional fields only where set)."""
+        data = json.loads(json.dumps(dataclasses.asdict(self)))
+        for name in _OPTIONAL_FIELDS:
+            if data.get(name) is None:
+                data.pop(name, None)
+        return data
 
     @property
     def key(self) -> str:
@@ -162,6 +183,25 @@ class Scenario:
     def build_pilot(self) -> Pilot:
         """The :class:`~manualcontrol.pilots.Pilot` of this scenario."""
         return _pilot_from(self.pilot)
+
+    def build_system(self) -> Any:
+        """The :class:`~manualcontrol.pilots.open_loop.ARMAXSystem` of an open-loop scenario."""
+        from manualcontrol.pilots.open_loop import ARMAXSystem
+
+        if self.system is None:
+            raise ValueError(f"scenario {self.key} is not open-loop: it has no system")
+        return ARMAXSystem.from_dict(self.system)
+
+    def build_gap(self) -> Any:
+        """The postview gap as a number or schedule (None outside postview tasks)."""
+        from manualcontrol.envs.schedules import Schedule
+
+        return None if self.gap is None else Schedule.from_dict(self.gap)
+
+
+#: Scenario fields left out of :meth:`Scenario.to_dict` (and so of its key) when unset,
+#: so the keys of scenarios that do not use them stay what they were.
+_OPTIONAL_FIELDS = ("system", "gap", "loss_of_control")
 
 
 @dataclass(frozen=True)
@@ -309,7 +349,9 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
     merged = {**defaults, **raw}
     if "available_preview" not in raw and raw.get("task") != "preview":
         merged.pop("available_preview", None)  # a suite-wide preview concerns preview batches
-    for key in ("name", "task", "element", "forcing", "realisations", "pilot", "estimator"):
+    open_loop = merged.get("task") == OPEN_LOOP
+    needed = ("system",) if open_loop else ("element", "pilot")
+    for key in ("name", "task", "forcing", "realisations", *needed):
         if key not in merged:
             raise _fail(where, f"missing key {key!r}")
     name = merged["name"]
@@ -317,11 +359,13 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
         raise _fail(where, f"name must be letters, digits, '-' or '_', got {name!r}")
     where = f"{where} ({name})"
     try:
-        check_choice("task", merged["task"], TASKS)
-        try:
-            make_element(merged["element"])
-        except (TypeError, ValueError, KeyError) as error:
-            raise ValueError(f"element: {error}") from None
+        check_choice("task", merged["task"], (*TASKS, OPEN_LOOP))
+        extra = _check_extras(merged, open_loop)
+        if not open_loop:
+            try:
+                make_element(merged["element"])
+            except (TypeError, ValueError, KeyError) as error:
+                raise ValueError(f"element: {error}") from None
         check_choice("forcing", merged["forcing"], FORCING_PRESETS)
         loop = check_choice("loop", merged.get("loop", "continuous"), LOOPS)
         dt = check_positive("dt", merged.get("dt", 0.01))
@@ -356,23 +400,12 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
     quick_seeds = _int_list(where, "quick.remnant_seeds", quick.get("remnant_seeds", [seeds[0]]))
     _check_subset(where, "realisations", quick_realisations, realisations)
     _check_subset(where, "remnant_seeds", quick_seeds, seeds)
-    pilot = _table(where, "pilot", merged["pilot"])
-    unknown = sorted(set(pilot) - _PILOT_KEYS)
-    if unknown:
-        raise _fail(where, f"pilot has unknown key(s) {unknown}; allowed: {sorted(_PILOT_KEYS)}")
-    if "model" not in pilot:
-        raise _fail(where, "pilot needs a model")
-    if "parameters" in pilot:
-        _table(where, "pilot.parameters", pilot["parameters"])
-    try:
-        built = _pilot_from(pilot)
-    except (TypeError, ValueError, KeyError) as error:
-        raise _fail(where, f"pilot: {error}") from None
+    pilot, built = ({}, None) if open_loop else _checked_pilot(where, merged)
     shared, estimators = _estimators(where, merged)
     reference = _table(where, "reference", merged.get("reference", {}))
     template = {
         "task": merged["task"],
-        "element": merged["element"],
+        "element": merged.get("element"),
         "forcing": merged["forcing"],
         "pilot": pilot,
         "dt": dt,
@@ -381,8 +414,10 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
         "loop": loop,
         "available_preview": preview,
         "score_from": score_from,
+        **extra,
     }
-    _check_runs(where, built, template, realisations[0])
+    if built is not None:
+        _check_runs(where, built, template, realisations[0])
     return Batch(
         name,
         template,
@@ -464,11 +499,66 @@ def _check_runs(where: str, pilot: Pilot, template: Mapping[str, Any], realisati
             dt=template["dt"],
             run_in=template["run_in"],
             measurement_time=template["measurement_time"],
+            gap=template.get("gap"),
         )
         setup.parameter_traces()
-        check_stable(setup)
+        if "loss_of_control" not in template:  # a run that may end at the loss is not judged
+            check_stable(setup)
     except (TypeError, ValueError) as error:
         raise _fail(where, str(error)) from None
+
+
+def _checked_pilot(where: str, merged: Mapping[str, Any]) -> tuple[dict[str, Any], Pilot]:
+    """The batch's pilot table, checked, and the pilot it builds."""
+    pilot = _table(where, "pilot", merged["pilot"])
+    unknown = sorted(set(pilot) - _PILOT_KEYS)
+    if unknown:
+        raise _fail(where, f"pilot has unknown key(s) {unknown}; allowed: {sorted(_PILOT_KEYS)}")
+    if "model" not in pilot:
+        raise _fail(where, "pilot needs a model")
+    if "parameters" in pilot:
+        _table(where, "pilot.parameters", pilot["parameters"])
+    try:
+        built = _pilot_from(pilot)
+    except (TypeError, ValueError, KeyError) as error:
+        raise _fail(where, f"pilot: {error}") from None
+    if built.model.task != "compensatory" and merged["task"] == "compensatory":
+        raise _fail(where, f"task 'compensatory' does not fit pilot model {pilot['model']!r}")
+    if (built.model.task == "postview") != (merged["task"] == "postview"):
+        raise _fail(where, f"task {merged['task']!r} does not fit pilot model {pilot['model']!r}")
+    return pilot, built
+
+
+def _check_extras(merged: Mapping[str, Any], open_loop: bool) -> dict[str, Any]:
+    """The keys of postview, loss-of-control and open-loop batches, checked."""
+    from manualcontrol.envs.schedules import Schedule
+
+    extra: dict[str, Any] = {}
+    if open_loop:
+        for key in ("element", "pilot", "gap", "loss_of_control", "available_preview"):
+            if key in merged:
+                raise ValueError(f"{key} does not apply to an open-loop batch (it has a system)")
+        from manualcontrol.pilots.open_loop import ARMAXSystem
+
+        try:
+            extra["system"] = ARMAXSystem.from_dict(merged["system"]).to_dict()
+        except (TypeError, ValueError, KeyError) as error:
+            raise type(error)(f"system: {error}") from None
+        return extra
+    if "system" in merged:
+        raise ValueError(f"system belongs to open-loop batches, not task {merged['task']!r}")
+    if "gap" in merged:
+        if merged["task"] != "postview":
+            raise ValueError(f"gap belongs to postview batches, not task {merged['task']!r}")
+        gap = merged["gap"]
+        try:
+            Schedule.from_dict(gap)
+        except (TypeError, ValueError) as error:
+            raise type(error)(f"gap: {error}") from None
+        extra["gap"] = gap
+    if "loss_of_control" in merged:
+        extra["loss_of_control"] = check_positive("loss_of_control", merged["loss_of_control"])
+    return extra
 
 
 def parse_suite(data: Mapping[str, Any], source: str = "<table>") -> Suite:

@@ -26,6 +26,7 @@ from manualcontrol.estimators.protocol import (
     HealthSummary,
     load_result,
 )
+from manualcontrol.estimators.rdi import RDI, RDISettings
 from manualcontrol.estimators.registry import ESTIMATORS, EstimatorEntry, make_estimator
 from manualcontrol.estimators.smoothing import smooth
 from manualcontrol.estimators.ukf import DualUKF, DualUKFSettings, JointUKF, UKFSettings
@@ -33,6 +34,7 @@ from manualcontrol.estimators.ukf import DualUKF, DualUKFSettings, JointUKF, UKF
 __all__ = [
     "DEKF",
     "ESTIMATORS",
+    "RDI",
     "DEKFSettings",
     "DualUKF",
     "DualUKFSettings",
@@ -45,6 +47,7 @@ __all__ = [
     "HealthSummary",
     "InternalModel",
     "JointUKF",
+    "RDISettings",
     "ResolvedSettings",
     "UKFSettings",
     "build_internal_model",

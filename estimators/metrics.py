@@ -35,6 +35,7 @@ from manualcontrol.envs._validation import check_int, check_positive, check_real
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators._targets import target_function
 from manualcontrol.estimators.protocol import EstimationResult
+from manualcontrol.estimators.registry import ESTIMATORS
 from manualcontrol.pilots.models import PilotModel, make_model
 from manualcontrol.pilots.simulation import isolated_pilot_output
 
@@ -205,7 +206,9 @@ def resimulate(
     perceptions: the error ``e``, or for the preview model the previewed target
     ``ft(t + tau_f(t))`` at the identified preview time (target from ``forcing``, the
     recording's metadata, or its periodic extension, as for the DEKF) and the output
-    ``y``. Perceptions are held over each sample; dropped samples hold the last value.
+    ``y``. Estimators whose model is their own (the RDI's ARMAX model) register a
+    ``resimulate`` in :mod:`~manualcontrol.estimators.registry`, used instead.
+    Perceptions are held over each sample; dropped samples hold the last value.
     The model delay is exact (a fractional delay line, as in the simulation;
     ``delay_order=None``, default) or a Padé approximant.
     """
@@ -217,6 +220,9 @@ def resimulate(
         raise ValueError(
             f"result and recording must have the same samples: {len(result)} != {len(recording)}"
         )
+    entry = ESTIMATORS.get(result.estimator)
+    if entry is not None and entry.resimulate is not None:
+        return np.asarray(entry.resimulate(result, recording), dtype=np.float64)
     model = _model_of(result)
     values = {name: np.array(result.mean_of(name)) for name in model.parameter_names}
     perceptions: dict[str, FloatArray] = {}

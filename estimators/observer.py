@@ -75,7 +75,7 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.estimator = estimator
         self.append_to_observation = bool(append_to_observation)
         keys = tuple(estimator.sample_keys)
-        unknown = sorted(set(keys) - {"e", "u", "y", "ft_ahead"})
+        unknown = sorted(set(keys) - {"e", "u", "y", "ft", "ft_ahead"})
         if unknown:
             raise ValueError(f"the environment cannot supply the estimator's samples {unknown}")
         self._keys = keys
@@ -108,7 +108,7 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def _display(self, info: dict[str, Any]) -> dict[str, float]:
         """What the sample of this step takes from the display (before the action)."""
         base = self.env.unwrapped
-        sample = {"e": float(info["e"]), "y": float(info["y"]), "t": float(info["t"])}
+        sample = {key: float(info[key]) for key in ("e", "y", "ft", "t")}
         if "ft_ahead" in self._keys:
             sample["ft_ahead"] = float(base.forcing.target(info["t"] + self._anticipation))
         return sample

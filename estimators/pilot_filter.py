@@ -83,7 +83,8 @@ from manualcontrol.estimators.protocol import (
     Estimate,
     EstimateHealth,
     EstimationResult,
-    HealthSummary,
+    sample_values,
+    summarise_health,
 )
 from manualcontrol.pilots.models import MODEL_NAMES, make_model
 
@@ -906,28 +907,8 @@ class PilotFilter:
         """
         if self._common is None:
             raise RuntimeError(f"the {type(self).__name__} has not been reset; call reset() first")
-        if not isinstance(sample, Mapping):
-            raise TypeError(f"sample must be a mapping of signal values, got {sample!r}")
-        keys = self._sample_keys
         where = f"{type(self).__name__}.update sample"
-        reject_unknown(where, sample, self._allowed_sample_keys)
-        missing = [key for key in keys if key not in sample]
-        if missing:
-            raise ValueError(
-                f"{where} lacks {', '.join(map(repr, missing))}; it needs "
-                f"{', '.join(map(repr, keys))}"
-            )
-        values = {}
-        for key in keys:
-            value = sample[key]
-            if isinstance(value, bool) or not isinstance(
-                value, (int, float, np.floating, np.integer)
-            ):
-                raise TypeError(f"sample[{key!r}] must be a number, got {value!r}")
-            value = float(value)
-            if math.isinf(value):
-                raise ValueError(f"sample[{key!r}] must be finite or NaN (dropped), got {value!r}")
-            values[key] = value
+        values = sample_values(where, sample, self._sample_keys, self._allowed_sample_keys)
         inputs = np.array([values[name] for name in self._internal.input_names])
         out = self._row
         self._step(inputs, values["u"], values["e"], out)
@@ -1060,24 +1041,15 @@ class PilotFilter:
             reason = f"{name} pinned at a limit for {self._settings.pinned_time:g} s"
         else:
             reason = REASONS.get(reason_code, "")
-        index = int(sc[core.SC_DIV_INDEX])
-        dropped = flag[:, 2]
-        edges = np.diff(np.concatenate(([0], dropped.astype(np.int8), [0])))
-        starts = np.flatnonzero(edges == 1)
-        stops = np.flatnonzero(edges == -1)
-        stretches = tuple(
-            (float(t[a]), float((b - a) * self._dt)) for a, b in zip(starts, stops, strict=True)
-        )
-        return HealthSummary(
-            diverged=diverged,
-            divergence_time=float(t[index]) if diverged and 0 <= index < len(t) else math.nan,
-            divergence_reason=reason,
+        return summarise_health(
+            t,
+            self._dt,
+            flag[:, 2],
+            pinned,
+            names,
+            reason=reason if diverged else "",
+            divergence_index=int(sc[core.SC_DIV_INDEX]),
             stopped=bool(sc[core.SC_FROZEN] > 0.0),
-            dropped_samples=int(dropped.sum()),
-            dropped_stretches=stretches,
-            pinned_fraction={
-                n: float(pinned[:, j].mean()) if len(t) else 0.0 for j, n in enumerate(names)
-            },
         )
 
     def _result(self, t: FloatArray, out: Any, store: bool) -> EstimationResult:

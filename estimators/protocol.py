@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from manualcontrol.envs._files import atomic_write
-from manualcontrol.envs._validation import check_choice
+from manualcontrol.envs._validation import check_choice, reject_unknown
 from manualcontrol.envs.recording import Recording
 
 __all__ = [
@@ -52,6 +52,8 @@ __all__ = [
     "Estimator",
     "HealthSummary",
     "load_result",
+    "sample_values",
+    "summarise_health",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -250,6 +252,72 @@ class HealthSummary:
             dropped_stretches=tuple(tuple(s) for s in data["dropped_stretches"]),
             pinned_fraction={str(k): float(v) for k, v in data["pinned_fraction"].items()},
         )
+
+
+def sample_values(
+    where: str, sample: Any, keys: tuple[str, ...], allowed: tuple[str, ...]
+) -> dict[str, float]:
+    """The floats of ``keys`` in one :meth:`Estimator.update` sample, checked.
+
+    ``sample`` must be a mapping holding every key (more from ``allowed`` are tolerated);
+    each value a real number, finite or NaN (a dropped sample), never infinite. Errors
+    name ``where`` and the key.
+    """
+    if not isinstance(sample, Mapping):
+        raise TypeError(f"sample must be a mapping of signal values, got {sample!r}")
+    reject_unknown(where, sample, allowed)
+    missing = [key for key in keys if key not in sample]
+    if missing:
+        raise ValueError(
+            f"{where} lacks {', '.join(map(repr, missing))}; it needs {', '.join(map(repr, keys))}"
+        )
+    values = {}
+    for key in keys:
+        value = sample[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+            raise TypeError(f"sample[{key!r}] must be a number, got {value!r}")
+        value = float(value)
+        if math.isinf(value):
+            raise ValueError(f"sample[{key!r}] must be finite or NaN (dropped), got {value!r}")
+        values[key] = value
+    return values
+
+
+def summarise_health(
+    t: FloatArray,
+    dt: float,
+    dropped: BoolArray,
+    pinned: BoolArray,
+    parameter_names: tuple[str, ...],
+    *,
+    reason: str,
+    divergence_index: int,
+    stopped: bool,
+) -> HealthSummary:
+    """A run's :class:`HealthSummary` from its per-sample flags.
+
+    ``reason`` is empty when the run did not diverge; ``divergence_index`` is the row of
+    the detection (-1: none); ``dropped`` (n,) and ``pinned`` (n, p) are the flags.
+    """
+    edges = np.diff(np.concatenate(([0], dropped.astype(np.int8), [0])))
+    starts = np.flatnonzero(edges == 1)
+    stops = np.flatnonzero(edges == -1)
+    stretches = tuple(
+        (float(t[a]), float((b - a) * dt)) for a, b in zip(starts, stops, strict=True)
+    )
+    diverged = bool(reason)
+    index = divergence_index
+    return HealthSummary(
+        diverged=diverged,
+        divergence_time=float(t[index]) if diverged and 0 <= index < len(t) else math.nan,
+        divergence_reason=reason,
+        stopped=stopped,
+        dropped_samples=int(dropped.sum()),
+        dropped_stretches=stretches,
+        pinned_fraction={
+            n: float(pinned[:, j].mean()) if len(t) else 0.0 for j, n in enumerate(parameter_names)
+        },
+    )
 
 
 @dataclass(frozen=True, eq=False)

@@ -21,12 +21,18 @@ __all__ = ["ESTIMATORS", "EstimatorEntry", "make_estimator", "register"]
 
 @dataclass(frozen=True)
 class EstimatorEntry:
-    """One member of the family: how to name, describe and build it."""
+    """One member of the family: how to name, describe and build it.
+
+    ``resimulate(result, recording)``, when given, is the member's own model output
+    from the recorded inputs with the identified traces (for members whose model is not
+    a pilot structure; :func:`~manualcontrol.estimators.metrics.resimulate` uses it).
+    """
 
     name: str
     summary: str
     reference: str
     build: Callable[[Mapping[str, Any]], Any]
+    resimulate: Callable[[Any, Any], Any] | None = None
 
 
 #: Registered estimators, by name.

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from manualcontrol.envs._interpolation import interpolate_at
 from manualcontrol.envs.dynamics import read_held, read_smooth
+from manualcontrol.envs.postview import edge_perceptions
 from manualcontrol.pilots.simulation import (
     SimulationSetup,
     _as_generator,
@@ -135,6 +136,7 @@ class PilotController:
                     f"env must be a manualcontrol tracking environment after reset(), "
                     f"it has no {attribute!r}"
                 )
+        postview = {"gap": base.gap, "postview": base.postview} if base.task == "postview" else {}
         setup = SimulationSetup.create(
             pilot,
             base.element,
@@ -144,6 +146,7 @@ class PilotController:
             dt=base.dt,
             run_in=base.run_in,
             measurement_time=base.measurement_time,
+            **postview,
         )
         rng, _ = _as_generator(seed)
         traces = setup.parameter_traces()
@@ -168,6 +171,7 @@ class PilotController:
                     measurement_time=base.measurement_time,
                     seed=replay,
                     loop="sampled",
+                    **postview,
                 )
                 remnant = remnant.with_gain(calibration.metadata["remnant"]["K_r"])
             self.noise = noise * remnant.K_r
@@ -211,6 +215,12 @@ class PilotController:
         k = self.k
         if self._task == "compensatory":
             inputs[0] = observation[0]
+            return
+        if self._task == "postview":
+            # the visible end of the track and its slope, as simulate() reads them
+            edge, slope = edge_perceptions(observation[:3], self.setup.dt)
+            inputs[self._perceptions.index("ft_edge")] = edge
+            inputs[self._perceptions.index("ft_edge_rate")] = slope
             return
         window = self._window
         target = np.ascontiguousarray(observation[:window], dtype=np.float64)

@@ -66,7 +66,15 @@ from manualcontrol.envs.dynamics import (
     tf_to_ccf,
 )
 from manualcontrol.envs.elements import ControlledElement, make_element
+from manualcontrol.envs.postview import (
+    DEFAULT_GAP,
+    DEFAULT_POSTVIEW,
+    check_gap,
+    edge_perceptions,
+    postview_samples,
+)
 from manualcontrol.envs.recording import Recording
+from manualcontrol.envs.schedules import Schedule, as_schedule
 from manualcontrol.envs.signals import ForcingPair, forcing_preset
 from manualcontrol.pilots.models import PilotModel, make_model
 from manualcontrol.pilots.pilot import Pilot
@@ -85,7 +93,7 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 
-TASKS: tuple[str, ...] = ("compensatory", "pursuit", "preview")
+TASKS: tuple[str, ...] = ("compensatory", "pursuit", "preview", "postview")
 LOOPS: tuple[str, ...] = ("continuous", "sampled")
 #: Preview shown by default in preview tasks (s): covers nominal far-view preview times.
 DEFAULT_AVAILABLE_PREVIEW = 1.0
@@ -128,6 +136,8 @@ class SimulationSetup:
     dt: float
     run_in: float
     measurement_time: float
+    gap: Schedule | None = None
+    postview: float = DEFAULT_POSTVIEW
 
     @classmethod
     def create(
@@ -142,8 +152,14 @@ class SimulationSetup:
         dt: float = 0.01,
         run_in: float = 60.0,
         measurement_time: float | None = None,
+        gap: float | Schedule | None = None,
+        postview: float | None = None,
     ) -> SimulationSetup:
-        """Resolve names to objects and check that they fit together."""
+        """Resolve names to objects and check that they fit together.
+
+        ``gap`` and ``postview`` (s) belong to the postview task
+        (:mod:`manualcontrol.envs.postview`; defaults 0.4 and 1 s).
+        """
         if not isinstance(pilot, Pilot):
             raise TypeError(f"pilot must be a Pilot, got {pilot!r}")
         element = make_element(element)
@@ -155,11 +171,28 @@ class SimulationSetup:
         if task is None:
             task = model_task
         check_choice("task", task, TASKS)
-        if (task == "compensatory") != (model_task == "compensatory"):
+        if (task == "compensatory") != (model_task == "compensatory") or (
+            (task == "postview") != (model_task == "postview")
+        ):
             raise ValueError(
                 f"task {task!r} does not fit the {pilot.model.name!r} pilot model, "
                 f"which is a {model_task} model"
             )
+        if task == "postview":
+            postview = check_positive(
+                "postview", DEFAULT_POSTVIEW if postview is None else postview
+            )
+            try:
+                gap = as_schedule(DEFAULT_GAP if gap is None else gap)
+            except TypeError as error:
+                raise TypeError(f"gap: {error}") from None
+        elif gap is not None or postview is not None:
+            raise ValueError(
+                f"gap and postview belong to the postview task, not {task!r}; "
+                f"got gap={gap!r}, postview={postview!r}"
+            )
+        else:
+            postview = DEFAULT_POSTVIEW
         if task == "preview":
             preview = DEFAULT_AVAILABLE_PREVIEW if available_preview is None else available_preview
             preview = check_positive("available_preview", preview, allow_zero=True)
@@ -177,7 +210,12 @@ class SimulationSetup:
             measurement_time = getattr(target, "measurement_time", None) or 120.0
         measurement_time = check_positive("measurement_time", measurement_time)
         check_duration("measurement_time", measurement_time, dt)
-        return cls(pilot, element, forcing, task, preview, dt, run_in, measurement_time)
+        setup = cls(
+            pilot, element, forcing, task, preview, dt, run_in, measurement_time, gap, postview
+        )
+        if gap is not None:
+            check_gap(gap, setup.time, postview)
+        return setup
 
     @property
     def n_run_in(self) -> int:
@@ -220,7 +258,20 @@ class SimulationSetup:
         if "ft_near_rate" in self.pilot.model.perceptions:
             rates = _read_preview(target_ahead, traces["tau_n"] / self.dt, window)[1]
             signals["ft_near_rate"] = rates / self.dt
+        if "ft_edge" in self.pilot.model.perceptions:
+            # the postview display's rules, as the environment applies them
+            time = self.time
+            samples = postview_samples(
+                self.forcing.target, time, self.gap_trace(), self.dt, self.postview, 3
+            )
+            signals["ft_edge"], signals["ft_edge_rate"] = edge_perceptions(samples, self.dt)
         return signals
+
+    def gap_trace(self) -> FloatArray:
+        """The postview gap at every simulated sample (postview task only)."""
+        if self.gap is None:
+            raise ValueError(f"a {self.task} task has no gap")
+        return check_gap(self.gap, self.time, self.postview)
 
     def metadata(self) -> dict[str, Any]:
         """What a recording of this setup says about how it was made."""
@@ -234,6 +285,11 @@ class SimulationSetup:
             "available_preview": self.available_preview,
             "run_in": self.run_in,
             "measurement_time": self.measurement_time,
+            **(
+                {"gap": self.gap.to_dict(), "postview": self.postview}
+                if self.gap is not None
+                else {}
+            ),
         }
 
 
@@ -447,7 +503,9 @@ def _assemble(
         pilot_system.outputs,
     )
     element_block = Block(
-        StateSpace(element_exact.phi, element_exact.gamma, element_model.C, element_model.D),
+        _display_one_frame_later(
+            element_exact.phi, element_exact.gamma, element_model.C, element_model.D
+        ),
         ("u",),
         ("x_ce",),
     )
@@ -477,6 +535,29 @@ def _assemble(
         # the pilot perceives the element through the sampled display: held
         tuple(range(n_pilot, system.A.shape[-1])),
     )
+
+
+def _display_one_frame_later(
+    phi: FloatArray, gamma: FloatArray, C: FloatArray, D: FloatArray
+) -> StateSpace:
+    """The discrete element as the environments step it: feedthrough one frame late.
+
+    An element with direct feedthrough (a pure gain) shows ``D u[k-1]`` at sample ``k``
+    in :mod:`manualcontrol.envs.tracking` (the stick reaches the display one frame
+    later), so the sampled loop keeps the previous stick as an extra state with output
+    ``D``. Elements without feedthrough are returned as they are.
+    """
+    if not np.any(D):
+        return StateSpace(phi, gamma, C, D)
+    batch = phi.shape[:-2]
+    n = phi.shape[-1]
+    phi_aug = np.zeros((*batch, n + 1, n + 1))
+    phi_aug[..., :n, :n] = phi
+    gamma_aug = np.zeros((*batch, n + 1, 1))
+    gamma_aug[..., :n, :] = gamma
+    gamma_aug[..., n, 0] = 1.0
+    C_aug = np.concatenate((C, D), axis=-1)
+    return StateSpace(phi_aug, gamma_aug, C_aug, np.zeros_like(D))
 
 
 def matrix_parameters(setup: SimulationSetup, traces: Mapping[str, FloatArray]) -> list[str]:
@@ -658,6 +739,9 @@ def simulate(
     remnant_signal: Sequence[float] | FloatArray | None = None,
     keep_run_in: bool = False,
     on_unstable: str = "raise",
+    gap: float | Schedule | None = None,
+    postview: float | None = None,
+    loss_of_control: float | None = None,
 ) -> Recording:
     """Simulate a closed-loop tracking run and return its :class:`Recording`.
 
@@ -695,6 +779,15 @@ def simulate(
         growth check on the run; see :mod:`~manualcontrol.pilots.stability`) raises
         :class:`~manualcontrol.pilots.stability.UnstableLoopError` (``"raise"``,
         default) or warns and sets ``metadata["diverging"]`` to the reason (``"warn"``).
+        With ``loss_of_control`` the growth check reads the run up to the loss only.
+    gap, postview
+        The postview task's gap (s, a number or a schedule; default 0.4) and the past
+        track shown (s, default 1), :mod:`manualcontrol.envs.postview`; the recording
+        then has the ``gap`` trace among its parameters.
+    loss_of_control
+        ``|e|`` beyond which the run ends, as in the environments (the recording stops
+        before the sample that exceeded it; metadata ``terminated``). None: the run
+        goes on to the end (unlike the environments, no default for unstable elements).
 
     The recording holds ``t, ft, fd, y, e, u, n`` (plus ``ft_far``, the previewed
     target the pilot used, in preview tasks, and ``u_n``, the part of ``u`` the remnant
@@ -717,8 +810,12 @@ def simulate(
         dt=dt,
         run_in=run_in,
         measurement_time=measurement_time,
+        gap=gap,
+        postview=postview,
     )
     check_choice("loop", loop, LOOPS)
+    if loss_of_control is not None:
+        loss_of_control = check_positive("loss_of_control", loss_of_control)
     rng, seed_used = _as_generator(seed)
     traces = setup.parameter_traces()
     with warnings.catch_warnings(record=True) as caught:
@@ -765,12 +862,21 @@ def simulate(
             remnant.with_gain(gain).to_dict() if remnant_signal is None else "signal"
         )
         metadata.update({"remnant": remnant_description, "remnant_power_ratio": ratio})
+    end = n
+    if loss_of_control is not None:
+        end = _loss_of_control_end(outputs["e"], loss_of_control)
+        metadata.update({"loss_of_control": loss_of_control, "terminated": end < n})
+        if end <= setup.n_run_in:
+            raise ValueError(
+                f"control was lost (|e| > {loss_of_control:g}) at t = "
+                f"{float(setup.time[end]):g} s, before the measurement started"
+            )
     if stable is None:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", UnstableLoopWarning)
             check_growth(
-                setup.time,
-                outputs["e"],
+                setup.time[:end],
+                outputs["e"][:end],
                 float(np.max(np.abs(columns["ft"])) + np.max(np.abs(columns["fd"]))),
                 what="the closed loop",
                 on_unstable=on_unstable,
@@ -778,7 +884,7 @@ def simulate(
     for warning in caught:
         metadata["diverging"] = str(warning.message)
         warnings.warn(warning.message, UnstableLoopWarning, stacklevel=2)
-    part = slice(0, n) if keep_run_in else measured
+    part = slice(0, end) if keep_run_in else slice(setup.n_run_in, end)
     recorded = {"t": setup.time[part], "ft": columns["ft"][part], "fd": columns["fd"][part]}
     for name in ("y", "e", "u", "n"):
         recorded[name] = outputs[name][part]
@@ -787,12 +893,20 @@ def simulate(
             recorded[name] = columns[name][part]
     if noise is not None:
         recorded["u_n"] = gain * unit["u"][part]
-    return Recording(
-        signals=recorded,
-        dt=setup.dt,
-        parameters={name: trace[part] for name, trace in traces.items()},
-        metadata=metadata,
-    )
+    parameters = {name: trace[part] for name, trace in traces.items()}
+    if setup.gap is not None:
+        parameters["gap"] = setup.gap_trace()[part]
+    return Recording(signals=recorded, dt=setup.dt, parameters=parameters, metadata=metadata)
+
+
+def _loss_of_control_end(e: FloatArray, limit: float) -> int:
+    """Samples an environment would have recorded before its loss-of-control end.
+
+    It terminates on the step whose new error exceeds the limit, and that sample is not
+    part of its recording.
+    """
+    beyond = np.flatnonzero(~(np.abs(e[1:]) <= limit))  # NaN or overflow counts too
+    return int(beyond[0]) + 1 if beyond.size else int(e.shape[0])
 
 
 def _calibrate(

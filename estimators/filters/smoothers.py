@@ -54,6 +54,7 @@ __all__ = [
     "SmootherWork",
     "rts_smooth",
     "smoother_work",
+    "store_belief",
 ]
 
 #: ``link`` holds cross-covariances ``C_k`` (UKF).
@@ -71,6 +72,17 @@ SmootherWork = namedtuple("SmootherWork", ["C", "G", "A", "L", "D", "T"])
 def smoother_work(n: int) -> SmootherWork:
     """Scratch for an ``n``-state smoother pass."""
     return SmootherWork(*(np.zeros((n, n)) for _ in range(6)))
+
+
+@numba.njit(cache=True, _nrt=False)
+def store_belief(row, x, P, x_store, P_store):
+    """Copy a belief into row ``row`` of the storage above (a no-op when it has no rows)."""
+    if x_store.shape[0] == 0:
+        return
+    for i in range(x.shape[0]):
+        x_store[row, i] = x[i]
+        for j in range(x.shape[0]):
+            P_store[row, i, j] = P[i, j]
 
 
 @numba.njit(cache=True, _nrt=False)
