@@ -485,6 +485,7 @@ def _check_runs(where: str, pilot: Pilot, template: Mapping[str, Any], realisati
     loop's stability checked, so a suite that cannot run stops at load, not as a
     column of failed rows.
     """
+    from manualcontrol.envs.schedules import Schedule
     from manualcontrol.pilots.simulation import SimulationSetup
     from manualcontrol.pilots.stability import check_stable
 
@@ -499,7 +500,7 @@ def _check_runs(where: str, pilot: Pilot, template: Mapping[str, Any], realisati
             dt=template["dt"],
             run_in=template["run_in"],
             measurement_time=template["measurement_time"],
-            gap=template.get("gap"),
+            gap=None if template.get("gap") is None else Schedule.from_dict(template["gap"]),
         )
         setup.parameter_traces()
         if "loss_of_control" not in template:  # a run that may end at the loss is not judged

@@ -94,23 +94,37 @@ def _step(
     return outputs
 
 
-def _check_episode_growth(setup: SimulationSetup, on_unstable: str) -> None:
-    """Growth check of a time-varying loop: the episode simulated once, remnant-free."""
+def _check_episode_growth(
+    setup: SimulationSetup, on_unstable: str, loss_of_control: float | None
+) -> None:
+    """Growth check of a time-varying loop: the episode simulated once, remnant-free.
+
+    With the env's loss-of-control limit the episode ends there, as the env's would, and
+    only the run up to it is judged (the critical task is meant to be lost).
+    """
     from manualcontrol.pilots.pilot import Pilot
 
     pilot = setup.pilot
-    simulate(
-        Pilot(pilot.model, dict(pilot.parameters), None, pilot.delay_order),
-        setup.element,
-        setup.forcing,
-        task=setup.task,
-        available_preview=setup.available_preview if setup.task == "preview" else None,
-        dt=setup.dt,
-        run_in=setup.run_in,
-        measurement_time=setup.measurement_time,
-        loop="sampled",
-        on_unstable=on_unstable,
-    )
+    postview = {"gap": setup.gap, "postview": setup.postview} if setup.task == "postview" else {}
+    try:
+        simulate(
+            Pilot(pilot.model, dict(pilot.parameters), None, pilot.delay_order),
+            setup.element,
+            setup.forcing,
+            task=setup.task,
+            available_preview=setup.available_preview if setup.task == "preview" else None,
+            dt=setup.dt,
+            run_in=setup.run_in,
+            measurement_time=setup.measurement_time,
+            loop="sampled",
+            on_unstable=on_unstable,
+            loss_of_control=loss_of_control,
+            keep_run_in=True,
+            **postview,
+        )
+    except ValueError as error:
+        if not str(error).startswith("control was lost"):
+            raise  # (lost during the run-in: nothing left to judge)
 
 
 class PilotController:
@@ -151,7 +165,7 @@ class PilotController:
         rng, _ = _as_generator(seed)
         traces = setup.parameter_traces()
         if check_stable(setup, on_unstable=on_unstable) is None:
-            _check_episode_growth(setup, on_unstable)
+            _check_episode_growth(setup, on_unstable, getattr(base, "loss_of_control", None))
         n = setup.n_samples
         remnant = pilot.remnant
         if remnant is not None:

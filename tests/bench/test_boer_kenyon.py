@@ -27,7 +27,7 @@ def test_the_suite_has_the_four_open_loop_conditions_and_the_two_tasks():
     assert tasks["gap-postview"] == "postview" and tasks["critical-task"] == "compensatory"
     for batch in suite.batches[:4]:
         assert batch.template["system"]["b"] == [1.5119, -1.1043]
-        assert batch.template["estimator"]["decimation"] == 4
+        assert batch.estimators[0]["decimation"] == 4
     assert suite.batch("critical-task").template["loss_of_control"] == 0.2
     assert len(suite.scenarios()) == 30 and len(suite.scenarios(quick=True)) == 6
 
@@ -101,7 +101,7 @@ def with_batch(**changes):
             },
             "loss_of_control must be > 0, got -1.0",
         ),
-        ({"estimator": {"name": "rdi", "Q_d": -1}}, "estimator: Q_d must be >= 0, got -1"),
+        ({"estimator": {"name": "rdi", "Q_d": -1}}, "estimator (rdi): Q_d must be >= 0, got -1"),
     ],
 )
 def test_bad_batches_name_the_problem(changes, message):
