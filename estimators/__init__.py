@@ -1,4 +1,4 @@
-"""Online identification of pilot parameters: the estimator protocol, the DEKF, metrics."""
+"""Online identification of pilot parameters: the estimator protocol, the family, metrics."""
 
 from manualcontrol.estimators.dekf import DEKF, DEKFSettings, ResolvedSettings
 from manualcontrol.estimators.internal_model import InternalModel, build_internal_model
@@ -20,6 +20,7 @@ from manualcontrol.estimators.protocol import (
     HealthSummary,
     load_result,
 )
+from manualcontrol.estimators.schiess_roland import SchiessRoland, SchiessRolandSettings
 
 __all__ = [
     "DEKF",
@@ -32,6 +33,8 @@ __all__ = [
     "HealthSummary",
     "InternalModel",
     "ResolvedSettings",
+    "SchiessRoland",
+    "SchiessRolandSettings",
     "build_internal_model",
     "evaluate",
     "innovation_fractions",

@@ -71,8 +71,8 @@ from manualcontrol.envs._validation import (
 )
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _pilot_core as core
+from manualcontrol.estimators._shell import health_summary, read_sample
 from manualcontrol.estimators._targets import target_function
-from manualcontrol.estimators.filters import monitor
 from manualcontrol.estimators.internal_model import (
     ANTICIPATED_PARAMETER,
     InternalModel,
@@ -82,7 +82,6 @@ from manualcontrol.estimators.protocol import (
     Estimate,
     EstimateHealth,
     EstimationResult,
-    HealthSummary,
 )
 from manualcontrol.pilots.models import MODEL_NAMES, make_model
 
@@ -155,11 +154,6 @@ TAU_F_MARGIN = 0.1
 GENERIC_INITIAL = MappingProxyType({"omega_nms": 10.0, "zeta_nms": 0.3, "tau_v": 0.3, "K_f": 1.0})
 #: Order of the parameter filter's vector (Popovici eq. 39, thesis eq. 41).
 _THETA_ORDER = ("omega_nms", "zeta_nms", "tau_v", "K_f", "omega_f", "tau_f")
-#: Words for the divergence codes of :mod:`~manualcontrol.estimators.filters.monitor`.
-REASONS = {
-    monitor.REASON_NONFINITE: "non-finite values",
-    monitor.REASON_COVARIANCE: "covariance blow-up",
-}
 
 
 def _kind(name: str) -> str:
@@ -905,28 +899,7 @@ class PilotFilter:
         """
         if self._common is None:
             raise RuntimeError(f"the {type(self).__name__} has not been reset; call reset() first")
-        if not isinstance(sample, Mapping):
-            raise TypeError(f"sample must be a mapping of signal values, got {sample!r}")
-        keys = self._sample_keys
-        where = f"{type(self).__name__}.update sample"
-        reject_unknown(where, sample, self._allowed_sample_keys)
-        missing = [key for key in keys if key not in sample]
-        if missing:
-            raise ValueError(
-                f"{where} lacks {', '.join(map(repr, missing))}; it needs "
-                f"{', '.join(map(repr, keys))}"
-            )
-        values = {}
-        for key in keys:
-            value = sample[key]
-            if isinstance(value, bool) or not isinstance(
-                value, (int, float, np.floating, np.integer)
-            ):
-                raise TypeError(f"sample[{key!r}] must be a number, got {value!r}")
-            value = float(value)
-            if math.isinf(value):
-                raise ValueError(f"sample[{key!r}] must be finite or NaN (dropped), got {value!r}")
-            values[key] = value
+        values = read_sample(sample, self._sample_keys, f"{type(self).__name__}.update sample")
         inputs = np.array([values[name] for name in self._internal.input_names])
         out = self._row
         self._step(inputs, values["u"], values["e"], out)
@@ -1051,33 +1024,14 @@ class PilotFilter:
         return result
 
     def _health(self, t: FloatArray, flag: NDArray[np.bool_], pinned: NDArray[np.bool_]) -> Any:
-        sc = self._common.sc
-        names = self._internal.parameter_names
-        reason_code = int(sc[core.SC_DIV_REASON])
-        diverged = reason_code != monitor.REASON_NONE
-        if reason_code == monitor.REASON_PINNED:
-            name = names[int(sc[core.SC_DIV_PARAM])]
-            reason = f"{name} pinned at a limit for {self._settings.pinned_time:g} s"
-        else:
-            reason = REASONS.get(reason_code, "")
-        index = int(sc[core.SC_DIV_INDEX])
-        dropped = flag[:, 2]
-        edges = np.diff(np.concatenate(([0], dropped.astype(np.int8), [0])))
-        starts = np.flatnonzero(edges == 1)
-        stops = np.flatnonzero(edges == -1)
-        stretches = tuple(
-            (float(t[a]), float((b - a) * self._dt)) for a, b in zip(starts, stops, strict=True)
-        )
-        return HealthSummary(
-            diverged=diverged,
-            divergence_time=float(t[index]) if diverged and 0 <= index < len(t) else math.nan,
-            divergence_reason=reason,
-            stopped=bool(sc[core.SC_FROZEN] > 0.0),
-            dropped_samples=int(dropped.sum()),
-            dropped_stretches=stretches,
-            pinned_fraction={
-                n: float(pinned[:, j].mean()) if len(t) else 0.0 for j, n in enumerate(names)
-            },
+        return health_summary(
+            self._common.sc,
+            t,
+            self._dt,
+            flag,
+            pinned,
+            self._internal.parameter_names,
+            self._settings.pinned_time,
         )
 
     def _result(self, t: FloatArray, out: Any, store: bool) -> EstimationResult:
