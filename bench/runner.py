@@ -43,8 +43,6 @@ __all__ = ["BACKENDS", "ESTIMATORS", "make_estimator", "run_scenario", "run_suit
 BACKENDS: tuple[str, ...] = ("process", "inprocess", "ray")
 
 
-
-
 def simulate_scenario(scenario: Scenario) -> Recording:
     """The scenario's simulated run, run-in kept (the estimator converges on it)."""
     from manualcontrol.pilots import simulate
@@ -62,6 +60,9 @@ def simulate_scenario(scenario: Scenario) -> Recording:
         seed=scenario.remnant_seed,
         loop=scenario.loop,
         keep_run_in=True,
+        start_time=scenario.start_time,
+        initial_state=scenario.initial_state,
+        measurement_noise=scenario.measurement_noise,
     )
 
 
