@@ -107,6 +107,7 @@ CASES: Mapping[str, str] = MappingProxyType(
         "case-4": "case-4",
         "case-4-paper-covariance": "case-4",
         "case-4-bicubic": "case-4",
+        "case-3-paper-noise": "case-3",
     }
 )
 DIVERGENCE_BATCHES = ("divergence-plain", "divergence-modified", "divergence-full")
