@@ -22,8 +22,9 @@ then calibrates ``K_r``. ``noise_variance`` instead gives the level as the varia
 of the white driving noise itself (Schiess & Roland 1975: "the variance of the process
 noise", their cases 59,600, 576 and 25 V^2/s^4): each held sample is ``N(0, q)``, so
 ``K_r = sqrt(q)``, the equivalent continuous intensity is ``q dt``, and the remnant's
-level does not depend on the loop (their printed power ratios cannot be reproduced from
-their q: with the loop's resonance the ratio is 0.24-0.26 for every q).
+level does not depend on the loop (their printed power ratios, 0.5, 0.04 and < 0.01,
+cannot be reproduced from their q: with the loop's resonance the ratio of remnant to
+stick power is about a quarter for every q, 0.24-0.25 over 60 s at 100 Hz).
 """
 
 from __future__ import annotations
