@@ -87,6 +87,9 @@ def simulate_scenario(scenario: Scenario) -> Recording:
         keep_run_in=True,
         loss_of_control=scenario.loss_of_control,
         **postview,
+        start_time=scenario.start_time,
+        initial_state=scenario.initial_state,
+        measurement_noise=scenario.measurement_noise,
     )
 
 

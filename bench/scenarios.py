@@ -25,6 +25,10 @@ Schema of a suite file::
     measurement_time = 120.0   # default: the forcing period
     loop = "continuous"        # or "sampled"
     score_from = 0.0           # metrics from this time (s) of the measurement on
+    start_time = 0.0           # time of the first measured sample (s)
+    measurement_noise = {u = 0.00092, y = 0.00092}   # variances added to recorded signals
+    initial_state = {y = [-0.959, -5.64], u = [1.03, 40.5], n = [0.41, 2.55]}
+                               # loop outputs and derivatives at the start (see simulate)
 
     [[batch]]
     name = "preview-SI"
@@ -83,11 +87,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from manualcontrol.envs._validation import check_choice, check_int, check_positive
+from manualcontrol.envs._validation import (
+    check_choice,
+    check_int,
+    check_positive,
+    check_real,
+    check_vector,
+    reject_unknown,
+)
 from manualcontrol.envs.elements import make_element
+from manualcontrol.envs.recording import MEASURED_SIGNALS
 from manualcontrol.envs.signals import FORCING_PRESETS, preset_realisation_count
 from manualcontrol.pilots import Pilot
-from manualcontrol.pilots.simulation import LOOPS, TASKS
+from manualcontrol.pilots.simulation import INITIAL_STATE_SIGNALS, LOOPS, TASKS
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -118,10 +130,25 @@ _BATCH_KEYS = {
     "system",
     "gap",
     "loss_of_control",
+    "start_time",
+    "measurement_noise",
+    "initial_state",
 }
 #: The task of open-loop batches: a system driven by the forcing, no pilot and no loop.
 OPEN_LOOP = "open-loop"
 _DEFAULT_KEYS = {"dt", "run_in", "measurement_time", "loop", "available_preview", "score_from"}
+_DEFAULT_KEYS |= {"start_time", "measurement_noise", "initial_state"}
+#: Scenario fields added after suites were first stored: left out of the scenario's
+#: description (and so of its key) at their defaults, so the keys of scenarios that do
+#: not use them stay what they were.
+_OPTIONAL_FIELDS = {
+    "system": None,
+    "gap": None,
+    "loss_of_control": None,
+    "start_time": 0.0,
+    "measurement_noise": None,
+    "initial_state": None,
+}
 _PILOT_KEYS = {"model", "parameters", "remnant", "delay_order", "near_view"}
 
 
@@ -151,12 +178,15 @@ class Scenario:
     system: Mapping[str, Any] | None = None
     gap: Any = None
     loss_of_control: float | None = None
+    start_time: float = 0.0
+    measurement_noise: Mapping[str, float] | None = None
+    initial_state: Mapping[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able description (the optional fields only where set)."""
         data = json.loads(json.dumps(dataclasses.asdict(self)))
-        for name in _OPTIONAL_FIELDS:
-            if data.get(name) is None:
+        for name, default in _OPTIONAL_FIELDS.items():
+            if data.get(name) == default:
                 data.pop(name, None)
         return data
 
@@ -197,11 +227,6 @@ class Scenario:
         from manualcontrol.envs.schedules import Schedule
 
         return None if self.gap is None else Schedule.from_dict(self.gap)
-
-
-#: Scenario fields left out of :meth:`Scenario.to_dict` (and so of its key) when unset,
-#: so the keys of scenarios that do not use them stay what they were.
-_OPTIONAL_FIELDS = ("system", "gap", "loss_of_control")
 
 
 @dataclass(frozen=True)
@@ -310,6 +335,32 @@ def _pilot_from(data: Mapping[str, Any]) -> Pilot:
     return Pilot.from_dict({**data, "model_options": options})
 
 
+def _measurement_noise(value: Any) -> dict[str, float] | None:
+    if value is None:
+        return None
+    if not isinstance(value, Mapping):
+        raise TypeError(f"measurement_noise must be a table of variances, got {value!r}")
+    reject_unknown("measurement_noise", value, MEASURED_SIGNALS)
+    return {
+        name: check_positive(f"measurement_noise.{name}", variance, allow_zero=True)
+        for name, variance in value.items()
+    }
+
+
+def _initial_state(value: Any) -> dict[str, list[float]] | None:
+    if value is None:
+        return None
+    if not isinstance(value, Mapping):
+        raise TypeError(
+            f"initial_state must be a table of signal = [value, rate, ...], got {value!r}"
+        )
+    reject_unknown("initial_state", value, INITIAL_STATE_SIGNALS)
+    return {
+        name: [float(v) for v in check_vector(f"initial_state.{name}", entries, min_length=1)]
+        for name, entries in value.items()
+    }
+
+
 def _fail(where: str, message: str) -> SuiteError:
     return SuiteError(f"{where}: {message}")
 
@@ -377,6 +428,9 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
         if preview is not None:
             preview = check_positive("available_preview", preview, allow_zero=True)
         score_from = check_positive("score_from", merged.get("score_from", 0.0), allow_zero=True)
+        start_time = check_real("start_time", merged.get("start_time", 0.0))
+        noise = _measurement_noise(merged.get("measurement_noise"))
+        initial_state = _initial_state(merged.get("initial_state"))
     except (TypeError, ValueError) as error:
         raise _fail(where, str(error)) from None
     count = preset_realisation_count(merged["forcing"])
@@ -415,6 +469,9 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
         "available_preview": preview,
         "score_from": score_from,
         **extra,
+        "start_time": start_time,
+        "measurement_noise": noise,
+        "initial_state": initial_state,
     }
     if built is not None:
         _check_runs(where, built, template, realisations[0])

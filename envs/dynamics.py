@@ -31,7 +31,7 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from manualcontrol.envs._interpolation import bicubic_weights, interpolate_at
-from manualcontrol.envs._validation import check_int, check_positive
+from manualcontrol.envs._validation import check_choice, check_int, check_positive
 
 __all__ = [
     "Block",
@@ -477,6 +477,7 @@ def _simulate_lpv(
     delay_samples: FloatArray,
     history_pad: int,
     held_state: NDArray[np.bool_],
+    history_initial: bool = False,
 ) -> tuple[FloatArray, FloatArray]:
     n_samples = inputs.shape[0]
     n_x = phi.shape[1]
@@ -518,6 +519,12 @@ def _simulate_lpv(
                 if j != delay_inputs[i]:
                     held_value += d[kd, r, j] * u[j]
             held[i, newest] = held_value
+            if k == 0 and history_initial:
+                # the past holds the first sample's value (a run started mid-flight)
+                for j in range(newest):
+                    smooth[i, j] = acc
+                    held[i, j] = held_value
+                smooth_now[i] = acc
             position = newest - delay_samples[k, i]
             u[delay_inputs[i]] = smooth_now[i] + read_held(held[i], newest, position)
         for r in range(n_x):
@@ -574,6 +581,7 @@ def simulate_lpv(
     delay_outputs: Sequence[int] = (),
     delays: ArrayLike | None = None,
     held_states: Sequence[int] = (),
+    history: str = "rest",
 ) -> tuple[FloatArray, FloatArray]:
     """Step a discrete linear parameter-varying system, with exact delay channels.
 
@@ -598,7 +606,9 @@ def simulate_lpv(
 
     ``held_states`` lists states whose contribution to a delayed output counts as
     held (sampled-data loops, where a discretised element feeds a sampled display).
-    The delay line starts at rest (zero before ``t = 0``). Delays must be at least
+    The delay line starts at rest (zero before ``t = 0``, ``history="rest"``) or holds
+    each delayed signal's first value before it (``history="initial"``: a run started
+    from a state that had a past). Delays must be at least
     ``3 dt`` for the four interpolation samples to be in the past (shorter delays lose
     interpolation order, see :func:`read_smooth`).
 
@@ -644,6 +654,7 @@ def simulate_lpv(
         history_pad = 0
     held_mask = np.zeros(n_x, dtype=np.bool_)
     held_mask[np.asarray(held_states, dtype=np.int64)] = True
+    check_choice("history", history, ("rest", "initial"))
     return _simulate_lpv(
         phi,
         gamma,
@@ -657,6 +668,7 @@ def simulate_lpv(
         delay_samples,
         history_pad,
         held_mask,
+        history == "initial",
     )
 
 

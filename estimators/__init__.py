@@ -28,6 +28,7 @@ from manualcontrol.estimators.protocol import (
 )
 from manualcontrol.estimators.rdi import RDI, RDISettings
 from manualcontrol.estimators.registry import ESTIMATORS, EstimatorEntry, make_estimator
+from manualcontrol.estimators.schiess_roland import SchiessRoland, SchiessRolandSettings
 from manualcontrol.estimators.smoothing import smooth
 from manualcontrol.estimators.ukf import DualUKF, DualUKFSettings, JointUKF, UKFSettings
 
@@ -49,6 +50,8 @@ __all__ = [
     "JointUKF",
     "RDISettings",
     "ResolvedSettings",
+    "SchiessRoland",
+    "SchiessRolandSettings",
     "UKFSettings",
     "build_internal_model",
     "evaluate",

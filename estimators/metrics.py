@@ -171,10 +171,12 @@ def innovation_whiteness(
 
 
 def _model_of(result: EstimationResult) -> PilotModel:
-    try:
-        name = result.settings["settings"]["model"]
-    except (KeyError, TypeError):
-        raise ValueError("the result's settings do not name its pilot model") from None
+    # pilot-filter results name the model among their settings; an estimator with a
+    # fixed model (Schiess-Roland) names it beside them
+    settings = result.settings
+    name = settings.get("model") or settings.get("settings", {}).get("model")
+    if not name:
+        raise ValueError("the result's settings do not name its pilot model")
     return make_model(name)
 
 

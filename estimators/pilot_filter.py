@@ -72,8 +72,8 @@ from manualcontrol.envs._validation import (
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _pilot_core as core
 from manualcontrol.estimators._recording_checks import check_estimable
+from manualcontrol.estimators._shell import health_summary
 from manualcontrol.estimators._targets import target_function
-from manualcontrol.estimators.filters import monitor
 from manualcontrol.estimators.internal_model import (
     ANTICIPATED_PARAMETER,
     InternalModel,
@@ -84,7 +84,6 @@ from manualcontrol.estimators.protocol import (
     EstimateHealth,
     EstimationResult,
     sample_values,
-    summarise_health,
 )
 from manualcontrol.pilots.models import MODEL_NAMES, make_model
 
@@ -157,11 +156,6 @@ TAU_F_MARGIN = 0.1
 GENERIC_INITIAL = MappingProxyType({"omega_nms": 10.0, "zeta_nms": 0.3, "tau_v": 0.3, "K_f": 1.0})
 #: Order of the parameter filter's vector (Popovici eq. 39, thesis eq. 41).
 _THETA_ORDER = ("omega_nms", "zeta_nms", "tau_v", "K_f", "omega_f", "tau_f")
-#: Words for the divergence codes of :mod:`~manualcontrol.estimators.filters.monitor`.
-REASONS = {
-    monitor.REASON_NONFINITE: "non-finite values",
-    monitor.REASON_COVARIANCE: "covariance blow-up",
-}
 
 
 def _kind(name: str) -> str:
@@ -1032,24 +1026,14 @@ class PilotFilter:
         return result
 
     def _health(self, t: FloatArray, flag: NDArray[np.bool_], pinned: NDArray[np.bool_]) -> Any:
-        sc = self._common.sc
-        names = self._internal.parameter_names
-        reason_code = int(sc[core.SC_DIV_REASON])
-        diverged = reason_code != monitor.REASON_NONE
-        if reason_code == monitor.REASON_PINNED:
-            name = names[int(sc[core.SC_DIV_PARAM])]
-            reason = f"{name} pinned at a limit for {self._settings.pinned_time:g} s"
-        else:
-            reason = REASONS.get(reason_code, "")
-        return summarise_health(
+        return health_summary(
+            self._common.sc,
             t,
             self._dt,
-            flag[:, 2],
+            flag,
             pinned,
-            names,
-            reason=reason if diverged else "",
-            divergence_index=int(sc[core.SC_DIV_INDEX]),
-            stopped=bool(sc[core.SC_FROZEN] > 0.0),
+            self._internal.parameter_names,
+            self._settings.pinned_time,
         )
 
     def _result(self, t: FloatArray, out: Any, store: bool) -> EstimationResult:

@@ -72,8 +72,8 @@ from manualcontrol.envs._validation import (
 )
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _rdi_core as core
+from manualcontrol.estimators._shell import REASONS
 from manualcontrol.estimators.filters.kalman import kalman_work
-from manualcontrol.estimators.filters.monitor import REASON_COVARIANCE, REASON_NONFINITE
 from manualcontrol.estimators.protocol import (
     Estimate,
     EstimateHealth,
@@ -88,7 +88,7 @@ __all__ = ["RDI", "RDISettings", "ResolvedRDI", "parameter_symbols"]
 FloatArray = NDArray[np.float64]
 
 _NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
-_REASONS = {REASON_NONFINITE: "non-finite values", REASON_COVARIANCE: "covariance blow-up"}
+
 #: Default initial values of the symbols: a typical human delay, unit gain, no dynamics.
 _DEFAULT_DELAY = 0.2
 
@@ -592,7 +592,7 @@ class RDI:
 
     def _health(self, t: FloatArray, flag: NDArray[np.bool_], pinned: NDArray[np.bool_]) -> Any:
         sc = self._records[1].sc
-        reason = _REASONS.get(int(sc[core.SC_DIV_REASON]), "")
+        reason = REASONS.get(int(sc[core.SC_DIV_REASON]), "")
         return summarise_health(
             t,
             self._dt,

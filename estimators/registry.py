@@ -71,3 +71,20 @@ register(
         build=_dekf,
     )
 )
+
+
+def _schiess_roland(settings: Mapping[str, Any]) -> Any:
+    from manualcontrol.estimators.schiess_roland import SchiessRoland, SchiessRolandSettings
+
+    return SchiessRoland(SchiessRolandSettings.from_dict(dict(settings)))
+
+
+register(
+    EstimatorEntry(
+        name="schiess-roland",
+        summary="joint EKF on the delayed lead-lag pilot with a second-order remnant: 13 "
+        "states, exact hereditary delay, stick and plant output measured, adaptive noise",
+        reference="Schiess & Roland 1975",
+        build=_schiess_roland,
+    )
+)

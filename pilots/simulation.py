@@ -35,6 +35,7 @@ so recordings start at ``t = 0`` and parameter schedules are written in that tim
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from collections.abc import Mapping, Sequence
@@ -51,7 +52,9 @@ from manualcontrol.envs._validation import (
     check_duration,
     check_int,
     check_positive,
+    check_real,
     check_vector,
+    reject_unknown,
 )
 from manualcontrol.envs.dynamics import (
     Block,
@@ -73,7 +76,7 @@ from manualcontrol.envs.postview import (
     edge_perceptions,
     postview_samples,
 )
-from manualcontrol.envs.recording import Recording
+from manualcontrol.envs.recording import MEASURED_SIGNALS, Recording
 from manualcontrol.envs.schedules import Schedule, as_schedule
 from manualcontrol.envs.signals import ForcingPair, forcing_preset
 from manualcontrol.pilots.models import PilotModel, make_model
@@ -82,10 +85,12 @@ from manualcontrol.pilots.remnant import Remnant
 from manualcontrol.pilots.stability import UnstableLoopWarning, check_growth, check_stable
 
 __all__ = [
+    "INITIAL_STATE_SIGNALS",
     "LOOPS",
     "TASKS",
     "SimulationSetup",
     "closed_loop",
+    "initial_loop_state",
     "isolated_pilot_output",
     "remnant_power_ratio",
     "simulate",
@@ -138,6 +143,7 @@ class SimulationSetup:
     measurement_time: float
     gap: Schedule | None = None
     postview: float = DEFAULT_POSTVIEW
+    start_time: float = 0.0
 
     @classmethod
     def create(
@@ -154,6 +160,7 @@ class SimulationSetup:
         measurement_time: float | None = None,
         gap: float | Schedule | None = None,
         postview: float | None = None,
+        start_time: float = 0.0,
     ) -> SimulationSetup:
         """Resolve names to objects and check that they fit together.
 
@@ -210,8 +217,19 @@ class SimulationSetup:
             measurement_time = getattr(target, "measurement_time", None) or 120.0
         measurement_time = check_positive("measurement_time", measurement_time)
         check_duration("measurement_time", measurement_time, dt)
+        start_time = check_real("start_time", start_time)
         setup = cls(
-            pilot, element, forcing, task, preview, dt, run_in, measurement_time, gap, postview
+            pilot,
+            element,
+            forcing,
+            task,
+            preview,
+            dt,
+            run_in,
+            measurement_time,
+            gap,
+            postview,
+            start_time,
         )
         if gap is not None:
             check_gap(gap, setup.time, postview)
@@ -229,8 +247,8 @@ class SimulationSetup:
 
     @property
     def time(self) -> FloatArray:
-        """Simulation times, ``t = 0`` at the start of the measurement."""
-        return (np.arange(self.n_samples) - self.n_run_in) * self.dt
+        """Simulation times, ``t = start_time`` (default 0) at the start of the measurement."""
+        return self.start_time + (np.arange(self.n_samples) - self.n_run_in) * self.dt
 
     @property
     def preview_window(self) -> int:
@@ -249,7 +267,7 @@ class SimulationSetup:
         """Sampled ``ft`` and ``fd`` and, for preview models, what the pilot reads ahead."""
         n = self.n_samples
         window = self.preview_window
-        t0 = -self.n_run_in * self.dt
+        t0 = self.start_time - self.n_run_in * self.dt
         target_ahead, fd = self.forcing.sample((n + window - 1) * self.dt, self.dt, t0)
         signals = {"ft": target_ahead[:n].copy(), "fd": fd[:n].copy()}
         if "ft_far" in self.pilot.model.perceptions:
@@ -290,6 +308,7 @@ class SimulationSetup:
                 if self.gap is not None
                 else {}
             ),
+            "start_time": self.start_time,
         }
 
 
@@ -597,7 +616,9 @@ def _run(
     input_columns: Mapping[str, FloatArray],
     delays: FloatArray | None,
     dt: float,
+    x0: FloatArray | None = None,
 ) -> dict[str, FloatArray]:
+    """Step the loop; from a start state ``x0`` the delayed signals' past is their first value."""
     n = len(next(iter(input_columns.values())))
     external = [name for i, name in enumerate(assembled.inputs) if i not in assembled.delay_inputs]
     inputs = np.zeros((n, len(assembled.inputs)))
@@ -616,12 +637,14 @@ def _run(
         expand(assembled.D),
         inputs,
         dt,
+        x0=x0,
         delay_inputs=assembled.delay_inputs,
         delay_outputs=assembled.delay_outputs,
         delays=None
         if not assembled.delay_inputs
         else np.repeat(delays[:, None], len(assembled.delay_inputs), 1),
         held_states=assembled.held_states,
+        history="rest" if x0 is None else "initial",
     )
     return {name: outputs[:, i] for i, name in enumerate(assembled.outputs)}
 
@@ -709,6 +732,96 @@ def _gain_for_ratio(u_forced: FloatArray, u_unit: FloatArray, ratio: float) -> f
     return (-b + math.sqrt(b * b - 4.0 * a * q)) / (2.0 * a)
 
 
+# ----------------------------------------------------- initial state, measurement noise
+
+#: Loop outputs whose values (and derivatives) may set the initial state.
+INITIAL_STATE_SIGNALS: tuple[str, ...] = ("y", "u", "e", "n")
+
+
+def initial_loop_state(
+    setup: SimulationSetup,
+    traces: Mapping[str, FloatArray],
+    remnant: Remnant | None,
+    columns: Mapping[str, FloatArray],
+    conditions: Mapping[str, Sequence[float]],
+    loop: str = "continuous",
+) -> FloatArray:
+    """State of the continuous loop at its first sample from output values and derivatives.
+
+    ``conditions[z] = (z, z', z'', ...)`` for loop outputs ``z`` in
+    :data:`INITIAL_STATE_SIGNALS`. A run that starts from a state has a past: the
+    simulation holds each exactly delayed signal at its first value before the start
+    (:func:`~manualcontrol.envs.dynamics.simulate_lpv` with ``history="initial"``), so
+    at the start the delayed signal equals its undelayed source, ``C_s x + D_s w_0``.
+    With the loop ``x' = A x + B w``, ``z = C x + D w`` and the inputs ``w_0`` held at
+    their first samples (remnant noise 0, delay targets as just said, both linear in
+    ``x``), the k-th derivative is ``C A^k x + C A^(k-1) B w_0`` (k >= 1) and the value
+    ``C x + D w_0``: one linear equation per given entry, solved for ``x``. The entries
+    must determine every state exactly once (as many as the loop has states, linearly
+    independent).
+    """
+    if loop != "continuous":
+        raise ValueError(
+            f"initial_state needs loop='continuous' (its state is solved on the continuous "
+            f"loop), got loop={loop!r}"
+        )
+    if not isinstance(conditions, Mapping):
+        raise TypeError(f"initial_state must map signal names to values, got {conditions!r}")
+    reject_unknown("initial_state", conditions, INITIAL_STATE_SIGNALS)
+    first = {name: trace[:1] for name, trace in traces.items()}
+    diagram = _continuous_loop(setup, first, setup.element.state_space(setup.time[:1]), remnant)
+    system = diagram.system  # one parameter set: drop the batch axis
+    A, B, C, D = (m.reshape(m.shape[-2:]) for m in (system.A, system.B, system.C, system.D))
+    n_x = A.shape[0]
+    # inputs at the start as w_0 = w_c + W_x x: external ones from their first samples,
+    # delay targets equal to their sources (which may read the external inputs)
+    w_c = np.zeros(len(diagram.inputs))
+    W_x = np.zeros((len(diagram.inputs), n_x))
+    for i, name in enumerate(diagram.inputs):
+        if i not in diagram.delay_inputs and name != "noise":
+            w_c[i] = columns[name][0]
+    for target, source in zip(diagram.delay_inputs, diagram.delay_outputs, strict=True):
+        W_x[target] = C[source]
+        w_c[target] = D[source] @ w_c
+    rows, rhs = [], []
+    for name, values in conditions.items():
+        values = check_vector(f"initial_state[{name!r}]", values, min_length=1)
+        output = diagram.outputs.index(name)
+        power = C[output]
+        rows.append(power + D[output] @ W_x)
+        rhs.append(values[0] - D[output] @ w_c)
+        for derivative in values[1:]:
+            forcing = power @ B
+            power = power @ A
+            rows.append(power + forcing @ W_x)
+            rhs.append(derivative - forcing @ w_c)
+    M = np.array(rows).reshape(len(rows), n_x)
+    rank = np.linalg.matrix_rank(M) if len(rows) else 0
+    if len(rows) != n_x or rank != n_x:
+        raise ValueError(
+            f"initial_state must determine the loop's {n_x} states exactly: it gives "
+            f"{len(rows)} values and derivatives of rank {rank}; give each of "
+            f"{', '.join(INITIAL_STATE_SIGNALS)} with as many derivatives as its block "
+            "has states (e.g. value and rate of y, u and n for a second-order pilot, "
+            "element and remnant)"
+        )
+    return np.linalg.solve(M, np.array(rhs))
+
+
+def _measurement_noise(noise: Mapping[str, float] | None) -> dict[str, float]:
+    """Validated ``{signal: variance}`` in the order of the measured signals."""
+    if noise is None:
+        return {}
+    if not isinstance(noise, Mapping):
+        raise TypeError(f"measurement_noise must map signal names to variances, got {noise!r}")
+    reject_unknown("measurement_noise", noise, MEASURED_SIGNALS)
+    return {
+        name: check_positive(f"measurement_noise[{name!r}]", noise[name], allow_zero=True)
+        for name in MEASURED_SIGNALS
+        if name in noise
+    }
+
+
 # ------------------------------------------------------------------------ simulate
 
 
@@ -742,6 +855,9 @@ def simulate(
     gap: float | Schedule | None = None,
     postview: float | None = None,
     loss_of_control: float | None = None,
+    start_time: float = 0.0,
+    initial_state: Mapping[str, Sequence[float]] | None = None,
+    measurement_noise: Mapping[str, float] | None = None,
 ) -> Recording:
     """Simulate a closed-loop tracking run and return its :class:`Recording`.
 
@@ -788,6 +904,21 @@ def simulate(
         ``|e|`` beyond which the run ends, as in the environments (the recording stops
         before the sample that exceeded it; metadata ``terminated``). None: the run
         goes on to the end (unlike the environments, no default for unstable elements).
+    start_time
+        Time (s) of the first measured sample (default 0; Schiess & Roland's runs start
+        at 0.25 s): recorded times, schedules and forcing all run from it.
+    initial_state
+        Start the loop (at the first simulated sample) from these values instead of at
+        rest: ``{signal: (value, rate, ...)}`` for the loop outputs ``y``, ``u``, ``e``,
+        ``n``, each value followed by as many time derivatives as wanted (e.g. Schiess
+        & Roland Table I: ``{"y": (c, c'), "u": (delta, delta'), "n": (eta, eta')}``).
+        Together they must determine the loop's state uniquely (see
+        :func:`initial_loop_state`); continuous loop only.
+    measurement_noise
+        ``{signal: variance}`` of white Gaussian noise added to the recorded ``y``, ``e``
+        or ``u`` after the run (measurement noise: the pilot saw the clean signals;
+        Schiess & Roland: 0.00092 V^2 on stick and plant output). Drawn from the same
+        generator after the remnant noise, so a seed's remnant is unchanged.
 
     The recording holds ``t, ft, fd, y, e, u, n`` (plus ``ft_far``, the previewed
     target the pilot used, in preview tasks, and ``u_n``, the part of ``u`` the remnant
@@ -812,11 +943,14 @@ def simulate(
         measurement_time=measurement_time,
         gap=gap,
         postview=postview,
+        start_time=start_time,
     )
     check_choice("loop", loop, LOOPS)
     if loss_of_control is not None:
         loss_of_control = check_positive("loss_of_control", loss_of_control)
+    noise_variances = _measurement_noise(measurement_noise)
     rng, seed_used = _as_generator(seed)
+    x0 = None
     traces = setup.parameter_traces()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UnstableLoopWarning)
@@ -841,13 +975,16 @@ def simulate(
                     cols[name] = np.zeros(n)
         if noise is not None:
             cols["noise"] = noise * noise_scale
-        return _run(assembled, index, cols, delays, dt)
+        return _run(assembled, index, cols, delays, dt, x0 if forced else None)
 
     measured = slice(setup.n_run_in, n)
     metadata = setup.metadata()
     metadata.update(
         {"dt": setup.dt, "loop": loop, "seed": seed_used, "delay_order": pilot.delay_order}
     )
+    if initial_state is not None:
+        x0 = initial_loop_state(setup, traces, remnant, columns, initial_state, loop)
+        metadata["initial_state"] = {k: [float(v) for v in vs] for k, vs in initial_state.items()}
     if noise is None:
         outputs = run(True, 0.0)
     else:
@@ -896,6 +1033,11 @@ def simulate(
     parameters = {name: trace[part] for name, trace in traces.items()}
     if setup.gap is not None:
         parameters["gap"] = setup.gap_trace()[part]
+    for name, variance in noise_variances.items():
+        # drawn for every simulated sample, so the noise does not depend on keep_run_in
+        recorded[name] = recorded[name] + math.sqrt(variance) * rng.standard_normal(n)[part]
+    if noise_variances:
+        metadata["measurement_noise"] = dict(noise_variances)
     return Recording(signals=recorded, dt=setup.dt, parameters=parameters, metadata=metadata)
 
 
@@ -927,17 +1069,11 @@ def _calibrate(
         return _gain_for_ratio(forced["u"][measured], unit["u"][measured], ratio)
     # Linear simulation at the mean parameter values gives the first gain.
     mean = {name: np.full_like(trace, trace.mean()) for name, trace in traces.items()}
-    linear_setup = SimulationSetup(
-        setup.pilot.with_parameters(
+    linear_setup = dataclasses.replace(
+        setup,
+        pilot=setup.pilot.with_parameters(
             **{name: float(trace.mean()) for name, trace in traces.items()}
         ),
-        setup.element,
-        setup.forcing,
-        setup.task,
-        setup.available_preview,
-        setup.dt,
-        setup.run_in,
-        setup.measurement_time,
     )
     linear, index = _build_loop(linear_setup, mean, remnant, loop)
     linear_delays = None if delays is None else mean[setup.pilot.model.delay_parameter]
