@@ -288,7 +288,23 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     recording = _load_trial(args)
     target = _target_source(args)
     settings = _assignments(args.set, "--set")
-    estimator = make_estimator({"name": args.estimator, "model": args.model, **settings})
+    from manualcontrol.estimators.registry import ESTIMATORS
+
+    if args.estimator not in ESTIMATORS:
+        raise UsageError(
+            f"--estimator must be one of {', '.join(ESTIMATORS)} (`manualcontrol estimators`), "
+            f"got {args.estimator!r}"
+        )
+    spec = {"name": args.estimator, **settings}
+    if ESTIMATORS[args.estimator].pilot_model:
+        spec.setdefault("model", args.model or "precision")
+    elif args.model is not None:
+        raise UsageError(
+            f"--model names the pilot structure of "
+            f"{', '.join(n for n, e in ESTIMATORS.items() if e.pilot_model)}; the "
+            f"{args.estimator} estimator has its own model (set its settings with --set)"
+        )
+    estimator = make_estimator(spec)
     try:
         result = estimator.estimate(recording, **target)
     except ValueError as error:
@@ -588,7 +604,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="estimator name (default dekf; `manualcontrol estimators` lists the family)",
     )
     p.add_argument(
-        "--model", default="precision", help="pilot model structure: precision or preview"
+        "--model",
+        default=None,
+        help="pilot model structure of the pilot-model estimators (dekf, joint-ukf, dual-ukf): "
+        "precision (default) or preview",
     )
     p.add_argument(
         "--set",

@@ -26,6 +26,8 @@ class EstimatorEntry:
     ``resimulate(result, recording)``, when given, is the member's own model output
     from the recorded inputs with the identified traces (for members whose model is not
     a pilot structure; :func:`~manualcontrol.estimators.metrics.resimulate` uses it).
+    ``pilot_model``: the member runs on a pilot model structure named by its ``model``
+    setting (``precision``, ``preview``), as ``manualcontrol identify --model`` sets it.
     """
 
     name: str
@@ -33,6 +35,7 @@ class EstimatorEntry:
     reference: str
     build: Callable[[Mapping[str, Any]], Any]
     resimulate: Callable[[Any, Any], Any] | None = None
+    pilot_model: bool = False
 
 
 #: Registered estimators, by name.
@@ -69,6 +72,7 @@ register(
         "(total derivative), on the precision or preview internal model",
         reference="Popovici et al. 2017; Vertregt 2020",
         build=_dekf,
+        pilot_model=True,
     )
 )
 

@@ -354,6 +354,7 @@ register(
         "augmented filter, on the precision or preview internal model",
         reference="Zhao et al. 2019 (Alg. 1-2); future work of Popovici 2017, Vertregt 2020",
         build=lambda settings: JointUKF(UKFSettings.from_dict(dict(settings))),
+        pilot_model=True,
     )
 )
 register(
@@ -363,5 +364,6 @@ register(
         "with sigma points instead of Jacobians",
         reference="Wan & van der Merwe 2001; future work of Popovici 2017, Vertregt 2020",
         build=lambda settings: DualUKF(DualUKFSettings.from_dict(dict(settings))),
+        pilot_model=True,
     )
 )
