@@ -1,7 +1,8 @@
 """The task world: signals, dynamics, controlled elements, recordings and Gymnasium envs.
 
 Importing this package registers ``ManualControl/CompensatoryTracking-v0``,
-``ManualControl/PursuitTracking-v0`` and ``ManualControl/PreviewTracking-v0``. Gymnasium
+``ManualControl/PursuitTracking-v0``, ``ManualControl/PreviewTracking-v0`` and
+``ManualControl/LaneKeeping-v0``. Gymnasium
 1.x has no plugin entry points any more, so either import ``manualcontrol.envs`` first
 or name the module in the id:
 ``gymnasium.make("manualcontrol.envs:ManualControl/PreviewTracking-v0")``.
@@ -19,3 +20,10 @@ for _task in _TASKS:
             entry_point=f"manualcontrol.envs.tracking:{_task}Tracking",
             vector_entry_point=f"manualcontrol.envs.tracking_vector:{_task}TrackingVector",
         )
+
+if "ManualControl/LaneKeeping-v0" not in registry:
+    register(
+        id="ManualControl/LaneKeeping-v0",
+        entry_point="manualcontrol.envs.driving:LaneKeeping",
+        vector_entry_point="manualcontrol.envs.driving_vector:LaneKeepingVector",
+    )
