@@ -430,8 +430,8 @@ class Road:
 def _zhao2019_road() -> Road:
     """Bends of 250-500 m radius both ways between short straights, one 270-m straight.
 
-    About 3.9 km: 220 s at 64 km/h. The long straight spans about 80-95 s (Zhao et al.
-    2019 Fig. 5 discuss a straight from 80 to 90 s, where the perception angles vanish).
+    3.9 km: 220 s at 64 km/h. The long straight spans about 74-89 s (Zhao et al. 2019
+    Fig. 5 discuss a straight from 80 to 90 s, where the perception angles vanish).
     """
     bend = Road.bend
     segments = (
@@ -459,6 +459,8 @@ def _zhao2019_road() -> Road:
         *bend(1 / 280, 100.0, 50.0),
         RoadSegment.straight(50.0),
         *bend(-1 / 400, 130.0, 50.0),
+        RoadSegment.straight(100.0),
+        *bend(1 / 350, 120.0, 50.0),
         RoadSegment.straight(100.0),
     )
     return Road(segments, "zhao2019")

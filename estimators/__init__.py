@@ -1,4 +1,4 @@
-"""Online identification of pilot parameters: the estimator protocol, the DEKF, metrics."""
+"""Online identification of pilot parameters: the estimator protocol, the family, metrics."""
 
 from manualcontrol.estimators.dekf import DEKF, DEKFSettings, ResolvedSettings
 from manualcontrol.estimators.internal_model import InternalModel, build_internal_model
@@ -8,6 +8,7 @@ from manualcontrol.estimators.metrics import (
     innovation_fractions,
     moving_vaf,
     nrmse,
+    observability_gramian,
     relative_bias,
     resimulate,
     vaf,
@@ -20,6 +21,7 @@ from manualcontrol.estimators.protocol import (
     HealthSummary,
     load_result,
 )
+from manualcontrol.estimators.zhao_ukf import MultiUKF, MultiUKFSettings, ZhaoUKF, ZhaoUKFSettings
 
 __all__ = [
     "DEKF",
@@ -31,13 +33,18 @@ __all__ = [
     "Estimator",
     "HealthSummary",
     "InternalModel",
+    "MultiUKF",
+    "MultiUKFSettings",
     "ResolvedSettings",
+    "ZhaoUKF",
+    "ZhaoUKFSettings",
     "build_internal_model",
     "evaluate",
     "innovation_fractions",
     "load_result",
     "moving_vaf",
     "nrmse",
+    "observability_gramian",
     "relative_bias",
     "resimulate",
     "vaf",

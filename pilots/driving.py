@@ -29,7 +29,7 @@ import numpy as np
 import scipy.signal
 from numpy.typing import NDArray
 
-from manualcontrol.envs._validation import check_vector
+from manualcontrol.envs._validation import check_positive, check_vector
 from manualcontrol.envs.driving import LaneKeeping, Road, lane_step, perceive, road_preset
 from manualcontrol.envs.dynamics import discretize
 from manualcontrol.envs.recording import Recording
@@ -45,7 +45,7 @@ from manualcontrol.pilots.driver import (
 from manualcontrol.pilots.remnant import Remnant
 from manualcontrol.pilots.simulation import _as_generator, _gain_for_ratio, remnant_power_ratio
 
-__all__ = ["DriverController", "simulate_driving"]
+__all__ = ["DriverController", "resimulate_driver", "simulate_driving"]
 
 FloatArray = NDArray[np.float64]
 
@@ -269,6 +269,7 @@ def simulate_driving(
     *,
     seed: int | np.random.Generator | None = None,
     remnant_signal: Any = None,
+    output_noise: Mapping[str, float] | None = None,
     keep_run_in: bool = False,
     **environment: Any,
 ) -> Recording:
@@ -285,6 +286,12 @@ def simulate_driving(
     remnant_signal
         Instead of the driver's remnant filter, inject these samples (one per step) at
         the remnant's injection point (``"output"`` when the driver has none).
+    output_noise
+        Sensor noise on the recorded driver outputs: standard deviations of white noise
+        added to ``Gamma_d`` and/or ``delta_sw`` (``{"Gamma_d": 0.12}``), drawn after
+        the remnant from the same generator. It is measurement noise only: the loop is
+        driven by the noise-free signals, which stay in the recording as
+        ``Gamma_d_true`` and ``delta_sw_true``.
     keep_run_in
         Keep the run-in samples (times from ``-run_in``).
     environment
@@ -303,6 +310,7 @@ def simulate_driving(
     """
     if not isinstance(driver, Driver):
         raise TypeError(f"driver must be a Driver, got {driver!r}")
+    noise_levels = _output_noise(output_noise)
     for key in ("reward", "reward_scale", "effort_weight", "include_rates", "render_mode"):
         if key in environment:
             raise TypeError(f"simulate_driving got an environment keyword it does not use: {key!r}")
@@ -363,6 +371,16 @@ def simulate_driving(
         lane_departure=offset > env.lane_limit,
         max_lateral_acceleration=float(np.max(np.abs(perceived[measured, 4]))),
     )
+    if noise_levels:
+        for name, level in noise_levels.items():
+            if name not in signals:
+                raise ValueError(
+                    f"output_noise names {name!r}, which angle steering does not record"
+                )
+            clean = signals[name]
+            signals[f"{name}_true"] = clean
+            signals[name] = clean + level * rng.standard_normal(n)[part]
+        metadata["output_noise"] = dict(noise_levels)
     if inject != INJECT_NONE:
         signals["n"] = gain * unit[part]
         zero = np.zeros_like(kappa)
@@ -378,6 +396,69 @@ def simulate_driving(
         parameters={name: trace[:n][part] for name, trace in traces.items()},
         metadata=metadata,
     )
+
+
+def _output_noise(spec: Mapping[str, float] | None) -> dict[str, float]:
+    if spec is None:
+        return {}
+    if not isinstance(spec, Mapping):
+        raise TypeError(
+            f"output_noise must map Gamma_d/delta_sw to a standard deviation, got {spec!r}"
+        )
+    levels = {}
+    for name, value in spec.items():
+        if name not in ("Gamma_d", "delta_sw"):
+            raise ValueError(f"output_noise keys must be 'Gamma_d' or 'delta_sw', got {name!r}")
+        levels[name] = check_positive(f"output_noise[{name!r}]", value, allow_zero=True)
+    return levels
+
+
+def resimulate_driver(
+    parameters: Any, inputs: Any, speed: float, dt: float
+) -> tuple[FloatArray, FloatArray]:
+    """The driver model alone, driven by recorded perceptions: its ``(Gamma_d, delta_sw)``.
+
+    ``parameters`` (n, 8) holds every parameter at every sample (model order, e.g. an
+    estimator's traces), ``inputs`` (n, 4) the perceptions ``theta_far, theta_near,
+    delta_d, Gamma_s``. The same compiled step as :func:`simulate_driving` (exact delay,
+    perceptions held over each sample), started at rest, no remnant. NaN perceptions
+    (dropped samples) hold the last value.
+    """
+    p = np.asarray(parameters, dtype=np.float64)
+    u = np.array(inputs, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 8:
+        raise ValueError(f"parameters must have shape (n, 8), got {p.shape}")
+    if u.ndim != 2 or u.shape != (p.shape[0], 4):
+        raise ValueError(f"inputs must have shape ({p.shape[0]}, 4), got {u.shape}")
+    for column in u.T:
+        bad = ~np.isfinite(column)
+        if bad.any():
+            index = np.where(~bad, np.arange(column.shape[0]), 0)
+            np.maximum.accumulate(index, out=index)
+            column[:] = np.where(np.isfinite(column[index]), column[index], 0.0)
+    n = p.shape[0]
+    traces = {
+        name: np.append(p[:, j], p[-1, j]) for j, name in enumerate(Driver.model.parameter_names)
+    }
+    d = _driver_record(
+        Driver(),
+        traces,
+        check_positive("speed", speed),
+        check_positive("dt", dt),
+        np.zeros(n),
+        INJECT_NONE,
+    )
+    out = np.zeros((n, 2))
+    _resimulate(d, np.ascontiguousarray(u), out)
+    return out[:, 0], out[:, 1]
+
+
+@numba.njit(cache=True, _nrt=False)
+def _resimulate(d, inputs, out):
+    for k in range(inputs.shape[0]):
+        driver_sample(d, k, inputs[k])
+        out[k, 0] = d.out[0]
+        out[k, 1] = d.out[1]
 
 
 class DriverController:
