@@ -344,17 +344,21 @@ class Road:
         return float(values) if values.ndim == 0 else values
 
     def geometry(self, step: float = 0.5) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """Centre line ``(s, x, y, heading)`` every ``step`` m (trapezoidal integration)."""
+        """Centre line ``(s, x, y, heading)`` about every ``step`` m from the start.
+
+        The heading integrates the curvature by the midpoint rule (exact for the
+        piecewise-linear curvature within segments), the position by the trapezoidal rule.
+        """
         step = check_positive("step", step)
-        s = np.arange(0.0, self.length + step, step)
-        heading = np.concatenate(
-            ([0.0], np.cumsum(0.5 * step * (self.curvature(s[1:]) + self.curvature(s[:-1]))))
-        )
+        count = max(2, math.ceil(self.length / step) + 1)
+        s = np.linspace(0.0, self.length, count)
+        ds = np.diff(s)
+        heading = np.concatenate(([0.0], np.cumsum(ds * self.curvature(s[:-1] + 0.5 * ds))))
         x = np.concatenate(
-            ([0.0], np.cumsum(0.5 * step * (np.cos(heading[1:]) + np.cos(heading[:-1]))))
+            ([0.0], np.cumsum(0.5 * ds * (np.cos(heading[1:]) + np.cos(heading[:-1]))))
         )
         y = np.concatenate(
-            ([0.0], np.cumsum(0.5 * step * (np.sin(heading[1:]) + np.sin(heading[:-1]))))
+            ([0.0], np.cumsum(0.5 * ds * (np.sin(heading[1:]) + np.sin(heading[:-1]))))
         )
         return s, x, y, heading
 

@@ -157,13 +157,18 @@ def _propagate(config, scratch, X, count, inputs, Y):
                 acc += B[r, j] * inputs[j]
             Bu[r] = acc
             y[r] = X[i, r]
+        # eq. 2's A is lower triangular (the lag feeds the Padé state, both feed Gamma_d)
+        a00, a10, a11 = A[0, 0], A[1, 0], A[1, 1]
+        a20, a21, a22 = A[2, 0], A[2, 1], A[2, 2]
+        y0, y1, y2 = y[0], y[1], y[2]
         for _ in range(substeps):
-            d0 = A[0, 0] * y[0] + A[0, 1] * y[1] + A[0, 2] * y[2] + Bu[0]
-            d1 = A[1, 0] * y[0] + A[1, 1] * y[1] + A[1, 2] * y[2] + Bu[1]
-            d2 = A[2, 0] * y[0] + A[2, 1] * y[1] + A[2, 2] * y[2] + Bu[2]
-            y[0] += h * d0
-            y[1] += h * d1
-            y[2] += h * d2
+            d0 = a00 * y0 + Bu[0]
+            d1 = a10 * y0 + a11 * y1 + Bu[1]
+            d2 = a20 * y0 + a21 * y1 + a22 * y2 + Bu[2]
+            y0 += h * d0
+            y1 += h * d1
+            y2 += h * d2
+        y[0], y[1], y[2] = y0, y1, y2
         for r in range(N_STATES):
             Y[i, r] = y[r]
         for r in range(N_STATES, n):

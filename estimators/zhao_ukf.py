@@ -342,9 +342,8 @@ class ZhaoTuning:
     """Every number a :class:`ZhaoUKF` run uses (Algorithm 3 resolved at reset).
 
     ``R_d`` (2, 2) and ``Q`` (n, n) are per sample of the run's ``dt``; the ``*_reference``
-    entries per ``reference_dt``; ``gramian`` is eq. 14 at the nominal (initial)
-    parameters and ``observer_poles`` (rad/s) the steady-state observer of the states
-    with ``Q_x`` and ``R_d`` at ``reference_dt``.
+    entries per ``reference_dt``; ``gramian`` is eq. 14 of ``(A_reference, C)``, the
+    nominal (initial) model discretised by eq. 6 at ``reference_dt``.
     """
 
     dt: float
@@ -357,8 +356,18 @@ class ZhaoTuning:
     Q_x_reference: FloatArray
     Q_theta_reference: FloatArray
     gramian: FloatArray
-    observer_poles: FloatArray
+    A_reference: FloatArray
+    C: FloatArray
     limits: Mapping[str, tuple[float, float]]
+
+    def observer_poles(self) -> FloatArray:
+        """Poles (rad/s) of the steady-state observer of the states with ``Q_x``, ``R_d``.
+
+        At ``reference_dt`` (Algorithm 3 step 3's check; :func:`observer_poles`).
+        """
+        return observer_poles(
+            self.A_reference, self.C, self.Q_x_reference, self.R_d_reference, self.reference_dt
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form."""
@@ -373,7 +382,6 @@ class ZhaoTuning:
             "Q_x_reference": self.Q_x_reference.tolist(),
             "Q_theta_reference": self.Q_theta_reference.tolist(),
             "gramian": self.gramian.tolist(),
-            "observer_poles": [[float(z.real), float(z.imag)] for z in self.observer_poles],
             "limits": {k: [v[0], v[1]] for k, v in self.limits.items()},
         }
 
@@ -417,7 +425,6 @@ def zhao_tuning(
     Q_x_scale = settings.Q_x_scale if settings.Q_x_scale is not None else preset["Q_x_scale"]
     Q_x_ref = Q_x_scale * np.linalg.inv(gramian)
     Q_x_ref = 0.5 * (Q_x_ref + Q_x_ref.T)
-    poles = observer_poles(A_d, system.C, Q_x_ref, R_ref, reference)
     Q_theta_scale = (
         settings.Q_theta_scale if settings.Q_theta_scale is not None else preset["Q_theta_scale"]
     )
@@ -453,7 +460,8 @@ def zhao_tuning(
         Q_x_reference=Q_x_ref,
         Q_theta_reference=Q_theta_ref,
         gramian=gramian,
-        observer_poles=poles,
+        A_reference=A_d,
+        C=np.asarray(system.C),
         limits=MappingProxyType(limits),
     )
 
