@@ -354,13 +354,13 @@ MultiOutput = namedtuple(
 def fuse_step(fusion, state, slow, out_slow, out_fast, row, out):
     """Fuse row ``row`` of the members' outputs into ``out``; re-centre the slow member.
 
-    ``theta = theta_s + lambda dbar`` per estimated parameter, ``dbar`` the EWMA of the
-    disagreement ``theta_f - theta_s``, ``lambda = clip(1 - (level + dead_zone^2) /
-    dbar^2, 0, 1)`` with ``level`` the long EWMA of ``dbar^2``; the variance is that of
-    the two-component mixture. Predictions, innovations and states are the slow
-    member's; the row is marked diverged when either member diverged. With feedback the
-    slow member's parameter means move to the fused values (projected onto its limits)
-    and the disagreement they remove is taken out of ``dbar``.
+    ``theta = theta_s + lambda dbar`` per estimated parameter (never beyond ``theta_f``),
+    ``dbar`` the EWMA of the disagreement ``theta_f - theta_s``, ``lambda = clip(1 -
+    (level + dead_zone^2) / dbar^2, 0, 1)`` with ``level`` the long EWMA of ``dbar^2``;
+    the variance is that of the two-component mixture. Predictions, innovations and
+    states are the slow member's; the row is marked diverged when either member
+    diverged. With feedback the slow member's parameter means move to the fused values
+    (projected onto its limits) and the disagreement they remove is taken out of ``dbar``.
     """
     config, belief, _, report, _ = slow
     n_p = out.mean.shape[1]
@@ -401,13 +401,22 @@ def fuse_step(fusion, state, slow, out_slow, out_fast, row, out):
             state.level[t] = d * d
         else:
             state.smooth[t] += fusion.a_short * (d - state.smooth[t])
-            state.level[t] += fusion.a_long * (state.smooth[t] * state.smooth[t] - state.level[t])
         dbar = state.smooth[t]
         floor = state.level[t] + fusion.dead_zone[t] * fusion.dead_zone[t]
         lam = 0.0
         if dbar * dbar > floor:
             lam = 1.0 - floor / (dbar * dbar)
-        fused = s + lam * dbar
+        else:
+            # the usual level is learnt while the members agree, not from a change
+            state.level[t] += fusion.a_long * (dbar * dbar - state.level[t])
+        step = lam * dbar
+        # never beyond the fast member's current value (dbar may still hold a past
+        # disagreement the fast member has already taken back)
+        if step > 0.0 and step > d:
+            step = max(d, 0.0)
+        elif step < 0.0 and step < d:
+            step = min(d, 0.0)
+        fused = s + step
         out.gate[row, t] = lam
         out.mean[row, j] = fused
         vs = out_slow.std[row, j] * out_slow.std[row, j]

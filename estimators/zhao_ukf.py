@@ -951,7 +951,7 @@ class MultiUKF:
     the disagreement usually is), and::
 
         lambda = clip(1 - (level + (dead_zone theta_0)^2) / dbar^2, 0, 1)
-        theta  = theta_slow + lambda dbar
+        theta  = theta_slow + lambda dbar      (not beyond theta_fast)
 
     (a positive-part shrinkage: a disagreement at its usual level or within the dead
     zone is ignored, one well above it is followed). With ``feedback`` the slow member is
