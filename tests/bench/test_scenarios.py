@@ -103,7 +103,8 @@ def test_scenario_key_changes_with_any_setting(tmp_path):
         (("K_p = 0.24", "K_q = 0.24"), "pilot: PrecisionModel has no parameter(s) 'K_q'"),
         (
             ('name = "dekf"', 'name = "ukf"'),
-            "estimator: estimator name must be one of 'dekf', got 'ukf'",
+            "estimator: estimator name must be one of 'dekf', 'zhao-ukf', 'zhao-multi-ukf', "
+            "got 'ukf'",
         ),
         (('ce = "DI"', 'ce = "DI"\nq2 = -1.0'), "estimator: q2 must be > 0, got -1.0"),
         (
