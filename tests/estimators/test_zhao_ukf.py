@@ -265,3 +265,12 @@ def test_settings_round_trip_and_bad_values():
         ZhaoUKF().reset(0.01)
     with pytest.raises(ValueError, match="the recording lacks 'Gamma_d'"):
         ZhaoUKF().estimate(simulate_driving(Driver(), steering="angle", measurement_time=1.0))
+
+
+def test_docstring_example():
+    import doctest
+
+    from manualcontrol.estimators import zhao_ukf
+
+    results = doctest.testmod(zhao_ukf)
+    assert results.attempted >= 1 and results.failed == 0
