@@ -683,7 +683,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(run=_cmd_bench)
 
     p = commands.add_parser("train", help="train an RL surrogate operator (stable-baselines3)")
-    p.add_argument("--task", default="compensatory", help="compensatory, pursuit or preview")
+    p.add_argument(
+        "--task", default="compensatory", help="compensatory, pursuit, preview or lane-keeping"
+    )
     p.add_argument(
         "--env",
         action="append",

@@ -56,6 +56,10 @@ BACKENDS: tuple[str, ...] = ("process", "inprocess", "ray")
 
 def simulate_scenario(scenario: Scenario) -> Recording:
     """The scenario's simulated run, run-in kept (the estimator converges on it)."""
+    if scenario.task == "lane-keeping":
+        from manualcontrol.bench.driving import simulate_lane_keeping
+
+        return simulate_lane_keeping(scenario)
     from manualcontrol.pilots import simulate
 
     if scenario.system is not None:

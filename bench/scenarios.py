@@ -32,7 +32,8 @@ Schema of a suite file::
 
     [[batch]]
     name = "preview-SI"
-    task = "preview"           # compensatory | pursuit | preview
+    task = "preview"           # compensatory | pursuit | preview | lane-keeping
+                               # (lane keeping reads the keys as bench.driving says)
     element = "SI"             # preset name or a table {kind = ..., ...}
     forcing = "vanderel-bw4"   # forcing preset
     realisations = [0, 1, 2]   # forcing realisations (crossed)
@@ -211,7 +212,11 @@ class Scenario:
         return _digest(data)
 
     def build_pilot(self) -> Pilot:
-        """The :class:`~manualcontrol.pilots.Pilot` of this scenario."""
+        """The :class:`~manualcontrol.pilots.Pilot` of this scenario (lane keeping: the driver)."""
+        if self.task == "lane-keeping":
+            from manualcontrol.bench.driving import build_driver
+
+            return build_driver(self.pilot)  # type: ignore[return-value]
         return _pilot_from(self.pilot)
 
     def build_system(self) -> Any:
@@ -408,6 +413,10 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
     name = merged["name"]
     if not isinstance(name, str) or not name.replace("-", "").replace("_", "").isalnum():
         raise _fail(where, f"name must be letters, digits, '-' or '_', got {name!r}")
+    if merged["task"] == "lane-keeping":
+        from manualcontrol.bench.driving import parse_lane_keeping_batch
+
+        return parse_lane_keeping_batch(where, merged)
     where = f"{where} ({name})"
     try:
         check_choice("task", merged["task"], (*TASKS, OPEN_LOOP))

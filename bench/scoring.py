@@ -27,6 +27,10 @@ MOVING_WINDOW = 10.0  # s, thesis Fig. 7
 
 def score(scenario: Scenario, recording: Recording, result: Any) -> dict[str, Any]:
     """The results-row entries of one run (see the module docstring)."""
+    if scenario.task == "lane-keeping":
+        from manualcontrol.bench.driving import score_lane_keeping
+
+        return score_lane_keeping(scenario, recording, result)
     measured = metrics.evaluate(result, recording, start=scenario.score_from)
     window = np.asarray(recording.t) >= scenario.score_from - 1e-9
     row: dict[str, Any] = {}

@@ -2,7 +2,8 @@
 
 Importing this package registers ``ManualControl/CompensatoryTracking-v0``,
 ``ManualControl/PursuitTracking-v0``, ``ManualControl/PreviewTracking-v0`` and
-``ManualControl/PostviewTracking-v0`` (Boer & Kenyon's gap-postview display). Gymnasium
+``ManualControl/PostviewTracking-v0`` (Boer & Kenyon's gap-postview display) and
+``ManualControl/LaneKeeping-v0``. Gymnasium
 1.x has no plugin entry points any more, so either import ``manualcontrol.envs`` first
 or name the module in the id:
 ``gymnasium.make("manualcontrol.envs:ManualControl/PreviewTracking-v0")``.
@@ -25,4 +26,11 @@ if "ManualControl/PostviewTracking-v0" not in registry:
     register(
         id="ManualControl/PostviewTracking-v0",
         entry_point="manualcontrol.envs.postview:PostviewTracking",
+    )
+
+if "ManualControl/LaneKeeping-v0" not in registry:
+    register(
+        id="ManualControl/LaneKeeping-v0",
+        entry_point="manualcontrol.envs.driving:LaneKeeping",
+        vector_entry_point="manualcontrol.envs.driving_vector:LaneKeepingVector",
     )

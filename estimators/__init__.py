@@ -14,6 +14,7 @@ from manualcontrol.estimators.metrics import (
     innovation_fractions,
     moving_vaf,
     nrmse,
+    observability_gramian,
     relative_bias,
     resimulate,
     vaf,
@@ -31,6 +32,7 @@ from manualcontrol.estimators.registry import ESTIMATORS, EstimatorEntry, make_e
 from manualcontrol.estimators.schiess_roland import SchiessRoland, SchiessRolandSettings
 from manualcontrol.estimators.smoothing import smooth
 from manualcontrol.estimators.ukf import DualUKF, DualUKFSettings, JointUKF, UKFSettings
+from manualcontrol.estimators.zhao_ukf import MultiUKF, MultiUKFSettings, ZhaoUKF, ZhaoUKFSettings
 
 __all__ = [
     "DEKF",
@@ -48,11 +50,15 @@ __all__ = [
     "HealthSummary",
     "InternalModel",
     "JointUKF",
+    "MultiUKF",
+    "MultiUKFSettings",
     "RDISettings",
     "ResolvedSettings",
     "SchiessRoland",
     "SchiessRolandSettings",
     "UKFSettings",
+    "ZhaoUKF",
+    "ZhaoUKFSettings",
     "build_internal_model",
     "evaluate",
     "innovation_fractions",
@@ -60,6 +66,7 @@ __all__ = [
     "make_estimator",
     "moving_vaf",
     "nrmse",
+    "observability_gramian",
     "relative_bias",
     "resimulate",
     "smooth",
