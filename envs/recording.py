@@ -959,7 +959,10 @@ def _mat_columns(name: str, value: np.ndarray) -> dict[str, np.ndarray]:
         return out
     if value.dtype.kind in "iuf" and value.ndim == 2 and min(value.shape) > 1:
         rows = value if value.shape[0] >= value.shape[1] else value.T
-        return {f"{name}:{j + 1}": rows[:, j] for j in range(rows.shape[1])}
+        # the whole matrix stays under its name, so a name that is also a signal's says so
+        columns = {name: value}
+        columns.update({f"{name}:{j + 1}": rows[:, j] for j in range(rows.shape[1])})
+        return columns
     return {name: value}
 
 
@@ -1074,8 +1077,12 @@ def _column_vector(path: Path, table: _FileTable, column: str, what: str) -> np.
     if raw.ndim > 1 and sum(size != 1 for size in raw.shape) <= 1:
         raw = raw.reshape(-1)  # MATLAB column (n, 1) or row (1, n) vectors
     if raw.ndim != 1:
+        hint = ""
+        if raw.ndim == 2:
+            hint = f" (pick one of its columns: '{column}:1' .. '{column}:{min(raw.shape)}')"
         raise ValueError(
             f"{path}: column {column!r} for {what} must be a vector, got shape {raw.shape}"
+            f"{hint}"
         )
     return raw
 

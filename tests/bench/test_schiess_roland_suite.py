@@ -35,7 +35,7 @@ def test_the_suite_has_the_papers_cases():
     )
     case_4 = suite.batch("case-4")
     assert case_4.remnant_seeds == tuple(range(20))
-    assert case_4.template["estimator"]["passes"] == 3
+    assert case_4.estimators[0]["passes"] == 3
     assert case_4.template["pilot"]["remnant"]["noise_variance"] == 25.0
     # case 2 runs on case 1's data
     one, two = (suite.batch(name).template for name in ("case-1", "case-2"))

@@ -884,9 +884,13 @@ def test_non_numeric_or_matrix_columns(tmp_path):
     scipy.io.savemat(path, {"t": np.arange(4.0), "u": np.zeros((4, 2)), "who": "S03"})
     with pytest.raises(
         ValueError,
-        match=re.escape(f"{path}: column 'u' for signal 'u' must be a vector, got shape (4, 2)"),
+        match=re.escape(
+            f"{path}: column 'u' for signal 'u' must be a vector, got shape (4, 2) (pick one "
+            "of its columns: 'u:1' .. 'u:2')"
+        ),
     ):
         Recording.load(path)
+    np.testing.assert_array_equal(Recording.load(path, columns={"u": "u:2"}).u, 0.0)
     with pytest.raises(ValueError, match=re.escape("column 'who' for signal 'e' is not numeric")):
         Recording.load(path, columns={"e": "who", "u": "t"})
 
