@@ -49,8 +49,8 @@ def _value(text: str) -> Any:
         return text
 
 
-def _env_options(items: Sequence[str] | None) -> dict[str, Any]:
-    """``--env KEY=VALUE`` items parsed to the type each environment keyword takes.
+def _env_options(items: Sequence[str] | None, task: str = "compensatory") -> dict[str, Any]:
+    """``--env KEY=VALUE`` items parsed to the type each keyword of the task's env takes.
 
     A switch takes true/false (yes/no, 1/0), a number a number, an optional number
     also null; anything else is refused naming the option, so ``include_rates=False``
@@ -58,9 +58,12 @@ def _env_options(items: Sequence[str] | None) -> dict[str, Any]:
     """
     import inspect
 
-    from manualcontrol.envs.tracking import TrackingEnv
+    if task == "lane-keeping":
+        from manualcontrol.envs.driving import LaneKeeping as environment
+    else:
+        from manualcontrol.envs.tracking import TrackingEnv as environment
 
-    signature = inspect.signature(TrackingEnv.__init__)
+    signature = inspect.signature(environment.__init__)
     known = {name: p for name, p in signature.parameters.items() if name != "self"}
     out = {}
     for item in items or ():
@@ -460,7 +463,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         wrappers.append({"kind": "motor_noise", "power_ratio": args.motor_noise})
     config = TrainingConfig(
         task=args.task,
-        env_kwargs=_env_options(args.env),
+        env_kwargs=_env_options(args.env, args.task),
         wrappers=tuple(wrappers),
         algorithm=args.algorithm,
         total_timesteps=args.steps,

@@ -87,6 +87,7 @@ _BATCH_KEYS = {
     "remnant_seeds",
     "pilot",
     "estimator",
+    "estimators",
     "reference",
     "quick",
     "dt",
@@ -173,16 +174,9 @@ def parse_lane_keeping_batch(where: str, merged: Mapping[str, Any]) -> Batch:
         build_driver(pilot)
     except (TypeError, ValueError, KeyError) as error:
         raise _fail(where, f"pilot: {error}") from None
-    estimator = dict(merged["estimator"])
-    if "name" not in estimator:
-        raise _fail(where, "estimator needs a name")
-    from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
+    from manualcontrol.bench.scenarios import _estimators
 
-    try:
-        check_choice("estimator name", estimator["name"], tuple(ESTIMATORS))
-        make_estimator(estimator)
-    except (TypeError, ValueError) as error:
-        raise _fail(where, f"estimator: {error}") from None
+    shared, estimators = _estimators(where, merged)
     template = {
         "task": TASK,
         "element": merged["element"],
@@ -193,7 +187,6 @@ def parse_lane_keeping_batch(where: str, merged: Mapping[str, Any]) -> Batch:
         "measurement_time": measurement_time,
         "loop": "sampled",
         "available_preview": None,
-        "estimator": estimator,
         "score_from": score_from,
     }
     return Batch(
@@ -204,6 +197,8 @@ def parse_lane_keeping_batch(where: str, merged: Mapping[str, Any]) -> Batch:
         quick_realisations,
         quick_seeds,
         dict(merged.get("reference", {})),
+        estimators,
+        shared,
     )
 
 
