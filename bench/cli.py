@@ -59,11 +59,11 @@ def _env_options(items: Sequence[str] | None, task: str = "compensatory") -> dic
     import inspect
 
     if task == "lane-keeping":
-        from manualcontrol.envs.driving import LaneKeeping as environment
+        from manualcontrol.envs.driving import LaneKeeping as Environment
     else:
-        from manualcontrol.envs.tracking import TrackingEnv as environment
+        from manualcontrol.envs.tracking import TrackingEnv as Environment
 
-    signature = inspect.signature(environment.__init__)
+    signature = inspect.signature(Environment.__init__)
     known = {name: p for name, p in signature.parameters.items() if name != "self"}
     out = {}
     for item in items or ():

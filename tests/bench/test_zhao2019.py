@@ -90,7 +90,10 @@ def test_lag_noise_and_straight_metrics_on_known_signals():
             {"pilot": {"model": "cybernetic-driver", "parameters": {"K_x": 1.0}}},
             "pilot: the cybernetic driver has no",
         ),
-        ({"estimator": {"name": "zhao-ukf", "preset": "ukf9"}}, "estimator (zhao-ukf): preset must be one of"),
+        (
+            {"estimator": {"name": "zhao-ukf", "preset": "ukf9"}},
+            "estimator (zhao-ukf): preset must be one of",
+        ),
         (
             {"element": {"output_noise": {"y_L": 0.1}}},
             "output_noise keys must be 'Gamma_d' or 'delta_sw'",
