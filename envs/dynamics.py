@@ -27,9 +27,9 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
-import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
+from manualcontrol.envs._expm import expm_batch
 from manualcontrol.envs._interpolation import bicubic_weights, interpolate_at
 from manualcontrol.envs._validation import check_int, check_positive
 
@@ -393,31 +393,50 @@ class Discretization(NamedTuple):
     gamma_ramp: FloatArray
 
 
-def discretize(A: ArrayLike, B: ArrayLike, dt: float) -> Discretization:
+def discretize(
+    A: ArrayLike, B: ArrayLike, dt: float, ramp_inputs: Sequence[int] | None = None
+) -> Discretization:
     """Zero- and first-order-hold discretisation by one augmented matrix exponential.
 
-    ``expm([[A, B, 0], [0, 0, I/dt], [0, 0, 0]] dt)`` holds ``phi = e^{A dt}``,
-    ``gamma = ∫_0^dt e^{A s} ds B`` and ``gamma_ramp = (1/dt) ∫_0^dt e^{A (dt - s)} s ds B``
-    in its first block row. ``A`` and ``B`` may have leading batch axes; identical
-    matrices along the batch are exponentiated once.
+    ``expm([[A, B, 0], [0, 0, S/dt], [0, 0, 0]] dt)`` holds ``phi = e^{A dt}``,
+    ``gamma = ∫_0^dt e^{A s} ds B`` and the ramp matrix ``gamma_ramp = (1/dt) ∫_0^dt
+    e^{A (dt - s)} s ds B S`` in its first block row. ``S`` selects the inputs whose
+    ramp term is wanted, ``ramp_inputs`` (default all); the other columns of
+    ``gamma_ramp`` are zero. Asking only for the inputs that are ramped (the delay
+    channels of :func:`simulate_lpv`) keeps the matrix small, which is most of the
+    cost. ``A`` and ``B`` may have leading batch axes; each matrix is exponentiated by
+    a compiled Al-Mohy & Higham (2009) scaling and squaring (the algorithm of
+    :func:`scipy.linalg.expm`, without its per-call overhead), a run of equal
+    consecutive matrices once.
     """
     dt = check_positive("dt", dt)
     A = np.asarray(A, dtype=np.float64)
     B = np.asarray(B, dtype=np.float64)
+    if not (np.all(np.isfinite(A)) and np.all(np.isfinite(B))):
+        raise ValueError("A and B must be finite")
     n, m = A.shape[-1], B.shape[-1]
+    if ramp_inputs is None:
+        ramped = np.arange(m)
+    else:
+        ramped = np.unique(np.asarray(ramp_inputs, dtype=np.int64).reshape(-1))
+        if ramped.size and (ramped[0] < 0 or ramped[-1] >= m):
+            raise ValueError(
+                f"ramp_inputs must be input indices in [0, {m - 1}], got {list(ramp_inputs)}"
+            )
+    r = ramped.shape[0]
     batch = np.broadcast_shapes(A.shape[:-2], B.shape[:-2])
-    size = n + 2 * m
+    size = n + m + r
     augmented = np.zeros((*batch, size, size))
     augmented[..., :n, :n] = A * dt
     augmented[..., :n, n : n + m] = B * dt
-    augmented[..., n : n + m, n + m :] = np.eye(m)
-    flat = augmented.reshape(-1, size, size)
-    unique, inverse = np.unique(flat, axis=0, return_inverse=True)
-    exponentials = scipy.linalg.expm(unique)[np.ravel(inverse)].reshape(augmented.shape)
+    augmented[..., n + ramped, n + m + np.arange(r)] = 1.0
+    exponentials = expm_batch(augmented.reshape(-1, size, size)).reshape(augmented.shape)
+    gamma_ramp = np.zeros((*batch, n, m))
+    gamma_ramp[..., ramped] = exponentials[..., :n, n + m :]
     return Discretization(
         np.ascontiguousarray(exponentials[..., :n, :n]),
         np.ascontiguousarray(exponentials[..., :n, n : n + m]),
-        np.ascontiguousarray(exponentials[..., :n, n + m :]),
+        gamma_ramp,
     )
 
 

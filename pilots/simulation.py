@@ -390,19 +390,29 @@ def discrete_pilot(
         sums={**pilot.sums, **({} if remnant is not None else {"n": {}})},
         delays=pilot.delays,
     )
-    return system, discretize(system.system.A, system.system.B, setup.dt), pilot.delays
+    exact = discretize(system.system.A, system.system.B, setup.dt, system.delay_inputs)
+    return system, exact, pilot.delays
 
 
 def distinct_parameter_sets(
     columns: Sequence[FloatArray], n_samples: int
 ) -> tuple[NDArray[np.int64], NDArray[np.int64] | None]:
-    """First sample of each distinct row of ``columns`` and the row used at each sample.
+    """First sample of each run of equal rows of ``columns`` and the run used at each sample.
 
-    The index is None when one set serves every sample (a time-invariant loop).
+    Parameters held over stretches of samples (constants, the flat ends of a sigmoid)
+    come in runs, so one loop is built per run; a value that returns after a change
+    gets a set of its own. (Sorting the whole table for unique rows cost more than
+    the matrices it saved.) The index is None when one set serves every sample.
     """
-    table = np.column_stack(columns) if columns else np.zeros((n_samples, 0))
-    unique, first, inverse = np.unique(table, axis=0, return_index=True, return_inverse=True)
-    return first, (None if len(unique) == 1 else np.ravel(inverse))
+    if not columns or n_samples <= 1:
+        return np.zeros(1, dtype=np.int64), None
+    table = np.column_stack(columns)
+    changed = np.any(table[1:] != table[:-1], axis=1)
+    if not changed.any():
+        return np.zeros(1, dtype=np.int64), None
+    first = np.concatenate(([0], np.flatnonzero(changed) + 1)).astype(np.int64)
+    index = np.concatenate(([0], np.cumsum(changed))).astype(np.int64)
+    return first, index
 
 
 def _assemble(
@@ -417,7 +427,7 @@ def _assemble(
     inputs = _loop_inputs(model, remnant)
     if loop == "continuous":
         diagram = _continuous_loop(setup, values, element_model, remnant)
-        exact = discretize(diagram.system.A, diagram.system.B, setup.dt)
+        exact = discretize(diagram.system.A, diagram.system.B, setup.dt, diagram.delay_inputs)
         return _Loop(
             exact,
             diagram.system.C,
@@ -429,7 +439,7 @@ def _assemble(
         )
     # sampled: pilot and element discretised apart, joined in discrete time
     pilot_system, pilot_exact, pilot_delays = discrete_pilot(setup, values, remnant)
-    element_exact = discretize(element_model.A, element_model.B, setup.dt)
+    element_exact = discretize(element_model.A, element_model.B, setup.dt, ramp_inputs=())
     pilot_block = Block(
         StateSpace(
             pilot_exact.phi, pilot_exact.gamma, pilot_system.system.C, pilot_system.system.D
@@ -582,7 +592,7 @@ def isolated_pilot_output(
         delays=diagram.delays,
     )
     loop = _Loop(
-        discretize(system.system.A, system.system.B, dt),
+        discretize(system.system.A, system.system.B, dt, system.delay_inputs),
         system.system.C,
         system.system.D,
         system.inputs,
