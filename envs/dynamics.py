@@ -360,12 +360,20 @@ def interconnect(
         C[..., iy : iy + ny, ix : ix + nx] = s.C
         D[..., iy : iy + ny, iu : iu + nu] = s.D
         ix, iu, iy = ix + nx, iu + nu, iy + ny
-    loop = np.eye(n_y) - D @ M
-    try:
-        LC = np.linalg.solve(loop, C)
-        LDN = np.linalg.solve(loop, D @ N)
-    except np.linalg.LinAlgError as error:
-        raise ValueError("the block diagram has an algebraic loop (I - D M is singular)") from error
+    DM = D @ M
+    if not DM.any():
+        # no feedthrough closes a loop (the usual case): L = I, and solving with the
+        # identity would return C and D N unchanged at the cost of one LU per sample
+        LC, LDN = C, D @ N
+    else:
+        loop = np.eye(n_y) - DM
+        try:
+            LC = np.linalg.solve(loop, C)
+            LDN = np.linalg.solve(loop, D @ N)
+        except np.linalg.LinAlgError as error:
+            raise ValueError(
+                "the block diagram has an algebraic loop (I - D M is singular)"
+            ) from error
     system = StateSpace(A + B @ M @ LC, B @ (M @ LDN + N), P @ LC, P @ LDN + Q)
     return Interconnection(
         system,
