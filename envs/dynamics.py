@@ -43,6 +43,8 @@ __all__ = [
     "discretize",
     "frequency_response",
     "interconnect",
+    "lpv_output_step",
+    "lpv_state_step",
     "pade",
     "pade_coefficients",
     "poly_multiply",
@@ -491,6 +493,100 @@ def read_held(history: FloatArray, newest: int, position: float) -> float:
 
 
 @numba.njit(cache=True)
+def lpv_output_step(
+    c: FloatArray,
+    d: FloatArray,
+    x: FloatArray,
+    u: FloatArray,
+    smooth: FloatArray,
+    held: FloatArray,
+    newest: int,
+    delay_inputs: NDArray[np.int64],
+    delay_outputs: NDArray[np.int64],
+    delay_now: FloatArray,
+    smooth_now: FloatArray,
+    held_state: NDArray[np.bool_],
+    outputs: FloatArray,
+) -> None:
+    """First half of one :func:`simulate_lpv` sample: delayed inputs, then outputs.
+
+    Writes the delay sources of this sample into the histories ``smooth`` and ``held``
+    at column ``newest``, the delayed inputs into ``u`` (the smooth part was read one
+    step ago, ``smooth_now``; the held part now, ``delay_now`` samples back) and
+    ``y = C x + D u`` into ``outputs``. Shared by the whole-run loop and the pilot
+    acting in an environment (:class:`~manualcontrol.pilots.controller.PilotController`),
+    so both give the same numbers.
+    """
+    n_x = x.shape[0]
+    n_u = u.shape[0]
+    for i in range(delay_inputs.shape[0]):
+        r = delay_outputs[i]
+        acc = 0.0
+        held_value = 0.0
+        for j in range(n_x):
+            if held_state[j]:
+                held_value += c[r, j] * x[j]
+            else:
+                acc += c[r, j] * x[j]
+        smooth[i, newest] = acc
+        for j in range(n_u):
+            if j != delay_inputs[i]:
+                held_value += d[r, j] * u[j]
+        held[i, newest] = held_value
+        position = newest - delay_now[i]
+        u[delay_inputs[i]] = smooth_now[i] + read_held(held[i], newest, position)
+    for r in range(c.shape[0]):
+        acc = 0.0
+        for j in range(n_x):
+            acc += c[r, j] * x[j]
+        for j in range(n_u):
+            acc += d[r, j] * u[j]
+        outputs[r] = acc
+
+
+@numba.njit(cache=True)
+def lpv_state_step(
+    phi: FloatArray,
+    gamma: FloatArray,
+    gamma_ramp: FloatArray,
+    x: FloatArray,
+    u: FloatArray,
+    smooth: FloatArray,
+    newest: int,
+    delay_inputs: NDArray[np.int64],
+    delay_next: FloatArray,
+    smooth_now: FloatArray,
+    smooth_next: FloatArray,
+    x_next: FloatArray,
+) -> None:
+    """Second half of one :func:`simulate_lpv` sample: the state (and delay reads) advanced.
+
+    ``x <- phi x + gamma u + gamma_ramp (s_next - s_now)`` with the smooth delayed
+    parts read ``delay_next`` samples before the next sample; ``smooth_next`` and
+    ``x_next`` are work arrays.
+    """
+    n_x = x.shape[0]
+    n_u = u.shape[0]
+    n_delay = delay_inputs.shape[0]
+    for i in range(n_delay):
+        position = newest + 1.0 - delay_next[i]
+        smooth_next[i] = read_smooth(smooth[i], newest, position)
+    for r in range(n_x):
+        acc = 0.0
+        for j in range(n_x):
+            acc += phi[r, j] * x[j]
+        for j in range(n_u):
+            acc += gamma[r, j] * u[j]
+        for i in range(n_delay):
+            acc += gamma_ramp[r, delay_inputs[i]] * (smooth_next[i] - smooth_now[i])
+        x_next[r] = acc
+    for r in range(n_x):
+        x[r] = x_next[r]
+    for i in range(n_delay):
+        smooth_now[i] = smooth_next[i]
+
+
+@numba.njit(cache=True)
 def _simulate_lpv(
     phi: FloatArray,
     gamma: FloatArray,
@@ -529,51 +625,39 @@ def _simulate_lpv(
         for j in range(n_u):
             u[j] = inputs[k, j]
         newest = history_pad + k
-        # delayed inputs of this sample: the smooth part was read one step ago
-        # (it needs the state of the previous sample only), the held part now
-        for i in range(n_delay):
-            r = delay_outputs[i]
-            acc = 0.0
-            held_value = 0.0
-            for j in range(n_x):
-                if held_state[j]:
-                    held_value += c[kc, r, j] * x[j]
-                else:
-                    acc += c[kc, r, j] * x[j]
-            smooth[i, newest] = acc
-            for j in range(n_u):
-                if j != delay_inputs[i]:
-                    held_value += d[kd, r, j] * u[j]
-            held[i, newest] = held_value
-            position = newest - delay_samples[k, i]
-            u[delay_inputs[i]] = smooth_now[i] + read_held(held[i], newest, position)
         for r in range(n_x):
             states[k, r] = x[r]
-        for r in range(n_y):
-            acc = 0.0
-            for j in range(n_x):
-                acc += c[kc, r, j] * x[j]
-            for j in range(n_u):
-                acc += d[kd, r, j] * u[j]
-            outputs[k, r] = acc
+        lpv_output_step(
+            c[kc],
+            d[kd],
+            x,
+            u,
+            smooth,
+            held,
+            newest,
+            delay_inputs,
+            delay_outputs,
+            delay_samples[k],
+            smooth_now,
+            held_state,
+            outputs[k],
+        )
         if k == n_samples - 1:
             break
-        for i in range(n_delay):
-            position = newest + 1.0 - delay_samples[k + 1, i]
-            smooth_next[i] = read_smooth(smooth[i], newest, position)
-        for r in range(n_x):
-            acc = 0.0
-            for j in range(n_x):
-                acc += phi[kp, r, j] * x[j]
-            for j in range(n_u):
-                acc += gamma[kg, r, j] * u[j]
-            for i in range(n_delay):
-                acc += gamma_ramp[kg, r, delay_inputs[i]] * (smooth_next[i] - smooth_now[i])
-            x_next[r] = acc
-        for r in range(n_x):
-            x[r] = x_next[r]
-        for i in range(n_delay):
-            smooth_now[i] = smooth_next[i]
+        lpv_state_step(
+            phi[kp],
+            gamma[kg],
+            gamma_ramp[kg],
+            x,
+            u,
+            smooth,
+            newest,
+            delay_inputs,
+            delay_samples[k + 1],
+            smooth_now,
+            smooth_next,
+            x_next,
+        )
     return states, outputs
 
 
