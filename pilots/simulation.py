@@ -60,7 +60,16 @@ from manualcontrol.envs.dynamics import (
 )
 from manualcontrol.envs.elements import ControlledElement, make_element
 from manualcontrol.envs.recording import Recording
-from manualcontrol.envs.signals import ForcingPair, forcing_preset
+from manualcontrol.envs.signals import ForcingPair
+from manualcontrol.envs.tasks import (
+    TASKS,
+    available_preview_for,
+    check_preview_time,
+    measurement_time_for,
+    resolve_forcing,
+    sample_counts,
+    task_metadata,
+)
 from manualcontrol.pilots.models import PilotModel, make_model
 from manualcontrol.pilots.pilot import Pilot
 from manualcontrol.pilots.remnant import Remnant
@@ -77,10 +86,7 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 
-TASKS: tuple[str, ...] = ("compensatory", "pursuit", "preview")
 LOOPS: tuple[str, ...] = ("continuous", "sampled")
-#: Preview shown by default in preview tasks (s): covers nominal far-view preview times.
-DEFAULT_AVAILABLE_PREVIEW = 1.0
 #: Relative deviation of the realised power ratio that triggers a re-calibration
 #: (thesis Part II Sec. 4.2.1: "more than 5 %").
 POWER_RATIO_TOLERANCE = 0.05
@@ -139,10 +145,7 @@ class SimulationSetup:
         if not isinstance(pilot, Pilot):
             raise TypeError(f"pilot must be a Pilot, got {pilot!r}")
         element = make_element(element)
-        if isinstance(forcing, str):
-            forcing = forcing_preset(forcing, realisation)
-        elif not isinstance(forcing, ForcingPair):
-            raise TypeError(f"forcing must be a preset name or a ForcingPair, got {forcing!r}")
+        forcing = resolve_forcing(forcing, realisation)
         model_task = pilot.model.task
         if task is None:
             task = model_task
@@ -152,33 +155,21 @@ class SimulationSetup:
                 f"task {task!r} does not fit the {pilot.model.name!r} pilot model, "
                 f"which is a {model_task} model"
             )
-        if task == "preview":
-            preview = DEFAULT_AVAILABLE_PREVIEW if available_preview is None else available_preview
-            preview = check_positive("available_preview", preview, allow_zero=True)
-        else:
-            if available_preview not in (None, 0, 0.0):
-                raise ValueError(
-                    f"available_preview must be 0 (or omitted) in a {task} task, "
-                    f"got {available_preview!r}"
-                )
-            preview = 0.0
+        preview = available_preview_for(task, available_preview)
         dt = check_positive("dt", dt)
         run_in = check_positive("run_in", run_in, allow_zero=True)
-        if measurement_time is None:
-            target = forcing.target or forcing.disturbance
-            measurement_time = getattr(target, "measurement_time", None) or 120.0
-        measurement_time = check_positive("measurement_time", measurement_time)
+        measurement_time = measurement_time_for(forcing, measurement_time)
         return cls(pilot, element, forcing, task, preview, dt, run_in, measurement_time)
 
     @property
     def n_run_in(self) -> int:
         """Samples of run-in."""
-        return round(self.run_in / self.dt)
+        return sample_counts(self.dt, self.run_in, self.measurement_time)[0]
 
     @property
     def n_samples(self) -> int:
         """Samples simulated, run-in included."""
-        return self.n_run_in + round(self.measurement_time / self.dt)
+        return sample_counts(self.dt, self.run_in, self.measurement_time)[1]
 
     @property
     def time(self) -> FloatArray:
@@ -195,7 +186,7 @@ class SimulationSetup:
         traces = self.pilot.parameter_traces(self.time)
         for name in ("tau_f", "tau_n"):
             if name in traces:
-                _check_preview_time(name, traces[name], self.available_preview, self.task)
+                check_preview_time(name, traces[name], self.available_preview, self.task)
         return traces
 
     def forcing_signals(self, traces: Mapping[str, FloatArray]) -> dict[str, FloatArray]:
@@ -215,27 +206,15 @@ class SimulationSetup:
 
     def metadata(self) -> dict[str, Any]:
         """What a recording of this setup says about how it was made."""
-        return {
-            "task": self.task,
-            "pilot": self.pilot.to_dict(),
-            "controlled_element": self.element.to_dict(),
-            "forcing": self.forcing.to_dict(),
-            "forcing_name": self.forcing.name,
-            "realisation": self.forcing.realisation,
-            "available_preview": self.available_preview,
-            "run_in": self.run_in,
-            "measurement_time": self.measurement_time,
-        }
-
-
-def _check_preview_time(name: str, values: FloatArray, available: float, task: str) -> None:
-    if np.any(values < 0.0):
-        raise ValueError(f"{name} must be >= 0 s (a preview time), got {float(values.min())!r}")
-    if np.any(values > available + 1e-12):
-        raise ValueError(
-            f"{name} must not exceed the available preview of {available:g} s in a {task} task, "
-            f"got {float(values.max())!r}"
+        shared = task_metadata(
+            self.task,
+            self.element,
+            self.forcing,
+            self.available_preview,
+            self.run_in,
+            self.measurement_time,
         )
+        return {"task": shared.pop("task"), "pilot": self.pilot.to_dict(), **shared}
 
 
 # --------------------------------------------------------------------- block diagram
