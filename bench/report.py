@@ -15,12 +15,22 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from manualcontrol.bench.scenarios import Suite, scenario_from_dict
 from manualcontrol.envs._files import atomic_path, atomic_write
 from manualcontrol.envs.recording import Recording
 
-__all__ = ["plot_estimation", "plot_recording", "summarise", "write_report"]
+__all__ = [
+    "nan_median",
+    "nan_percentiles",
+    "plot_estimation",
+    "plot_recording",
+    "summarise",
+    "write_report",
+]
+
+FloatArray = NDArray[np.float64]
 
 
 def _pyplot() -> Any:
@@ -160,6 +170,50 @@ def _batch_table(summary: Mapping[str, Any], reference: Mapping[str, Any]) -> li
     return lines
 
 
+def nan_percentiles(stack: ArrayLike, percentiles: Sequence[float]) -> FloatArray:
+    """``np.nanpercentile(stack, percentiles, axis=0)`` (linear), without a loop per column.
+
+    numpy's NaN-aware percentile along an axis makes one Python-level call per column
+    (per time sample here: 85 % of a report's time). This sorts once (NaNs last) and
+    interpolates every column at once with numpy's own formulas (virtual index
+    ``(n - 1) q``, its two-sided ``lerp``), so the result is identical, bit for bit;
+    all-NaN columns give NaN. Shape ``(len(percentiles), columns)``.
+    """
+    stack = np.asarray(stack, dtype=np.float64)
+    if stack.shape[0] == 0:
+        return np.full((len(percentiles), stack.shape[1]), np.nan)
+    ordered = np.sort(stack, axis=0)
+    count = np.count_nonzero(~np.isnan(stack), axis=0)
+    last = np.maximum(count - 1, 0)
+    columns = np.arange(stack.shape[1])
+    fractions = np.true_divide(np.asarray(percentiles, dtype=np.float64), 100.0)
+    out = np.empty((fractions.shape[0], stack.shape[1]))
+    for i, fraction in enumerate(fractions):
+        virtual = (count - 1) * fraction
+        previous = np.floor(virtual)
+        above = virtual >= count - 1  # numpy takes the largest value there
+        low = ordered[np.where(above, last, previous).astype(np.intp), columns]
+        high = ordered[np.where(above, last, previous + 1).astype(np.intp), columns]
+        gamma = virtual - np.where(above, -1.0, previous)
+        difference = high - low
+        value = np.where(gamma >= 0.5, high - difference * (1 - gamma), low + difference * gamma)
+        out[i] = np.where(count > 0, value, np.nan)
+    return out
+
+
+def nan_median(stack: ArrayLike) -> FloatArray:
+    """``np.nanmedian(stack, axis=0)`` for all columns at once (identical results)."""
+    stack = np.asarray(stack, dtype=np.float64)
+    if stack.shape[0] == 0:
+        return np.full(stack.shape[1], np.nan)
+    ordered = np.sort(stack, axis=0)
+    count = np.count_nonzero(~np.isnan(stack), axis=0)
+    columns = np.arange(stack.shape[1])
+    low = ordered[np.maximum((count - 1) // 2, 0), columns]
+    high = ordered[np.minimum(count // 2, stack.shape[0] - 1), columns]
+    return np.where(count > 0, (low + high) / 2.0, np.nan)
+
+
 def _trace_figure(
     suite: Suite, batch: str, rows: Sequence[Mapping[str, Any]], out: Path
 ) -> Path | None:
@@ -185,8 +239,8 @@ def _trace_figure(
     axes = np.atleast_1d(axes)
     for axis, name in zip(axes, names, strict=False):
         stack = np.array([result.mean_of(name) for result in results if len(result) == len(first)])
-        median = np.nanmedian(stack, axis=0)
-        low, high = np.nanpercentile(stack, [25, 75], axis=0)
+        median = nan_median(stack)
+        low, high = nan_percentiles(stack, [25, 75])
         axis.fill_between(first.t, low, high, color="k", alpha=0.2, lw=0, label="25-75 %")
         axis.plot(first.t, median, color="k", lw=1.0, label=f"median of {len(stack)}")
         if name in truth:
@@ -195,16 +249,13 @@ def _trace_figure(
     axes[0].legend(loc="upper right", fontsize=8)
     moving = [row.get("moving_vaf") for row in ok if row.get("moving_vaf")]
     if moving:
-        import warnings
-
         length = min(len(m) for m in moving)
         stack = np.array([m[:length] for m in moving], dtype=float)
         times = np.asarray(ok[0].get("moving_vaf_t", np.arange(length)))[:length]
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", "All-NaN slice", RuntimeWarning)  # the first 10 s
-            quartiles = np.nanpercentile(stack, [25, 75], axis=0)
-            median = np.nanmedian(stack, axis=0)
-            lowest = float(np.nanmin(quartiles[0]))  # NaN when no window is complete
+        quartiles = nan_percentiles(stack, [25, 75])  # NaN over the first 10 s
+        median = nan_median(stack)
+        finite = quartiles[0][np.isfinite(quartiles[0])]
+        lowest = float(finite.min()) if finite.size else math.nan  # no window complete
         axes[-1].fill_between(times, *quartiles, color="tab:blue", alpha=0.2, lw=0)
         axes[-1].plot(times, median, color="tab:blue", lw=1.0)
         axes[-1].set_ylim(max(0.0, lowest - 5.0), 101.0)
