@@ -28,7 +28,6 @@ exact; a fractional delay applies the mean of the delayed staircase over the sam
 from __future__ import annotations
 
 import math
-from collections import deque
 from typing import Any
 
 import gymnasium as gym
@@ -115,28 +114,28 @@ class ActionDelay(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.observation_space = _extend_box(
             env.observation_space, np.full(shown, -bound), np.full(shown, bound)
         )
-        self._history: deque[float] = deque([0.0] * (self._queued + 1), maxlen=self._queued + 1)
+        # newest first: history[0] is this step's command, history[q] came q samples ago
+        self._history = np.zeros(self._queued + 1)
 
     def _observe(self, observation: FloatArray) -> FloatArray:
         if not self.observe_queue:
             return observation
-        queued = list(self._history)[: self._queued]
-        return np.concatenate([observation, np.asarray(queued, dtype=np.float64)])
+        return np.concatenate([observation, self._history[: self._queued]])
 
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
         observation, info = self.env.reset(**kwargs)
-        self._history = deque([0.0] * (self._queued + 1), maxlen=self._queued + 1)
+        self._history = np.zeros(self._queued + 1)
         return self._observe(observation), info
 
     def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
-        self._history.appendleft(_command(action, self._bound))
         history = self._history
-        # history[0] is this step's command; history[q] arrived q samples ago
-        applied = (1.0 - self._fraction) * history[self._whole]
+        history[1:] = history[:-1]
+        history[0] = _command(action, self._bound)
+        applied = (1.0 - self._fraction) * float(history[self._whole])
         if self._fraction > 0.0:
-            applied += self._fraction * history[self._whole + 1]
+            applied += self._fraction * float(history[self._whole + 1])
         observation, reward, terminated, truncated, info = self.env.step(np.array([applied]))
-        info = {**info, "command": history[0]}
+        info = {**info, "command": float(history[0])}
         return self._observe(observation), reward, terminated, truncated, info
 
 
@@ -216,7 +215,10 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         # stationary variance of the unit-noise filter state: gamma^2 / (1 - phi^2)
         self._unit_std = self._gamma / math.sqrt(1.0 - self._phi**2)
         self._bound = float(np.max(np.abs(env.action_space.high)))
-        self._window: deque[float] = deque(maxlen=max(round(self.WINDOW / dt), 2))
+        # the last commands, oldest first once full (a ring of numbers, not a deque
+        # converted to an array every step)
+        self._window = np.zeros(max(round(self.WINDOW / dt), 2))
+        self._filled = 0
         self._state = 0.0
         self._rng = np.random.default_rng()
 
@@ -225,13 +227,28 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         # a generator of our own, seeded from the environment's (reproducible per seed)
         self._rng = np.random.default_rng(int(self.env.unwrapped.np_random.integers(2**63)))
         self._state = 0.0
-        self._window.clear()
+        self._filled = 0
         return observation, info
+
+    def _command_variance(self, command: float) -> float:
+        """Population variance of the last commands, this one included (as np.var)."""
+        window = self._window
+        size = window.shape[0]
+        if self._filled < size:
+            window[self._filled] = command
+            self._filled += 1
+            recent = window[: self._filled]
+        else:
+            # the oldest leaves: shift instead of a ring, so np.var sums in time order
+            # and gives the numbers the deque gave, bit for bit
+            window[:-1] = window[1:]
+            window[-1] = command
+            recent = window
+        return float(np.var(recent)) if recent.shape[0] > 1 else 0.0
 
     def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
         command = _command(action, self._bound)
-        self._window.append(command)
-        variance = float(np.var(self._window)) if len(self._window) > 1 else 0.0
+        variance = self._command_variance(command)
         ratio = self.power_ratio
         scale = math.sqrt(ratio / (1.0 - ratio) * variance) / self._unit_std
         noise = scale * self._state

@@ -246,6 +246,13 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
             self._c_row = tuple(float(v) for v in self._c)
             self._d_value = float(self._d)
 
+    @property
+    def times(self) -> FloatArray:
+        """Time of every observation of an episode, ``t_k = (k - n_run_in) dt`` (read-only)."""
+        view = self._time.view()
+        view.setflags(write=False)
+        return view
+
     def check_realisation(self, realisation: Any) -> int:
         """``realisation`` as a valid index of this environment's forcing, or raise."""
         realisation = check_int("realisation", realisation, minimum=0)

@@ -89,6 +89,8 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
             )
         self._last: dict[str, Any] | None = None
         self._pending: dict[str, float] = {}
+        self._ahead: FloatArray | None = None
+        self._step_index = 0
 
     def _estimated_names(self) -> tuple[str, ...]:
         # what is estimated is resolved at reset (e.g. the SI rule holds K_v)
@@ -107,16 +109,35 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _display(self, info: dict[str, Any]) -> dict[str, float]:
         """What the sample of this step takes from the display (before the action)."""
-        base = self.env.unwrapped
         sample = {"e": float(info["e"]), "y": float(info["y"]), "t": float(info["t"])}
-        if "ft_ahead" in self._keys:
-            sample["ft_ahead"] = float(base.forcing.target(info["t"] + self._anticipation))
+        if self._ahead is not None:
+            sample["ft_ahead"] = float(self._ahead[self._step_index])
         return sample
+
+    def _target_ahead(self) -> FloatArray | None:
+        """``ft(t + tau_a)`` at every step time of the episode, in one evaluation.
+
+        Per step this was a scalar call of the forcing (35 us in preview). The env's
+        own preview window is not read instead: ``tau_a`` may lie beyond the shown
+        preview, and its samples at ``t0 + (k + j) dt`` differ from ``ft(t_k + tau_a)``
+        by rounding, which the offline :meth:`estimate` on the episode's recording
+        would not reproduce. The same elementwise evaluation at the same times does.
+        """
+        if "ft_ahead" not in self._keys:
+            return None
+        base = self.env.unwrapped
+        times = base.times + self._anticipation
+        target = base.forcing.target
+        if target is None:
+            return np.zeros_like(times)
+        return np.asarray(target(times), dtype=np.float64)
 
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
         observation, info = self.env.reset(**kwargs)
         base = self.env.unwrapped
         self.estimator.reset(base.dt, t0=float(info["t"]))
+        self._ahead = self._target_ahead()
+        self._step_index = 0
         self._pending = self._display(info)
         self._last = None
         return self._observe(observation), info
@@ -140,6 +161,7 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 "diverged": estimate.health.diverged,
             },
         }
+        self._step_index += 1
         self._pending = self._display(info)
         info = {**info, "estimates": self._last}
         return self._observe(observation), reward, terminated, truncated, info
