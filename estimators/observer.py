@@ -79,6 +79,7 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if unknown:
             raise ValueError(f"the environment cannot supply the estimator's samples {unknown}")
         self._keys = keys
+        self._display_keys = tuple(key for key in keys if key in ("e", "y"))
         self._anticipation = float(getattr(settings, "anticipation_time", None) or 0.0)
         self._estimated = self._estimated_names()
         if self.append_to_observation:
@@ -108,8 +109,13 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return np.concatenate([observation, np.asarray(means, dtype=np.float64)])
 
     def _display(self, info: dict[str, Any]) -> dict[str, float]:
-        """What the sample of this step takes from the display (before the action)."""
-        sample = {"e": float(info["e"]), "y": float(info["y"]), "t": float(info["t"])}
+        """What the sample of this step takes from the display (before the action).
+
+        Only the keys the estimator reads (and ``t``); ``u`` is added after the step.
+        """
+        sample = {"t": float(info["t"])}
+        for key in self._display_keys:
+            sample[key] = float(info[key])
         if self._ahead is not None:
             sample["ft_ahead"] = float(self._ahead[self._step_index])
         return sample
@@ -144,8 +150,10 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
         observation, reward, terminated, truncated, info = self.env.step(action)
-        sample = {**self._pending, "u": float(info["u"])}
-        estimate = self.estimator.update({key: sample[key] for key in (*self._keys, "t")})
+        sample = self._pending
+        sample["u"] = float(info["u"])
+        estimate = self.estimator.update(sample)
+        health = estimate.health
         self._last = {
             "t": estimate.t,
             "mean": dict(estimate.mean),
@@ -154,11 +162,11 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
             "innovation_variance": estimate.innovation_variance,
             "prediction": estimate.prediction,
             "health": {
-                "finite": estimate.health.finite,
-                "covariance_ok": estimate.health.covariance_ok,
-                "pinned": list(estimate.health.pinned),
-                "dropped": estimate.health.dropped,
-                "diverged": estimate.health.diverged,
+                "finite": health.finite,
+                "covariance_ok": health.covariance_ok,
+                "pinned": list(health.pinned),
+                "dropped": health.dropped,
+                "diverged": health.diverged,
             },
         }
         self._step_index += 1
