@@ -142,3 +142,29 @@ def test_discretize_rejects_bad_ramp_inputs_and_non_finite_matrices():
         discretize(A, B, 0.01, ramp_inputs=[1])
     with pytest.raises(ValueError, match="A and B must be finite"):
         discretize(np.full((2, 2), np.inf), B, 0.01)
+
+
+def test_discretize_uncoupled_state_groups_apart():
+    # two blocks that A never couples (one fed by input 0, one by inputs 1 and 2):
+    # exponentiated apart, equal to the whole augmented exponential to rounding
+    rng = np.random.default_rng(4)
+    A = np.zeros((20, 5, 5))
+    A[:, :2, :2] = rng.standard_normal((20, 2, 2)) * 3.0
+    A[:, 2:, 2:] = rng.standard_normal((20, 3, 3)) * 3.0
+    B = np.zeros((20, 5, 3))
+    B[:, :2, 0] = rng.standard_normal((20, 2))
+    B[:, 2:, 1:] = rng.standard_normal((20, 3, 2))
+    dt = 0.01
+    augmented = np.zeros((20, 11, 11))
+    augmented[:, :5, :5] = A * dt
+    augmented[:, :5, 5:8] = B * dt
+    augmented[:, 5:8, 8:] = np.eye(3)
+    reference = scipy.linalg.expm(augmented)
+    exact = discretize(A, B, dt)
+    for ours, block in (
+        (exact.phi, reference[:, :5, :5]),
+        (exact.gamma, reference[:, :5, 5:8]),
+        (exact.gamma_ramp, reference[:, :5, 8:]),
+    ):
+        assert np.max(np.abs(ours - block)) <= 1e-12 * np.max(np.abs(block))
+    assert np.all(exact.phi[:, :2, 2:] == 0.0) and np.all(exact.gamma[:, :2, 1:] == 0.0)
