@@ -100,24 +100,27 @@ def test_bad_input_raises():
 # ------------------------------------------------------------- discretize on top
 
 
-def test_discretize_equals_the_augmented_scipy_exponential():
+def _assert_equals_the_augmented_scipy_exponential(exact, A, B, dt):
     # the pre-issue-16 path: one scipy expm of [[A, B, 0], [0, 0, I/dt], [0, 0, 0]] dt
+    n, m = A.shape[-1], B.shape[-1]
+    augmented = np.zeros((A.shape[0], n + 2 * m, n + 2 * m))
+    augmented[:, :n, :n] = A * dt
+    augmented[:, :n, n : n + m] = B * dt
+    augmented[:, n : n + m, n + m :] = np.eye(m)
+    reference = scipy.linalg.expm(augmented)
+    for ours, block in (
+        (exact.phi, reference[:, :n, :n]),
+        (exact.gamma, reference[:, :n, n : n + m]),
+        (exact.gamma_ramp, reference[:, :n, n + m :]),
+    ):
+        assert np.max(np.abs(ours - block)) <= 1e-12 * np.max(np.abs(block))
+
+
+def test_discretize_equals_the_augmented_scipy_exponential():
     rng = np.random.default_rng(2)
     A = rng.standard_normal((30, 4, 4)) * 5.0
     B = rng.standard_normal((30, 4, 2))
-    dt = 0.01
-    augmented = np.zeros((30, 8, 8))
-    augmented[:, :4, :4] = A * dt
-    augmented[:, :4, 4:6] = B * dt
-    augmented[:, 4:6, 6:] = np.eye(2)
-    reference = scipy.linalg.expm(augmented)
-    exact = discretize(A, B, dt)
-    for ours, block in (
-        (exact.phi, reference[:, :4, :4]),
-        (exact.gamma, reference[:, :4, 4:6]),
-        (exact.gamma_ramp, reference[:, :4, 6:]),
-    ):
-        assert np.max(np.abs(ours - block)) <= 1e-12 * np.max(np.abs(block))
+    _assert_equals_the_augmented_scipy_exponential(discretize(A, B, 0.01), A, B, 0.01)
 
 
 def test_discretize_ramp_for_some_inputs_only():
@@ -154,17 +157,6 @@ def test_discretize_uncoupled_state_groups_apart():
     B = np.zeros((20, 5, 3))
     B[:, :2, 0] = rng.standard_normal((20, 2))
     B[:, 2:, 1:] = rng.standard_normal((20, 3, 2))
-    dt = 0.01
-    augmented = np.zeros((20, 11, 11))
-    augmented[:, :5, :5] = A * dt
-    augmented[:, :5, 5:8] = B * dt
-    augmented[:, 5:8, 8:] = np.eye(3)
-    reference = scipy.linalg.expm(augmented)
-    exact = discretize(A, B, dt)
-    for ours, block in (
-        (exact.phi, reference[:, :5, :5]),
-        (exact.gamma, reference[:, :5, 5:8]),
-        (exact.gamma_ramp, reference[:, :5, 8:]),
-    ):
-        assert np.max(np.abs(ours - block)) <= 1e-12 * np.max(np.abs(block))
+    exact = discretize(A, B, 0.01)
+    _assert_equals_the_augmented_scipy_exponential(exact, A, B, 0.01)
     assert np.all(exact.phi[:, :2, 2:] == 0.0) and np.all(exact.gamma[:, :2, 1:] == 0.0)
