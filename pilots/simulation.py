@@ -189,12 +189,25 @@ class SimulationSetup:
                 check_preview_time(name, traces[name], self.available_preview, self.task)
         return traces
 
-    def forcing_signals(self, traces: Mapping[str, FloatArray]) -> dict[str, FloatArray]:
-        """Sampled ``ft`` and ``fd`` and, for preview models, what the pilot reads ahead."""
+    def sampled_forcing(self) -> tuple[FloatArray, FloatArray]:
+        """``ft`` over the run and the preview window beyond it, and ``fd``."""
+        n = self.n_samples
+        t0 = -self.n_run_in * self.dt
+        return self.forcing.sample((n + self.preview_window - 1) * self.dt, self.dt, t0)
+
+    def forcing_signals(
+        self,
+        traces: Mapping[str, FloatArray],
+        sampled: tuple[FloatArray, FloatArray] | None = None,
+    ) -> dict[str, FloatArray]:
+        """Sampled ``ft`` and ``fd`` and, for preview models, what the pilot reads ahead.
+
+        ``sampled`` is :meth:`sampled_forcing` when already computed (the forcing's
+        sines are most of the cost).
+        """
         n = self.n_samples
         window = self.preview_window
-        t0 = -self.n_run_in * self.dt
-        target_ahead, fd = self.forcing.sample((n + window - 1) * self.dt, self.dt, t0)
+        target_ahead, fd = self.sampled_forcing() if sampled is None else sampled
         signals = {"ft": target_ahead[:n].copy(), "fd": fd[:n].copy()}
         if "ft_far" in self.pilot.model.perceptions:
             target_ahead = np.ascontiguousarray(target_ahead)
@@ -694,7 +707,8 @@ def simulate(
     check_choice("loop", loop, LOOPS)
     rng, seed_used = _as_generator(seed)
     traces = setup.parameter_traces()
-    signals = setup.forcing_signals(traces)
+    sampled = setup.sampled_forcing()
+    signals = setup.forcing_signals(traces, sampled)
     n = setup.n_samples
     remnant = pilot.remnant
     if remnant_signal is not None:
@@ -728,8 +742,12 @@ def simulate(
         forced = run(True, 0.0)
         unit = run(False, 1.0)
         if remnant.P_r is not None and remnant_signal is None:
-            gain = _calibrate(setup, traces, remnant, noise, columns, delays, forced, unit, loop)
-        outputs = run(True, gain)
+            gain = _calibrate(
+                setup, traces, remnant, noise, columns, sampled, delays, forced, unit, loop
+            )
+        # the loop is linear and starts at rest: the run with both is their sum (to
+        # rounding), one stepping of the loop less
+        outputs = {name: forced[name] + gain * unit[name] for name in forced}
         ratio = remnant_power_ratio(outputs["u"][measured], gain * unit["u"][measured])
         remnant_description = (
             remnant.with_gain(gain).to_dict() if remnant_signal is None else "signal"
@@ -758,6 +776,7 @@ def _calibrate(
     remnant: Remnant,
     noise: FloatArray,
     columns: Mapping[str, FloatArray],
+    sampled: tuple[FloatArray, FloatArray],
     delays: FloatArray | None,
     forced: Mapping[str, FloatArray],
     unit: Mapping[str, FloatArray],
@@ -786,7 +805,7 @@ def _calibrate(
     linear_delays = None if delays is None else mean[setup.pilot.model.delay_parameter]
     linear_columns = dict(columns)
     if "ft_far" in columns:
-        linear_columns.update(linear_setup.forcing_signals(mean))
+        linear_columns.update(linear_setup.forcing_signals(mean, sampled))
     zero = {name: np.zeros_like(value) for name, value in linear_columns.items()}
     linear_forced = _run(
         linear, index, {**linear_columns, "noise": 0.0 * noise}, linear_delays, setup.dt
