@@ -2,6 +2,8 @@
 
 import json
 import math
+import os
+import sys
 
 import pytest
 
@@ -135,3 +137,20 @@ def test_report_puts_ours_beside_the_paper(tmp_path):
 def test_unknown_backend():
     with pytest.raises(ValueError, match="backend must be one of 'process', 'inprocess', 'ray'"):
         run_suite(parse_suite(SMALL), "unused", backend="dask")
+
+
+def _run_where(scenario, out=None):
+    return {"key": scenario.key, "batch": scenario.batch, "status": "ok", "pid": os.getpid()}
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pool forks on Linux only")
+def test_first_run_is_made_here_and_the_pool_forks_from_this_process(tmp_path, monkeypatch):
+    # compile once: the first scenario runs in this process (compiling or loading the
+    # kernels), the rest in forked workers, which inherit the compiled code
+    parent = os.getpid()
+    monkeypatch.setattr(runner, "run_scenario", _run_where)
+    rows = run_suite(parse_suite(SMALL), tmp_path, backend="process", workers=2)
+    pids = [row["pid"] for row in rows]
+    assert pids[0] == parent
+    assert all(pid != parent for pid in pids[1:])
+    assert runner._pool_context().get_start_method() == "fork"
