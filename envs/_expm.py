@@ -70,18 +70,44 @@ _B13 = np.array(
         1.0,
     ]
 )
-# theta_m of Al-Mohy & Higham (2009), Table 3.1 (theta_13 = 4.25 in their Algorithm 3.1)
-_THETA3 = 1.495585217958292e-2
-_THETA5 = 2.539398330063230e-1
-_THETA7 = 9.504178996162932e-1
-_THETA9 = 2.097847961257068e0
-_THETA13 = 4.25
-# 1/|c_{2m+1}| of the backward-error bound ell(A, m), their eq. 3.11 / scipy's _ell
-_ELL3 = 100800.0
-_ELL5 = 10059033600.0
-_ELL7 = 4487938430976000.0
-_ELL9 = 5914384781877411840000.0
-_ELL13 = 113250775606021113483283660800000000.0
+# theta_m of Al-Mohy & Higham (2009), Table 3.1 (theta_13 = 4.25 in their Algorithm 3.1),
+# 1/|c_{2m+1}| of the backward-error bound ell(A, m) (their eq. 3.11, scipy's _ell),
+# for m = 3, 5, 7, 9, 13
+_ORDERS = np.array([3, 5, 7, 9, 13])
+_THETA = np.array(
+    [1.495585217958292e-2, 2.539398330063230e-1, 9.504178996162932e-1, 2.097847961257068e0, 4.25]
+)
+_ELL_RECIPROCAL = np.array(
+    [
+        100800.0,
+        10059033600.0,
+        4487938430976000.0,
+        5914384781877411840000.0,
+        113250775606021113483283660800000000.0,
+    ]
+)
+
+
+def _coefficient_table() -> FloatArray:
+    """Rows of coefficients of ``(I, A^2, A^4, A^6, A^8)`` for each polynomial evaluated.
+
+    Rows ``2i`` and ``2i + 1``: the odd part (without its leading ``A``) and the even
+    part of ``r_m``, ``m = 3, 5, 7, 9``. Rows 8-11, order 13 (Higham 2005, eq. 2.3 and
+    the evaluation of its Sec. 2): inner and outer terms of ``U`` then of ``V``.
+    """
+    table = np.zeros((12, 5))
+    for i, b in enumerate((_B3, _B5, _B7, _B9)):
+        table[2 * i, : (len(b) + 1) // 2] = b[1::2]
+        table[2 * i + 1, : (len(b) + 1) // 2] = b[0::2]
+    b = _B13
+    table[8, 1:4] = b[9], b[11], b[13]
+    table[9, :4] = b[1], b[3], b[5], b[7]
+    table[10, 1:4] = b[8], b[10], b[12]
+    table[11, :4] = b[0], b[2], b[4], b[6]
+    return table
+
+
+_COEFFICIENTS = _coefficient_table()
 _UNIT_ROUNDOFF = 2.0**-53
 
 
@@ -148,35 +174,22 @@ def _ell(
 
 
 @numba.njit(cache=True)
-def _polynomial(
-    out: FloatArray,
-    add: bool,
-    c0: float,
-    c2: float,
-    a2: FloatArray,
-    c4: float,
-    a4: FloatArray,
-    c6: float,
-    a6: FloatArray,
-    c8: float,
-    a8: FloatArray,
-) -> None:
-    """``out (+)= c8 A8 + c6 A6 + c4 A4 + c2 A2 + c0 I``; terms with a zero coefficient skipped.
+def _polynomial(out: FloatArray, add: bool, coefficients: FloatArray, powers: FloatArray) -> None:
+    """``out (+)= sum_p c_p A^(2p)`` over ``p = 0 .. 4`` (``A^0 = I``), highest power last.
 
-    Skipped, not multiplied by zero: a power not computed holds whatever was there.
+    Powers above the highest non-zero coefficient are skipped, not multiplied by
+    zero: a power not computed holds whatever was there.
     """
     n = out.shape[0]
+    top = 1
+    for p in range(2, 5):
+        if coefficients[p] != 0.0:
+            top = p
     for i in range(n):
         for j in range(n):
-            total = c0 if i == j else 0.0
-            if c8 != 0.0:
-                total = c8 * a8[i, j] + (c6 * a6[i, j] + (c4 * a4[i, j] + (c2 * a2[i, j] + total)))
-            elif c6 != 0.0:
-                total = c6 * a6[i, j] + (c4 * a4[i, j] + (c2 * a2[i, j] + total))
-            elif c4 != 0.0:
-                total = c4 * a4[i, j] + (c2 * a2[i, j] + total)
-            else:
-                total = c2 * a2[i, j] + total
+            total = coefficients[0] if i == j else 0.0
+            for p in range(1, top + 1):
+                total = coefficients[p] * powers[p, i, j] + total
             out[i, j] = out[i, j] + total if add else total
 
 
@@ -213,108 +226,24 @@ def _solve_in_place(p: FloatArray, q: FloatArray) -> None:
 
 
 @numba.njit(cache=True)
-def _expm_transposed(
-    a: FloatArray, out: FloatArray, work: FloatArray, v: FloatArray, w: FloatArray
-) -> None:
-    """``out <- exp(a)`` (Algorithm 3.1); ``work`` has shape ``(7, n, n)``.
+def _expm_batch(matrices: FloatArray, coefficients: FloatArray) -> FloatArray:
+    """Algorithm 3.1 on every matrix (runs of equal ones once), in one compiled body.
 
-    Called with ``a`` the transpose of the wanted argument (see :func:`_expm_batch`).
+    exp(A) = exp(A^T)^T: each matrix is transposed in and out and the algorithm run
+    on the transpose, as scipy does (see the module docstring). One body with its
+    helpers called from few places: LLVM inlines every call site, and a copy per
+    call site had made this the slowest kernel of the package to compile.
     """
-    n = a.shape[0]
-    a2, a4, a6, a8, u, vv, t = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
-    _matmul(a, a, a2)
-    _matmul(a2, a2, a4)
-    _matmul(a2, a4, a6)
-    norm_a = _norm1(a)
-    if norm_a == 0.0:
-        for i in range(n):
-            for j in range(n):
-                out[i, j] = 1.0 if i == j else 0.0
-        return
-    d4 = _norm1(a4) ** 0.25
-    d6 = _norm1(a6) ** (1.0 / 6.0)
-    eta1 = max(d4, d6)
-    m = 0
-    if eta1 < _THETA3 and _ell(a, 1.0, norm_a, 7, _ELL3, v, w) == 0:
-        m = 3
-    elif eta1 < _THETA5 and _ell(a, 1.0, norm_a, 11, _ELL5, v, w) == 0:
-        m = 5
-    s = 0
-    if m == 0:
-        _matmul(a4, a4, a8)
-        d8 = _norm1(a8) ** 0.125
-        eta3 = max(d6, d8)
-        if eta3 < _THETA7 and _ell(a, 1.0, norm_a, 15, _ELL7, v, w) == 0:
-            m = 7
-        elif eta3 < _THETA9 and _ell(a, 1.0, norm_a, 19, _ELL9, v, w) == 0:
-            m = 9
-        else:
-            m = 13
-            _matmul(a4, a6, t)
-            d10 = _norm1(t) ** 0.1
-            eta5 = min(eta3, max(d8, d10))
-            if eta5 > 0.0:
-                s = max(math.ceil(math.log2(eta5 / _THETA13)), 0)
-            s += _ell(a, 2.0**-s, norm_a, 27, _ELL13, v, w)
-    # U (odd part, without its leading A) into t, V (even part) into vv
-    if m == 3:
-        _polynomial(t, False, _B3[1], _B3[3], a2, 0.0, a4, 0.0, a6, 0.0, a8)
-        _polynomial(vv, False, _B3[0], _B3[2], a2, 0.0, a4, 0.0, a6, 0.0, a8)
-    elif m == 5:
-        _polynomial(t, False, _B5[1], _B5[3], a2, _B5[5], a4, 0.0, a6, 0.0, a8)
-        _polynomial(vv, False, _B5[0], _B5[2], a2, _B5[4], a4, 0.0, a6, 0.0, a8)
-    elif m == 7:
-        _polynomial(t, False, _B7[1], _B7[3], a2, _B7[5], a4, _B7[7], a6, 0.0, a8)
-        _polynomial(vv, False, _B7[0], _B7[2], a2, _B7[4], a4, _B7[6], a6, 0.0, a8)
-    elif m == 9:
-        _polynomial(t, False, _B9[1], _B9[3], a2, _B9[5], a4, _B9[7], a6, _B9[9], a8)
-        _polynomial(vv, False, _B9[0], _B9[2], a2, _B9[4], a4, _B9[6], a6, _B9[8], a8)
-    else:
-        # scaled powers B^k = (2^-s A)^k, in place
-        for i in range(n):
-            for j in range(n):
-                a2[i, j] *= 2.0 ** (-2 * s)
-                a4[i, j] *= 2.0 ** (-4 * s)
-                a6[i, j] *= 2.0 ** (-6 * s)
-                a8[i, j] = 2.0**-s * a[i, j]
-        b = _B13
-        # U = B [B6 (b13 B6 + b11 B4 + b9 B2) + b7 B6 + b5 B4 + b3 B2 + b1 I]
-        _polynomial(out, False, 0.0, b[9], a2, b[11], a4, b[13], a6, 0.0, a8)
-        _matmul(a6, out, t)
-        _polynomial(t, True, b[1], b[3], a2, b[5], a4, b[7], a6, 0.0, a8)
-        # V = B6 (b12 B6 + b10 B4 + b8 B2) + b6 B6 + b4 B4 + b2 B2 + b0 I
-        _polynomial(out, False, 0.0, b[8], a2, b[10], a4, b[12], a6, 0.0, a8)
-        _matmul(a6, out, vv)
-        _polynomial(vv, True, b[0], b[2], a2, b[4], a4, b[6], a6, 0.0, a8)
-    if m == 13:
-        _matmul(a8, t, u)
-    else:
-        _matmul(a, t, u)
-    # r_m = (V - U)^{-1} (V + U)
-    for i in range(n):
-        for j in range(n):
-            t[i, j] = vv[i, j] - u[i, j]
-            out[i, j] = vv[i, j] + u[i, j]
-    _solve_in_place(t, out)
-    for _ in range(s):
-        _matmul(out, out, t)
-        for i in range(n):
-            for j in range(n):
-                out[i, j] = t[i, j]
-
-
-@numba.njit(cache=True)
-def _expm_batch(matrices: FloatArray) -> FloatArray:
     count, n = matrices.shape[0], matrices.shape[1]
-    out = np.empty_like(matrices)
-    work = np.empty((7, n, n))
-    transposed = np.empty((n, n))
-    result = np.empty((n, n))
+    result = np.empty_like(matrices)
+    # powers[0..4] = A, A^2, A^4, A^6, A^8 (order 13: the scaled B, B^2, B^4, B^6, 2^-s A)
+    powers = np.empty((5, n, n))
+    work = np.empty((3, n, n))  # U, V and a scratch matrix
+    out = np.empty((n, n))
     v = np.empty(n)
     w = np.empty(n)
     for k in range(count):
         if k > 0:
-            # a run of equal matrices (a parameter held over samples) is done once
             same = True
             for i in range(n):
                 for j in range(n):
@@ -324,17 +253,74 @@ def _expm_batch(matrices: FloatArray) -> FloatArray:
                 if not same:
                     break
             if same:
-                out[k] = out[k - 1]
+                result[k] = result[k - 1]
                 continue
-        # exp(A) = exp(A^T)^T, computed in the transposed world as scipy does
+        a = powers[0]
         for i in range(n):
             for j in range(n):
-                transposed[i, j] = matrices[k, j, i]
-        _expm_transposed(transposed, result, work, v, w)
+                a[i, j] = matrices[k, j, i]
+        for step in range(3):  # A^2 = A A, A^4 = A^2 A^2, A^6 = A^2 A^4
+            _matmul(powers[1 if step else 0], powers[step], powers[step + 1])
+        norm_a = _norm1(a)
+        if norm_a == 0.0:
+            for i in range(n):
+                for j in range(n):
+                    result[k, i, j] = 1.0 if i == j else 0.0
+            continue
+        d6 = _norm1(powers[3]) ** (1.0 / 6.0)
+        eta = max(_norm1(powers[2]) ** 0.25, d6)
+        choice = -1
+        s = 0
+        d8 = 0.0
+        for option in range(4):
+            if option == 2:  # orders 7 and 9 judge by eta_3 = max(d6, d8)
+                _matmul(powers[2], powers[2], powers[4])
+                d8 = _norm1(powers[4]) ** 0.125
+                eta = max(d6, d8)
+            if eta < _THETA[option] and (
+                _ell(a, 1.0, norm_a, 2 * _ORDERS[option] + 1, _ELL_RECIPROCAL[option], v, w) == 0
+            ):
+                choice = option
+                break
+        if choice < 0:
+            choice = 4
+            _matmul(powers[2], powers[3], work[2])
+            eta5 = min(eta, max(d8, _norm1(work[2]) ** 0.1))
+            if eta5 > 0.0:
+                s = max(math.ceil(math.log2(eta5 / _THETA[4])), 0)
+            s += _ell(a, 2.0**-s, norm_a, 27, _ELL_RECIPROCAL[4], v, w)
+            for i in range(n):
+                for j in range(n):
+                    powers[1, i, j] *= 2.0 ** (-2 * s)
+                    powers[2, i, j] *= 2.0 ** (-4 * s)
+                    powers[3, i, j] *= 2.0 ** (-6 * s)
+                    powers[4, i, j] = 2.0**-s * a[i, j]
+            # U = B [B6 (b13 B6 + b11 B4 + b9 B2) + b7 B6 + ... + b1 I], V likewise
+            for part in range(2):
+                _polynomial(out, False, coefficients[8 + 2 * part], powers)
+                _matmul(powers[3], out, work[part])
+                _polynomial(work[part], True, coefficients[9 + 2 * part], powers)
+        else:
+            # U without its leading A into work[0], V into work[1]
+            for part in range(2):
+                _polynomial(work[part], False, coefficients[2 * choice + part], powers)
+        # U = A (odd part); r_m = (V - U)^{-1} (V + U)
+        _matmul(powers[4] if choice == 4 else a, work[0], work[2])
+        u, vv, scratch = work[2], work[1], work[0]
         for i in range(n):
             for j in range(n):
-                out[k, i, j] = result[j, i]
-    return out
+                scratch[i, j] = vv[i, j] - u[i, j]
+                out[i, j] = vv[i, j] + u[i, j]
+        _solve_in_place(scratch, out)
+        for _ in range(s):
+            _matmul(out, out, scratch)
+            for i in range(n):
+                for j in range(n):
+                    out[i, j] = scratch[i, j]
+        for i in range(n):
+            for j in range(n):
+                result[k, i, j] = out[j, i]
+    return result
 
 
 def expm_batch(matrices: FloatArray) -> FloatArray:
@@ -349,4 +335,5 @@ def expm_batch(matrices: FloatArray) -> FloatArray:
         raise ValueError("matrices must be finite")
     if matrices.shape[0] == 0 or matrices.shape[1] == 0:
         return matrices.copy()
-    return _expm_batch(matrices)
+    # the table is an argument: numba will not cache a kernel that reads a 2-D global
+    return _expm_batch(matrices, _COEFFICIENTS)
