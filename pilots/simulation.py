@@ -78,7 +78,16 @@ from manualcontrol.envs.postview import (
 )
 from manualcontrol.envs.recording import MEASURED_SIGNALS, Recording
 from manualcontrol.envs.schedules import Schedule, as_schedule
-from manualcontrol.envs.signals import ForcingPair, forcing_preset
+from manualcontrol.envs.signals import ForcingPair
+from manualcontrol.envs.tasks import (
+    TASKS,
+    available_preview_for,
+    check_preview_time,
+    measurement_time_for,
+    resolve_forcing,
+    sample_counts,
+    task_metadata,
+)
 from manualcontrol.pilots.models import PilotModel, make_model
 from manualcontrol.pilots.pilot import Pilot
 from manualcontrol.pilots.remnant import Remnant
@@ -98,10 +107,7 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 
-TASKS: tuple[str, ...] = ("compensatory", "pursuit", "preview", "postview")
 LOOPS: tuple[str, ...] = ("continuous", "sampled")
-#: Preview shown by default in preview tasks (s): covers nominal far-view preview times.
-DEFAULT_AVAILABLE_PREVIEW = 1.0
 #: Relative deviation of the realised power ratio that triggers a re-calibration
 #: (thesis Part II Sec. 4.2.1: "more than 5 %").
 POWER_RATIO_TOLERANCE = 0.05
@@ -170,10 +176,7 @@ class SimulationSetup:
         if not isinstance(pilot, Pilot):
             raise TypeError(f"pilot must be a Pilot, got {pilot!r}")
         element = make_element(element)
-        if isinstance(forcing, str):
-            forcing = forcing_preset(forcing, realisation)
-        elif not isinstance(forcing, ForcingPair):
-            raise TypeError(f"forcing must be a preset name or a ForcingPair, got {forcing!r}")
+        forcing = resolve_forcing(forcing, realisation)
         model_task = pilot.model.task
         if task is None:
             task = model_task
@@ -200,22 +203,10 @@ class SimulationSetup:
             )
         else:
             postview = DEFAULT_POSTVIEW
-        if task == "preview":
-            preview = DEFAULT_AVAILABLE_PREVIEW if available_preview is None else available_preview
-            preview = check_positive("available_preview", preview, allow_zero=True)
-        else:
-            if available_preview not in (None, 0, 0.0):
-                raise ValueError(
-                    f"available_preview must be 0 (or omitted) in a {task} task, "
-                    f"got {available_preview!r}"
-                )
-            preview = 0.0
+        preview = available_preview_for(task, available_preview)
         dt = check_positive("dt", dt)
         run_in = check_positive("run_in", run_in, allow_zero=True)
-        if measurement_time is None:
-            target = forcing.target or forcing.disturbance
-            measurement_time = getattr(target, "measurement_time", None) or 120.0
-        measurement_time = check_positive("measurement_time", measurement_time)
+        measurement_time = measurement_time_for(forcing, measurement_time)
         check_duration("measurement_time", measurement_time, dt)
         start_time = check_real("start_time", start_time)
         setup = cls(
@@ -238,12 +229,12 @@ class SimulationSetup:
     @property
     def n_run_in(self) -> int:
         """Samples of run-in."""
-        return round(self.run_in / self.dt)
+        return sample_counts(self.dt, self.run_in, self.measurement_time)[0]
 
     @property
     def n_samples(self) -> int:
         """Samples simulated, run-in included."""
-        return self.n_run_in + round(self.measurement_time / self.dt)
+        return sample_counts(self.dt, self.run_in, self.measurement_time)[1]
 
     @property
     def time(self) -> FloatArray:
@@ -260,15 +251,28 @@ class SimulationSetup:
         traces = self.pilot.parameter_traces(self.time)
         for name in ("tau_f", "tau_n"):
             if name in traces:
-                _check_preview_time(name, traces[name], self.available_preview, self.task)
+                check_preview_time(name, traces[name], self.available_preview, self.task)
         return traces
 
-    def forcing_signals(self, traces: Mapping[str, FloatArray]) -> dict[str, FloatArray]:
-        """Sampled ``ft`` and ``fd`` and, for preview models, what the pilot reads ahead."""
+    def sampled_forcing(self) -> tuple[FloatArray, FloatArray]:
+        """``ft`` over the run and the preview window beyond it, and ``fd``."""
+        n = self.n_samples
+        t0 = self.start_time - self.n_run_in * self.dt
+        return self.forcing.sample((n + self.preview_window - 1) * self.dt, self.dt, t0)
+
+    def forcing_signals(
+        self,
+        traces: Mapping[str, FloatArray],
+        sampled: tuple[FloatArray, FloatArray] | None = None,
+    ) -> dict[str, FloatArray]:
+        """Sampled ``ft`` and ``fd`` and, for preview models, what the pilot reads ahead.
+
+        ``sampled`` is :meth:`sampled_forcing` when already computed (the forcing's
+        sines are most of the cost).
+        """
         n = self.n_samples
         window = self.preview_window
-        t0 = self.start_time - self.n_run_in * self.dt
-        target_ahead, fd = self.forcing.sample((n + window - 1) * self.dt, self.dt, t0)
+        target_ahead, fd = self.sampled_forcing() if sampled is None else sampled
         signals = {"ft": target_ahead[:n].copy(), "fd": fd[:n].copy()}
         if "ft_far" in self.pilot.model.perceptions:
             target_ahead = np.ascontiguousarray(target_ahead)
@@ -293,33 +297,24 @@ class SimulationSetup:
 
     def metadata(self) -> dict[str, Any]:
         """What a recording of this setup says about how it was made."""
+        shared = task_metadata(
+            self.task,
+            self.element,
+            self.forcing,
+            self.available_preview,
+            self.run_in,
+            self.measurement_time,
+        )
+        postview = (
+            {"gap": self.gap.to_dict(), "postview": self.postview} if self.gap is not None else {}
+        )
         return {
-            "task": self.task,
+            "task": shared.pop("task"),
             "pilot": self.pilot.to_dict(),
-            "controlled_element": self.element.to_dict(),
-            "forcing": self.forcing.to_dict(),
-            "forcing_name": self.forcing.name,
-            "realisation": self.forcing.realisation,
-            "available_preview": self.available_preview,
-            "run_in": self.run_in,
-            "measurement_time": self.measurement_time,
-            **(
-                {"gap": self.gap.to_dict(), "postview": self.postview}
-                if self.gap is not None
-                else {}
-            ),
+            **shared,
+            **postview,
             "start_time": self.start_time,
         }
-
-
-def _check_preview_time(name: str, values: FloatArray, available: float, task: str) -> None:
-    if np.any(values < 0.0):
-        raise ValueError(f"{name} must be >= 0 s (a preview time), got {float(values.min())!r}")
-    if np.any(values > available + 1e-12):
-        raise ValueError(
-            f"{name} must not exceed the available preview of {available:g} s in a {task} task, "
-            f"got {float(values.max())!r}"
-        )
 
 
 # --------------------------------------------------------------------- block diagram
@@ -474,19 +469,29 @@ def discrete_pilot(
         sums={**pilot.sums, **({} if remnant is not None else {"n": {}})},
         delays=pilot.delays,
     )
-    return system, discretize(system.system.A, system.system.B, setup.dt), pilot.delays
+    exact = discretize(system.system.A, system.system.B, setup.dt, system.delay_inputs)
+    return system, exact, pilot.delays
 
 
 def distinct_parameter_sets(
     columns: Sequence[FloatArray], n_samples: int
 ) -> tuple[NDArray[np.int64], NDArray[np.int64] | None]:
-    """First sample of each distinct row of ``columns`` and the row used at each sample.
+    """First sample of each run of equal rows of ``columns`` and the run used at each sample.
 
-    The index is None when one set serves every sample (a time-invariant loop).
+    Parameters held over stretches of samples (constants, the flat ends of a sigmoid)
+    come in runs, so one loop is built per run; a value that returns after a change
+    gets a set of its own. (Sorting the whole table for unique rows cost more than
+    the matrices it saved.) The index is None when one set serves every sample.
     """
-    table = np.column_stack(columns) if columns else np.zeros((n_samples, 0))
-    unique, first, inverse = np.unique(table, axis=0, return_index=True, return_inverse=True)
-    return first, (None if len(unique) == 1 else np.ravel(inverse))
+    if not columns or n_samples <= 1:
+        return np.zeros(1, dtype=np.int64), None
+    table = np.column_stack(columns)
+    changed = np.any(table[1:] != table[:-1], axis=1)
+    if not changed.any():
+        return np.zeros(1, dtype=np.int64), None
+    first = np.concatenate(([0], np.flatnonzero(changed) + 1)).astype(np.int64)
+    index = np.concatenate(([0], np.cumsum(changed))).astype(np.int64)
+    return first, index
 
 
 def _assemble(
@@ -501,7 +506,7 @@ def _assemble(
     inputs = _loop_inputs(model, remnant)
     if loop == "continuous":
         diagram = _continuous_loop(setup, values, element_model, remnant)
-        exact = discretize(diagram.system.A, diagram.system.B, setup.dt)
+        exact = discretize(diagram.system.A, diagram.system.B, setup.dt, diagram.delay_inputs)
         return _Loop(
             exact,
             diagram.system.C,
@@ -513,7 +518,7 @@ def _assemble(
         )
     # sampled: pilot and element discretised apart, joined in discrete time
     pilot_system, pilot_exact, pilot_delays = discrete_pilot(setup, values, remnant)
-    element_exact = discretize(element_model.A, element_model.B, setup.dt)
+    element_exact = discretize(element_model.A, element_model.B, setup.dt, ramp_inputs=())
     pilot_block = Block(
         StateSpace(
             pilot_exact.phi, pilot_exact.gamma, pilot_system.system.C, pilot_system.system.D
@@ -695,7 +700,7 @@ def isolated_pilot_output(
         delays=diagram.delays,
     )
     loop = _Loop(
-        discretize(system.system.A, system.system.B, dt),
+        discretize(system.system.A, system.system.B, dt, system.delay_inputs),
         system.system.C,
         system.system.D,
         system.inputs,
@@ -955,7 +960,8 @@ def simulate(
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UnstableLoopWarning)
         stable = check_stable(setup, on_unstable=on_unstable)
-    signals = setup.forcing_signals(traces)
+    sampled = setup.sampled_forcing()
+    signals = setup.forcing_signals(traces, sampled)
     n = setup.n_samples
     remnant = pilot.remnant
     if remnant_signal is not None:
@@ -992,8 +998,12 @@ def simulate(
         forced = run(True, 0.0)
         unit = run(False, 1.0)
         if remnant.P_r is not None and remnant_signal is None:
-            gain = _calibrate(setup, traces, remnant, noise, columns, delays, forced, unit, loop)
-        outputs = run(True, gain)
+            gain = _calibrate(
+                setup, traces, remnant, noise, columns, sampled, delays, forced, unit, loop
+            )
+        # the loop is linear and starts at rest: the run with both is their sum (to
+        # rounding), one stepping of the loop less
+        outputs = {name: forced[name] + gain * unit[name] for name in forced}
         ratio = remnant_power_ratio(outputs["u"][measured], gain * unit["u"][measured])
         remnant_description = (
             remnant.with_gain(gain).to_dict() if remnant_signal is None else "signal"
@@ -1057,6 +1067,7 @@ def _calibrate(
     remnant: Remnant,
     noise: FloatArray,
     columns: Mapping[str, FloatArray],
+    sampled: tuple[FloatArray, FloatArray],
     delays: FloatArray | None,
     forced: Mapping[str, FloatArray],
     unit: Mapping[str, FloatArray],
@@ -1079,7 +1090,7 @@ def _calibrate(
     linear_delays = None if delays is None else mean[setup.pilot.model.delay_parameter]
     linear_columns = dict(columns)
     if "ft_far" in columns:
-        linear_columns.update(linear_setup.forcing_signals(mean))
+        linear_columns.update(linear_setup.forcing_signals(mean, sampled))
     zero = {name: np.zeros_like(value) for name, value in linear_columns.items()}
     linear_forced = _run(
         linear, index, {**linear_columns, "noise": 0.0 * noise}, linear_delays, setup.dt
