@@ -242,7 +242,7 @@ class DEKF(PilotFilter):
         )
 
     def _step(self, inputs: Any, u: float, e: float, out: core.DEKFOutput) -> None:
-        core.dekf_step(*self._records, inputs, u, e, 0, out)
+        self._call_step(core.dekf_step, (*self._records, inputs, u, e, 0, out))
 
     def _run(self, inputs: Any, u: Any, e: Any, out: core.DEKFOutput) -> None:
         core.dekf_run(*self._records, inputs, u, e, out)

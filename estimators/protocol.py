@@ -51,6 +51,7 @@ __all__ = [
     "EstimationResult",
     "Estimator",
     "HealthSummary",
+    "ParameterValues",
     "load_result",
     "sample_values",
     "summarise_health",
@@ -120,6 +121,33 @@ class EstimateHealth:
         return self.finite and self.covariance_ok and not self.diverged
 
 
+class ParameterValues(Mapping):
+    """A read-only mapping of parameter names to one sample's values (a row copy).
+
+    What :class:`Estimate` holds for ``mean`` and ``std`` when an estimator builds it:
+    the values stay in an array, and nothing per parameter is built unless read (an
+    online update at 100 Hz pays for the copy only).
+    """
+
+    __slots__ = ("_index", "_values")
+
+    def __init__(self, index: Mapping[str, int], values: FloatArray) -> None:
+        self._index = index
+        self._values = values
+
+    def __getitem__(self, name: str) -> float:
+        return float(self._values[self._index[name]])
+
+    def __iter__(self) -> Any:
+        return iter(self._index)
+
+    def __len__(self) -> int:
+        return len(self._index)
+
+    def __repr__(self) -> str:
+        return repr(dict(self))
+
+
 @dataclass(frozen=True)
 class Estimate:
     """One sample's estimate.
@@ -164,8 +192,21 @@ class Estimate:
     innovation_covariance: tuple[tuple[float, ...], ...] = ()
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "mean", MappingProxyType(dict(self.mean)))
-        object.__setattr__(self, "std", MappingProxyType(dict(self.std)))
+        if not isinstance(self.mean, ParameterValues):
+            object.__setattr__(self, "mean", MappingProxyType(dict(self.mean)))
+        if not isinstance(self.std, ParameterValues):
+            object.__setattr__(self, "std", MappingProxyType(dict(self.std)))
+        if (
+            self.outputs == ("u",)
+            and not self.predictions
+            and not self.innovations
+            and not self.innovation_covariance
+        ):
+            # one output (every online update of the pilot filters): nothing to check
+            object.__setattr__(self, "predictions", (self.prediction,))
+            object.__setattr__(self, "innovations", (self.innovation,))
+            object.__setattr__(self, "innovation_covariance", ((self.innovation_variance,),))
+            return
         object.__setattr__(self, "outputs", tuple(self.outputs))
         m = len(self.outputs)
         if not self.predictions:
@@ -254,15 +295,24 @@ class HealthSummary:
         )
 
 
-def sample_values(
-    where: str, sample: Any, keys: tuple[str, ...], allowed: tuple[str, ...]
-) -> dict[str, float]:
+def sample_values(where: str, sample: Any, keys: tuple[str, ...], allowed: Any) -> dict[str, float]:
     """The floats of ``keys`` in one :meth:`Estimator.update` sample, checked.
 
     ``sample`` must be a mapping holding every key (more from ``allowed`` are tolerated);
     each value a real number, finite or NaN (a dropped sample), never infinite. Errors
     name ``where`` and the key.
     """
+    allowed = allowed if isinstance(allowed, (set, frozenset)) else frozenset(allowed)
+    if type(sample) is dict and sample.keys() <= allowed:
+        # the usual online sample: a plain dict of floats; anything else is checked below
+        try:
+            values = {key: sample[key] for key in keys}
+        except KeyError:
+            values = None
+        if values is not None and all(
+            (type(v) is float and v - v == 0.0) or v != v for v in values.values()
+        ):
+            return values
     if not isinstance(sample, Mapping):
         raise TypeError(f"sample must be a mapping of signal values, got {sample!r}")
     reject_unknown(where, sample, allowed)
