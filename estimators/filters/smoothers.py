@@ -73,7 +73,7 @@ def smoother_work(n: int) -> SmootherWork:
     return SmootherWork(*(np.zeros((n, n)) for _ in range(6)))
 
 
-@numba.njit(cache=True, _nrt=False)
+@numba.njit(cache=True, _nrt=False, inline="always")
 def store_belief(row, x, P, x_store, P_store):
     """Copy a belief into row ``row`` of the storage above (a no-op when it has no rows)."""
     if x_store.shape[0] == 0:
