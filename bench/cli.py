@@ -274,8 +274,8 @@ _PREVIEW_HINT = (
     "the preview model reads the target ahead of each sample (ft at t + anticipation_time), "
     "which the recording does not hold: pass --forcing PRESET [--realisation N] (the forcing "
     "the trial was run with) or --target-period SECONDS (the recording lasts whole periods "
-    "of the target). A pursuit display shows no target ahead: fit --model precision to the "
-    "error instead."
+    "of the target). A pursuit display shows no target ahead: fit its pursuit form with "
+    "--set anticipation_time=0."
 )
 
 

@@ -353,7 +353,9 @@ def _recover_monomials(
     return monomials
 
 
-def build_internal_model(model: str | PilotModel, delay_order: int = 3) -> InternalModel:
+def build_internal_model(
+    model: str | PilotModel, delay_order: int = 3, *, pursuit: bool = False
+) -> InternalModel:
     """Build the internal model of a pilot structure.
 
     Parameters
@@ -364,8 +366,13 @@ def build_internal_model(model: str | PilotModel, delay_order: int = 3) -> Inter
         ``"schiess-roland"``.
     delay_order
         Padé order (>= 1) of the model delay and of the anticipation delay ``tau_f*``;
-        3 as in Popovici et al. and the thesis. A branch fed by ``ft_far`` is always
-        fed the anticipated target through ``exp(-tau_f* s)`` (thesis eq. 26).
+        3 as in Popovici et al. and the thesis. A branch fed by ``ft_far`` is fed the
+        anticipated target through ``exp(-tau_f* s)`` (thesis eq. 26) ...
+    pursuit
+        ... unless ``pursuit``: a pursuit display shows the current target and nothing
+        ahead (the preview model with ``tau_f = 0``, van der El's pursuit case), so the
+        branch reads ``ft`` itself, without the anticipation delay, and ``tau_f``
+        enters nowhere.
 
     Raises
     ------
@@ -440,14 +447,17 @@ def build_internal_model(model: str | PilotModel, delay_order: int = 3) -> Inter
     branch_input: list[int] = []
     for b, branch in enumerate(channel.branches):
         signal = INPUT_SIGNALS[branch.signal]
+        anticipating = branch.signal == "ft_far" and not pursuit
+        if branch.signal == "ft_far" and pursuit:
+            signal = "ft"
         if signal not in inputs:
             inputs.append(signal)
         chain_num.append(2 + 2 * b)
         chain_den.append(3 + 2 * b)
-        chain_pade.append(names.index(ANTICIPATED_PARAMETER) if branch.signal == "ft_far" else -1)
+        chain_pade.append(names.index(ANTICIPATED_PARAMETER) if anticipating else -1)
         branch_chain.append(b + 1)
         branch_input.append(inputs.index(signal))
-    if anticipated and ANTICIPATED_PARAMETER not in names:
+    if anticipated and not pursuit and ANTICIPATED_PARAMETER not in names:
         raise ValueError(f"{model!r} reads ft_far but has no parameter {ANTICIPATED_PARAMETER}")
     num_length, den_length, sizes = [], [], []
     for num_slot, den_slot, pade_index in zip(chain_num, chain_den, chain_pade, strict=True):

@@ -218,7 +218,10 @@ class PilotFilterSettings:
         ``4/(s(s+3))``): limits are the union of both columns.
     anticipation_time : float or None
         ``tau_a`` (s), required for the preview model: the target is anticipated by
-        ``tau_a`` and ``tau_f`` must stay below it (thesis Sec. III-B).
+        ``tau_a`` and ``tau_f`` must stay below it (thesis Sec. III-B). ``0`` fits the
+        *pursuit* form: the display shows the current target and nothing ahead, the
+        far-view branch reads ``ft`` itself and ``tau_f`` is held at 0 (no target
+        ahead of the samples is needed).
     estimated : tuple of str or None
         Parameters to estimate; the others are held at their ``initial`` values.
         None: all (minus the SI rule).
@@ -318,12 +321,12 @@ class PilotFilterSettings:
                     "anticipation_time (tau_a, s) is required for the preview model "
                     "(thesis Sec. III-B); the thesis used 0.9 s (SI) and 1.5 s (DI)"
                 )
-            tau_a = check_positive("anticipation_time", self.anticipation_time)
-            if tau_a <= 2.0 * TAU_F_MARGIN:
+            tau_a = check_positive("anticipation_time", self.anticipation_time, allow_zero=True)
+            if 0.0 < tau_a <= 2.0 * TAU_F_MARGIN:
                 raise ValueError(
                     f"anticipation_time must be > {2.0 * TAU_F_MARGIN:g} s so that tau_f* "
                     f"can lie in [{TAU_F_MARGIN:g}, tau_a - {TAU_F_MARGIN:g}] (thesis "
-                    f"Table I), got {tau_a!r}"
+                    f"Table I), or 0 for a pursuit fit; got {tau_a!r}"
                 )
             object.__setattr__(self, "anticipation_time", tau_a)
         elif self.anticipation_time is not None:
@@ -344,7 +347,18 @@ class PilotFilterSettings:
         initial = _frozen_mapping("initial", self.initial, check_real)
         check_names("initial", initial)
         object.__setattr__(self, "initial", initial)
-        if preview and "tau_f" in initial and initial["tau_f"] >= self.anticipation_time:
+        pursuit = preview and self.anticipation_time == 0.0
+        if pursuit and initial.get("tau_f", 0.0) != 0.0:
+            raise ValueError(
+                "a pursuit fit (anticipation_time = 0) holds tau_f at 0 (nothing is shown "
+                f"ahead), got initial tau_f = {initial['tau_f']!r}"
+            )
+        if (
+            preview
+            and not pursuit
+            and "tau_f" in initial
+            and initial["tau_f"] >= self.anticipation_time
+        ):
             raise ValueError(
                 f"initial tau_f must be < anticipation_time = {self.anticipation_time:g} s "
                 f"(tau_f* = tau_a - tau_f > 0, thesis eq. 26), got {initial['tau_f']!r}"
@@ -355,6 +369,11 @@ class PilotFilterSettings:
             limits = _frozen_mapping("limits", self.limits, _limit_pair)
             check_names("limits", limits)
             if preview and "tau_f" in limits and limits["tau_f"][1] >= self.anticipation_time:
+                if pursuit:
+                    raise ValueError(
+                        "a pursuit fit (anticipation_time = 0) has no tau_f to limit, got "
+                        f"limits['tau_f'] = {limits['tau_f']!r}"
+                    )
                 raise ValueError(
                     f"limits['tau_f'] must stay below anticipation_time = "
                     f"{self.anticipation_time:g} s, got {limits['tau_f']!r}"
@@ -399,6 +418,11 @@ class PilotFilterSettings:
             value = getattr(self, which)
             if value is not None:
                 object.__setattr__(self, which, check_positive(which, value))
+
+    @property
+    def pursuit(self) -> bool:
+        """The preview model fitted in its pursuit form (``anticipation_time = 0``)."""
+        return self.anticipation_time == 0.0 and "ft_far" in make_model(self.model).perceptions
 
     @property
     def r2_value(self) -> float:
@@ -513,7 +537,7 @@ def _default_limits(
     else:
         table = {spec.name: spec.human for spec in model.parameters}
     limits = {name: table[name] for name in names if name in table}
-    if "ft_far" in model.perceptions:
+    if "ft_far" in model.perceptions and not settings.pursuit:
         tau_a = settings.anticipation_time
         limits["tau_f"] = (TAU_F_MARGIN, tau_a - TAU_F_MARGIN)
     return limits
@@ -529,13 +553,21 @@ def resolve_settings(
     r2_parameter = getattr(settings, "r2_parameter", None)
     model = internal.model
     names = internal.parameter_names
-    preview = ANTICIPATED_PARAMETER in names and "ft_far" in model.perceptions
+    pursuit = settings.pursuit
+    preview = ANTICIPATED_PARAMETER in names and "ft_far" in model.perceptions and not pursuit
     si = settings.ce == "SI"
     if settings.estimated is None:
         held = {"K_v", "omega_f"} if si else set()
+        if pursuit:
+            held.add(ANTICIPATED_PARAMETER)  # no preview: tau_f = 0 enters nowhere
         estimated = tuple(name for name in names if name not in held)
     else:
         estimated = settings.estimated
+        if pursuit and ANTICIPATED_PARAMETER in estimated:
+            raise ValueError(
+                "a pursuit fit (anticipation_time = 0) has no preview time to estimate: "
+                f"leave {ANTICIPATED_PARAMETER} out of estimated"
+            )
     # limits
     if settings.limits == "none":
         limits: dict[str, tuple[float, float]] = {}
@@ -565,6 +597,8 @@ def resolve_settings(
             value = 0.0 if si else 0.5 * initial["K_p"]  # eq. 28
         elif name == "tau_f" and preview:
             value = 0.5 * settings.anticipation_time
+        elif name == "tau_f" and pursuit:
+            value = 0.0
         elif name in GENERIC_INITIAL and model.name in ("precision", "preview"):
             value = GENERIC_INITIAL[name]  # eqs. 29-31
         else:
@@ -638,9 +672,9 @@ def resolve_settings(
 
 
 @functools.lru_cache(maxsize=16)
-def internal_model(model: str, delay_order: int) -> InternalModel:
+def internal_model(model: str, delay_order: int, pursuit: bool = False) -> InternalModel:
     """The internal model of ``model`` with Padé order ``delay_order`` (cached)."""
-    return build_internal_model(model, delay_order)
+    return build_internal_model(model, delay_order, pursuit=pursuit)
 
 
 # ------------------------------------------------------------------ parameter map
@@ -665,7 +699,7 @@ class ParameterMap:
         """The map of a filter with these settings on this internal model."""
         names = internal.parameter_names
         preview = ANTICIPATED_PARAMETER in names and "ft_far" in internal.model.perceptions
-        if not preview:
+        if not preview or settings.pursuit:
             return cls(names, 0.0, None)
         return cls(names, float(settings.anticipation_time), ANTICIPATED_PARAMETER)
 
@@ -731,7 +765,7 @@ class PilotFilter:
         elif changes:
             settings = dataclasses.replace(settings, **changes)
         self._settings = settings
-        self._internal = internal_model(settings.model, settings.delay_order)
+        self._internal = internal_model(settings.model, settings.delay_order, settings.pursuit)
         keys = list(self._internal.input_names)
         keys += [name for name in ("e", "u") if name not in keys]
         self._sample_keys = tuple(keys)
