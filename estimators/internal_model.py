@@ -716,7 +716,7 @@ def evaluate_coefficients(p, kernel):
                 C_grad[off + i, j] = b_grad - d_grad[c, j] * a + dc * negA_grad[off + i, j]
 
 
-@numba.njit(cache=True, _nrt=False)
+@numba.njit(cache=True, _nrt=False, inline="always")
 def model_f(x, inputs, kernel, f, F, dfdp, jacobians):
     """``f``; with ``jacobians`` also ``df/dx`` (shift rows are set too) and ``df/dp``.
 
@@ -769,7 +769,7 @@ def model_f(x, inputs, kernel, f, F, dfdp, jacobians):
         f[last] = acc
 
 
-@numba.njit(cache=True, _nrt=False)
+@numba.njit(cache=True, _nrt=False, inline="always")
 def model_g(x, inputs, kernel, dgdx, dgdp, jacobians):
     """``g`` (returned); with ``jacobians`` also ``dg/dx`` and ``dg/dp`` (written)."""
     chain_offset, chain_size = kernel.chain_offset, kernel.chain_size
