@@ -11,6 +11,11 @@ or name the module in the id:
 
 from gymnasium.envs.registration import register, registry
 
+from manualcontrol.envs._kernel_cache import refresh_kernel_cache
+
+# before any kernel module is imported (every subpackage imports envs first)
+refresh_kernel_cache()
+
 _TASKS = ("Compensatory", "Pursuit", "Preview")
 
 for _task in _TASKS:

@@ -1081,8 +1081,7 @@ def _column_vector(path: Path, table: _FileTable, column: str, what: str) -> np.
         if raw.ndim == 2:
             hint = f" (pick one of its columns: '{column}:1' .. '{column}:{min(raw.shape)}')"
         raise ValueError(
-            f"{path}: column {column!r} for {what} must be a vector, got shape {raw.shape}"
-            f"{hint}"
+            f"{path}: column {column!r} for {what} must be a vector, got shape {raw.shape}{hint}"
         )
     return raw
 
