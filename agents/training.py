@@ -1,6 +1,6 @@
-"""Training surrogate human operators with stable-baselines3 on the tracking tasks.
+"""Training surrogate human operators with stable-baselines3 on the tasks of ``envs``.
 
-:func:`train` runs PPO or SAC on any of the three tracking environments, wrapped with
+:func:`train` runs PPO or SAC on any of the tracking environments or lane keeping, wrapped with
 the human limitations of :mod:`~manualcontrol.agents.wrappers`, and writes to its
 output folder:
 
@@ -55,6 +55,7 @@ TASK_IDS: dict[str, str] = {
     "compensatory": "ManualControl/CompensatoryTracking-v0",
     "pursuit": "ManualControl/PursuitTracking-v0",
     "preview": "ManualControl/PreviewTracking-v0",
+    "lane-keeping": "ManualControl/LaneKeeping-v0",
 }
 
 
@@ -65,10 +66,11 @@ class TrainingConfig:
     Parameters
     ----------
     task
-        ``"compensatory"``, ``"pursuit"`` or ``"preview"``.
+        ``"compensatory"``, ``"pursuit"``, ``"preview"`` or ``"lane-keeping"``.
     env_kwargs
-        Keywords of the tracking environment (``controlled_element``, ``forcing``,
-        ``realisation``, ``measurement_time``, ...).
+        Keywords of the environment (tracking: ``controlled_element``, ``forcing``,
+        ``realisation``, ``measurement_time``, ...; lane keeping: ``road``, ``steering``,
+        ``measurement_time``, ...).
     wrappers
         Human limitations, innermost first: ``({"kind": "action_delay", "delay": 0.2},)``.
     algorithm

@@ -49,8 +49,8 @@ def _value(text: str) -> Any:
         return text
 
 
-def _env_options(items: Sequence[str] | None) -> dict[str, Any]:
-    """``--env KEY=VALUE`` items parsed to the type each environment keyword takes.
+def _env_options(items: Sequence[str] | None, task: str = "compensatory") -> dict[str, Any]:
+    """``--env KEY=VALUE`` items parsed to the type each keyword of the task's env takes.
 
     A switch takes true/false (yes/no, 1/0), a number a number, an optional number
     also null; anything else is refused naming the option, so ``include_rates=False``
@@ -58,9 +58,12 @@ def _env_options(items: Sequence[str] | None) -> dict[str, Any]:
     """
     import inspect
 
-    from manualcontrol.envs.tracking import TrackingEnv
+    if task == "lane-keeping":
+        from manualcontrol.envs.driving import LaneKeeping as Environment
+    else:
+        from manualcontrol.envs.tracking import TrackingEnv as Environment
 
-    signature = inspect.signature(TrackingEnv.__init__)
+    signature = inspect.signature(Environment.__init__)
     known = {name: p for name, p in signature.parameters.items() if name != "self"}
     out = {}
     for item in items or ():
@@ -271,8 +274,8 @@ _PREVIEW_HINT = (
     "the preview model reads the target ahead of each sample (ft at t + anticipation_time), "
     "which the recording does not hold: pass --forcing PRESET [--realisation N] (the forcing "
     "the trial was run with) or --target-period SECONDS (the recording lasts whole periods "
-    "of the target). A pursuit display shows no target ahead: fit --model precision to the "
-    "error instead."
+    "of the target). A pursuit display shows no target ahead: fit its pursuit form with "
+    "--set anticipation_time=0."
 )
 
 
@@ -288,7 +291,23 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     recording = _load_trial(args)
     target = _target_source(args)
     settings = _assignments(args.set, "--set")
-    estimator = make_estimator({"name": args.estimator, "model": args.model, **settings})
+    from manualcontrol.estimators.registry import ESTIMATORS
+
+    if args.estimator not in ESTIMATORS:
+        raise UsageError(
+            f"--estimator must be one of {', '.join(ESTIMATORS)} (`manualcontrol estimators`), "
+            f"got {args.estimator!r}"
+        )
+    spec = {"name": args.estimator, **settings}
+    if ESTIMATORS[args.estimator].pilot_model:
+        spec.setdefault("model", args.model or "precision")
+    elif args.model is not None:
+        raise UsageError(
+            f"--model names the pilot structure of "
+            f"{', '.join(n for n, e in ESTIMATORS.items() if e.pilot_model)}; the "
+            f"{args.estimator} estimator has its own model (set its settings with --set)"
+        )
+    estimator = make_estimator(spec)
     try:
         result = estimator.estimate(recording, **target)
     except ValueError as error:
@@ -444,7 +463,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         wrappers.append({"kind": "motor_noise", "power_ratio": args.motor_noise})
     config = TrainingConfig(
         task=args.task,
-        env_kwargs=_env_options(args.env),
+        env_kwargs=_env_options(args.env, args.task),
         wrappers=tuple(wrappers),
         algorithm=args.algorithm,
         total_timesteps=args.steps,
@@ -588,7 +607,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="estimator name (default dekf; `manualcontrol estimators` lists the family)",
     )
     p.add_argument(
-        "--model", default="precision", help="pilot model structure: precision or preview"
+        "--model",
+        default=None,
+        help="pilot model structure of the pilot-model estimators (dekf, joint-ukf, dual-ukf): "
+        "precision (default) or preview",
     )
     p.add_argument(
         "--set",
@@ -664,7 +686,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(run=_cmd_bench)
 
     p = commands.add_parser("train", help="train an RL surrogate operator (stable-baselines3)")
-    p.add_argument("--task", default="compensatory", help="compensatory, pursuit or preview")
+    p.add_argument(
+        "--task", default="compensatory", help="compensatory, pursuit, preview or lane-keeping"
+    )
     p.add_argument(
         "--env",
         action="append",

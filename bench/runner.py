@@ -3,7 +3,10 @@
 :func:`run_suite` runs every scenario of a suite with a backend:
 
 ``"process"`` (default)
-    a local :class:`concurrent.futures.ProcessPoolExecutor` over all cores;
+    a local :class:`concurrent.futures.ProcessPoolExecutor` over all cores. The first
+    scenario runs in this process before the pool starts, so the compiled kernels are
+    built (or loaded from numba's cache) once: forked workers (Linux) inherit them,
+    workers started otherwise load the cache that first run wrote;
 ``"inprocess"``
     one after the other in this process (debugging, tests);
 ``"ray"``
@@ -25,7 +28,9 @@ from __future__ import annotations
 
 import json
 import math
+import multiprocessing
 import os
+import sys
 import time
 import traceback
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -56,8 +61,26 @@ BACKENDS: tuple[str, ...] = ("process", "inprocess", "ray")
 
 def simulate_scenario(scenario: Scenario) -> Recording:
     """The scenario's simulated run, run-in kept (the estimator converges on it)."""
+    if scenario.task == "lane-keeping":
+        from manualcontrol.bench.driving import simulate_lane_keeping
+
+        return simulate_lane_keeping(scenario)
     from manualcontrol.pilots import simulate
 
+    if scenario.system is not None:
+        from manualcontrol.pilots.open_loop import simulate_open_loop
+
+        return simulate_open_loop(
+            scenario.build_system(),
+            scenario.forcing,
+            realisation=scenario.realisation,
+            dt=scenario.dt,
+            run_in=scenario.run_in,
+            measurement_time=scenario.measurement_time or 60.0,
+            seed=scenario.remnant_seed,
+            keep_run_in=True,
+        )
+    postview = {} if scenario.gap is None else {"gap": scenario.build_gap()}
     return simulate(
         scenario.build_pilot(),
         scenario.element,
@@ -71,6 +94,11 @@ def simulate_scenario(scenario: Scenario) -> Recording:
         seed=scenario.remnant_seed,
         loop=scenario.loop,
         keep_run_in=True,
+        loss_of_control=scenario.loss_of_control,
+        **postview,
+        start_time=scenario.start_time,
+        initial_state=scenario.initial_state,
+        measurement_noise=scenario.measurement_noise,
     )
 
 
@@ -194,9 +222,28 @@ def _one_thread() -> None:
     threadpool_limits(1)
 
 
+def _one_thread_here() -> Any:
+    """One BLAS thread in this process while it runs a scenario (see :func:`_one_thread`)."""
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(1)
+
+
+def _pool_context() -> Any:
+    """Fork where it is safe (Linux), so workers inherit the parent's compiled kernels.
+
+    Elsewhere the platform's default start method; workers then load the kernels from
+    the numba cache the parent's first run wrote, instead of compiling them again.
+    """
+    if sys.platform.startswith("linux"):
+        return multiprocessing.get_context("fork")
+    return None
+
+
 def _run_with_ray(
     groups: Sequence[Sequence[Scenario]], out: Path
 ) -> Iterable[list[dict[str, Any]]]:
+
     try:
         import ray
     except ImportError as error:
@@ -259,13 +306,23 @@ def run_suite(
             if workers is not None
             else (os.cpu_count() or 1)
         )
-        with ProcessPoolExecutor(
-            max_workers=min(count, len(groups)), initializer=_one_thread
-        ) as pool:
-            futures = [pool.submit(run_scenarios, group, out) for group in groups]
-            for future in as_completed(futures):
-                for row in future.result():
-                    collect(row)
+        # Compile once: the first simulation here, before the pool starts, compiles every
+        # kernel a run uses (or loads them from numba's cache) and writes the cache;
+        # forked workers inherit the compiled code, spawned ones load the cache.
+        with _one_thread_here():
+            for row in run_scenarios(groups[0], out):
+                collect(row)
+        rest = groups[1:]
+        if rest:
+            with ProcessPoolExecutor(
+                max_workers=min(count, len(rest)),
+                initializer=_one_thread,
+                mp_context=_pool_context(),
+            ) as pool:
+                futures = [pool.submit(run_scenarios, group, out) for group in rest]
+                for future in as_completed(futures):
+                    for row in future.result():
+                        collect(row)
     else:
         for group_rows in _run_with_ray(groups, out):
             for row in group_rows:

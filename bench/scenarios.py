@@ -25,10 +25,15 @@ Schema of a suite file::
     measurement_time = 120.0   # default: the forcing period
     loop = "continuous"        # or "sampled"
     score_from = 0.0           # metrics from this time (s) of the measurement on
+    start_time = 0.0           # time of the first measured sample (s)
+    measurement_noise = {u = 0.00092, y = 0.00092}   # variances added to recorded signals
+    initial_state = {y = [-0.959, -5.64], u = [1.03, 40.5], n = [0.41, 2.55]}
+                               # loop outputs and derivatives at the start (see simulate)
 
     [[batch]]
     name = "preview-SI"
-    task = "preview"           # compensatory | pursuit | preview
+    task = "preview"           # compensatory | pursuit | preview | lane-keeping
+                               # (lane keeping reads the keys as bench.driving says)
     element = "SI"             # preset name or a table {kind = ..., ...}
     forcing = "vanderel-bw4"   # forcing preset
     realisations = [0, 1, 2]   # forcing realisations (crossed)
@@ -60,6 +65,15 @@ Schema of a suite file::
     source = "thesis Table II"
     [batch.reference.parameters]
     tau_f = {rel_bias = 0.312, nrmse = 0.252}
+
+Postview batches (``task = "postview"``, :mod:`manualcontrol.envs.postview`) take
+``gap = <number or schedule table>``; any closed-loop batch may end at loss of control,
+``loss_of_control = <|e| limit>``. An open-loop batch (``task = "open-loop"``,
+:func:`manualcontrol.pilots.open_loop.simulate_open_loop`) has no element or pilot but a
+``[batch.system]`` table (``a``, ``b``, ``delay``, ``step``, ``noise_std``,
+``noise_cutoff_hz``, ``simulation_rate``: an
+:class:`~manualcontrol.pilots.open_loop.ARMAXSystem`) driven by the forcing's target;
+its ``remnant_seeds`` seed the output noise.
 """
 
 from __future__ import annotations
@@ -74,11 +88,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from manualcontrol.envs._validation import check_choice, check_int, check_positive
+from manualcontrol.envs._validation import (
+    check_choice,
+    check_int,
+    check_positive,
+    check_real,
+    check_vector,
+    reject_unknown,
+)
 from manualcontrol.envs.elements import make_element
+from manualcontrol.envs.recording import MEASURED_SIGNALS
 from manualcontrol.envs.signals import FORCING_PRESETS, preset_realisation_count
 from manualcontrol.pilots import Pilot
-from manualcontrol.pilots.simulation import LOOPS, TASKS
+from manualcontrol.pilots.simulation import INITIAL_STATE_SIGNALS, LOOPS, TASKS
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -106,8 +128,28 @@ _BATCH_KEYS = {
     "measurement_time",
     "loop",
     "score_from",
+    "system",
+    "gap",
+    "loss_of_control",
+    "start_time",
+    "measurement_noise",
+    "initial_state",
 }
+#: The task of open-loop batches: a system driven by the forcing, no pilot and no loop.
+OPEN_LOOP = "open-loop"
 _DEFAULT_KEYS = {"dt", "run_in", "measurement_time", "loop", "available_preview", "score_from"}
+_DEFAULT_KEYS |= {"start_time", "measurement_noise", "initial_state"}
+#: Scenario fields added after suites were first stored: left out of the scenario's
+#: description (and so of its key) at their defaults, so the keys of scenarios that do
+#: not use them stay what they were.
+_OPTIONAL_FIELDS = {
+    "system": None,
+    "gap": None,
+    "loss_of_control": None,
+    "start_time": 0.0,
+    "measurement_noise": None,
+    "initial_state": None,
+}
 _PILOT_KEYS = {"model", "parameters", "remnant", "delay_order", "near_view"}
 
 
@@ -134,10 +176,20 @@ class Scenario:
     available_preview: float | None
     estimator: Mapping[str, Any]
     score_from: float = 0.0
+    system: Mapping[str, Any] | None = None
+    gap: Any = None
+    loss_of_control: float | None = None
+    start_time: float = 0.0
+    measurement_noise: Mapping[str, float] | None = None
+    initial_state: Mapping[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able description."""
-        return json.loads(json.dumps(dataclasses.asdict(self)))
+        """Plain JSON-able description (the optional fields only where set)."""
+        data = json.loads(json.dumps(dataclasses.asdict(self)))
+        for name, default in _OPTIONAL_FIELDS.items():
+            if data.get(name) == default:
+                data.pop(name, None)
+        return data
 
     @property
     def key(self) -> str:
@@ -160,8 +212,26 @@ class Scenario:
         return _digest(data)
 
     def build_pilot(self) -> Pilot:
-        """The :class:`~manualcontrol.pilots.Pilot` of this scenario."""
+        """The :class:`~manualcontrol.pilots.Pilot` of this scenario (lane keeping: the driver)."""
+        if self.task == "lane-keeping":
+            from manualcontrol.bench.driving import build_driver
+
+            return build_driver(self.pilot)  # type: ignore[return-value]
         return _pilot_from(self.pilot)
+
+    def build_system(self) -> Any:
+        """The :class:`~manualcontrol.pilots.open_loop.ARMAXSystem` of an open-loop scenario."""
+        from manualcontrol.pilots.open_loop import ARMAXSystem
+
+        if self.system is None:
+            raise ValueError(f"scenario {self.key} is not open-loop: it has no system")
+        return ARMAXSystem.from_dict(self.system)
+
+    def build_gap(self) -> Any:
+        """The postview gap as a number or schedule (None outside postview tasks)."""
+        from manualcontrol.envs.schedules import Schedule
+
+        return None if self.gap is None else Schedule.from_dict(self.gap)
 
 
 @dataclass(frozen=True)
@@ -270,6 +340,32 @@ def _pilot_from(data: Mapping[str, Any]) -> Pilot:
     return Pilot.from_dict({**data, "model_options": options})
 
 
+def _measurement_noise(value: Any) -> dict[str, float] | None:
+    if value is None:
+        return None
+    if not isinstance(value, Mapping):
+        raise TypeError(f"measurement_noise must be a table of variances, got {value!r}")
+    reject_unknown("measurement_noise", value, MEASURED_SIGNALS)
+    return {
+        name: check_positive(f"measurement_noise.{name}", variance, allow_zero=True)
+        for name, variance in value.items()
+    }
+
+
+def _initial_state(value: Any) -> dict[str, list[float]] | None:
+    if value is None:
+        return None
+    if not isinstance(value, Mapping):
+        raise TypeError(
+            f"initial_state must be a table of signal = [value, rate, ...], got {value!r}"
+        )
+    reject_unknown("initial_state", value, INITIAL_STATE_SIGNALS)
+    return {
+        name: [float(v) for v in check_vector(f"initial_state.{name}", entries, min_length=1)]
+        for name, entries in value.items()
+    }
+
+
 def _fail(where: str, message: str) -> SuiteError:
     return SuiteError(f"{where}: {message}")
 
@@ -309,19 +405,27 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
     merged = {**defaults, **raw}
     if "available_preview" not in raw and raw.get("task") != "preview":
         merged.pop("available_preview", None)  # a suite-wide preview concerns preview batches
-    for key in ("name", "task", "element", "forcing", "realisations", "pilot", "estimator"):
+    open_loop = merged.get("task") == OPEN_LOOP
+    needed = ("system",) if open_loop else ("element", "pilot")
+    for key in ("name", "task", "forcing", "realisations", *needed):
         if key not in merged:
             raise _fail(where, f"missing key {key!r}")
     name = merged["name"]
     if not isinstance(name, str) or not name.replace("-", "").replace("_", "").isalnum():
         raise _fail(where, f"name must be letters, digits, '-' or '_', got {name!r}")
+    if merged["task"] == "lane-keeping":
+        from manualcontrol.bench.driving import parse_lane_keeping_batch
+
+        return parse_lane_keeping_batch(where, merged)
     where = f"{where} ({name})"
     try:
-        check_choice("task", merged["task"], TASKS)
-        try:
-            make_element(merged["element"])
-        except (TypeError, ValueError, KeyError) as error:
-            raise ValueError(f"element: {error}") from None
+        check_choice("task", merged["task"], (*TASKS, OPEN_LOOP))
+        extra = _check_extras(merged, open_loop)
+        if not open_loop:
+            try:
+                make_element(merged["element"])
+            except (TypeError, ValueError, KeyError) as error:
+                raise ValueError(f"element: {error}") from None
         check_choice("forcing", merged["forcing"], FORCING_PRESETS)
         loop = check_choice("loop", merged.get("loop", "continuous"), LOOPS)
         dt = check_positive("dt", merged.get("dt", 0.01))
@@ -333,6 +437,9 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
         if preview is not None:
             preview = check_positive("available_preview", preview, allow_zero=True)
         score_from = check_positive("score_from", merged.get("score_from", 0.0), allow_zero=True)
+        start_time = check_real("start_time", merged.get("start_time", 0.0))
+        noise = _measurement_noise(merged.get("measurement_noise"))
+        initial_state = _initial_state(merged.get("initial_state"))
     except (TypeError, ValueError) as error:
         raise _fail(where, str(error)) from None
     count = preset_realisation_count(merged["forcing"])
@@ -356,23 +463,12 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
     quick_seeds = _int_list(where, "quick.remnant_seeds", quick.get("remnant_seeds", [seeds[0]]))
     _check_subset(where, "realisations", quick_realisations, realisations)
     _check_subset(where, "remnant_seeds", quick_seeds, seeds)
-    pilot = _table(where, "pilot", merged["pilot"])
-    unknown = sorted(set(pilot) - _PILOT_KEYS)
-    if unknown:
-        raise _fail(where, f"pilot has unknown key(s) {unknown}; allowed: {sorted(_PILOT_KEYS)}")
-    if "model" not in pilot:
-        raise _fail(where, "pilot needs a model")
-    if "parameters" in pilot:
-        _table(where, "pilot.parameters", pilot["parameters"])
-    try:
-        built = _pilot_from(pilot)
-    except (TypeError, ValueError, KeyError) as error:
-        raise _fail(where, f"pilot: {error}") from None
+    pilot, built = ({}, None) if open_loop else _checked_pilot(where, merged)
     shared, estimators = _estimators(where, merged)
     reference = _table(where, "reference", merged.get("reference", {}))
     template = {
         "task": merged["task"],
-        "element": merged["element"],
+        "element": merged.get("element"),
         "forcing": merged["forcing"],
         "pilot": pilot,
         "dt": dt,
@@ -381,8 +477,13 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
         "loop": loop,
         "available_preview": preview,
         "score_from": score_from,
+        **extra,
+        "start_time": start_time,
+        "measurement_noise": noise,
+        "initial_state": initial_state,
     }
-    _check_runs(where, built, template, realisations[0])
+    if built is not None:
+        _check_runs(where, built, template, realisations[0])
     return Batch(
         name,
         template,
@@ -450,6 +551,7 @@ def _check_runs(where: str, pilot: Pilot, template: Mapping[str, Any], realisati
     loop's stability checked, so a suite that cannot run stops at load, not as a
     column of failed rows.
     """
+    from manualcontrol.envs.schedules import Schedule
     from manualcontrol.pilots.simulation import SimulationSetup
     from manualcontrol.pilots.stability import check_stable
 
@@ -464,11 +566,66 @@ def _check_runs(where: str, pilot: Pilot, template: Mapping[str, Any], realisati
             dt=template["dt"],
             run_in=template["run_in"],
             measurement_time=template["measurement_time"],
+            gap=None if template.get("gap") is None else Schedule.from_dict(template["gap"]),
         )
         setup.parameter_traces()
-        check_stable(setup)
+        if "loss_of_control" not in template:  # a run that may end at the loss is not judged
+            check_stable(setup)
     except (TypeError, ValueError) as error:
         raise _fail(where, str(error)) from None
+
+
+def _checked_pilot(where: str, merged: Mapping[str, Any]) -> tuple[dict[str, Any], Pilot]:
+    """The batch's pilot table, checked, and the pilot it builds."""
+    pilot = _table(where, "pilot", merged["pilot"])
+    unknown = sorted(set(pilot) - _PILOT_KEYS)
+    if unknown:
+        raise _fail(where, f"pilot has unknown key(s) {unknown}; allowed: {sorted(_PILOT_KEYS)}")
+    if "model" not in pilot:
+        raise _fail(where, "pilot needs a model")
+    if "parameters" in pilot:
+        _table(where, "pilot.parameters", pilot["parameters"])
+    try:
+        built = _pilot_from(pilot)
+    except (TypeError, ValueError, KeyError) as error:
+        raise _fail(where, f"pilot: {error}") from None
+    if built.model.task != "compensatory" and merged["task"] == "compensatory":
+        raise _fail(where, f"task 'compensatory' does not fit pilot model {pilot['model']!r}")
+    if (built.model.task == "postview") != (merged["task"] == "postview"):
+        raise _fail(where, f"task {merged['task']!r} does not fit pilot model {pilot['model']!r}")
+    return pilot, built
+
+
+def _check_extras(merged: Mapping[str, Any], open_loop: bool) -> dict[str, Any]:
+    """The keys of postview, loss-of-control and open-loop batches, checked."""
+    from manualcontrol.envs.schedules import Schedule
+
+    extra: dict[str, Any] = {}
+    if open_loop:
+        for key in ("element", "pilot", "gap", "loss_of_control", "available_preview"):
+            if key in merged:
+                raise ValueError(f"{key} does not apply to an open-loop batch (it has a system)")
+        from manualcontrol.pilots.open_loop import ARMAXSystem
+
+        try:
+            extra["system"] = ARMAXSystem.from_dict(merged["system"]).to_dict()
+        except (TypeError, ValueError, KeyError) as error:
+            raise type(error)(f"system: {error}") from None
+        return extra
+    if "system" in merged:
+        raise ValueError(f"system belongs to open-loop batches, not task {merged['task']!r}")
+    if "gap" in merged:
+        if merged["task"] != "postview":
+            raise ValueError(f"gap belongs to postview batches, not task {merged['task']!r}")
+        gap = merged["gap"]
+        try:
+            Schedule.from_dict(gap)
+        except (TypeError, ValueError) as error:
+            raise type(error)(f"gap: {error}") from None
+        extra["gap"] = gap
+    if "loss_of_control" in merged:
+        extra["loss_of_control"] = check_positive("loss_of_control", merged["loss_of_control"])
+    return extra
 
 
 def parse_suite(data: Mapping[str, Any], source: str = "<table>") -> Suite:

@@ -25,6 +25,7 @@ Row columns of the VAFs (definitions in :mod:`manualcontrol.estimators.metrics`)
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import numpy as np
@@ -45,6 +46,8 @@ _LAST_CEILINGS: list[Any] = []
 
 
 def _ceilings(result: Any, recording: Recording, start: float) -> tuple[float, float]:
+    if not metrics._has_pilot_model(result):
+        return (math.nan, math.nan)  # an estimator with its own model (the RDI)
     model = metrics._model_of(result).name
     if _LAST_CEILINGS:
         seen, seen_model, seen_start, values = _LAST_CEILINGS[0]
@@ -57,6 +60,10 @@ def _ceilings(result: Any, recording: Recording, start: float) -> tuple[float, f
 
 def score(scenario: Scenario, recording: Recording, result: Any) -> dict[str, Any]:
     """The results-row entries of one run (see the module docstring)."""
+    if scenario.task == "lane-keeping":
+        from manualcontrol.bench.driving import score_lane_keeping
+
+        return score_lane_keeping(scenario, recording, result)
     ceilings = _ceilings(result, recording, scenario.score_from)
     measured = metrics.evaluate(result, recording, start=scenario.score_from, ceilings=False)
     measured = dataclasses.replace(

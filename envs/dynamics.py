@@ -27,11 +27,11 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
-import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
+from manualcontrol.envs._expm import expm_batch
 from manualcontrol.envs._interpolation import bicubic_weights, interpolate_at
-from manualcontrol.envs._validation import check_int, check_positive
+from manualcontrol.envs._validation import check_choice, check_int, check_positive
 
 __all__ = [
     "Block",
@@ -43,6 +43,8 @@ __all__ = [
     "discretize",
     "frequency_response",
     "interconnect",
+    "lpv_output_step",
+    "lpv_state_step",
     "pade",
     "pade_coefficients",
     "poly_multiply",
@@ -238,6 +240,21 @@ def frequency_response(system: StateSpace, omega: ArrayLike) -> NDArray[np.compl
 # ---------------------------------------------------------------- interconnection
 
 
+def _product(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``a @ b`` where one factor is a single matrix and the other a (long) stack.
+
+    numpy multiplies a stack matrix by matrix (about 0.2 us each for these sizes);
+    folding the stack into one tall matrix makes it a single BLAS product.
+    """
+    if b.ndim == 2 and a.ndim > 2:
+        return (a.reshape(-1, a.shape[-1]) @ b).reshape(*a.shape[:-1], b.shape[-1])
+    if a.ndim == 2 and b.ndim > 2:
+        flipped = np.swapaxes(b, -1, -2)
+        product = flipped.reshape(-1, flipped.shape[-1]) @ a.T
+        return np.swapaxes(product.reshape(*flipped.shape[:-1], a.shape[0]), -1, -2)
+    return a @ b
+
+
 @dataclass(frozen=True)
 class Block:
     """A state-space block with named input and output signals."""
@@ -360,13 +377,26 @@ def interconnect(
         C[..., iy : iy + ny, ix : ix + nx] = s.C
         D[..., iy : iy + ny, iu : iu + nu] = s.D
         ix, iu, iy = ix + nx, iu + nu, iy + ny
-    loop = np.eye(n_y) - D @ M
-    try:
-        LC = np.linalg.solve(loop, C)
-        LDN = np.linalg.solve(loop, D @ N)
-    except np.linalg.LinAlgError as error:
-        raise ValueError("the block diagram has an algebraic loop (I - D M is singular)") from error
-    system = StateSpace(A + B @ M @ LC, B @ (M @ LDN + N), P @ LC, P @ LDN + Q)
+    DM = _product(D, M)
+    if not DM.any():
+        # no feedthrough closes a loop (the usual case): L = I, and solving with the
+        # identity would return C and D N unchanged at the cost of one LU per sample
+        LC, LDN = C, _product(D, N)
+    else:
+        loop = np.eye(n_y) - DM
+        try:
+            LC = np.linalg.solve(loop, C)
+            LDN = np.linalg.solve(loop, _product(D, N))
+        except np.linalg.LinAlgError as error:
+            raise ValueError(
+                "the block diagram has an algebraic loop (I - D M is singular)"
+            ) from error
+    system = StateSpace(
+        A + _product(B, M) @ LC,
+        B @ (_product(M, LDN) + N),
+        _product(P, LC),
+        _product(P, LDN) + Q,
+    )
     return Interconnection(
         system,
         external,
@@ -393,31 +423,105 @@ class Discretization(NamedTuple):
     gamma_ramp: FloatArray
 
 
-def discretize(A: ArrayLike, B: ArrayLike, dt: float) -> Discretization:
+def discretize(
+    A: ArrayLike, B: ArrayLike, dt: float, ramp_inputs: Sequence[int] | None = None
+) -> Discretization:
     """Zero- and first-order-hold discretisation by one augmented matrix exponential.
 
-    ``expm([[A, B, 0], [0, 0, I/dt], [0, 0, 0]] dt)`` holds ``phi = e^{A dt}``,
-    ``gamma = ∫_0^dt e^{A s} ds B`` and ``gamma_ramp = (1/dt) ∫_0^dt e^{A (dt - s)} s ds B``
-    in its first block row. ``A`` and ``B`` may have leading batch axes; identical
-    matrices along the batch are exponentiated once.
+    ``expm([[A, B, 0], [0, 0, S/dt], [0, 0, 0]] dt)`` holds ``phi = e^{A dt}``,
+    ``gamma = ∫_0^dt e^{A s} ds B`` and the ramp matrix ``gamma_ramp = (1/dt) ∫_0^dt
+    e^{A (dt - s)} s ds B S`` in its first block row. ``S`` selects the inputs whose
+    ramp term is wanted, ``ramp_inputs`` (default all); the other columns of
+    ``gamma_ramp`` are zero. ``A`` and ``B`` may have leading batch axes; each matrix
+    is exponentiated by a compiled Al-Mohy & Higham (2009) scaling and squaring (the
+    algorithm of :func:`scipy.linalg.expm`, without its per-call overhead), a run of
+    equal consecutive matrices once.
+
+    The cost is that of the exponentials, cubic in their size, so they are kept
+    small: only the ramped inputs get a ramp column, and when the states fall into
+    groups that ``A`` never couples (anywhere along the batch; e.g. a pilot's pre- and
+    post-delay dynamics, joined only through a delay channel) each group is
+    exponentiated with just its own states and the inputs that reach it. The
+    exponential of a block-diagonal matrix is block diagonal, so this changes only
+    rounding.
     """
     dt = check_positive("dt", dt)
     A = np.asarray(A, dtype=np.float64)
     B = np.asarray(B, dtype=np.float64)
+    if not (np.all(np.isfinite(A)) and np.all(np.isfinite(B))):
+        raise ValueError("A and B must be finite")
     n, m = A.shape[-1], B.shape[-1]
+    if ramp_inputs is None:
+        ramped = np.arange(m)
+    else:
+        ramped = np.unique(np.asarray(ramp_inputs, dtype=np.int64).reshape(-1))
+        if ramped.size and (ramped[0] < 0 or ramped[-1] >= m):
+            raise ValueError(
+                f"ramp_inputs must be input indices in [0, {m - 1}], got {list(ramp_inputs)}"
+            )
     batch = np.broadcast_shapes(A.shape[:-2], B.shape[:-2])
-    size = n + 2 * m
+    A = np.broadcast_to(A, (*batch, n, n))
+    B = np.broadcast_to(B, (*batch, n, m))
+    groups = _uncoupled_states(A)
+    if len(groups) <= 1:
+        return _discretize_block(A, B, dt, ramped)
+    phi = np.zeros((*batch, n, n))
+    gamma = np.zeros((*batch, n, m))
+    gamma_ramp = np.zeros((*batch, n, m))
+    reached = np.any(B != 0.0, axis=tuple(range(len(batch))))  # (n, m)
+    for states in groups:
+        inputs = np.flatnonzero(reached[states].any(axis=0))
+        local_ramped = np.flatnonzero(np.isin(inputs, ramped))
+        part = _discretize_block(
+            A[..., states[:, None], states], B[..., states[:, None], inputs], dt, local_ramped
+        )
+        phi[..., states[:, None], states] = part.phi
+        gamma[..., states[:, None], inputs] = part.gamma
+        gamma_ramp[..., states[:, None], inputs] = part.gamma_ramp
+    return Discretization(phi, gamma, gamma_ramp)
+
+
+def _uncoupled_states(A: FloatArray) -> list[NDArray[np.int64]]:
+    """Groups of states that ``A`` (over its whole batch) never couples, in order."""
+    n = A.shape[-1]
+    coupled = np.any(A != 0.0, axis=tuple(range(A.ndim - 2))) if A.ndim > 2 else A != 0.0
+    coupled = coupled | coupled.T
+    group = np.full(n, -1)
+    count = 0
+    for start in range(n):
+        if group[start] >= 0:
+            continue
+        group[start] = count
+        frontier = [start]
+        while frontier:
+            state = frontier.pop()
+            for neighbour in np.flatnonzero(coupled[state]):
+                if group[neighbour] < 0:
+                    group[neighbour] = count
+                    frontier.append(int(neighbour))
+        count += 1
+    return [np.flatnonzero(group == g) for g in range(count)]
+
+
+def _discretize_block(
+    A: FloatArray, B: FloatArray, dt: float, ramped: NDArray[np.int64]
+) -> Discretization:
+    """:func:`discretize` by one augmented exponential per matrix of the batch."""
+    n, m = A.shape[-1], B.shape[-1]
+    r = ramped.shape[0]
+    batch = A.shape[:-2]
+    size = n + m + r
     augmented = np.zeros((*batch, size, size))
     augmented[..., :n, :n] = A * dt
     augmented[..., :n, n : n + m] = B * dt
-    augmented[..., n : n + m, n + m :] = np.eye(m)
-    flat = augmented.reshape(-1, size, size)
-    unique, inverse = np.unique(flat, axis=0, return_inverse=True)
-    exponentials = scipy.linalg.expm(unique)[np.ravel(inverse)].reshape(augmented.shape)
+    augmented[..., n + ramped, n + m + np.arange(r)] = 1.0
+    exponentials = expm_batch(augmented.reshape(-1, size, size)).reshape(augmented.shape)
+    gamma_ramp = np.zeros((*batch, n, m))
+    gamma_ramp[..., ramped] = exponentials[..., :n, n + m :]
     return Discretization(
         np.ascontiguousarray(exponentials[..., :n, :n]),
         np.ascontiguousarray(exponentials[..., :n, n : n + m]),
-        np.ascontiguousarray(exponentials[..., :n, n + m :]),
+        gamma_ramp,
     )
 
 
@@ -464,6 +568,108 @@ def read_held(history: FloatArray, newest: int, position: float) -> float:
 
 
 @numba.njit(cache=True)
+def lpv_output_step(
+    c: FloatArray,
+    d: FloatArray,
+    x: FloatArray,
+    u: FloatArray,
+    smooth: FloatArray,
+    held: FloatArray,
+    newest: int,
+    delay_inputs: NDArray[np.int64],
+    delay_outputs: NDArray[np.int64],
+    delay_now: FloatArray,
+    smooth_now: FloatArray,
+    held_state: NDArray[np.bool_],
+    outputs: FloatArray,
+    fill_past: bool = False,
+) -> None:
+    """First half of one :func:`simulate_lpv` sample: delayed inputs, then outputs.
+
+    Writes the delay sources of this sample into the histories ``smooth`` and ``held``
+    at column ``newest``, the delayed inputs into ``u`` (the smooth part was read one
+    step ago, ``smooth_now``; the held part now, ``delay_now`` samples back) and
+    ``y = C x + D u`` into ``outputs``. Shared by the whole-run loop and the pilot
+    acting in an environment (:class:`~manualcontrol.pilots.controller.PilotController`),
+    so both give the same numbers. ``fill_past`` (the first sample of a run started from
+    a state that had a past, ``history="initial"``): the histories before ``newest``
+    take this sample's values.
+    """
+    n_x = x.shape[0]
+    n_u = u.shape[0]
+    for i in range(delay_inputs.shape[0]):
+        r = delay_outputs[i]
+        acc = 0.0
+        held_value = 0.0
+        for j in range(n_x):
+            if held_state[j]:
+                held_value += c[r, j] * x[j]
+            else:
+                acc += c[r, j] * x[j]
+        smooth[i, newest] = acc
+        for j in range(n_u):
+            if j != delay_inputs[i]:
+                held_value += d[r, j] * u[j]
+        held[i, newest] = held_value
+        if fill_past:
+            for j in range(newest):
+                smooth[i, j] = acc
+                held[i, j] = held_value
+            smooth_now[i] = acc
+        position = newest - delay_now[i]
+        u[delay_inputs[i]] = smooth_now[i] + read_held(held[i], newest, position)
+    for r in range(c.shape[0]):
+        acc = 0.0
+        for j in range(n_x):
+            acc += c[r, j] * x[j]
+        for j in range(n_u):
+            acc += d[r, j] * u[j]
+        outputs[r] = acc
+
+
+@numba.njit(cache=True)
+def lpv_state_step(
+    phi: FloatArray,
+    gamma: FloatArray,
+    gamma_ramp: FloatArray,
+    x: FloatArray,
+    u: FloatArray,
+    smooth: FloatArray,
+    newest: int,
+    delay_inputs: NDArray[np.int64],
+    delay_next: FloatArray,
+    smooth_now: FloatArray,
+    smooth_next: FloatArray,
+    x_next: FloatArray,
+) -> None:
+    """Second half of one :func:`simulate_lpv` sample: the state (and delay reads) advanced.
+
+    ``x <- phi x + gamma u + gamma_ramp (s_next - s_now)`` with the smooth delayed
+    parts read ``delay_next`` samples before the next sample; ``smooth_next`` and
+    ``x_next`` are work arrays.
+    """
+    n_x = x.shape[0]
+    n_u = u.shape[0]
+    n_delay = delay_inputs.shape[0]
+    for i in range(n_delay):
+        position = newest + 1.0 - delay_next[i]
+        smooth_next[i] = read_smooth(smooth[i], newest, position)
+    for r in range(n_x):
+        acc = 0.0
+        for j in range(n_x):
+            acc += phi[r, j] * x[j]
+        for j in range(n_u):
+            acc += gamma[r, j] * u[j]
+        for i in range(n_delay):
+            acc += gamma_ramp[r, delay_inputs[i]] * (smooth_next[i] - smooth_now[i])
+        x_next[r] = acc
+    for r in range(n_x):
+        x[r] = x_next[r]
+    for i in range(n_delay):
+        smooth_now[i] = smooth_next[i]
+
+
+@numba.njit(cache=True)
 def _simulate_lpv(
     phi: FloatArray,
     gamma: FloatArray,
@@ -477,6 +683,7 @@ def _simulate_lpv(
     delay_samples: FloatArray,
     history_pad: int,
     held_state: NDArray[np.bool_],
+    history_initial: bool = False,
 ) -> tuple[FloatArray, FloatArray]:
     n_samples = inputs.shape[0]
     n_x = phi.shape[1]
@@ -502,51 +709,40 @@ def _simulate_lpv(
         for j in range(n_u):
             u[j] = inputs[k, j]
         newest = history_pad + k
-        # delayed inputs of this sample: the smooth part was read one step ago
-        # (it needs the state of the previous sample only), the held part now
-        for i in range(n_delay):
-            r = delay_outputs[i]
-            acc = 0.0
-            held_value = 0.0
-            for j in range(n_x):
-                if held_state[j]:
-                    held_value += c[kc, r, j] * x[j]
-                else:
-                    acc += c[kc, r, j] * x[j]
-            smooth[i, newest] = acc
-            for j in range(n_u):
-                if j != delay_inputs[i]:
-                    held_value += d[kd, r, j] * u[j]
-            held[i, newest] = held_value
-            position = newest - delay_samples[k, i]
-            u[delay_inputs[i]] = smooth_now[i] + read_held(held[i], newest, position)
         for r in range(n_x):
             states[k, r] = x[r]
-        for r in range(n_y):
-            acc = 0.0
-            for j in range(n_x):
-                acc += c[kc, r, j] * x[j]
-            for j in range(n_u):
-                acc += d[kd, r, j] * u[j]
-            outputs[k, r] = acc
+        lpv_output_step(
+            c[kc],
+            d[kd],
+            x,
+            u,
+            smooth,
+            held,
+            newest,
+            delay_inputs,
+            delay_outputs,
+            delay_samples[k],
+            smooth_now,
+            held_state,
+            outputs[k],
+            k == 0 and history_initial,
+        )
         if k == n_samples - 1:
             break
-        for i in range(n_delay):
-            position = newest + 1.0 - delay_samples[k + 1, i]
-            smooth_next[i] = read_smooth(smooth[i], newest, position)
-        for r in range(n_x):
-            acc = 0.0
-            for j in range(n_x):
-                acc += phi[kp, r, j] * x[j]
-            for j in range(n_u):
-                acc += gamma[kg, r, j] * u[j]
-            for i in range(n_delay):
-                acc += gamma_ramp[kg, r, delay_inputs[i]] * (smooth_next[i] - smooth_now[i])
-            x_next[r] = acc
-        for r in range(n_x):
-            x[r] = x_next[r]
-        for i in range(n_delay):
-            smooth_now[i] = smooth_next[i]
+        lpv_state_step(
+            phi[kp],
+            gamma[kg],
+            gamma_ramp[kg],
+            x,
+            u,
+            smooth,
+            newest,
+            delay_inputs,
+            delay_samples[k + 1],
+            smooth_now,
+            smooth_next,
+            x_next,
+        )
     return states, outputs
 
 
@@ -574,6 +770,7 @@ def simulate_lpv(
     delay_outputs: Sequence[int] = (),
     delays: ArrayLike | None = None,
     held_states: Sequence[int] = (),
+    history: str = "rest",
 ) -> tuple[FloatArray, FloatArray]:
     """Step a discrete linear parameter-varying system, with exact delay channels.
 
@@ -598,7 +795,9 @@ def simulate_lpv(
 
     ``held_states`` lists states whose contribution to a delayed output counts as
     held (sampled-data loops, where a discretised element feeds a sampled display).
-    The delay line starts at rest (zero before ``t = 0``). Delays must be at least
+    The delay line starts at rest (zero before ``t = 0``, ``history="rest"``) or holds
+    each delayed signal's first value before it (``history="initial"``: a run started
+    from a state that had a past). Delays must be at least
     ``3 dt`` for the four interpolation samples to be in the past (shorter delays lose
     interpolation order, see :func:`read_smooth`).
 
@@ -644,6 +843,7 @@ def simulate_lpv(
         history_pad = 0
     held_mask = np.zeros(n_x, dtype=np.bool_)
     held_mask[np.asarray(held_states, dtype=np.int64)] = True
+    check_choice("history", history, ("rest", "initial"))
     return _simulate_lpv(
         phi,
         gamma,
@@ -657,6 +857,7 @@ def simulate_lpv(
         delay_samples,
         history_pad,
         held_mask,
+        history == "initial",
     )
 
 

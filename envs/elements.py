@@ -20,7 +20,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from manualcontrol.envs._validation import check_choice, check_positive
+from manualcontrol.envs._validation import check_choice, check_positive, reject_unknown
 from manualcontrol.envs.dynamics import Discretization, StateSpace, discretize, tf_to_ccf
 from manualcontrol.envs.schedules import Ramp, Schedule, Sigmoid, as_schedule
 
@@ -55,6 +55,8 @@ class ControlledElement:
     positive: ClassVar[tuple[str, ...]] = ()
     #: Parameters that must stay non-zero along the whole schedule.
     nonzero: ClassVar[tuple[str, ...]] = ()
+    #: Parameters that must stay >= 0 along the whole schedule.
+    nonnegative: ClassVar[tuple[str, ...]] = ()
 
     def __post_init__(self) -> None:
         for name in self.parameter_names:
@@ -85,6 +87,11 @@ class ControlledElement:
         if name in self.positive and np.any(values <= 0.0):
             raise ValueError(
                 f"{type(self).__name__} parameter {name} must be > 0, "
+                f"got minimum {float(values.min())!r}"
+            )
+        if name in self.nonnegative and np.any(values < 0.0):
+            raise ValueError(
+                f"{type(self).__name__} parameter {name} must be >= 0, "
                 f"got minimum {float(values.min())!r}"
             )
         if name in self.nonzero and np.any(values == 0.0):
@@ -206,12 +213,14 @@ class IntegratorWithLag(ControlledElement):
 class UnstableFirstOrder(ControlledElement):
     """``instability/(s - instability)``: Jex's critical tracking task dynamics.
 
-    ``instability`` (lambda, rad/s, > 0) is usually ramped up until the pilot loses
-    control; the environments end the episode at a loss-of-control limit.
+    ``instability`` (lambda, rad/s, >= 0) is usually ramped up until the pilot loses
+    control; the environments end the episode at a loss-of-control limit. At
+    ``lambda = 0`` the element is ``0/s``: the output holds still whatever the stick
+    (Boer & Kenyon's task starts there, Sec. VI-A).
     """
 
     kind: ClassVar[str] = "unstable_first_order"
-    positive: ClassVar[tuple[str, ...]] = ("instability",)
+    nonnegative: ClassVar[tuple[str, ...]] = ("instability",)
     instability: ParameterValue = 1.0
 
     def coefficients(self, instability: FloatArray) -> tuple[FloatArray, FloatArray]:  # noqa: D102
@@ -287,8 +296,15 @@ class TransferFunctionElement(ControlledElement):
 
 
 def critical_task(start: float = 1.0, rate: float = 0.05) -> UnstableFirstOrder:
-    """Critical tracking task with ``instability`` rising linearly at ``rate`` rad/s per s."""
-    start = check_positive("start", start)
+    """Critical tracking task: ``instability`` rising linearly from ``start`` at ``t = 0``.
+
+    ``start`` in rad/s (>= 0), ``rate`` in rad/s per s (> 0). The preset
+    ``"critical-task"`` is ``critical_task(1.0, 0.05)``; Boer & Kenyon (1998, Sec. VI-A)
+    started at 0 and rose at 0.11/s: ``critical_task(0.0, 0.11)``, or
+    ``{"kind": "critical_task", "start": 0.0, "rate": 0.11}`` wherever an element is
+    given as a dict (:func:`make_element`, suite files, environment keywords).
+    """
+    start = check_positive("start", start, allow_zero=True)
     rate = check_positive("rate", rate)
     # A ramp over a long horizon; the episode ends at loss of control long before.
     horizon = 3600.0
@@ -321,6 +337,9 @@ def _presets() -> dict[str, ControlledElement]:
     }
 
 
+#: ``kind`` of the dict form of :func:`critical_task` (lambda start and rate).
+CRITICAL_TASK_KIND = "critical_task"
+
 #: Names accepted by :func:`make_element`.
 ELEMENT_PRESETS: tuple[str, ...] = tuple(_presets())
 
@@ -329,7 +348,8 @@ def make_element(spec: str | ControlledElement | Mapping[str, Any]) -> Controlle
     """Return a controlled element from a preset name, an element, or a saved dict.
 
     Preset names: see :data:`ELEMENT_PRESETS`. Dicts are those of
-    :meth:`ControlledElement.to_dict`.
+    :meth:`ControlledElement.to_dict`, or ``{"kind": "critical_task", "start": ...,
+    "rate": ...}`` for :func:`critical_task` with its two settings.
     """
     if isinstance(spec, ControlledElement):
         return spec
@@ -338,7 +358,13 @@ def make_element(spec: str | ControlledElement | Mapping[str, Any]) -> Controlle
         return _presets()[spec]
     if isinstance(spec, Mapping):
         data = dict(spec)
-        kind = check_choice("controlled element kind", data.pop("kind", None), _KINDS)
+        if data.get("kind") == CRITICAL_TASK_KIND:
+            data.pop("kind")
+            reject_unknown("critical_task", data, ("start", "rate"))
+            return critical_task(**data)
+        kind = check_choice(
+            "controlled element kind", data.pop("kind", None), (*_KINDS, CRITICAL_TASK_KIND)
+        )
         cls = _KINDS[kind]
         if cls is TransferFunctionElement:
             return TransferFunctionElement(

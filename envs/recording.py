@@ -37,6 +37,9 @@ metadata). Layout, the same information in each format:
   one row per sample, floats written with ``repr`` (shortest exact form), NaN as ``nan``.
 * ``.mat`` -- MATLAB 5 file with one column vector per signal, ``param__<name>`` per
   parameter, a double ``dt`` and char variables ``metadata`` and ``recording_format``.
+  Experiment files may instead hold a scalar struct (its fields are read as columns,
+  ``trial.u`` or plain ``u``) or a matrix of columns (``data:1``, ``data:2``, ...:
+  MATLAB's 1-based column numbers, mapped with ``columns=``).
 
 Files from tracking experiments (one trial per file, flat columns under varied names) are
 read too: columns are matched to signals through :data:`FILE_ALIASES` (exact names first,
@@ -920,14 +923,47 @@ def _read_mat(path: Path) -> _FileTable:
         ) from error
     except (OSError, ValueError, TypeError, scipy.io.matlab.MatReadError) as error:
         raise ValueError(f"{path} is not a readable .mat file: {error}") from error
-    contents = {
-        name: value
-        for name, value in variables.items()
-        if not name.startswith("__") and isinstance(value, np.ndarray)
-    }
+    contents: dict[str, np.ndarray] = {}
+    for name, value in variables.items():
+        if name.startswith("__") or not isinstance(value, np.ndarray):
+            continue
+        contents.update(_mat_columns(name, value))
     names = list(contents)
     header = _split_header(names, contents.__getitem__)
     return _FileTable(names, contents.__getitem__, header)
+
+
+def _mat_columns(name: str, value: np.ndarray) -> dict[str, np.ndarray]:
+    """The columns a MATLAB variable offers.
+
+    A vector is one column under its name. A matrix of several columns (a lab's
+    ``data = [t u e]``) offers each column as ``name:1``, ``name:2``, ... (MATLAB's
+    1-based numbering; map them with ``columns=``/``--column u=data:2``). A scalar struct
+    (``trial.u``, ``trial.t``) offers each field under the field's own name and as
+    ``struct.field`` (where two have the same plain name, the first found keeps it),
+    recursively for vectors and matrices inside.
+    """
+    if value.dtype.names is not None:
+        if value.size != 1:
+            return {}  # struct arrays hold several trials: not one recording
+        record = value.reshape(-1)[0]
+        out: dict[str, np.ndarray] = {}
+        for field in value.dtype.names:
+            item = record[field]
+            item = np.asarray(item)
+            if item.dtype == object and item.size == 1:
+                item = np.asarray(item.reshape(-1)[0])
+            for key, column in _mat_columns(field, item).items():
+                out[f"{name}.{key}"] = column
+                out.setdefault(key, column)
+        return out
+    if value.dtype.kind in "iuf" and value.ndim == 2 and min(value.shape) > 1:
+        rows = value if value.shape[0] >= value.shape[1] else value.T
+        # the whole matrix stays under its name, so a name that is also a signal's says so
+        columns = {name: value}
+        columns.update({f"{name}:{j + 1}": rows[:, j] for j in range(rows.shape[1])})
+        return columns
+    return {name: value}
 
 
 def _parse_float(path: Path, number: int, column: str, token: str) -> float:
@@ -1041,8 +1077,11 @@ def _column_vector(path: Path, table: _FileTable, column: str, what: str) -> np.
     if raw.ndim > 1 and sum(size != 1 for size in raw.shape) <= 1:
         raw = raw.reshape(-1)  # MATLAB column (n, 1) or row (1, n) vectors
     if raw.ndim != 1:
+        hint = ""
+        if raw.ndim == 2:
+            hint = f" (pick one of its columns: '{column}:1' .. '{column}:{min(raw.shape)}')"
         raise ValueError(
-            f"{path}: column {column!r} for {what} must be a vector, got shape {raw.shape}"
+            f"{path}: column {column!r} for {what} must be a vector, got shape {raw.shape}{hint}"
         )
     return raw
 

@@ -13,6 +13,8 @@ vectorised one. Schedules add up (``a + b``, ``sum([...])``), chain in time
 * :class:`Sine` -- ``mean + amplitude sin(2 pi (t - phase) / period)`` (thesis eq. 4.3).
 * :class:`Step`, :class:`Ramp` -- abrupt and linear changes.
 * :class:`RandomWalk` -- a seeded, optionally bounded Gaussian random walk.
+* :class:`BandLimitedRandomWalk` -- a random walk whose increments are low-passed
+  Gaussian noise (Boer & Kenyon 1998, Sec. IV-A): a smoothly wandering value.
 * :class:`Sum`, :class:`Sequence` -- composition.
 
 Example: the preview time of thesis Table 6.1, Sim 5, ``tau_f(sigm, 0.3, 0.6, 50, 10)``::
@@ -45,6 +47,7 @@ from manualcontrol.envs._validation import (
 )
 
 __all__ = [
+    "BandLimitedRandomWalk",
     "Constant",
     "Ramp",
     "RandomWalk",
@@ -362,69 +365,166 @@ class RandomWalk(Schedule):
     upper: float | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "initial", check_real("initial", self.initial))
-        object.__setattr__(
-            self,
-            "std_per_sqrt_s",
-            check_positive("std_per_sqrt_s", self.std_per_sqrt_s, allow_zero=True),
-        )
-        object.__setattr__(self, "duration", check_positive("duration", self.duration))
-        object.__setattr__(self, "seed", check_int("seed", self.seed, minimum=0))
-        object.__setattr__(self, "dt", check_positive("dt", self.dt))
-        if self.dt > self.duration:
-            raise ValueError(f"dt must be <= duration = {self.duration!r} s, got dt = {self.dt!r}")
-        for name in ("lower", "upper"):
-            value = getattr(self, name)
-            if value is not None:
-                object.__setattr__(self, name, check_real(name, value))
-        if self.lower is not None and self.upper is not None and self.lower >= self.upper:
-            raise ValueError(f"upper must be > lower = {self.lower!r}, got upper = {self.upper!r}")
-        if (self.lower is not None and self.initial < self.lower) or (
-            self.upper is not None and self.initial > self.upper
-        ):
-            raise ValueError(
-                f"initial must lie in [{self.lower}, {self.upper}], got {self.initial!r}"
-            )
+        _check_walk(self, "std_per_sqrt_s")
 
     @cached_property
     def grid(self) -> tuple[FloatArray, FloatArray]:
         """Generation grid times (s) and walk values there, both shape ``(n + 1,)``."""
-        steps = max(1, math.ceil(self.duration / self.dt - 1e-9))
+        steps = _walk_steps(self)
         h = self.duration / steps
         rng = np.random.default_rng(self.seed)
-        increments = rng.normal(0.0, self.std_per_sqrt_s * math.sqrt(h), steps)
-        free = self.initial + np.concatenate(([0.0], np.cumsum(increments)))
-        times = np.linspace(0.0, self.duration, steps + 1)
-        values = self._reflect(free)
-        times.setflags(write=False)
-        values.setflags(write=False)
-        return times, values
-
-    def _reflect(self, x: FloatArray) -> FloatArray:
-        lower, upper = self.lower, self.upper
-        if lower is not None and upper is not None:
-            width = upper - lower
-            folded = np.mod(x - lower, 2.0 * width)
-            return lower + np.where(folded > width, 2.0 * width - folded, folded)
-        if lower is not None:
-            return lower + np.abs(x - lower)
-        if upper is not None:
-            return upper - np.abs(upper - x)
-        return x
+        return _walk_grid(self, rng.normal(0.0, self.std_per_sqrt_s * math.sqrt(h), steps))
 
     def _evaluate(self, t: FloatArray) -> FloatArray:
         times, values = self.grid
         return np.interp(t, times, values)
 
     def describe(self) -> str:  # noqa: D102
-        bounds = ""
-        if self.lower is not None or self.upper is not None:
-            low = "-inf" if self.lower is None else _g(self.lower)
-            high = "inf" if self.upper is None else _g(self.upper)
-            bounds = f", in [{low}, {high}]"
         return (
             f"random walk(from {_g(self.initial)}, {_g(self.std_per_sqrt_s)}/sqrt(s), "
-            f"seed {self.seed}{bounds})"
+            f"seed {self.seed}{_describe_bounds(self)})"
+        )
+
+
+def _check_walk(walk: Any, spread: str) -> None:
+    """Validate a walk's start, spread (>= 0), duration, seed, grid step and bounds."""
+    object.__setattr__(walk, "initial", check_real("initial", walk.initial))
+    object.__setattr__(walk, spread, check_positive(spread, getattr(walk, spread), allow_zero=True))
+    object.__setattr__(walk, "duration", check_positive("duration", walk.duration))
+    object.__setattr__(walk, "seed", check_int("seed", walk.seed, minimum=0))
+    object.__setattr__(walk, "dt", check_positive("dt", walk.dt))
+    if walk.dt > walk.duration:
+        raise ValueError(f"dt must be <= duration = {walk.duration!r} s, got dt = {walk.dt!r}")
+    for name in ("lower", "upper"):
+        value = getattr(walk, name)
+        if value is not None:
+            object.__setattr__(walk, name, check_real(name, value))
+    if walk.lower is not None and walk.upper is not None and walk.lower >= walk.upper:
+        raise ValueError(f"upper must be > lower = {walk.lower!r}, got upper = {walk.upper!r}")
+    if (walk.lower is not None and walk.initial < walk.lower) or (
+        walk.upper is not None and walk.initial > walk.upper
+    ):
+        raise ValueError(f"initial must lie in [{walk.lower}, {walk.upper}], got {walk.initial!r}")
+
+
+def _describe_bounds(walk: Any) -> str:
+    if walk.lower is None and walk.upper is None:
+        return ""
+    low = "-inf" if walk.lower is None else _g(walk.lower)
+    high = "inf" if walk.upper is None else _g(walk.upper)
+    return f", in [{low}, {high}]"
+
+
+def _walk_steps(walk: Any) -> int:
+    """Grid steps of a walk: ``ceil(duration / dt)``, at least one."""
+    return max(1, math.ceil(walk.duration / walk.dt - 1e-9))
+
+
+def _walk_grid(walk: Any, increments: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Grid times and the walk summed from ``initial`` over ``increments``, reflected."""
+    free = walk.initial + np.concatenate(([0.0], np.cumsum(increments)))
+    times = np.linspace(0.0, walk.duration, increments.shape[0] + 1)
+    values = _reflect(free, walk.lower, walk.upper)
+    times.setflags(write=False)
+    values.setflags(write=False)
+    return times, values
+
+
+def _reflect(x: FloatArray, lower: float | None, upper: float | None) -> FloatArray:
+    """Fold the free walk ``x`` back into ``[lower, upper]`` (either bound may be None)."""
+    if lower is not None and upper is not None:
+        width = upper - lower
+        folded = np.mod(x - lower, 2.0 * width)
+        return lower + np.where(folded > width, 2.0 * width - folded, folded)
+    if lower is not None:
+        return lower + np.abs(x - lower)
+    if upper is not None:
+        return upper - np.abs(upper - x)
+    return x
+
+
+@dataclass(frozen=True)
+class BandLimitedRandomWalk(Schedule):
+    """Random walk with low-passed increments: Boer & Kenyon (1998), Sec. IV-A.
+
+    ``x[0] = initial`` and ``x[j + 1] = x[j] + w[j]`` on the grid ``j h``, where the
+    increments ``w`` are Gaussian noise through an ideal low-pass filter of cut-off
+    ``cutoff_hz`` with standard deviation ``increment_std`` per step
+    (:func:`~manualcontrol.envs.signals.band_limited_noise`, seeded by ``seed``). The
+    increments change slowly, so the walk drifts smoothly, at a rate of about
+    ``increment_std / h`` per second, instead of jittering like :class:`RandomWalk`.
+    The paper's time-varying delay is this walk at ``h = 1/600`` s with
+    ``increment_std`` 0.1 samples (1/6000 s) and ``cutoff_hz`` 0.3. The ideal filter
+    keeps the zero-frequency bin, so a realisation may drift steadily one way.
+
+    The grid step is ``h = duration / ceil(duration / dt)`` (``dt`` when it divides
+    ``duration``); the walk is linear between grid points, ``initial`` before 0 and
+    its last value after ``duration``. Optional ``lower``/``upper`` bounds reflect the
+    walk as in :class:`RandomWalk` (a reflection reverses the rate abruptly).
+
+    Parameters
+    ----------
+    initial
+        Value at ``t = 0``, within the bounds.
+    increment_std
+        Standard deviation of one increment (value units per step), ``>= 0``.
+    cutoff_hz
+        Cut-off of the increments' low-pass filter (Hz), between ``1/duration`` and
+        the Nyquist frequency ``1/(2 h)``.
+    duration
+        Length of the generated walk (s), > 0.
+    seed
+        Non-negative integer seed of :func:`numpy.random.default_rng`.
+    dt
+        Largest grid step (s), in ``(0, duration]``; default 1/600 s (the paper's).
+    lower, upper
+        Optional reflecting bounds, ``lower < upper``.
+
+    """
+
+    kind: ClassVar[str] = "band_limited_random_walk"
+    initial: float
+    increment_std: float
+    cutoff_hz: float
+    duration: float
+    seed: int
+    dt: float = 1.0 / 600.0
+    lower: float | None = None
+    upper: float | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "cutoff_hz", check_positive("cutoff_hz", self.cutoff_hz))
+        _check_walk(self, "increment_std")
+        h = self.duration / _walk_steps(self)
+        if not 1.0 / self.duration <= self.cutoff_hz <= 0.5 / h:
+            raise ValueError(
+                f"cutoff_hz must lie in [{1.0 / self.duration:g}, {0.5 / h:g}] Hz (from one "
+                f"cycle per duration to the Nyquist frequency of the grid), got {self.cutoff_hz!r}"
+            )
+
+    @cached_property
+    def grid(self) -> tuple[FloatArray, FloatArray]:
+        """Generation grid times (s) and walk values there, both shape ``(n + 1,)``."""
+        from manualcontrol.envs.signals import band_limited_noise
+
+        steps = _walk_steps(self)
+        h = self.duration / steps
+        if steps < 2 or self.increment_std == 0.0:
+            return _walk_grid(self, np.zeros(steps))
+        rng = np.random.default_rng(self.seed)
+        return _walk_grid(
+            self, band_limited_noise(steps, h, self.cutoff_hz, self.increment_std, rng)
+        )
+
+    def _evaluate(self, t: FloatArray) -> FloatArray:
+        times, values = self.grid
+        return np.interp(t, times, values)
+
+    def describe(self) -> str:  # noqa: D102
+        return (
+            f"band-limited random walk(from {_g(self.initial)}, {_g(self.increment_std)} per "
+            f"step of {_g(self.duration / _walk_steps(self))} s below {_g(self.cutoff_hz)} Hz, "
+            f"seed {self.seed}{_describe_bounds(self)})"
         )
 
 
@@ -556,5 +656,16 @@ def as_schedule(value: Schedule | float) -> Schedule:
 
 
 _KINDS: dict[str, type[Schedule]] = {
-    cls.kind: cls for cls in (Constant, Sigmoid, Sine, Step, Ramp, RandomWalk, Sum, Sequence)
+    cls.kind: cls
+    for cls in (
+        Constant,
+        Sigmoid,
+        Sine,
+        Step,
+        Ramp,
+        RandomWalk,
+        BandLimitedRandomWalk,
+        Sum,
+        Sequence,
+    )
 }

@@ -10,11 +10,12 @@ Time in seconds, frequencies in rad/s, float64 throughout.
   (random-phase candidates selected by crest factor, thesis App. H.4.4) and
   :func:`interleaved_harmonics` (disturbance on harmonics adjacent to the target's,
   thesis Sec. IV-B).
-* :class:`ForcingPair` -- a target and a disturbance multisine that belong together.
+* :class:`ForcingPair` -- a target and a disturbance (multisines or band-limited noise)
+  that belong together.
 * :class:`SampledSignal` -- a forcing function given as samples, read with bicubic
   interpolation (Boer & Kenyon 1998, Appendix).
 * :func:`band_limited_noise` -- ideal FFT low-pass of Gaussian noise (Boer & Kenyon
-  1998, Sec. IV-A).
+  1998, Sec. IV-A), and :class:`BandLimitedNoise`, a seeded forcing function made of it.
 * Presets: :func:`forcing_preset` by name, see :data:`FORCING_PRESETS`.
 
 Anything with ``__call__(t)`` and ``derivative(t)`` is a :class:`ForcingFunction`.
@@ -28,7 +29,7 @@ import importlib.resources
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -47,6 +48,7 @@ from manualcontrol.envs._validation import (
 
 __all__ = [
     "FORCING_PRESETS",
+    "BandLimitedNoise",
     "ForcingFunction",
     "ForcingPair",
     "Multisine",
@@ -570,9 +572,10 @@ class ForcingPair:
     Parameters
     ----------
     target
-        ``ft``, the signal the controlled element should follow, or None (zero).
+        ``ft``, the signal the controlled element should follow, or None (zero): a
+        :class:`Multisine` or a :class:`BandLimitedNoise`.
     disturbance
-        ``fd``, added at the controlled-element output, or None (zero).
+        ``fd``, added at the controlled-element output, or None (zero); the same kinds.
     name
         Preset or design name, for logs and saved results.
     realisation
@@ -580,16 +583,18 @@ class ForcingPair:
 
     """
 
-    target: Multisine | None
-    disturbance: Multisine | None
+    target: Multisine | BandLimitedNoise | None
+    disturbance: Multisine | BandLimitedNoise | None
     name: str = "custom"
     realisation: int = 0
 
     def __post_init__(self) -> None:
         for field in ("target", "disturbance"):
             value = getattr(self, field)
-            if value is not None and not isinstance(value, Multisine):
-                raise TypeError(f"{field} must be a Multisine or None, got {value!r}")
+            if value is not None and not isinstance(value, (Multisine, BandLimitedNoise)):
+                raise TypeError(
+                    f"{field} must be a Multisine, a BandLimitedNoise or None, got {value!r}"
+                )
         if not isinstance(self.name, str) or not self.name:
             raise TypeError(f"name must be a non-empty string, got {self.name!r}")
         object.__setattr__(
@@ -622,9 +627,13 @@ class ForcingPair:
             "ForcingPair.from_dict", items, ("name", "realisation", "target", "disturbance")
         )
 
-        def signal(key: str) -> Multisine | None:
+        def signal(key: str) -> Multisine | BandLimitedNoise | None:
             value = items.get(key)
-            return None if value is None else Multisine.from_dict(value)
+            if value is None:
+                return None
+            if isinstance(value, Mapping) and value.get("kind") == BandLimitedNoise.kind:
+                return BandLimitedNoise.from_dict(value)
+            return Multisine.from_dict(value)
 
         return cls(
             signal("target"),
@@ -755,6 +764,130 @@ def band_limited_noise(
     return noise * (std / np.std(noise))
 
 
+@dataclass(frozen=True, eq=False)
+class BandLimitedNoise:
+    """A forcing function of seeded band-limited Gaussian noise, periodic over ``duration``.
+
+    One realisation of :func:`band_limited_noise` (ideal FFT low-pass, Boer & Kenyon
+    1998, Sec. IV-A) on the grid ``k dt``, ``k = 0 .. round(duration/dt) - 1``, drawn
+    from ``numpy.random.default_rng(seed)``. The inverse FFT makes the samples one period
+    of a periodic signal, so the noise repeats every ``duration`` without a jump and is
+    read at any time, and differentiated, by the periodic bicubic interpolation of
+    :class:`SampledSignal` (exact at the grid points). Its variance over one period is
+    exactly ``std**2``; ``measurement_time`` is the period, so environments and
+    simulations measure one period by default, as with a multisine.
+
+    Parameters
+    ----------
+    cutoff_hz
+        Cut-off frequency (Hz), between ``1/duration`` and the Nyquist frequency of ``dt``.
+    std
+        Standard deviation (>= 0).
+    duration
+        Period (s), > 0.
+    seed
+        Non-negative integer seed.
+    dt
+        Grid step (s), > 0; finer than the sample times it is read at keeps the
+        interpolation error small (0.01 s: 2e-4 of the signal at 1 Hz).
+
+    """
+
+    kind: ClassVar[str] = "band_limited_noise"
+    cutoff_hz: float
+    std: float
+    duration: float
+    seed: int
+    dt: float = 0.01
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "std", check_positive("std", self.std, allow_zero=True))
+        object.__setattr__(self, "duration", check_positive("duration", self.duration))
+        object.__setattr__(self, "seed", check_int("seed", self.seed, minimum=0))
+        object.__setattr__(self, "dt", check_positive("dt", self.dt))
+        count = round(self.duration / self.dt)
+        if count < 2 or abs(count * self.dt - self.duration) > 1e-9 * self.duration:
+            raise ValueError(
+                f"duration must be a whole number (>= 2) of dt = {self.dt!r} s steps, "
+                f"got duration = {self.duration!r} s"
+            )
+        object.__setattr__(
+            self,
+            "cutoff_hz",
+            check_range("cutoff_hz", self.cutoff_hz, 1.0 / self.duration, 0.5 / self.dt),
+        )
+
+    @functools.cached_property
+    def signal(self) -> SampledSignal:
+        """The samples of one period as a periodic :class:`SampledSignal`."""
+        rng = np.random.default_rng(self.seed)
+        values = band_limited_noise(
+            round(self.duration / self.dt), self.dt, self.cutoff_hz, self.std, rng
+        )
+        return SampledSignal(values, self.dt, 0.0, periodic=True)
+
+    def __call__(self, t: ArrayLike) -> float | FloatArray:
+        """Value at time(s) ``t`` (s)."""
+        return self.signal(t)
+
+    def derivative(self, t: ArrayLike) -> float | FloatArray:
+        """Time derivative (per second) at time(s) ``t``."""
+        return self.signal.derivative(t)
+
+    @property
+    def measurement_time(self) -> float:
+        """The period ``duration`` (s)."""
+        return self.duration
+
+    @property
+    def variance(self) -> float:
+        """``std**2``: the variance of the samples over one period."""
+        return self.std**2
+
+    def scaled(self, factor: float) -> BandLimitedNoise:
+        """The same realisation multiplied by ``factor`` (> 0)."""
+        factor = check_positive("factor", factor)
+        return dataclasses.replace(self, std=self.std * factor)
+
+    def _key(self) -> tuple[Any, ...]:
+        return (self.cutoff_hz, self.std, self.duration, self.seed, self.dt)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, BandLimitedNoise):
+            return NotImplemented
+        return self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash(self._key())
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (type(self), self._key())
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able description; :meth:`from_dict` rebuilds an equal signal."""
+        return {
+            "kind": self.kind,
+            "cutoff_hz": self.cutoff_hz,
+            "std": self.std,
+            "duration": self.duration,
+            "seed": self.seed,
+            "dt": self.dt,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> BandLimitedNoise:
+        """Inverse of :meth:`to_dict`; unknown keys or another ``kind`` raise."""
+        items = dict(data)
+        check_choice("BandLimitedNoise.from_dict kind", items.pop("kind", None), (cls.kind,))
+        reject_unknown(
+            "BandLimitedNoise.from_dict", items, ("cutoff_hz", "std", "duration", "seed", "dt")
+        )
+        missing = [key for key in ("cutoff_hz", "std", "duration", "seed") if key not in items]
+        if missing:
+            raise TypeError(f"BandLimitedNoise.from_dict is missing key(s) {', '.join(missing)}")
+        return cls(**items)
+
+
 # -------------------------------------------------------------------------- presets
 
 _PLAETINCK_FILE = "data/plaetinck2018-multisine.csv"
@@ -814,11 +947,42 @@ def _preset_schiess_roland1975() -> tuple[ForcingPair, ...]:
     return (ForcingPair(Multisine.sine(0.25, 1.0), None, "schiess-roland1975", 0),)
 
 
+#: Realisations of the Boer-Kenyon noise presets (seeds ``_BOER_KENYON_SEED + i``).
+_BOER_KENYON_REALISATIONS = 10
+_BOER_KENYON_SEED = 1998
+
+
+def _boer_kenyon_pairs(
+    name: str, cutoff_hz: float, std: float, dt: float, *, disturbance: bool = False
+) -> tuple[ForcingPair, ...]:
+    pairs = []
+    for index in range(_BOER_KENYON_REALISATIONS):
+        noise = BandLimitedNoise(cutoff_hz, std, 120.0, _BOER_KENYON_SEED + index, dt)
+        target, other = (None, noise) if disturbance else (noise, None)
+        pairs.append(ForcingPair(target, other, name, index))
+    return tuple(pairs)
+
+
+def _preset_boer_kenyon1998() -> tuple[ForcingPair, ...]:
+    return _boer_kenyon_pairs("boer-kenyon1998", 1.0, 2.0, 1.0 / 600.0)
+
+
+def _preset_boer_kenyon1998_postview() -> tuple[ForcingPair, ...]:
+    return _boer_kenyon_pairs("boer-kenyon1998-postview", 0.6, 2.0, 0.01)
+
+
+def _preset_boer_kenyon1998_critical() -> tuple[ForcingPair, ...]:
+    return _boer_kenyon_pairs("boer-kenyon1998-critical", 1.0, 2.0 / 100.0, 0.01, disturbance=True)
+
+
 _PRESET_BUILDERS: dict[str, Callable[[], tuple[ForcingPair, ...]]] = {
     "vanderel-bw4": _preset_vanderel_bw4,
     "popovici2017": _preset_popovici2017,
     "schiess-roland1975": _preset_schiess_roland1975,
     "plaetinck2018": _preset_plaetinck2018,
+    "boer-kenyon1998": _preset_boer_kenyon1998,
+    "boer-kenyon1998-postview": _preset_boer_kenyon1998_postview,
+    "boer-kenyon1998-critical": _preset_boer_kenyon1998_critical,
 }
 
 #: Names accepted by :func:`forcing_preset`.
@@ -859,6 +1023,18 @@ def forcing_preset(name: str, realisation: int = 0) -> ForcingPair:
     ``"plaetinck2018"``
         The real 10-sine table of Plaetinck et al. (2018), ``T_m = 81.92`` s, phases as
         published, frequencies ``nf 2π/81.92`` from the integer column; 1 realisation.
+    ``"boer-kenyon1998"``
+        Target only: the input ``r`` of Boer & Kenyon's simulation (Sec. IV-A), Gaussian
+        noise through an ideal 1.0-Hz low-pass, standard deviation 2.0
+        (:class:`BandLimitedNoise`, 120-s period on a 1/600-s grid, the paper's
+        simulation rate); 10 realisations (seeds 1998-2007).
+    ``"boer-kenyon1998-postview"``
+        Target only: the gap-postview track (Sec. V-A), the same kind of signal at
+        0.6 Hz (the paper replayed its 1.0-Hz signal, made for 60 Hz, at 36 Hz),
+        standard deviation 2.0, 0.01-s grid; 10 realisations.
+    ``"boer-kenyon1998-critical"``
+        Disturbance only: the critical tracking task's (Sec. VI-A), the 1.0-Hz signal
+        divided by 100 (standard deviation 0.02), 0.01-s grid; 10 realisations.
 
     Seeds are fixed and every draw uses :func:`numpy.random.default_rng`, so every user
     and process gets identical numbers.

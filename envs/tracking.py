@@ -77,6 +77,13 @@ from manualcontrol.envs._validation import (
 from manualcontrol.envs.elements import ControlledElement, UnstableFirstOrder, make_element
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair, forcing_preset, preset_realisation_count
+from manualcontrol.envs.tasks import (
+    available_preview_for,
+    measurement_time_for,
+    resolve_forcing,
+    sample_counts,
+    task_metadata,
+)
 
 __all__ = [
     "REWARDS",
@@ -168,36 +175,17 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
                 "or PreviewTracking"
             )
         self.element = make_element(controlled_element)
-        if isinstance(forcing, str):
-            self._preset: str | None = forcing
-            self._realisations = preset_realisation_count(forcing)
-            forcing_pair = forcing_preset(forcing, 0)
-        elif isinstance(forcing, ForcingPair):
-            self._preset = None
-            self._realisations = 1
-            forcing_pair = forcing
-        else:
-            raise TypeError(f"forcing must be a preset name or a ForcingPair, got {forcing!r}")
+        forcing_pair = resolve_forcing(forcing)
+        self._preset: str | None = forcing if isinstance(forcing, str) else None
+        self._realisations = preset_realisation_count(forcing) if self._preset else 1
         if realisation is not None:
             realisation = self.check_realisation(realisation)
         self._forcing = forcing_pair
         self.realisation = realisation
         self.dt = check_positive("dt", dt)
-        if measurement_time is None:
-            signal = forcing_pair.target or forcing_pair.disturbance
-            measurement_time = getattr(signal, "measurement_time", None) or 120.0
-        self.measurement_time = check_positive("measurement_time", measurement_time)
+        self.measurement_time = measurement_time_for(forcing_pair, measurement_time)
         self.run_in = check_positive("run_in", run_in, allow_zero=True)
-        if self.task == "preview":
-            preview = 1.0 if available_preview is None else available_preview
-            self.available_preview = check_positive("available_preview", preview, allow_zero=True)
-        elif available_preview not in (None, 0, 0.0):
-            raise ValueError(
-                f"available_preview must be 0 (or omitted) in a {self.task} task, "
-                f"got {available_preview!r}"
-            )
-        else:
-            self.available_preview = 0.0
+        self.available_preview = available_preview_for(self.task, available_preview)
         self.action_bound = check_positive("action_bound", action_bound)
         self.reward_kind = check_choice("reward", reward, REWARDS)
         self.effort_weight = check_positive("effort_weight", effort_weight, allow_zero=True)
@@ -217,8 +205,9 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         check_duration("measurement_time", self.measurement_time, self.dt)
         # "human" mode plays one frame per sample, in real time
         self.metadata = {**type(self).metadata, "render_fps": 1.0 / self.dt}
-        self.n_run_in = round(self.run_in / self.dt)
-        self.episode_steps = self.n_run_in + round(self.measurement_time / self.dt)
+        self.n_run_in, self.episode_steps = sample_counts(
+            self.dt, self.run_in, self.measurement_time
+        )
         self.preview_window = round(self.available_preview / self.dt) + 1
         self.time_origin = -self.n_run_in * self.dt
         self._time = self.time_origin + np.arange(self.episode_steps + 1) * self.dt
@@ -282,6 +271,13 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
             self._gamma_row = tuple(float(v) for v in self._gamma)
             self._c_row = tuple(float(v) for v in self._c)
             self._d_value = float(self._d)
+
+    @property
+    def times(self) -> FloatArray:
+        """Time of every observation of an episode, ``t_k = (k - n_run_in) dt`` (read-only)."""
+        view = self._time.view()
+        view.setflags(write=False)
+        return view
 
     def check_realisation(self, realisation: Any) -> int:
         """``realisation`` as a valid index of this environment's forcing, or raise."""
@@ -354,12 +350,19 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         self._u[k] = u
         x = self._x
         if self._constant_info is not None:
-            gamma = self._gamma_row
-            x = [
-                sum(p * v for p, v in zip(row, x, strict=True)) + g * u
-                for row, g in zip(self._phi_rows, gamma, strict=True)
-            ]
-            y = sum(c * v for c, v in zip(self._c_row, x, strict=True)) + self._d_value * u
+            # plain float loops: for the few states of an element, generator sums cost
+            # three times as much (the same additions, in the same order)
+            advanced = []
+            for row, g in zip(self._phi_rows, self._gamma_row, strict=True):
+                acc = 0.0
+                for p, v in zip(row, x, strict=True):
+                    acc += p * v
+                advanced.append(acc + g * u)
+            x = advanced
+            acc = 0.0
+            for c, v in zip(self._c_row, x, strict=True):
+                acc += c * v
+            y = acc + self._d_value * u
         else:
             i = k if self._phi.ndim == 3 else 0
             x = (self._phi[i] @ np.asarray(x) + self._gamma[i] * u).tolist()
@@ -463,14 +466,14 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
             dt=self.dt,
             parameters=parameters,
             metadata={
-                "task": self.task,
-                "controlled_element": self.element.to_dict(),
-                "forcing": self.forcing.to_dict(),
-                "forcing_name": self.forcing.name,
-                "realisation": self.forcing.realisation,
-                "available_preview": self.available_preview,
-                "run_in": self.run_in,
-                "measurement_time": self.measurement_time,
+                **task_metadata(
+                    self.task,
+                    self.element,
+                    self.forcing,
+                    self.available_preview,
+                    self.run_in,
+                    self.measurement_time,
+                ),
                 "dt": self.dt,
                 "clipped_actions": self._clipped,
                 "source": f"manualcontrol.envs.tracking.{type(self).__name__}",

@@ -15,6 +15,7 @@ from manualcontrol.estimators.metrics import (
     innovation_fractions,
     moving_vaf,
     nrmse,
+    observability_gramian,
     relative_bias,
     resimulate,
     vaf,
@@ -27,10 +28,13 @@ from manualcontrol.estimators.protocol import (
     HealthSummary,
     load_result,
 )
+from manualcontrol.estimators.rdi import RDI, RDISettings
 from manualcontrol.estimators.registry import ESTIMATORS, EstimatorEntry, make_estimator
 from manualcontrol.estimators.rml import RML, RMLSettings
+from manualcontrol.estimators.schiess_roland import SchiessRoland, SchiessRolandSettings
 from manualcontrol.estimators.smoothing import smooth
 from manualcontrol.estimators.ukf import DualUKF, DualUKFSettings, JointUKF, UKFSettings
+from manualcontrol.estimators.zhao_ukf import MultiUKF, MultiUKFSettings, ZhaoUKF, ZhaoUKFSettings
 
 # after every member: the offline (smoothed) variants of the registered estimators
 from manualcontrol.estimators import smoothed as _smoothed  # noqa: F401  isort: skip
@@ -38,6 +42,7 @@ from manualcontrol.estimators import smoothed as _smoothed  # noqa: F401  isort:
 __all__ = [
     "DEKF",
     "ESTIMATORS",
+    "RDI",
     "RML",
     "DEKFSettings",
     "DualUKF",
@@ -51,9 +56,16 @@ __all__ = [
     "HealthSummary",
     "InternalModel",
     "JointUKF",
+    "MultiUKF",
+    "MultiUKFSettings",
+    "RDISettings",
     "RMLSettings",
     "ResolvedSettings",
+    "SchiessRoland",
+    "SchiessRolandSettings",
     "UKFSettings",
+    "ZhaoUKF",
+    "ZhaoUKFSettings",
     "build_internal_model",
     "evaluate",
     "innovation_fractions",
@@ -61,6 +73,7 @@ __all__ = [
     "make_estimator",
     "moving_vaf",
     "nrmse",
+    "observability_gramian",
     "relative_bias",
     "resimulate",
     "smooth",

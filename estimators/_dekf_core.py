@@ -60,6 +60,7 @@ from manualcontrol.estimators._pilot_core import (
 from manualcontrol.estimators.filters.kalman import clamp, joseph_correct
 from manualcontrol.estimators.filters.linalg import symmetrise
 from manualcontrol.estimators.filters.monitor import belief_health
+from manualcontrol.estimators.filters.smoothers import store_belief
 from manualcontrol.estimators.internal_model import evaluate_coefficients, model_f, model_g
 
 #: Settings as arrays: ``cfg`` (``CFG_*`` of :mod:`~manualcontrol.estimators._pilot_core`),
@@ -167,16 +168,6 @@ def _apply_phi_transpose(F, is_dense, n_c, dt, src, dst):
 
 
 @numba.njit(cache=True, _nrt=False)
-def _store(row, x, P, target_x, target_P):
-    if target_x.shape[0] == 0:
-        return
-    for i in range(x.shape[0]):
-        target_x[row, i] = x[i]
-        for j in range(x.shape[0]):
-            target_P[row, i, j] = P[i, j]
-
-
-@numba.njit(cache=True, _nrt=False)
 def _store_phi(out, row, F, is_dense, n_c, dt, k):
     """``Phi_s`` of this sample's prediction (identity on the gains; identity at k = 0)."""
     Phi = out.Phi
@@ -222,10 +213,10 @@ def dekf_step(model, config, belief, monitor, report, scratch, inputs_k, u_k, e_
     dropped = inputs_in_use(inputs_k, u_k, prev_in, in_use)
 
     if sc[SC_FROZEN] > 0.0:
-        _store(row, x, P, out.x_prior, out.P_prior)
-        _store(row, x, P, out.x_post, out.P_post)
-        _store(row, th, Pp, out.th_prior, out.Pp_prior)
-        _store(row, th, Pp, out.th_post, out.Pp_post)
+        store_belief(row, x, P, out.x_prior, out.P_prior)
+        store_belief(row, x, P, out.x_post, out.P_post)
+        store_belief(row, th, Pp, out.th_prior, out.Pp_prior)
+        store_belief(row, th, Pp, out.th_post, out.Pp_post)
         _store_phi(out, row, F, config.is_dense, n_c, dt, 0)
         report_frozen(sc, monitor, prev_in, in_use, dropped, row, out)
         return
@@ -261,8 +252,8 @@ def dekf_step(model, config, belief, monitor, report, scratch, inputs_k, u_k, e_
         for i in range(n_s):
             for t in range(n_t):
                 dxm[i, t] = dx[i, t]
-    _store(row, x, P, out.x_prior, out.P_prior)
-    _store(row, th, Pp, out.th_prior, out.Pp_prior)
+    store_belief(row, x, P, out.x_prior, out.P_prior)
+    store_belief(row, th, Pp, out.th_prior, out.Pp_prior)
     _store_phi(out, row, F, config.is_dense, n_c, dt, k)
 
     # ---- output equation at x^-_k, theta^-_k
@@ -315,8 +306,8 @@ def dekf_step(model, config, belief, monitor, report, scratch, inputs_k, u_k, e_
         for i in range(n_s):
             for t in range(n_t):
                 dx[i, t] = dxm[i, t] - K[i, 0] * Ht[0, t]
-    _store(row, x, P, out.x_post, out.P_post)
-    _store(row, th, Pp, out.th_post, out.Pp_post)
+    store_belief(row, x, P, out.x_post, out.P_post)
+    store_belief(row, th, Pp, out.th_post, out.Pp_post)
 
     for i in range(prev_in.shape[0]):
         prev_in[i] = in_use[i]

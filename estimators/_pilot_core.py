@@ -75,7 +75,7 @@ PilotReport = namedtuple("PilotReport", ["lo", "hi", "offset", "sign"])
 PilotOutput = namedtuple("PilotOutput", ["mean", "std", "scalar", "flag", "pinned"])
 
 
-@numba.njit(cache=True, _nrt=False)
+@numba.njit(cache=True, _nrt=False, inline="always")
 def noise_levels(cfg, sc, monitor, u_k, e_k):
     """Push the sample into the variance windows; return ``(R, R_parameter, q_error)``."""
     k = int(sc[SC_K])
@@ -95,7 +95,7 @@ def noise_levels(cfg, sc, monitor, u_k, e_k):
     return R, R_p, q_error
 
 
-@numba.njit(cache=True, _nrt=False)
+@numba.njit(cache=True, _nrt=False, inline="always")
 def inputs_in_use(inputs_k, u_k, prev_in, in_use):
     """Inputs used this sample (a dropped one holds its last value); True if dropped."""
     dropped = np.isnan(u_k)
@@ -127,7 +127,7 @@ def report_frozen(sc, monitor, prev_in, in_use, dropped, row, out):
     sc[SC_K] = sc[SC_K] + 1
 
 
-@numba.njit(cache=True, _nrt=False)
+@numba.njit(cache=True, _nrt=False, inline="always")
 def report_row(
     sc, monitor, report, p, variance, estimated, finite, cov_ok, dropped, scalars, row, out
 ):

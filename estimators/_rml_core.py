@@ -71,10 +71,10 @@ from manualcontrol.estimators._pilot_core import (
     report_frozen,
     report_row,
 )
-from manualcontrol.estimators._ukf_core import _store
 from manualcontrol.estimators.filters.kalman import predict_covariance
 from manualcontrol.estimators.filters.linalg import cholesky, cholesky_solve_rows, symmetrise
 from manualcontrol.estimators.filters.monitor import window_variance
+from manualcontrol.estimators.filters.smoothers import store_belief
 from manualcontrol.estimators.internal_model import evaluate_coefficients, model_f, model_g
 
 #: Delay lines of the raw inputs: ``hist`` (n_in, H) ring of past samples (index
@@ -449,8 +449,8 @@ def bank_step(model, config, lines, belief, monitor, report, s, inputs_k, u_k, e
     for i in range(in_use.shape[0]):
         lines.hist[i, k % size] = in_use[i]
     if sc[SC_FROZEN] > 0.0:
-        _store(row, th, P, out.th_prior, out.P_prior)
-        _store(row, th, P, out.th_post, out.P_post)
+        store_belief(row, th, P, out.th_prior, out.P_prior)
+        store_belief(row, th, P, out.th_post, out.P_post)
         report_frozen(sc, monitor, prev_in, in_use, dropped, row, out)
         return
     gamma2 = cfg[CFG_GAMMA2]
@@ -462,7 +462,7 @@ def bank_step(model, config, lines, belief, monitor, report, s, inputs_k, u_k, e
         for a in range(n_t):
             if k >= config.noise_first or config.slot[a] < 0:
                 P[a, a] += config.q[a] * gamma2
-    _store(row, th, P, out.th_prior, out.P_prior)
+    store_belief(row, th, P, out.th_prior, out.P_prior)
     for j in range(p.shape[0]):
         s.point_p[j] = p[j]
     ok = _bank_points(config, belief, s)
@@ -471,7 +471,7 @@ def bank_step(model, config, lines, belief, monitor, report, s, inputs_k, u_k, e
             _member_step(model, config, lines, belief, s, i, k, u_k, R, q_error, dropped, k > 0)
         if not dropped and anchored:
             ok = _update_parameters(config, belief, s, u_k, k)
-    _store(row, th, P, out.th_post, out.P_post)
+    store_belief(row, th, P, out.th_post, out.P_post)
     for i in range(prev_in.shape[0]):
         prev_in[i] = in_use[i]
 

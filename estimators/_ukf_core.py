@@ -70,6 +70,7 @@ from manualcontrol.estimators._pilot_core import (
 )
 from manualcontrol.estimators.filters.kalman import clamp
 from manualcontrol.estimators.filters.monitor import belief_health
+from manualcontrol.estimators.filters.smoothers import store_belief
 from manualcontrol.estimators.filters.unscented import (
     constrain_prior,
     cross_covariance,
@@ -132,16 +133,6 @@ UKFOutput = namedtuple(
         "P_post_2",
     ],
 )
-
-
-@numba.njit(cache=True, _nrt=False)
-def _store(row, x, P, target_x, target_P):
-    if target_x.shape[0] == 0:
-        return
-    for i in range(x.shape[0]):
-        target_x[row, i] = x[i]
-        for j in range(x.shape[0]):
-            target_P[row, i, j] = P[i, j]
 
 
 @numba.njit(cache=True, _nrt=False)
@@ -216,8 +207,8 @@ def joint_step(model, config, belief, monitor, report, scratch, inputs_k, u_k, e
     R, _, q_error = noise_levels(cfg, sc, monitor, u_k, e_k)
     dropped = inputs_in_use(inputs_k, u_k, prev_in, in_use)
     if sc[SC_FROZEN] > 0.0:
-        _store(row, z, P, out.x_prior, out.P_prior)
-        _store(row, z, P, out.x_post, out.P_post)
+        store_belief(row, z, P, out.x_prior, out.P_prior)
+        store_belief(row, z, P, out.x_post, out.P_post)
         report_frozen(sc, monitor, prev_in, in_use, dropped, row, out)
         return
 
@@ -247,7 +238,7 @@ def joint_step(model, config, belief, monitor, report, scratch, inputs_k, u_k, e
                 for i in range(n):
                     for j in range(n):
                         out.cross[row, i, j] = scratch.cross[i, j]
-    _store(row, z, P, out.x_prior, out.P_prior)
+    store_belief(row, z, P, out.x_prior, out.P_prior)
 
     # ---- output: sigma points of z^-_k through g
     prediction = np.nan
@@ -274,7 +265,7 @@ def joint_step(model, config, belief, monitor, report, scratch, inputs_k, u_k, e
                 z, P, scratch.r, work.Cxz, work.S, work.LS, work.K, work.log_det, cfg[CFG_JITTER]
             )
             clamp(z, config.limit, report.lo, report.hi)
-    _store(row, z, P, out.x_post, out.P_post)
+    store_belief(row, z, P, out.x_post, out.P_post)
     for i in range(prev_in.shape[0]):
         prev_in[i] = in_use[i]
 
@@ -466,10 +457,10 @@ def dual_step(model, config, belief, monitor, report, scratch, theta, inputs_k, 
     R, R_p, q_error = noise_levels(cfg, sc, monitor, u_k, e_k)
     dropped = inputs_in_use(inputs_k, u_k, prev_in, in_use)
     if sc[SC_FROZEN] > 0.0:
-        _store(row, s_mean, P, out.x_prior, out.P_prior)
-        _store(row, s_mean, P, out.x_post, out.P_post)
-        _store(row, th, Pp, out.x_prior_2, out.P_prior_2)
-        _store(row, th, Pp, out.x_post_2, out.P_post_2)
+        store_belief(row, s_mean, P, out.x_prior, out.P_prior)
+        store_belief(row, s_mean, P, out.x_post, out.P_post)
+        store_belief(row, th, Pp, out.x_prior_2, out.P_prior_2)
+        store_belief(row, th, Pp, out.x_post_2, out.P_post_2)
         report_frozen(sc, monitor, prev_in, in_use, dropped, row, out)
         return
 
@@ -481,7 +472,7 @@ def dual_step(model, config, belief, monitor, report, scratch, theta, inputs_k, 
         # ---- parameter prediction: random walk
         for t in range(n_t):
             Pp[t, t] += tc.q[t] * gamma2
-    _store(row, th, Pp, out.x_prior_2, out.P_prior_2)
+    store_belief(row, th, Pp, out.x_prior_2, out.P_prior_2)
     # ---- parameter sigma directions and the state sensitivity along them
     with_theta = n_t > 0 and k > 0
     if with_theta:
@@ -526,7 +517,7 @@ def dual_step(model, config, belief, monitor, report, scratch, theta, inputs_k, 
                 for i in range(n):
                     for j in range(n):
                         out.cross[row, i, j] = scratch.cross[i, j]
-    _store(row, s_mean, P, out.x_prior, out.P_prior)
+    store_belief(row, s_mean, P, out.x_prior, out.P_prior)
 
     # ---- parameter images: the output along the sigma directions, states moving with theta
     if with_theta and ok:
@@ -591,8 +582,8 @@ def dual_step(model, config, belief, monitor, report, scratch, theta, inputs_k, 
                 th, Pp, scratch.r, tw.Cxz, tw.S, tw.LS, tw.K, tw.log_det, cfg[CFG_JITTER]
             )
             clamp(th, tc.limit, report.lo, report.hi)
-    _store(row, s_mean, P, out.x_post, out.P_post)
-    _store(row, th, Pp, out.x_post_2, out.P_post_2)
+    store_belief(row, s_mean, P, out.x_post, out.P_post)
+    store_belief(row, th, Pp, out.x_post_2, out.P_post_2)
     for i in range(prev_in.shape[0]):
         prev_in[i] = in_use[i]
 

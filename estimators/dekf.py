@@ -209,8 +209,8 @@ class DEKF(PilotFilter):
             R_state=np.zeros((1, 1)),
             R_theta=np.zeros((1, 1)),
             r=np.zeros(1),
-            state_work=kalman_work(n_s, 1),
-            theta_work=kalman_work(n_t, 1),
+            state_work=kalman_work(n_s, 1, log_det=False),
+            theta_work=kalman_work(n_t, 1, log_det=False),
             dxm=np.zeros((n_s, n_t)),
             in_use=np.zeros(n_in),
             variance=np.zeros(n_p),
@@ -242,7 +242,7 @@ class DEKF(PilotFilter):
         )
 
     def _step(self, inputs: Any, u: float, e: float, out: core.DEKFOutput) -> None:
-        core.dekf_step(*self._records, inputs, u, e, 0, out)
+        self._call_step(core.dekf_step, (*self._records, inputs, u, e, 0, out))
 
     def _run(self, inputs: Any, u: Any, e: Any, out: core.DEKFOutput) -> None:
         core.dekf_run(*self._records, inputs, u, e, out)

@@ -353,7 +353,9 @@ def _recover_monomials(
     return monomials
 
 
-def build_internal_model(model: str | PilotModel, delay_order: int = 3) -> InternalModel:
+def build_internal_model(
+    model: str | PilotModel, delay_order: int = 3, *, pursuit: bool = False
+) -> InternalModel:
     """Build the internal model of a pilot structure.
 
     Parameters
@@ -364,12 +366,17 @@ def build_internal_model(model: str | PilotModel, delay_order: int = 3) -> Inter
         ``"schiess-roland"``.
     delay_order
         Padé order (>= 1) of the model delay and of the anticipation delay ``tau_f*``;
-        3 as in Popovici et al. and the thesis. A branch fed by ``ft_far`` is always
-        fed the anticipated target through ``exp(-tau_f* s)`` (thesis eq. 26).
-        ``0`` leaves both delays out of the model: its inputs are then the perceptions
-        already delayed by the model delay (and ``ft_ahead`` by ``tau_f*`` besides), for
-        filters that read them from delay lines (the delays commute with the
-        model's linear branches); the delay parameters then enter no coefficient.
+        3 as in Popovici et al. and the thesis. A branch fed by ``ft_far`` is fed the
+        anticipated target through ``exp(-tau_f* s)`` (thesis eq. 26) unless
+        ``pursuit`` (below). ``0`` leaves both delays out of the model: its inputs are
+        then the perceptions already delayed by the model delay (and ``ft_ahead`` by
+        ``tau_f*`` besides), for filters that read them from delay lines (the delays
+        commute with the model's linear branches); the delay parameters then enter no
+        coefficient.
+    pursuit
+        A pursuit display shows the current target and nothing ahead (the preview
+        model with ``tau_f = 0``, van der El's pursuit case), so the branch reads
+        ``ft`` itself, without the anticipation delay, and ``tau_f`` enters nowhere.
 
     Raises
     ------
@@ -444,15 +451,18 @@ def build_internal_model(model: str | PilotModel, delay_order: int = 3) -> Inter
     branch_input: list[int] = []
     for b, branch in enumerate(channel.branches):
         signal = INPUT_SIGNALS[branch.signal]
+        anticipating = branch.signal == "ft_far" and not pursuit
+        if branch.signal == "ft_far" and pursuit:
+            signal = "ft"
         if signal not in inputs:
             inputs.append(signal)
         chain_num.append(2 + 2 * b)
         chain_den.append(3 + 2 * b)
-        anticipates = branch.signal == "ft_far" and pade_degree > 0
+        anticipates = anticipating and pade_degree > 0
         chain_pade.append(names.index(ANTICIPATED_PARAMETER) if anticipates else -1)
         branch_chain.append(b + 1)
         branch_input.append(inputs.index(signal))
-    if anticipated and ANTICIPATED_PARAMETER not in names:
+    if anticipated and not pursuit and ANTICIPATED_PARAMETER not in names:
         raise ValueError(f"{model!r} reads ft_far but has no parameter {ANTICIPATED_PARAMETER}")
     num_length, den_length, sizes = [], [], []
     for num_slot, den_slot, pade_index in zip(chain_num, chain_den, chain_pade, strict=True):
@@ -711,7 +721,7 @@ def evaluate_coefficients(p, kernel):
                 C_grad[off + i, j] = b_grad - d_grad[c, j] * a + dc * negA_grad[off + i, j]
 
 
-@numba.njit(cache=True, _nrt=False)
+@numba.njit(cache=True, _nrt=False, inline="always")
 def model_f(x, inputs, kernel, f, F, dfdp, jacobians):
     """``f``; with ``jacobians`` also ``df/dx`` (shift rows are set too) and ``df/dp``.
 
@@ -764,7 +774,7 @@ def model_f(x, inputs, kernel, f, F, dfdp, jacobians):
         f[last] = acc
 
 
-@numba.njit(cache=True, _nrt=False)
+@numba.njit(cache=True, _nrt=False, inline="always")
 def model_g(x, inputs, kernel, dgdx, dgdp, jacobians):
     """``g`` (returned); with ``jacobians`` also ``dg/dx`` and ``dg/dp`` (written)."""
     chain_offset, chain_size = kernel.chain_offset, kernel.chain_size

@@ -64,6 +64,9 @@ Other metrics
   standard deviations (about 68 % and 95 % for a consistent filter); innovation
   whiteness: the lag-1 autocorrelation of the normalised innovations and the fraction
   of lags outside the white-noise band.
+* Observability Gramian of a discrete linear model ``(A, C)`` (Zhao et al. 2019 eq. 14):
+  how strongly each state direction shows in the outputs; any model, infinite or finite
+  horizon (:func:`observability_gramian`).
 """
 
 from __future__ import annotations
@@ -81,6 +84,7 @@ from manualcontrol.envs._validation import check_int, check_positive, check_real
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators._targets import target_function
 from manualcontrol.estimators.protocol import EstimationResult
+from manualcontrol.estimators.registry import ESTIMATORS
 from manualcontrol.pilots.models import PilotModel, make_model
 from manualcontrol.pilots.simulation import isolated_pilot_output
 
@@ -94,6 +98,7 @@ __all__ = [
     "innovation_whiteness",
     "moving_vaf",
     "nrmse",
+    "observability_gramian",
     "relative_bias",
     "resimulate",
     "resimulate_parameters",
@@ -191,6 +196,44 @@ def innovation_fractions(innovation: ArrayLike, variance: ArrayLike) -> tuple[fl
     return float(np.mean(magnitude <= sigma)), float(np.mean(magnitude <= 2.0 * sigma))
 
 
+def observability_gramian(A: ArrayLike, C: ArrayLike, horizon: int | None = None) -> FloatArray:
+    """Observability Gramian ``G_o = sum_{k<N} (A^T)^k C^T C A^k`` of ``x+ = A x, y = C x``.
+
+    Zhao et al. 2019 eq. 14 (their Algorithm 3 normalises the state process noise by
+    it, ``Q_x,d = (T_x G_o)^-1``). ``horizon=None`` is the infinite sum, the solution of
+    the discrete Lyapunov equation ``G = A^T G A + C^T C``, which exists when every
+    eigenvalue of ``A`` lies inside the unit circle; a finite ``horizon`` (samples)
+    sums that many terms and serves any ``A``. ``A`` (n, n), ``C`` (m, n); returns (n, n).
+    """
+    A = np.asarray(A, dtype=np.float64)
+    C = np.asarray(C, dtype=np.float64)
+    if A.ndim != 2 or A.shape[0] != A.shape[1]:
+        raise ValueError(f"A must be a square matrix, got shape {A.shape}")
+    if C.ndim != 2 or C.shape[1] != A.shape[0]:
+        raise ValueError(f"C must have shape (m, {A.shape[0]}), got {C.shape}")
+    if not (np.all(np.isfinite(A)) and np.all(np.isfinite(C))):
+        raise ValueError("A and C must be finite")
+    if horizon is None:
+        radius = float(np.max(np.abs(np.linalg.eigvals(A))))
+        if radius >= 1.0:
+            raise ValueError(
+                f"the infinite-horizon Gramian needs A stable (spectral radius < 1), got "
+                f"{radius:.6g}; pass a finite horizon"
+            )
+        import scipy.linalg
+
+        gramian = scipy.linalg.solve_discrete_lyapunov(A.T, C.T @ C)
+    else:
+        steps = check_int("horizon", horizon, minimum=1)
+        gramian = np.zeros_like(A)
+        power = np.eye(A.shape[0])
+        for _ in range(steps):
+            row = C @ power
+            gramian += row.T @ row
+            power = A @ power
+    return 0.5 * (gramian + gramian.T)
+
+
 # -------------------------------------------------------------------- resimulation
 
 
@@ -221,11 +264,19 @@ def innovation_whiteness(
 
 
 def _model_of(result: EstimationResult) -> PilotModel:
-    try:
-        name = result.settings["settings"]["model"]
-    except (KeyError, TypeError):
-        raise ValueError("the result's settings do not name its pilot model") from None
+    # pilot-filter results name the model among their settings; an estimator with a
+    # fixed model (Schiess-Roland) names it beside them
+    settings = result.settings
+    name = settings.get("model") or settings.get("settings", {}).get("model")
+    if not name:
+        raise ValueError("the result's settings do not name its pilot model")
     return make_model(name)
+
+
+def _has_pilot_model(result: EstimationResult) -> bool:
+    """Whether ``result`` is resimulated with a pilot model (not its estimator's own)."""
+    entry = ESTIMATORS.get(result.estimator)
+    return entry is None or entry.resimulate is None
 
 
 def _held(values: FloatArray) -> FloatArray:
@@ -334,7 +385,10 @@ def resimulate(
 
     The model structure of ``result`` (from its settings) with the parameters of every
     sample, in :func:`resimulate_parameters` (see there for ``remnant_free``,
-    ``delay_order``, ``forcing`` and ``target_period``).
+    ``delay_order``, ``forcing`` and ``target_period``). Estimators whose model is
+    their own (the RDI's ARMAX model) register a ``resimulate`` in
+    :mod:`~manualcontrol.estimators.registry`, used instead (against the recording as
+    it is; ``remnant_free`` is then refused).
     """
     if not isinstance(result, EstimationResult):
         raise TypeError(f"result must be an EstimationResult, got {result!r}")
@@ -344,6 +398,14 @@ def resimulate(
         raise ValueError(
             f"result and recording must have the same samples: {len(result)} != {len(recording)}"
         )
+    if not _has_pilot_model(result):
+        if remnant_free:
+            raise ValueError(
+                f"remnant_free = True needs a pilot model; {result.estimator!r} resimulates "
+                "its own model against the recording as it is"
+            )
+        entry = ESTIMATORS[result.estimator]
+        return np.asarray(entry.resimulate(result, recording), dtype=np.float64)
     model = _model_of(result)
     values = {name: np.array(result.mean_of(name)) for name in model.parameter_names}
     return resimulate_parameters(
@@ -463,18 +525,18 @@ def evaluate(
     if not mask.any():
         raise ValueError(f"start = {start!r} s is after the last sample")
     target = {"delay_order": delay_order, "forcing": forcing, "target_period": target_period}
-    model = _model_of(result)
     truth = recording.parameters
     u = np.asarray(recording.u)
     vafs = {"resimulated": vaf(u[mask], resimulate(result, recording, **target)[mask])}
     vafs["remnant_free"] = math.nan
-    if has_remnant_parts(recording):
-        free = u - np.asarray(recording["u_n"])
-        output = resimulate(result, recording, remnant_free=True, **target)
-        vafs["remnant_free"] = vaf(free[mask], output[mask])
     best = (math.nan, math.nan)
-    if ceilings:
-        best = vaf_ceilings(model, recording, start=start, **target)
+    if _has_pilot_model(result):
+        if has_remnant_parts(recording):
+            free = u - np.asarray(recording["u_n"])
+            output = resimulate(result, recording, remnant_free=True, **target)
+            vafs["remnant_free"] = vaf(free[mask], output[mask])
+        if ceilings:
+            best = vaf_ceilings(_model_of(result), recording, start=start, **target)
     errors, biases, kinds = {}, {}, {}
     for name in result.estimated:
         if name not in truth:

@@ -75,10 +75,11 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.estimator = estimator
         self.append_to_observation = bool(append_to_observation)
         keys = tuple(estimator.sample_keys)
-        unknown = sorted(set(keys) - {"e", "u", "y", "ft_ahead"})
+        unknown = sorted(set(keys) - {"e", "u", "y", "ft", "ft_ahead"})
         if unknown:
             raise ValueError(f"the environment cannot supply the estimator's samples {unknown}")
         self._keys = keys
+        self._display_keys = tuple(key for key in keys if key in ("e", "y", "ft"))
         self._anticipation = float(getattr(settings, "anticipation_time", None) or 0.0)
         self._estimated = self._estimated_names()
         if self.append_to_observation:
@@ -89,6 +90,8 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
             )
         self._last: dict[str, Any] | None = None
         self._pending: dict[str, float] = {}
+        self._ahead: FloatArray | None = None
+        self._step_index = 0
 
     def _estimated_names(self) -> tuple[str, ...]:
         # what is estimated is resolved at reset (e.g. the SI rule holds K_v)
@@ -106,25 +109,51 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return np.concatenate([observation, np.asarray(means, dtype=np.float64)])
 
     def _display(self, info: dict[str, Any]) -> dict[str, float]:
-        """What the sample of this step takes from the display (before the action)."""
-        base = self.env.unwrapped
-        sample = {"e": float(info["e"]), "y": float(info["y"]), "t": float(info["t"])}
-        if "ft_ahead" in self._keys:
-            sample["ft_ahead"] = float(base.forcing.target(info["t"] + self._anticipation))
+        """What the sample of this step takes from the display (before the action).
+
+        Only the keys the estimator reads (and ``t``); ``u`` is added after the step.
+        """
+        sample = {"t": float(info["t"])}
+        for key in self._display_keys:
+            sample[key] = float(info[key])
+        if self._ahead is not None:
+            sample["ft_ahead"] = float(self._ahead[self._step_index])
         return sample
+
+    def _target_ahead(self) -> FloatArray | None:
+        """``ft(t + tau_a)`` at every step time of the episode, in one evaluation.
+
+        Per step this was a scalar call of the forcing (35 us in preview). The env's
+        own preview window is not read instead: ``tau_a`` may lie beyond the shown
+        preview, and its samples at ``t0 + (k + j) dt`` differ from ``ft(t_k + tau_a)``
+        by rounding, which the offline :meth:`estimate` on the episode's recording
+        would not reproduce. The same elementwise evaluation at the same times does.
+        """
+        if "ft_ahead" not in self._keys:
+            return None
+        base = self.env.unwrapped
+        times = base.times + self._anticipation
+        target = base.forcing.target
+        if target is None:
+            return np.zeros_like(times)
+        return np.asarray(target(times), dtype=np.float64)
 
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
         observation, info = self.env.reset(**kwargs)
         base = self.env.unwrapped
         self.estimator.reset(base.dt, t0=float(info["t"]))
+        self._ahead = self._target_ahead()
+        self._step_index = 0
         self._pending = self._display(info)
         self._last = None
         return self._observe(observation), info
 
     def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
         observation, reward, terminated, truncated, info = self.env.step(action)
-        sample = {**self._pending, "u": float(info["u"])}
-        estimate = self.estimator.update({key: sample[key] for key in (*self._keys, "t")})
+        sample = self._pending
+        sample["u"] = float(info["u"])
+        estimate = self.estimator.update(sample)
+        health = estimate.health
         self._last = {
             "t": estimate.t,
             "mean": dict(estimate.mean),
@@ -133,13 +162,14 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
             "innovation_variance": estimate.innovation_variance,
             "prediction": estimate.prediction,
             "health": {
-                "finite": estimate.health.finite,
-                "covariance_ok": estimate.health.covariance_ok,
-                "pinned": list(estimate.health.pinned),
-                "dropped": estimate.health.dropped,
-                "diverged": estimate.health.diverged,
+                "finite": health.finite,
+                "covariance_ok": health.covariance_ok,
+                "pinned": list(health.pinned),
+                "dropped": health.dropped,
+                "diverged": health.diverged,
             },
         }
+        self._step_index += 1
         self._pending = self._display(info)
         info = {**info, "estimates": self._last}
         return self._observe(observation), reward, terminated, truncated, info

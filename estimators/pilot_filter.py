@@ -72,8 +72,8 @@ from manualcontrol.envs._validation import (
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _pilot_core as core
 from manualcontrol.estimators._recording_checks import check_estimable
+from manualcontrol.estimators._shell import health_summary
 from manualcontrol.estimators._targets import target_function
-from manualcontrol.estimators.filters import monitor
 from manualcontrol.estimators.internal_model import (
     ANTICIPATED_PARAMETER,
     InternalModel,
@@ -83,7 +83,8 @@ from manualcontrol.estimators.protocol import (
     Estimate,
     EstimateHealth,
     EstimationResult,
-    HealthSummary,
+    ParameterValues,
+    sample_values,
 )
 from manualcontrol.pilots.models import MODEL_NAMES, make_model
 
@@ -156,11 +157,6 @@ TAU_F_MARGIN = 0.1
 GENERIC_INITIAL = MappingProxyType({"omega_nms": 10.0, "zeta_nms": 0.3, "tau_v": 0.3, "K_f": 1.0})
 #: Order of the parameter filter's vector (Popovici eq. 39, thesis eq. 41).
 _THETA_ORDER = ("omega_nms", "zeta_nms", "tau_v", "K_f", "omega_f", "tau_f")
-#: Words for the divergence codes of :mod:`~manualcontrol.estimators.filters.monitor`.
-REASONS = {
-    monitor.REASON_NONFINITE: "non-finite values",
-    monitor.REASON_COVARIANCE: "covariance blow-up",
-}
 
 
 def _kind(name: str) -> str:
@@ -222,7 +218,10 @@ class PilotFilterSettings:
         ``4/(s(s+3))``): limits are the union of both columns.
     anticipation_time : float or None
         ``tau_a`` (s), required for the preview model: the target is anticipated by
-        ``tau_a`` and ``tau_f`` must stay below it (thesis Sec. III-B).
+        ``tau_a`` and ``tau_f`` must stay below it (thesis Sec. III-B). ``0`` fits the
+        *pursuit* form: the display shows the current target and nothing ahead, the
+        far-view branch reads ``ft`` itself and ``tau_f`` is held at 0 (no target
+        ahead of the samples is needed).
     estimated : tuple of str or None
         Parameters to estimate; the others are held at their ``initial`` values.
         None: all (minus the SI rule).
@@ -322,12 +321,12 @@ class PilotFilterSettings:
                     "anticipation_time (tau_a, s) is required for the preview model "
                     "(thesis Sec. III-B); the thesis used 0.9 s (SI) and 1.5 s (DI)"
                 )
-            tau_a = check_positive("anticipation_time", self.anticipation_time)
-            if tau_a <= 2.0 * TAU_F_MARGIN:
+            tau_a = check_positive("anticipation_time", self.anticipation_time, allow_zero=True)
+            if 0.0 < tau_a <= 2.0 * TAU_F_MARGIN:
                 raise ValueError(
                     f"anticipation_time must be > {2.0 * TAU_F_MARGIN:g} s so that tau_f* "
                     f"can lie in [{TAU_F_MARGIN:g}, tau_a - {TAU_F_MARGIN:g}] (thesis "
-                    f"Table I), got {tau_a!r}"
+                    f"Table I), or 0 for a pursuit fit; got {tau_a!r}"
                 )
             object.__setattr__(self, "anticipation_time", tau_a)
         elif self.anticipation_time is not None:
@@ -348,7 +347,18 @@ class PilotFilterSettings:
         initial = _frozen_mapping("initial", self.initial, check_real)
         check_names("initial", initial)
         object.__setattr__(self, "initial", initial)
-        if preview and "tau_f" in initial and initial["tau_f"] >= self.anticipation_time:
+        pursuit = preview and self.anticipation_time == 0.0
+        if pursuit and initial.get("tau_f", 0.0) != 0.0:
+            raise ValueError(
+                "a pursuit fit (anticipation_time = 0) holds tau_f at 0 (nothing is shown "
+                f"ahead), got initial tau_f = {initial['tau_f']!r}"
+            )
+        if (
+            preview
+            and not pursuit
+            and "tau_f" in initial
+            and initial["tau_f"] >= self.anticipation_time
+        ):
             raise ValueError(
                 f"initial tau_f must be < anticipation_time = {self.anticipation_time:g} s "
                 f"(tau_f* = tau_a - tau_f > 0, thesis eq. 26), got {initial['tau_f']!r}"
@@ -359,6 +369,11 @@ class PilotFilterSettings:
             limits = _frozen_mapping("limits", self.limits, _limit_pair)
             check_names("limits", limits)
             if preview and "tau_f" in limits and limits["tau_f"][1] >= self.anticipation_time:
+                if pursuit:
+                    raise ValueError(
+                        "a pursuit fit (anticipation_time = 0) has no tau_f to limit, got "
+                        f"limits['tau_f'] = {limits['tau_f']!r}"
+                    )
                 raise ValueError(
                     f"limits['tau_f'] must stay below anticipation_time = "
                     f"{self.anticipation_time:g} s, got {limits['tau_f']!r}"
@@ -403,6 +418,11 @@ class PilotFilterSettings:
             value = getattr(self, which)
             if value is not None:
                 object.__setattr__(self, which, check_positive(which, value))
+
+    @property
+    def pursuit(self) -> bool:
+        """The preview model fitted in its pursuit form (``anticipation_time = 0``)."""
+        return self.anticipation_time == 0.0 and "ft_far" in make_model(self.model).perceptions
 
     @property
     def r2_value(self) -> float:
@@ -517,7 +537,7 @@ def _default_limits(
     else:
         table = {spec.name: spec.human for spec in model.parameters}
     limits = {name: table[name] for name in names if name in table}
-    if "ft_far" in model.perceptions:
+    if "ft_far" in model.perceptions and not settings.pursuit:
         tau_a = settings.anticipation_time
         limits["tau_f"] = (TAU_F_MARGIN, tau_a - TAU_F_MARGIN)
     return limits
@@ -533,13 +553,21 @@ def resolve_settings(
     r2_parameter = getattr(settings, "r2_parameter", None)
     model = internal.model
     names = internal.parameter_names
-    preview = ANTICIPATED_PARAMETER in names and "ft_far" in model.perceptions
+    pursuit = settings.pursuit
+    preview = ANTICIPATED_PARAMETER in names and "ft_far" in model.perceptions and not pursuit
     si = settings.ce == "SI"
     if settings.estimated is None:
         held = {"K_v", "omega_f"} if si else set()
+        if pursuit:
+            held.add(ANTICIPATED_PARAMETER)  # no preview: tau_f = 0 enters nowhere
         estimated = tuple(name for name in names if name not in held)
     else:
         estimated = settings.estimated
+        if pursuit and ANTICIPATED_PARAMETER in estimated:
+            raise ValueError(
+                "a pursuit fit (anticipation_time = 0) has no preview time to estimate: "
+                f"leave {ANTICIPATED_PARAMETER} out of estimated"
+            )
     # limits
     if settings.limits == "none":
         limits: dict[str, tuple[float, float]] = {}
@@ -569,6 +597,8 @@ def resolve_settings(
             value = 0.0 if si else 0.5 * initial["K_p"]  # eq. 28
         elif name == "tau_f" and preview:
             value = 0.5 * settings.anticipation_time
+        elif name == "tau_f" and pursuit:
+            value = 0.0
         elif name in GENERIC_INITIAL and model.name in ("precision", "preview"):
             value = GENERIC_INITIAL[name]  # eqs. 29-31
         else:
@@ -642,9 +672,9 @@ def resolve_settings(
 
 
 @functools.lru_cache(maxsize=16)
-def internal_model(model: str, delay_order: int) -> InternalModel:
+def internal_model(model: str, delay_order: int, pursuit: bool = False) -> InternalModel:
     """The internal model of ``model`` with Padé order ``delay_order`` (cached)."""
-    return build_internal_model(model, delay_order)
+    return build_internal_model(model, delay_order, pursuit=pursuit)
 
 
 # ------------------------------------------------------------------ parameter map
@@ -669,7 +699,7 @@ class ParameterMap:
         """The map of a filter with these settings on this internal model."""
         names = internal.parameter_names
         preview = ANTICIPATED_PARAMETER in names and "ft_far" in internal.model.perceptions
-        if not preview:
+        if not preview or settings.pursuit:
             return cls(names, 0.0, None)
         return cls(names, float(settings.anticipation_time), ANTICIPATED_PARAMETER)
 
@@ -735,11 +765,16 @@ class PilotFilter:
         elif changes:
             settings = dataclasses.replace(settings, **changes)
         self._settings = settings
-        self._internal = internal_model(settings.model, settings.delay_order)
+        self._internal = internal_model(settings.model, settings.delay_order, settings.pursuit)
         keys = list(self._internal.input_names)
         keys += [name for name in ("e", "u") if name not in keys]
         self._sample_keys = tuple(keys)
         self._allowed_sample_keys = frozenset((*keys, "t"))
+        self._columns = MappingProxyType(
+            {name: j for j, name in enumerate(self._internal.parameter_names)}
+        )
+        self._where = f"{type(self).__name__}.update sample"
+        self._inputs = np.zeros(len(self._internal.input_names))
         self._common: CommonArrays | None = None
         self._resolved: ResolvedSettings | None = None
         self._row: Any = None
@@ -875,6 +910,7 @@ class PilotFilter:
         self._resolved = resolved
         self._start(resolved, self._common)
         self._row = self._new_output(1, store=False)
+        self._entry = None
         self._t0, self._dt, self._k = t0, dt, 0
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
@@ -885,6 +921,21 @@ class PilotFilter:
 
     def _step(self, inputs: FloatArray, u: float, e: float, out: Any) -> None:
         raise NotImplementedError
+
+    def _call_step(self, kernel: Any, arguments: tuple) -> None:
+        """Call the compiled one-sample ``kernel``, bypassing numba's dispatcher after once.
+
+        The dispatcher types every argument on every call; for the records of a filter
+        (some forty arrays in namedtuples) that was 16 of the 22 us an ``update()``
+        cost. The records keep their types from one reset to the next sample, so the
+        overload found on the first call is called directly afterwards.
+        """
+        if self._entry is None:
+            kernel(*arguments)
+            types = tuple(kernel.typeof_pyval(argument) for argument in arguments)
+            self._entry = kernel.overloads[types].entry_point
+        else:
+            self._entry(*arguments)
 
     def _run(self, inputs: FloatArray, u: FloatArray, e: FloatArray, out: Any) -> None:
         raise NotImplementedError
@@ -906,45 +957,20 @@ class PilotFilter:
         """
         if self._common is None:
             raise RuntimeError(f"the {type(self).__name__} has not been reset; call reset() first")
-        if not isinstance(sample, Mapping):
-            raise TypeError(f"sample must be a mapping of signal values, got {sample!r}")
-        keys = self._sample_keys
-        where = f"{type(self).__name__}.update sample"
-        reject_unknown(where, sample, self._allowed_sample_keys)
-        missing = [key for key in keys if key not in sample]
-        if missing:
-            raise ValueError(
-                f"{where} lacks {', '.join(map(repr, missing))}; it needs "
-                f"{', '.join(map(repr, keys))}"
-            )
-        values = {}
-        for key in keys:
-            value = sample[key]
-            if isinstance(value, bool) or not isinstance(
-                value, (int, float, np.floating, np.integer)
-            ):
-                raise TypeError(f"sample[{key!r}] must be a number, got {value!r}")
-            value = float(value)
-            if math.isinf(value):
-                raise ValueError(f"sample[{key!r}] must be finite or NaN (dropped), got {value!r}")
-            values[key] = value
-        inputs = np.array([values[name] for name in self._internal.input_names])
+        values = sample_values(self._where, sample, self._sample_keys, self._allowed_sample_keys)
+        inputs = self._inputs
+        for i, name in enumerate(self._internal.input_names):
+            inputs[i] = values[name]
         out = self._row
         self._step(inputs, values["u"], values["e"], out)
         t = float(sample["t"]) if "t" in sample else self._t0 + self._k * self._dt
         self._k += 1
         names = self._internal.parameter_names
-        mean, std, scalar, flag, pinned = (
-            out.mean[0],
-            out.std[0],
-            out.scalar[0],
-            out.flag[0],
-            out.pinned[0],
-        )
+        scalar, flag, pinned = out.scalar[0], out.flag[0], out.pinned[0]
         return Estimate(
             t=t,
-            mean={n: float(mean[j]) for j, n in enumerate(names)},
-            std={n: float(std[j]) for j, n in enumerate(names)},
+            mean=ParameterValues(self._columns, out.mean[0].copy()),
+            std=ParameterValues(self._columns, out.std[0].copy()),
             estimated=self.resolved.estimated,
             prediction=float(scalar[0]),
             innovation=float(scalar[1]),
@@ -1051,33 +1077,14 @@ class PilotFilter:
         return result
 
     def _health(self, t: FloatArray, flag: NDArray[np.bool_], pinned: NDArray[np.bool_]) -> Any:
-        sc = self._common.sc
-        names = self._internal.parameter_names
-        reason_code = int(sc[core.SC_DIV_REASON])
-        diverged = reason_code != monitor.REASON_NONE
-        if reason_code == monitor.REASON_PINNED:
-            name = names[int(sc[core.SC_DIV_PARAM])]
-            reason = f"{name} pinned at a limit for {self._settings.pinned_time:g} s"
-        else:
-            reason = REASONS.get(reason_code, "")
-        index = int(sc[core.SC_DIV_INDEX])
-        dropped = flag[:, 2]
-        edges = np.diff(np.concatenate(([0], dropped.astype(np.int8), [0])))
-        starts = np.flatnonzero(edges == 1)
-        stops = np.flatnonzero(edges == -1)
-        stretches = tuple(
-            (float(t[a]), float((b - a) * self._dt)) for a, b in zip(starts, stops, strict=True)
-        )
-        return HealthSummary(
-            diverged=diverged,
-            divergence_time=float(t[index]) if diverged and 0 <= index < len(t) else math.nan,
-            divergence_reason=reason,
-            stopped=bool(sc[core.SC_FROZEN] > 0.0),
-            dropped_samples=int(dropped.sum()),
-            dropped_stretches=stretches,
-            pinned_fraction={
-                n: float(pinned[:, j].mean()) if len(t) else 0.0 for j, n in enumerate(names)
-            },
+        return health_summary(
+            self._common.sc,
+            t,
+            self._dt,
+            flag,
+            pinned,
+            self._internal.parameter_names,
+            self._settings.pinned_time,
         )
 
     def _result(self, t: FloatArray, out: Any, store: bool) -> EstimationResult:

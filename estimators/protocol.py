@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from manualcontrol.envs._files import atomic_write
-from manualcontrol.envs._validation import check_choice
+from manualcontrol.envs._validation import check_choice, reject_unknown
 from manualcontrol.envs.recording import Recording
 
 __all__ = [
@@ -51,7 +51,10 @@ __all__ = [
     "EstimationResult",
     "Estimator",
     "HealthSummary",
+    "ParameterValues",
     "load_result",
+    "sample_values",
+    "summarise_health",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -118,6 +121,33 @@ class EstimateHealth:
         return self.finite and self.covariance_ok and not self.diverged
 
 
+class ParameterValues(Mapping):
+    """A read-only mapping of parameter names to one sample's values (a row copy).
+
+    What :class:`Estimate` holds for ``mean`` and ``std`` when an estimator builds it:
+    the values stay in an array, and nothing per parameter is built unless read (an
+    online update at 100 Hz pays for the copy only).
+    """
+
+    __slots__ = ("_index", "_values")
+
+    def __init__(self, index: Mapping[str, int], values: FloatArray) -> None:
+        self._index = index
+        self._values = values
+
+    def __getitem__(self, name: str) -> float:
+        return float(self._values[self._index[name]])
+
+    def __iter__(self) -> Any:
+        return iter(self._index)
+
+    def __len__(self) -> int:
+        return len(self._index)
+
+    def __repr__(self) -> str:
+        return repr(dict(self))
+
+
 @dataclass(frozen=True)
 class Estimate:
     """One sample's estimate.
@@ -162,8 +192,21 @@ class Estimate:
     innovation_covariance: tuple[tuple[float, ...], ...] = ()
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "mean", MappingProxyType(dict(self.mean)))
-        object.__setattr__(self, "std", MappingProxyType(dict(self.std)))
+        if not isinstance(self.mean, ParameterValues):
+            object.__setattr__(self, "mean", MappingProxyType(dict(self.mean)))
+        if not isinstance(self.std, ParameterValues):
+            object.__setattr__(self, "std", MappingProxyType(dict(self.std)))
+        if (
+            self.outputs == ("u",)
+            and not self.predictions
+            and not self.innovations
+            and not self.innovation_covariance
+        ):
+            # one output (every online update of the pilot filters): nothing to check
+            object.__setattr__(self, "predictions", (self.prediction,))
+            object.__setattr__(self, "innovations", (self.innovation,))
+            object.__setattr__(self, "innovation_covariance", ((self.innovation_variance,),))
+            return
         object.__setattr__(self, "outputs", tuple(self.outputs))
         m = len(self.outputs)
         if not self.predictions:
@@ -250,6 +293,81 @@ class HealthSummary:
             dropped_stretches=tuple(tuple(s) for s in data["dropped_stretches"]),
             pinned_fraction={str(k): float(v) for k, v in data["pinned_fraction"].items()},
         )
+
+
+def sample_values(where: str, sample: Any, keys: tuple[str, ...], allowed: Any) -> dict[str, float]:
+    """The floats of ``keys`` in one :meth:`Estimator.update` sample, checked.
+
+    ``sample`` must be a mapping holding every key (more from ``allowed`` are tolerated);
+    each value a real number, finite or NaN (a dropped sample), never infinite. Errors
+    name ``where`` and the key.
+    """
+    allowed = allowed if isinstance(allowed, (set, frozenset)) else frozenset(allowed)
+    if type(sample) is dict and sample.keys() <= allowed:
+        # the usual online sample: a plain dict of floats; anything else is checked below
+        try:
+            values = {key: sample[key] for key in keys}
+        except KeyError:
+            values = None
+        if values is not None and all(
+            (type(v) is float and v - v == 0.0) or v != v for v in values.values()
+        ):
+            return values
+    if not isinstance(sample, Mapping):
+        raise TypeError(f"sample must be a mapping of signal values, got {sample!r}")
+    reject_unknown(where, sample, allowed)
+    missing = [key for key in keys if key not in sample]
+    if missing:
+        raise ValueError(
+            f"{where} lacks {', '.join(map(repr, missing))}; it needs {', '.join(map(repr, keys))}"
+        )
+    values = {}
+    for key in keys:
+        value = sample[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+            raise TypeError(f"sample[{key!r}] must be a number, got {value!r}")
+        value = float(value)
+        if math.isinf(value):
+            raise ValueError(f"sample[{key!r}] must be finite or NaN (dropped), got {value!r}")
+        values[key] = value
+    return values
+
+
+def summarise_health(
+    t: FloatArray,
+    dt: float,
+    dropped: BoolArray,
+    pinned: BoolArray,
+    parameter_names: tuple[str, ...],
+    *,
+    reason: str,
+    divergence_index: int,
+    stopped: bool,
+) -> HealthSummary:
+    """A run's :class:`HealthSummary` from its per-sample flags.
+
+    ``reason`` is empty when the run did not diverge; ``divergence_index`` is the row of
+    the detection (-1: none); ``dropped`` (n,) and ``pinned`` (n, p) are the flags.
+    """
+    edges = np.diff(np.concatenate(([0], dropped.astype(np.int8), [0])))
+    starts = np.flatnonzero(edges == 1)
+    stops = np.flatnonzero(edges == -1)
+    stretches = tuple(
+        (float(t[a]), float((b - a) * dt)) for a, b in zip(starts, stops, strict=True)
+    )
+    diverged = bool(reason)
+    index = divergence_index
+    return HealthSummary(
+        diverged=diverged,
+        divergence_time=float(t[index]) if diverged and 0 <= index < len(t) else math.nan,
+        divergence_reason=reason,
+        stopped=stopped,
+        dropped_samples=int(dropped.sum()),
+        dropped_stretches=stretches,
+        pinned_fraction={
+            n: float(pinned[:, j].mean()) if len(t) else 0.0 for j, n in enumerate(parameter_names)
+        },
+    )
 
 
 @dataclass(frozen=True, eq=False)

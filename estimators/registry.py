@@ -21,12 +21,21 @@ __all__ = ["ESTIMATORS", "EstimatorEntry", "make_estimator", "register"]
 
 @dataclass(frozen=True)
 class EstimatorEntry:
-    """One member of the family: how to name, describe and build it."""
+    """One member of the family: how to name, describe and build it.
+
+    ``resimulate(result, recording)``, when given, is the member's own model output
+    from the recorded inputs with the identified traces (for members whose model is not
+    a pilot structure; :func:`~manualcontrol.estimators.metrics.resimulate` uses it).
+    ``pilot_model``: the member runs on a pilot model structure named by its ``model``
+    setting (``precision``, ``preview``), as ``manualcontrol identify --model`` sets it.
+    """
 
     name: str
     summary: str
     reference: str
     build: Callable[[Mapping[str, Any]], Any]
+    resimulate: Callable[[Any, Any], Any] | None = None
+    pilot_model: bool = False
 
 
 #: Registered estimators, by name.
@@ -63,5 +72,23 @@ register(
         "(total derivative), on the precision or preview internal model",
         reference="Popovici et al. 2017; Vertregt 2020",
         build=_dekf,
+        pilot_model=True,
+    )
+)
+
+
+def _schiess_roland(settings: Mapping[str, Any]) -> Any:
+    from manualcontrol.estimators.schiess_roland import SchiessRoland, SchiessRolandSettings
+
+    return SchiessRoland(SchiessRolandSettings.from_dict(dict(settings)))
+
+
+register(
+    EstimatorEntry(
+        name="schiess-roland",
+        summary="joint EKF on the delayed lead-lag pilot with a second-order remnant: 13 "
+        "states, exact hereditary delay, stick and plant output measured, adaptive noise",
+        reference="Schiess & Roland 1975",
+        build=_schiess_roland,
     )
 )

@@ -284,7 +284,7 @@ class JointUKF(_UnscentedPilotFilter):
         self._blocks = (names, ())
 
     def _step(self, inputs: Any, u: float, e: float, out: core.UKFOutput) -> None:
-        core.joint_step(*self._records, inputs, u, e, 0, out)
+        self._call_step(core.joint_step, (*self._records, inputs, u, e, 0, out))
 
     def _run(self, inputs: Any, u: Any, e: Any, out: core.UKFOutput) -> None:
         core.joint_run(*self._records, inputs, u, e, out)
@@ -341,7 +341,7 @@ class DualUKF(_UnscentedPilotFilter):
         self._blocks = (gains, theta)
 
     def _step(self, inputs: Any, u: float, e: float, out: core.UKFOutput) -> None:
-        core.dual_step(*self._records, inputs, u, e, 0, out)
+        self._call_step(core.dual_step, (*self._records, inputs, u, e, 0, out))
 
     def _run(self, inputs: Any, u: Any, e: Any, out: core.UKFOutput) -> None:
         core.dual_run(*self._records, inputs, u, e, out)
@@ -354,6 +354,7 @@ register(
         "augmented filter, on the precision or preview internal model",
         reference="Zhao et al. 2019 (Alg. 1-2); future work of Popovici 2017, Vertregt 2020",
         build=lambda settings: JointUKF(UKFSettings.from_dict(dict(settings))),
+        pilot_model=True,
     )
 )
 register(
@@ -363,5 +364,6 @@ register(
         "with sigma points instead of Jacobians",
         reference="Wan & van der Merwe 2001; future work of Popovici 2017, Vertregt 2020",
         build=lambda settings: DualUKF(DualUKFSettings.from_dict(dict(settings))),
+        pilot_model=True,
     )
 )

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from manualcontrol.envs._interpolation import interpolate_at
-from manualcontrol.envs.dynamics import read_held, read_smooth
+from manualcontrol.envs.dynamics import lpv_output_step, lpv_state_step
 from manualcontrol.pilots.simulation import (
     SimulationSetup,
     _as_generator,
@@ -32,84 +32,125 @@ __all__ = ["PilotController"]
 FloatArray = NDArray[np.float64]
 
 
+# what each pilot perception reads from an observation
+_ERROR, _OUTPUT, _FAR, _NEAR_RATE, _EDGE, _EDGE_RATE = 0, 1, 2, 3, 4, 5
+
+
 @numba.njit(cache=True)
-def _step(
+def _act(
     phi: FloatArray,
     gamma: FloatArray,
     ramp: FloatArray,
     c: FloatArray,
     d: FloatArray,
+    index: NDArray[np.int64],
     x: FloatArray,
     inputs: FloatArray,
     smooth: FloatArray,
     held: FloatArray,
-    newest: int,
+    smooth_now: FloatArray,
+    work: FloatArray,
     delay_inputs: NDArray[np.int64],
     delay_outputs: NDArray[np.int64],
-    position_now: FloatArray,
-    position_next: FloatArray,
-    smooth_now: FloatArray,
-) -> FloatArray:
-    """One sample of the pilot: outputs now, state and delay line advanced (as simulate_lpv)."""
+    delay_samples: FloatArray,
+    held_state: NDArray[np.bool_],
+    pad: int,
+    perceptions: NDArray[np.int64],
+    window: int,
+    preview_positions: FloatArray,
+    dt: float,
+    noise: FloatArray,
+    k: int,
+    observation: FloatArray,
+) -> tuple[float, float]:
+    """One sample of the pilot: perceive, output ``(u, n)``, advance (as simulate_lpv)."""
+    for i in range(perceptions.shape[0]):
+        kind = perceptions[i]
+        if kind == _ERROR:
+            inputs[i] = observation[0]
+        elif kind == _OUTPUT:
+            inputs[i] = observation[window]
+        elif kind == _FAR:
+            inputs[i] = interpolate_at(observation[:window], preview_positions[k, 0])[0]
+        elif kind == _NEAR_RATE:
+            slope = interpolate_at(observation[:window], preview_positions[k, 1])[1]
+            inputs[i] = slope / dt
+        elif kind == _EDGE:  # postview: the visible end of the track, as simulate() reads it
+            inputs[i] = observation[0]
+        else:  # its slope, envs.postview.edge_perceptions's backward difference
+            inputs[i] = (3.0 * observation[0] - 4.0 * observation[1] + observation[2]) / (2.0 * dt)
+    if noise.shape[0]:
+        inputs[perceptions.shape[0]] = noise[k]
+    i = 0 if index.shape[0] == 0 else index[k]
+    n_delay = delay_inputs.shape[0]
     n_x = x.shape[0]
-    n_u = inputs.shape[0]
-    for i in range(delay_inputs.shape[0]):
-        r = delay_outputs[i]
-        acc = 0.0
-        for j in range(n_x):
-            acc += c[r, j] * x[j]
-        smooth[i, newest] = acc
-        held_value = 0.0
-        for j in range(n_u):
-            if j != delay_inputs[i]:
-                held_value += d[r, j] * inputs[j]
-        held[i, newest] = held_value
-        inputs[delay_inputs[i]] = smooth_now[i] + read_held(held[i], newest, position_now[i])
-    outputs = np.empty(c.shape[0])
-    for r in range(c.shape[0]):
-        acc = 0.0
-        for j in range(n_x):
-            acc += c[r, j] * x[j]
-        for j in range(n_u):
-            acc += d[r, j] * inputs[j]
-        outputs[r] = acc
-    smooth_next = np.empty(delay_inputs.shape[0])
-    for i in range(delay_inputs.shape[0]):
-        smooth_next[i] = read_smooth(smooth[i], newest, position_next[i])
-    x_next = np.empty(n_x)
-    for r in range(n_x):
-        acc = 0.0
-        for j in range(n_x):
-            acc += phi[r, j] * x[j]
-        for j in range(n_u):
-            acc += gamma[r, j] * inputs[j]
-        for i in range(delay_inputs.shape[0]):
-            acc += ramp[r, delay_inputs[i]] * (smooth_next[i] - smooth_now[i])
-        x_next[r] = acc
-    for r in range(n_x):
-        x[r] = x_next[r]
-    for i in range(delay_inputs.shape[0]):
-        smooth_now[i] = smooth_next[i]
-    return outputs
+    outputs = work[: c.shape[1]]
+    smooth_next = work[c.shape[1] : c.shape[1] + n_delay]
+    x_next = work[c.shape[1] + n_delay : c.shape[1] + n_delay + n_x]
+    newest = pad + k
+    lpv_output_step(
+        c[i],
+        d[i],
+        x,
+        inputs,
+        smooth,
+        held,
+        newest,
+        delay_inputs,
+        delay_outputs,
+        delay_samples[k],
+        smooth_now,
+        held_state,
+        outputs,
+    )
+    lpv_state_step(
+        phi[i],
+        gamma[i],
+        ramp[i],
+        x,
+        inputs,
+        smooth,
+        newest,
+        delay_inputs,
+        delay_samples[k + 1],
+        smooth_now,
+        smooth_next,
+        x_next,
+    )
+    return outputs[0], outputs[1]
 
 
-def _check_episode_growth(setup: SimulationSetup, on_unstable: str) -> None:
-    """Growth check of a time-varying loop: the episode simulated once, remnant-free."""
+def _check_episode_growth(
+    setup: SimulationSetup, on_unstable: str, loss_of_control: float | None
+) -> None:
+    """Growth check of a time-varying loop: the episode simulated once, remnant-free.
+
+    With the env's loss-of-control limit the episode ends there, as the env's would, and
+    only the run up to it is judged (the critical task is meant to be lost).
+    """
     from manualcontrol.pilots.pilot import Pilot
 
     pilot = setup.pilot
-    simulate(
-        Pilot(pilot.model, dict(pilot.parameters), None, pilot.delay_order),
-        setup.element,
-        setup.forcing,
-        task=setup.task,
-        available_preview=setup.available_preview if setup.task == "preview" else None,
-        dt=setup.dt,
-        run_in=setup.run_in,
-        measurement_time=setup.measurement_time,
-        loop="sampled",
-        on_unstable=on_unstable,
-    )
+    postview = {"gap": setup.gap, "postview": setup.postview} if setup.task == "postview" else {}
+    try:
+        simulate(
+            Pilot(pilot.model, dict(pilot.parameters), None, pilot.delay_order),
+            setup.element,
+            setup.forcing,
+            task=setup.task,
+            available_preview=setup.available_preview if setup.task == "preview" else None,
+            dt=setup.dt,
+            run_in=setup.run_in,
+            measurement_time=setup.measurement_time,
+            loop="sampled",
+            on_unstable=on_unstable,
+            loss_of_control=loss_of_control,
+            keep_run_in=True,
+            **postview,
+        )
+    except ValueError as error:
+        if not str(error).startswith("control was lost"):
+            raise  # (lost during the run-in: nothing left to judge)
 
 
 class PilotController:
@@ -135,6 +176,7 @@ class PilotController:
                     f"env must be a manualcontrol tracking environment after reset(), "
                     f"it has no {attribute!r}"
                 )
+        postview = {"gap": base.gap, "postview": base.postview} if base.task == "postview" else {}
         setup = SimulationSetup.create(
             pilot,
             base.element,
@@ -144,11 +186,12 @@ class PilotController:
             dt=base.dt,
             run_in=base.run_in,
             measurement_time=base.measurement_time,
+            **postview,
         )
         rng, _ = _as_generator(seed)
         traces = setup.parameter_traces()
         if check_stable(setup, on_unstable=on_unstable) is None:
-            _check_episode_growth(setup, on_unstable)
+            _check_episode_growth(setup, on_unstable, getattr(base, "loss_of_control", None))
         n = setup.n_samples
         remnant = pilot.remnant
         if remnant is not None:
@@ -168,6 +211,7 @@ class PilotController:
                     measurement_time=base.measurement_time,
                     seed=replay,
                     loop="sampled",
+                    **postview,
                 )
                 remnant = remnant.with_gain(calibration.metadata["remnant"]["K_r"])
             self.noise = noise * remnant.K_r
@@ -179,80 +223,64 @@ class PilotController:
         )
         values = {name: trace[first] for name, trace in traces.items()}
         system, exact, _ = discrete_pilot(setup, values, remnant)
-        self._phi, self._gamma, self._ramp = exact.phi, exact.gamma, exact.gamma_ramp
-        self._c, self._d = system.system.C, system.system.D
-        self._index = index
-        self._delay_inputs = np.asarray(system.delay_inputs, dtype=np.int64)
-        self._delay_outputs = np.asarray(system.delay_outputs, dtype=np.int64)
         n_delay = len(system.delay_inputs)
         if n_delay:
             delays = traces[pilot.model.delay_parameter] / setup.dt
-            self._delay_samples = np.append(delays, delays[-1])
-            self._pad = int(np.ceil(self._delay_samples.max())) + 4
+            # one delay for every channel; the last repeated for the final state step
+            delay_samples = np.repeat(np.append(delays, delays[-1])[:, None], n_delay, 1)
+            pad = int(np.ceil(delay_samples.max())) + 4
         else:
-            self._delay_samples = np.zeros(n + 1)
-            self._pad = 0
-        self._smooth = np.zeros((n_delay, self._pad + n))
-        self._held = np.zeros((n_delay, self._pad + n))
-        self._smooth_now = np.zeros(n_delay)
-        self._x = np.zeros(self._phi.shape[-1])
-        self._inputs = np.zeros(len(system.inputs))
-        self._perceptions = pilot.model.perceptions
-        self._task = base.task
-        self._window = setup.preview_window
-        self._preview_positions = {
-            name: traces[name] / setup.dt for name in ("tau_f", "tau_n") if name in traces
+            delay_samples = np.zeros((n + 1, 0))
+            pad = 0
+        n_x = exact.phi.shape[-1]
+        codes = {
+            "e": _ERROR,
+            "y": _OUTPUT,
+            "ft_far": _FAR,
+            "ft_near_rate": _NEAR_RATE,
+            "ft_edge": _EDGE,
+            "ft_edge_rate": _EDGE_RATE,
         }
+        preview_positions = np.zeros((n, 2))
+        for column, name in enumerate(("tau_f", "tau_n")):
+            if name in traces:
+                preview_positions[:, column] = traces[name] / setup.dt
+        self._x = np.zeros(n_x)
+        # everything the compiled step reads, in its argument order (observation, k last)
+        self._arguments = (
+            exact.phi,
+            exact.gamma,
+            exact.gamma_ramp,
+            system.system.C,
+            system.system.D,
+            np.zeros(0, dtype=np.int64) if index is None else index,
+            self._x,
+            np.zeros(len(system.inputs)),
+            np.zeros((n_delay, pad + n)),
+            np.zeros((n_delay, pad + n)),
+            np.zeros(n_delay),
+            np.zeros(system.system.C.shape[-2] + n_delay + n_x),
+            np.asarray(system.delay_inputs, dtype=np.int64),
+            np.asarray(system.delay_outputs, dtype=np.int64),
+            delay_samples,
+            np.zeros(n_x, dtype=np.bool_),
+            pad,
+            np.array([codes[name] for name in pilot.model.perceptions], dtype=np.int64),
+            setup.preview_window,
+            preview_positions,
+            setup.dt,
+            np.zeros(0) if self.noise is None else self.noise,
+        )
+        self._n_samples = n
         self.setup = setup
         self.k = 0
-
-    def _perceive(self, observation: FloatArray) -> None:
-        inputs = self._inputs
-        k = self.k
-        if self._task == "compensatory":
-            inputs[0] = observation[0]
-            return
-        window = self._window
-        target = np.ascontiguousarray(observation[:window], dtype=np.float64)
-        y = float(observation[window])
-        for i, name in enumerate(self._perceptions):
-            if name == "y":
-                inputs[i] = y
-            elif name == "ft_far":
-                inputs[i] = interpolate_at(target, self._preview_positions["tau_f"][k])[0]
-            elif name == "ft_near_rate":
-                slope = interpolate_at(target, self._preview_positions["tau_n"][k])[1]
-                inputs[i] = slope / self.setup.dt
+        self.last_remnant = 0.0
 
     def act(self, observation: FloatArray) -> FloatArray:
         """The stick for this observation (shape ``(1,)``); advances the pilot one sample."""
         k = self.k
-        if k >= self.setup.n_samples:
+        if k >= self._n_samples:
             raise RuntimeError("the pilot's episode is over; reset the pilot with the environment")
-        self._perceive(np.asarray(observation, dtype=np.float64))
-        if self.noise is not None:
-            self._inputs[len(self._perceptions)] = self.noise[k]
-        i = 0 if self._index is None else self._index[k]
-        newest = self._pad + k
-        position_now = np.full(len(self._delay_inputs), newest - self._delay_samples[k])
-        position_next = np.full(len(self._delay_inputs), newest + 1.0 - self._delay_samples[k + 1])
-        outputs = _step(
-            self._phi[i],
-            self._gamma[i],
-            self._ramp[i],
-            self._c[i],
-            self._d[i],
-            self._x,
-            self._inputs,
-            self._smooth,
-            self._held,
-            newest,
-            self._delay_inputs,
-            self._delay_outputs,
-            position_now,
-            position_next,
-            self._smooth_now,
-        )
+        u, self.last_remnant = _act(*self._arguments, k, np.asarray(observation, dtype=np.float64))
         self.k = k + 1
-        self.last_remnant = float(outputs[1])
-        return np.array([outputs[0]])
+        return np.array([u])

@@ -37,6 +37,7 @@ __all__ = [
     "GainDelayModel",
     "ParameterSpec",
     "PilotModel",
+    "PostviewModel",
     "PrecisionModel",
     "PreviewModel",
     "SchiessRolandModel",
@@ -99,7 +100,7 @@ class PilotModel(abc.ABC):
 
     #: Registry name (see :func:`make_model`).
     name: ClassVar[str]
-    #: Display type the model belongs to: "compensatory" or "preview".
+    #: Display type the model belongs to: "compensatory", "preview" or "postview".
     task: ClassVar[str]
     #: Name of the parameter that is the model's delay.
     delay_parameter: ClassVar[str]
@@ -382,8 +383,56 @@ class GainDelayModel(PilotModel):
         return (Channel((Branch("e", num, den),), values["K_p"][..., None] * num, den),)
 
 
+class PostviewModel(PilotModel):
+    """Gap-postview operator: extrapolates the visible end of the past track (Boer & Kenyon).
+
+    In Boer & Kenyon's gap-postview task (1998, Sec. V) the track is shown from ``t - 1 s``
+    down to ``t - gap``; the operator must place a pure-gain marker where the track meets
+    the present. This operator reads the visible end of the track, its value
+    ``ft_edge(t) = ft(t - gap)`` and slope ``ft_edge_rate`` (perceptions the display
+    gives, :mod:`manualcontrol.envs.postview`), and extrapolates linearly::
+
+        u = e^{-tau_v s} (K_p ft_edge + K_v ft_edge_rate)
+
+    i.e. ``K_p`` times the track extrapolated ``K_v/K_p`` seconds across the gap: the
+    simple linear extrapolation the paper proposes (Sec. V-C). For a band-limited track
+    this acts as a gain and delay of about ``gap + tau_v - K_v/K_p``; the nominal
+    ``K_p`` 1, ``K_v`` 0.2 s, ``tau_v`` 0 give the paper's finding, delay = gap - 0.2 s.
+    A pure time advance it is not: against a 0.6-Hz band-limited track the best pure
+    gain and delay fit is about 1.08 and ``gap - 0.18`` s (the extrapolation falls
+    short of the advance at the higher frequencies).
+    """
+
+    name: ClassVar[str] = "postview"
+    task: ClassVar[str] = "postview"
+    delay_parameter: ClassVar[str] = "tau_v"
+    perceptions: ClassVar[tuple[str, ...]] = ("ft_edge", "ft_edge_rate")
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:  # noqa: D102
+        return (
+            ParameterSpec("K_p", 1.0, (0.01, 20.0), (-math.inf, math.inf), "-", "pilot gain"),
+            ParameterSpec(
+                "K_v",
+                0.2,
+                (0.0, 1.0),
+                (-math.inf, math.inf),
+                "s",
+                "gain on the visible track's end slope (extrapolation K_v/K_p s)",
+            ),
+            ParameterSpec("tau_v", 0.0, (0.0, 0.5), (0.0, math.inf), "s", "pilot delay"),
+        )
+
+    def channels(self, values: Mapping[str, FloatArray]) -> tuple[Channel, ...]:  # noqa: D102
+        num, den = _unity(values)
+        edge = Branch("ft_edge", values["K_p"][..., None] * num, den)
+        slope = Branch("ft_edge_rate", values["K_v"][..., None] * num, den)
+        return (Channel((edge, slope), num, den),)
+
+
 _MODELS: dict[str, type[PilotModel]] = {
-    cls.name: cls for cls in (PrecisionModel, PreviewModel, SchiessRolandModel, GainDelayModel)
+    cls.name: cls
+    for cls in (PrecisionModel, PreviewModel, SchiessRolandModel, GainDelayModel, PostviewModel)
 }
 
 #: Names accepted by :func:`make_model`.

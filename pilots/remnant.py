@@ -18,13 +18,20 @@ loop is the ``injection`` point:
 
 ``P_r`` requests a remnant power ratio ``var(u_n)/var(u)`` (thesis eq. 6), where
 ``u_n`` is the part of ``u`` caused by the remnant; :func:`~manualcontrol.pilots.simulate`
-then calibrates ``K_r``.
+then calibrates ``K_r``. ``noise_variance`` instead gives the level as the variance ``q``
+of the white driving noise itself (Schiess & Roland 1975: "the variance of the process
+noise", their cases 59,600, 576 and 25 V^2/s^4): each held sample is ``N(0, q)``, so
+``K_r = sqrt(q)``, the equivalent continuous intensity is ``q dt``, and the remnant's
+level does not depend on the loop (their printed power ratios, 0.5, 0.04 and < 0.01,
+cannot be reproduced from their q: with the loop's resonance the ratio of remnant to
+stick power is about a quarter for every q, 0.24-0.25 over 60 s at 100 Hz).
 """
 
 from __future__ import annotations
 
 import abc
 import dataclasses
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -54,13 +61,16 @@ class Remnant(abc.ABC):
     """Base class: ``K_r`` times a filter shape, injected at ``injection``.
 
     ``P_r`` (optional, in (0, 1)) is the requested power ratio; when given, simulation
-    replaces ``K_r`` by a calibrated gain.
+    replaces ``K_r`` by a calibrated gain. ``noise_variance`` (optional, >= 0) is the
+    variance ``q`` of each held sample of the driving noise; when given it sets
+    ``K_r = sqrt(q)`` (module docstring). The two are exclusive.
     """
 
     kind: ClassVar[str]
     K_r: float = 1.0
     injection: str = "output"
     P_r: float | None = None
+    noise_variance: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "K_r", check_positive("K_r", self.K_r, allow_zero=True))
@@ -71,6 +81,16 @@ class Remnant(abc.ABC):
                 "P_r",
                 check_range("P_r", self.P_r, 0.0, 1.0, low_inclusive=False, high_inclusive=False),
             )
+        if self.noise_variance is not None:
+            if self.P_r is not None:
+                raise ValueError(
+                    f"give either P_r (a power ratio to calibrate K_r to) or noise_variance "
+                    f"(K_r = sqrt(q)), not both; got P_r={self.P_r!r}, "
+                    f"noise_variance={self.noise_variance!r}"
+                )
+            q = check_positive("noise_variance", self.noise_variance, allow_zero=True)
+            object.__setattr__(self, "noise_variance", q)
+            object.__setattr__(self, "K_r", math.sqrt(q))
 
     @abc.abstractmethod
     def shape(self) -> tuple[FloatArray, FloatArray]:
@@ -82,7 +102,9 @@ class Remnant(abc.ABC):
         return self.K_r * num, den
 
     def with_gain(self, K_r: float) -> Remnant:
-        """Copy with another gain."""
+        """Copy with another gain (a different gain drops ``noise_variance``)."""
+        if self.noise_variance is not None and K_r != self.K_r:
+            return dataclasses.replace(self, K_r=K_r, noise_variance=None)
         return dataclasses.replace(self, K_r=K_r)
 
     def to_dict(self) -> dict[str, Any]:
@@ -94,9 +116,11 @@ class Remnant(abc.ABC):
         shape = ", ".join(
             f"{f.name}={getattr(self, f.name):g}"
             for f in dataclasses.fields(self)
-            if f.name not in ("K_r", "injection", "P_r")
+            if f.name not in ("K_r", "injection", "P_r", "noise_variance")
         )
         ratio = "" if self.P_r is None else f", P_r={self.P_r:g}"
+        if self.noise_variance is not None:
+            ratio += f", q={self.noise_variance:g}"
         return f"{type(self).__name__}(K_r={self.K_r:.4g}, {shape}, at {self.injection}{ratio})"
 
 

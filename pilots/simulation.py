@@ -35,6 +35,7 @@ so recordings start at ``t = 0`` and parameter schedules are written in that tim
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from collections.abc import Mapping, Sequence
@@ -51,7 +52,9 @@ from manualcontrol.envs._validation import (
     check_duration,
     check_int,
     check_positive,
+    check_real,
     check_vector,
+    reject_unknown,
 )
 from manualcontrol.envs.dynamics import (
     Block,
@@ -66,18 +69,37 @@ from manualcontrol.envs.dynamics import (
     tf_to_ccf,
 )
 from manualcontrol.envs.elements import ControlledElement, make_element
-from manualcontrol.envs.recording import Recording
-from manualcontrol.envs.signals import ForcingPair, forcing_preset
+from manualcontrol.envs.postview import (
+    DEFAULT_GAP,
+    DEFAULT_POSTVIEW,
+    check_gap,
+    edge_perceptions,
+    postview_samples,
+)
+from manualcontrol.envs.recording import MEASURED_SIGNALS, Recording
+from manualcontrol.envs.schedules import Schedule, as_schedule
+from manualcontrol.envs.signals import ForcingPair
+from manualcontrol.envs.tasks import (
+    TASKS,
+    available_preview_for,
+    check_preview_time,
+    measurement_time_for,
+    resolve_forcing,
+    sample_counts,
+    task_metadata,
+)
 from manualcontrol.pilots.models import PilotModel, make_model
 from manualcontrol.pilots.pilot import Pilot
 from manualcontrol.pilots.remnant import Remnant
 from manualcontrol.pilots.stability import UnstableLoopWarning, check_growth, check_stable
 
 __all__ = [
+    "INITIAL_STATE_SIGNALS",
     "LOOPS",
     "TASKS",
     "SimulationSetup",
     "closed_loop",
+    "initial_loop_state",
     "isolated_pilot_output",
     "remnant_power_ratio",
     "simulate",
@@ -85,10 +107,7 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 
-TASKS: tuple[str, ...] = ("compensatory", "pursuit", "preview")
 LOOPS: tuple[str, ...] = ("continuous", "sampled")
-#: Preview shown by default in preview tasks (s): covers nominal far-view preview times.
-DEFAULT_AVAILABLE_PREVIEW = 1.0
 #: Relative deviation of the realised power ratio that triggers a re-calibration
 #: (thesis Part II Sec. 4.2.1: "more than 5 %").
 POWER_RATIO_TOLERANCE = 0.05
@@ -128,6 +147,9 @@ class SimulationSetup:
     dt: float
     run_in: float
     measurement_time: float
+    gap: Schedule | None = None
+    postview: float = DEFAULT_POSTVIEW
+    start_time: float = 0.0
 
     @classmethod
     def create(
@@ -142,57 +164,82 @@ class SimulationSetup:
         dt: float = 0.01,
         run_in: float = 60.0,
         measurement_time: float | None = None,
+        gap: float | Schedule | None = None,
+        postview: float | None = None,
+        start_time: float = 0.0,
     ) -> SimulationSetup:
-        """Resolve names to objects and check that they fit together."""
+        """Resolve names to objects and check that they fit together.
+
+        ``gap`` and ``postview`` (s) belong to the postview task
+        (:mod:`manualcontrol.envs.postview`; defaults 0.4 and 1 s).
+        """
         if not isinstance(pilot, Pilot):
             raise TypeError(f"pilot must be a Pilot, got {pilot!r}")
         element = make_element(element)
-        if isinstance(forcing, str):
-            forcing = forcing_preset(forcing, realisation)
-        elif not isinstance(forcing, ForcingPair):
-            raise TypeError(f"forcing must be a preset name or a ForcingPair, got {forcing!r}")
+        forcing = resolve_forcing(forcing, realisation)
         model_task = pilot.model.task
         if task is None:
             task = model_task
         check_choice("task", task, TASKS)
-        if (task == "compensatory") != (model_task == "compensatory"):
+        if (task == "compensatory") != (model_task == "compensatory") or (
+            (task == "postview") != (model_task == "postview")
+        ):
             raise ValueError(
                 f"task {task!r} does not fit the {pilot.model.name!r} pilot model, "
                 f"which is a {model_task} model"
             )
-        if task == "preview":
-            preview = DEFAULT_AVAILABLE_PREVIEW if available_preview is None else available_preview
-            preview = check_positive("available_preview", preview, allow_zero=True)
+        if task == "postview":
+            postview = check_positive(
+                "postview", DEFAULT_POSTVIEW if postview is None else postview
+            )
+            try:
+                gap = as_schedule(DEFAULT_GAP if gap is None else gap)
+            except TypeError as error:
+                raise TypeError(f"gap: {error}") from None
+        elif gap is not None or postview is not None:
+            raise ValueError(
+                f"gap and postview belong to the postview task, not {task!r}; "
+                f"got gap={gap!r}, postview={postview!r}"
+            )
         else:
-            if available_preview not in (None, 0, 0.0):
-                raise ValueError(
-                    f"available_preview must be 0 (or omitted) in a {task} task, "
-                    f"got {available_preview!r}"
-                )
-            preview = 0.0
+            postview = DEFAULT_POSTVIEW
+        preview = available_preview_for(task, available_preview)
         dt = check_positive("dt", dt)
         run_in = check_positive("run_in", run_in, allow_zero=True)
-        if measurement_time is None:
-            target = forcing.target or forcing.disturbance
-            measurement_time = getattr(target, "measurement_time", None) or 120.0
-        measurement_time = check_positive("measurement_time", measurement_time)
+        measurement_time = measurement_time_for(forcing, measurement_time)
         check_duration("measurement_time", measurement_time, dt)
-        return cls(pilot, element, forcing, task, preview, dt, run_in, measurement_time)
+        start_time = check_real("start_time", start_time)
+        setup = cls(
+            pilot,
+            element,
+            forcing,
+            task,
+            preview,
+            dt,
+            run_in,
+            measurement_time,
+            gap,
+            postview,
+            start_time,
+        )
+        if gap is not None:
+            check_gap(gap, setup.time, postview)
+        return setup
 
     @property
     def n_run_in(self) -> int:
         """Samples of run-in."""
-        return round(self.run_in / self.dt)
+        return sample_counts(self.dt, self.run_in, self.measurement_time)[0]
 
     @property
     def n_samples(self) -> int:
         """Samples simulated, run-in included."""
-        return self.n_run_in + round(self.measurement_time / self.dt)
+        return sample_counts(self.dt, self.run_in, self.measurement_time)[1]
 
     @property
     def time(self) -> FloatArray:
-        """Simulation times, ``t = 0`` at the start of the measurement."""
-        return (np.arange(self.n_samples) - self.n_run_in) * self.dt
+        """Simulation times, ``t = start_time`` (default 0) at the start of the measurement."""
+        return self.start_time + (np.arange(self.n_samples) - self.n_run_in) * self.dt
 
     @property
     def preview_window(self) -> int:
@@ -204,15 +251,28 @@ class SimulationSetup:
         traces = self.pilot.parameter_traces(self.time)
         for name in ("tau_f", "tau_n"):
             if name in traces:
-                _check_preview_time(name, traces[name], self.available_preview, self.task)
+                check_preview_time(name, traces[name], self.available_preview, self.task)
         return traces
 
-    def forcing_signals(self, traces: Mapping[str, FloatArray]) -> dict[str, FloatArray]:
-        """Sampled ``ft`` and ``fd`` and, for preview models, what the pilot reads ahead."""
+    def sampled_forcing(self) -> tuple[FloatArray, FloatArray]:
+        """``ft`` over the run and the preview window beyond it, and ``fd``."""
+        n = self.n_samples
+        t0 = self.start_time - self.n_run_in * self.dt
+        return self.forcing.sample((n + self.preview_window - 1) * self.dt, self.dt, t0)
+
+    def forcing_signals(
+        self,
+        traces: Mapping[str, FloatArray],
+        sampled: tuple[FloatArray, FloatArray] | None = None,
+    ) -> dict[str, FloatArray]:
+        """Sampled ``ft`` and ``fd`` and, for preview models, what the pilot reads ahead.
+
+        ``sampled`` is :meth:`sampled_forcing` when already computed (the forcing's
+        sines are most of the cost).
+        """
         n = self.n_samples
         window = self.preview_window
-        t0 = -self.n_run_in * self.dt
-        target_ahead, fd = self.forcing.sample((n + window - 1) * self.dt, self.dt, t0)
+        target_ahead, fd = self.sampled_forcing() if sampled is None else sampled
         signals = {"ft": target_ahead[:n].copy(), "fd": fd[:n].copy()}
         if "ft_far" in self.pilot.model.perceptions:
             target_ahead = np.ascontiguousarray(target_ahead)
@@ -220,31 +280,41 @@ class SimulationSetup:
         if "ft_near_rate" in self.pilot.model.perceptions:
             rates = _read_preview(target_ahead, traces["tau_n"] / self.dt, window)[1]
             signals["ft_near_rate"] = rates / self.dt
+        if "ft_edge" in self.pilot.model.perceptions:
+            # the postview display's rules, as the environment applies them
+            time = self.time
+            samples = postview_samples(
+                self.forcing.target, time, self.gap_trace(), self.dt, self.postview, 3
+            )
+            signals["ft_edge"], signals["ft_edge_rate"] = edge_perceptions(samples, self.dt)
         return signals
+
+    def gap_trace(self) -> FloatArray:
+        """The postview gap at every simulated sample (postview task only)."""
+        if self.gap is None:
+            raise ValueError(f"a {self.task} task has no gap")
+        return check_gap(self.gap, self.time, self.postview)
 
     def metadata(self) -> dict[str, Any]:
         """What a recording of this setup says about how it was made."""
-        return {
-            "task": self.task,
-            "pilot": self.pilot.to_dict(),
-            "controlled_element": self.element.to_dict(),
-            "forcing": self.forcing.to_dict(),
-            "forcing_name": self.forcing.name,
-            "realisation": self.forcing.realisation,
-            "available_preview": self.available_preview,
-            "run_in": self.run_in,
-            "measurement_time": self.measurement_time,
-        }
-
-
-def _check_preview_time(name: str, values: FloatArray, available: float, task: str) -> None:
-    if np.any(values < 0.0):
-        raise ValueError(f"{name} must be >= 0 s (a preview time), got {float(values.min())!r}")
-    if np.any(values > available + 1e-12):
-        raise ValueError(
-            f"{name} must not exceed the available preview of {available:g} s in a {task} task, "
-            f"got {float(values.max())!r}"
+        shared = task_metadata(
+            self.task,
+            self.element,
+            self.forcing,
+            self.available_preview,
+            self.run_in,
+            self.measurement_time,
         )
+        postview = (
+            {"gap": self.gap.to_dict(), "postview": self.postview} if self.gap is not None else {}
+        )
+        return {
+            "task": shared.pop("task"),
+            "pilot": self.pilot.to_dict(),
+            **shared,
+            **postview,
+            "start_time": self.start_time,
+        }
 
 
 # --------------------------------------------------------------------- block diagram
@@ -399,19 +469,29 @@ def discrete_pilot(
         sums={**pilot.sums, **({} if remnant is not None else {"n": {}})},
         delays=pilot.delays,
     )
-    return system, discretize(system.system.A, system.system.B, setup.dt), pilot.delays
+    exact = discretize(system.system.A, system.system.B, setup.dt, system.delay_inputs)
+    return system, exact, pilot.delays
 
 
 def distinct_parameter_sets(
     columns: Sequence[FloatArray], n_samples: int
 ) -> tuple[NDArray[np.int64], NDArray[np.int64] | None]:
-    """First sample of each distinct row of ``columns`` and the row used at each sample.
+    """First sample of each run of equal rows of ``columns`` and the run used at each sample.
 
-    The index is None when one set serves every sample (a time-invariant loop).
+    Parameters held over stretches of samples (constants, the flat ends of a sigmoid)
+    come in runs, so one loop is built per run; a value that returns after a change
+    gets a set of its own. (Sorting the whole table for unique rows cost more than
+    the matrices it saved.) The index is None when one set serves every sample.
     """
-    table = np.column_stack(columns) if columns else np.zeros((n_samples, 0))
-    unique, first, inverse = np.unique(table, axis=0, return_index=True, return_inverse=True)
-    return first, (None if len(unique) == 1 else np.ravel(inverse))
+    if not columns or n_samples <= 1:
+        return np.zeros(1, dtype=np.int64), None
+    table = np.column_stack(columns)
+    changed = np.any(table[1:] != table[:-1], axis=1)
+    if not changed.any():
+        return np.zeros(1, dtype=np.int64), None
+    first = np.concatenate(([0], np.flatnonzero(changed) + 1)).astype(np.int64)
+    index = np.concatenate(([0], np.cumsum(changed))).astype(np.int64)
+    return first, index
 
 
 def _assemble(
@@ -426,7 +506,7 @@ def _assemble(
     inputs = _loop_inputs(model, remnant)
     if loop == "continuous":
         diagram = _continuous_loop(setup, values, element_model, remnant)
-        exact = discretize(diagram.system.A, diagram.system.B, setup.dt)
+        exact = discretize(diagram.system.A, diagram.system.B, setup.dt, diagram.delay_inputs)
         return _Loop(
             exact,
             diagram.system.C,
@@ -438,7 +518,7 @@ def _assemble(
         )
     # sampled: pilot and element discretised apart, joined in discrete time
     pilot_system, pilot_exact, pilot_delays = discrete_pilot(setup, values, remnant)
-    element_exact = discretize(element_model.A, element_model.B, setup.dt)
+    element_exact = discretize(element_model.A, element_model.B, setup.dt, ramp_inputs=())
     pilot_block = Block(
         StateSpace(
             pilot_exact.phi, pilot_exact.gamma, pilot_system.system.C, pilot_system.system.D
@@ -447,7 +527,9 @@ def _assemble(
         pilot_system.outputs,
     )
     element_block = Block(
-        StateSpace(element_exact.phi, element_exact.gamma, element_model.C, element_model.D),
+        _display_one_frame_later(
+            element_exact.phi, element_exact.gamma, element_model.C, element_model.D
+        ),
         ("u",),
         ("x_ce",),
     )
@@ -477,6 +559,29 @@ def _assemble(
         # the pilot perceives the element through the sampled display: held
         tuple(range(n_pilot, system.A.shape[-1])),
     )
+
+
+def _display_one_frame_later(
+    phi: FloatArray, gamma: FloatArray, C: FloatArray, D: FloatArray
+) -> StateSpace:
+    """The discrete element as the environments step it: feedthrough one frame late.
+
+    An element with direct feedthrough (a pure gain) shows ``D u[k-1]`` at sample ``k``
+    in :mod:`manualcontrol.envs.tracking` (the stick reaches the display one frame
+    later), so the sampled loop keeps the previous stick as an extra state with output
+    ``D``. Elements without feedthrough are returned as they are.
+    """
+    if not np.any(D):
+        return StateSpace(phi, gamma, C, D)
+    batch = phi.shape[:-2]
+    n = phi.shape[-1]
+    phi_aug = np.zeros((*batch, n + 1, n + 1))
+    phi_aug[..., :n, :n] = phi
+    gamma_aug = np.zeros((*batch, n + 1, 1))
+    gamma_aug[..., :n, :] = gamma
+    gamma_aug[..., n, 0] = 1.0
+    C_aug = np.concatenate((C, D), axis=-1)
+    return StateSpace(phi_aug, gamma_aug, C_aug, np.zeros_like(D))
 
 
 def matrix_parameters(setup: SimulationSetup, traces: Mapping[str, FloatArray]) -> list[str]:
@@ -516,7 +621,9 @@ def _run(
     input_columns: Mapping[str, FloatArray],
     delays: FloatArray | None,
     dt: float,
+    x0: FloatArray | None = None,
 ) -> dict[str, FloatArray]:
+    """Step the loop; from a start state ``x0`` the delayed signals' past is their first value."""
     n = len(next(iter(input_columns.values())))
     external = [name for i, name in enumerate(assembled.inputs) if i not in assembled.delay_inputs]
     inputs = np.zeros((n, len(assembled.inputs)))
@@ -535,12 +642,14 @@ def _run(
         expand(assembled.D),
         inputs,
         dt,
+        x0=x0,
         delay_inputs=assembled.delay_inputs,
         delay_outputs=assembled.delay_outputs,
         delays=None
         if not assembled.delay_inputs
         else np.repeat(delays[:, None], len(assembled.delay_inputs), 1),
         held_states=assembled.held_states,
+        history="rest" if x0 is None else "initial",
     )
     return {name: outputs[:, i] for i, name in enumerate(assembled.outputs)}
 
@@ -591,7 +700,7 @@ def isolated_pilot_output(
         delays=diagram.delays,
     )
     loop = _Loop(
-        discretize(system.system.A, system.system.B, dt),
+        discretize(system.system.A, system.system.B, dt, system.delay_inputs),
         system.system.C,
         system.system.D,
         system.inputs,
@@ -628,6 +737,96 @@ def _gain_for_ratio(u_forced: FloatArray, u_unit: FloatArray, ratio: float) -> f
     return (-b + math.sqrt(b * b - 4.0 * a * q)) / (2.0 * a)
 
 
+# ----------------------------------------------------- initial state, measurement noise
+
+#: Loop outputs whose values (and derivatives) may set the initial state.
+INITIAL_STATE_SIGNALS: tuple[str, ...] = ("y", "u", "e", "n")
+
+
+def initial_loop_state(
+    setup: SimulationSetup,
+    traces: Mapping[str, FloatArray],
+    remnant: Remnant | None,
+    columns: Mapping[str, FloatArray],
+    conditions: Mapping[str, Sequence[float]],
+    loop: str = "continuous",
+) -> FloatArray:
+    """State of the continuous loop at its first sample from output values and derivatives.
+
+    ``conditions[z] = (z, z', z'', ...)`` for loop outputs ``z`` in
+    :data:`INITIAL_STATE_SIGNALS`. A run that starts from a state has a past: the
+    simulation holds each exactly delayed signal at its first value before the start
+    (:func:`~manualcontrol.envs.dynamics.simulate_lpv` with ``history="initial"``), so
+    at the start the delayed signal equals its undelayed source, ``C_s x + D_s w_0``.
+    With the loop ``x' = A x + B w``, ``z = C x + D w`` and the inputs ``w_0`` held at
+    their first samples (remnant noise 0, delay targets as just said, both linear in
+    ``x``), the k-th derivative is ``C A^k x + C A^(k-1) B w_0`` (k >= 1) and the value
+    ``C x + D w_0``: one linear equation per given entry, solved for ``x``. The entries
+    must determine every state exactly once (as many as the loop has states, linearly
+    independent).
+    """
+    if loop != "continuous":
+        raise ValueError(
+            f"initial_state needs loop='continuous' (its state is solved on the continuous "
+            f"loop), got loop={loop!r}"
+        )
+    if not isinstance(conditions, Mapping):
+        raise TypeError(f"initial_state must map signal names to values, got {conditions!r}")
+    reject_unknown("initial_state", conditions, INITIAL_STATE_SIGNALS)
+    first = {name: trace[:1] for name, trace in traces.items()}
+    diagram = _continuous_loop(setup, first, setup.element.state_space(setup.time[:1]), remnant)
+    system = diagram.system  # one parameter set: drop the batch axis
+    A, B, C, D = (m.reshape(m.shape[-2:]) for m in (system.A, system.B, system.C, system.D))
+    n_x = A.shape[0]
+    # inputs at the start as w_0 = w_c + W_x x: external ones from their first samples,
+    # delay targets equal to their sources (which may read the external inputs)
+    w_c = np.zeros(len(diagram.inputs))
+    W_x = np.zeros((len(diagram.inputs), n_x))
+    for i, name in enumerate(diagram.inputs):
+        if i not in diagram.delay_inputs and name != "noise":
+            w_c[i] = columns[name][0]
+    for target, source in zip(diagram.delay_inputs, diagram.delay_outputs, strict=True):
+        W_x[target] = C[source]
+        w_c[target] = D[source] @ w_c
+    rows, rhs = [], []
+    for name, values in conditions.items():
+        values = check_vector(f"initial_state[{name!r}]", values, min_length=1)
+        output = diagram.outputs.index(name)
+        power = C[output]
+        rows.append(power + D[output] @ W_x)
+        rhs.append(values[0] - D[output] @ w_c)
+        for derivative in values[1:]:
+            forcing = power @ B
+            power = power @ A
+            rows.append(power + forcing @ W_x)
+            rhs.append(derivative - forcing @ w_c)
+    M = np.array(rows).reshape(len(rows), n_x)
+    rank = np.linalg.matrix_rank(M) if len(rows) else 0
+    if len(rows) != n_x or rank != n_x:
+        raise ValueError(
+            f"initial_state must determine the loop's {n_x} states exactly: it gives "
+            f"{len(rows)} values and derivatives of rank {rank}; give each of "
+            f"{', '.join(INITIAL_STATE_SIGNALS)} with as many derivatives as its block "
+            "has states (e.g. value and rate of y, u and n for a second-order pilot, "
+            "element and remnant)"
+        )
+    return np.linalg.solve(M, np.array(rhs))
+
+
+def _measurement_noise(noise: Mapping[str, float] | None) -> dict[str, float]:
+    """Validated ``{signal: variance}`` in the order of the measured signals."""
+    if noise is None:
+        return {}
+    if not isinstance(noise, Mapping):
+        raise TypeError(f"measurement_noise must map signal names to variances, got {noise!r}")
+    reject_unknown("measurement_noise", noise, MEASURED_SIGNALS)
+    return {
+        name: check_positive(f"measurement_noise[{name!r}]", noise[name], allow_zero=True)
+        for name in MEASURED_SIGNALS
+        if name in noise
+    }
+
+
 # ------------------------------------------------------------------------ simulate
 
 
@@ -658,6 +857,12 @@ def simulate(
     remnant_signal: Sequence[float] | FloatArray | None = None,
     keep_run_in: bool = False,
     on_unstable: str = "raise",
+    gap: float | Schedule | None = None,
+    postview: float | None = None,
+    loss_of_control: float | None = None,
+    start_time: float = 0.0,
+    initial_state: Mapping[str, Sequence[float]] | None = None,
+    measurement_noise: Mapping[str, float] | None = None,
 ) -> Recording:
     """Simulate a closed-loop tracking run and return its :class:`Recording`.
 
@@ -695,6 +900,30 @@ def simulate(
         growth check on the run; see :mod:`~manualcontrol.pilots.stability`) raises
         :class:`~manualcontrol.pilots.stability.UnstableLoopError` (``"raise"``,
         default) or warns and sets ``metadata["diverging"]`` to the reason (``"warn"``).
+        With ``loss_of_control`` the growth check reads the run up to the loss only.
+    gap, postview
+        The postview task's gap (s, a number or a schedule; default 0.4) and the past
+        track shown (s, default 1), :mod:`manualcontrol.envs.postview`; the recording
+        then has the ``gap`` trace among its parameters.
+    loss_of_control
+        ``|e|`` beyond which the run ends, as in the environments (the recording stops
+        before the sample that exceeded it; metadata ``terminated``). None: the run
+        goes on to the end (unlike the environments, no default for unstable elements).
+    start_time
+        Time (s) of the first measured sample (default 0; Schiess & Roland's runs start
+        at 0.25 s): recorded times, schedules and forcing all run from it.
+    initial_state
+        Start the loop (at the first simulated sample) from these values instead of at
+        rest: ``{signal: (value, rate, ...)}`` for the loop outputs ``y``, ``u``, ``e``,
+        ``n``, each value followed by as many time derivatives as wanted (e.g. Schiess
+        & Roland Table I: ``{"y": (c, c'), "u": (delta, delta'), "n": (eta, eta')}``).
+        Together they must determine the loop's state uniquely (see
+        :func:`initial_loop_state`); continuous loop only.
+    measurement_noise
+        ``{signal: variance}`` of white Gaussian noise added to the recorded ``y``, ``e``
+        or ``u`` after the run (measurement noise: the pilot saw the clean signals;
+        Schiess & Roland: 0.00092 V^2 on stick and plant output). Drawn from the same
+        generator after the remnant noise, so a seed's remnant is unchanged.
 
     The recording holds ``t, ft, fd, y, e, u, n`` (plus ``ft_far``, the previewed
     target the pilot used, in preview tasks, and ``u_n`` and ``y_n``, the parts of ``u``
@@ -718,14 +947,22 @@ def simulate(
         dt=dt,
         run_in=run_in,
         measurement_time=measurement_time,
+        gap=gap,
+        postview=postview,
+        start_time=start_time,
     )
     check_choice("loop", loop, LOOPS)
+    if loss_of_control is not None:
+        loss_of_control = check_positive("loss_of_control", loss_of_control)
+    noise_variances = _measurement_noise(measurement_noise)
     rng, seed_used = _as_generator(seed)
+    x0 = None
     traces = setup.parameter_traces()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UnstableLoopWarning)
         stable = check_stable(setup, on_unstable=on_unstable)
-    signals = setup.forcing_signals(traces)
+    sampled = setup.sampled_forcing()
+    signals = setup.forcing_signals(traces, sampled)
     n = setup.n_samples
     remnant = pilot.remnant
     if remnant_signal is not None:
@@ -745,13 +982,16 @@ def simulate(
                     cols[name] = np.zeros(n)
         if noise is not None:
             cols["noise"] = noise * noise_scale
-        return _run(assembled, index, cols, delays, dt)
+        return _run(assembled, index, cols, delays, dt, x0 if forced else None)
 
     measured = slice(setup.n_run_in, n)
     metadata = setup.metadata()
     metadata.update(
         {"dt": setup.dt, "loop": loop, "seed": seed_used, "delay_order": pilot.delay_order}
     )
+    if initial_state is not None:
+        x0 = initial_loop_state(setup, traces, remnant, columns, initial_state, loop)
+        metadata["initial_state"] = {k: [float(v) for v in vs] for k, vs in initial_state.items()}
     if noise is None:
         outputs = run(True, 0.0)
     else:
@@ -759,19 +999,32 @@ def simulate(
         forced = run(True, 0.0)
         unit = run(False, 1.0)
         if remnant.P_r is not None and remnant_signal is None:
-            gain = _calibrate(setup, traces, remnant, noise, columns, delays, forced, unit, loop)
-        outputs = run(True, gain)
+            gain = _calibrate(
+                setup, traces, remnant, noise, columns, sampled, delays, forced, unit, loop
+            )
+        # the loop is linear and starts at rest: the run with both is their sum (to
+        # rounding), one stepping of the loop less
+        outputs = {name: forced[name] + gain * unit[name] for name in forced}
         ratio = remnant_power_ratio(outputs["u"][measured], gain * unit["u"][measured])
         remnant_description = (
             remnant.with_gain(gain).to_dict() if remnant_signal is None else "signal"
         )
         metadata.update({"remnant": remnant_description, "remnant_power_ratio": ratio})
+    end = n
+    if loss_of_control is not None:
+        end = _loss_of_control_end(outputs["e"], loss_of_control)
+        metadata.update({"loss_of_control": loss_of_control, "terminated": end < n})
+        if end <= setup.n_run_in:
+            raise ValueError(
+                f"control was lost (|e| > {loss_of_control:g}) at t = "
+                f"{float(setup.time[end]):g} s, before the measurement started"
+            )
     if stable is None:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", UnstableLoopWarning)
             check_growth(
-                setup.time,
-                outputs["e"],
+                setup.time[:end],
+                outputs["e"][:end],
                 float(np.max(np.abs(columns["ft"])) + np.max(np.abs(columns["fd"]))),
                 what="the closed loop",
                 on_unstable=on_unstable,
@@ -779,7 +1032,7 @@ def simulate(
     for warning in caught:
         metadata["diverging"] = str(warning.message)
         warnings.warn(warning.message, UnstableLoopWarning, stacklevel=2)
-    part = slice(0, n) if keep_run_in else measured
+    part = slice(0, end) if keep_run_in else slice(setup.n_run_in, end)
     recorded = {"t": setup.time[part], "ft": columns["ft"][part], "fd": columns["fd"][part]}
     for name in ("y", "e", "u", "n"):
         recorded[name] = outputs[name][part]
@@ -789,12 +1042,25 @@ def simulate(
     if noise is not None:
         recorded["u_n"] = gain * unit["u"][part]
         recorded["y_n"] = gain * unit["y"][part]
-    return Recording(
-        signals=recorded,
-        dt=setup.dt,
-        parameters={name: trace[part] for name, trace in traces.items()},
-        metadata=metadata,
-    )
+    parameters = {name: trace[part] for name, trace in traces.items()}
+    if setup.gap is not None:
+        parameters["gap"] = setup.gap_trace()[part]
+    for name, variance in noise_variances.items():
+        # drawn for every simulated sample, so the noise does not depend on keep_run_in
+        recorded[name] = recorded[name] + math.sqrt(variance) * rng.standard_normal(n)[part]
+    if noise_variances:
+        metadata["measurement_noise"] = dict(noise_variances)
+    return Recording(signals=recorded, dt=setup.dt, parameters=parameters, metadata=metadata)
+
+
+def _loss_of_control_end(e: FloatArray, limit: float) -> int:
+    """Samples an environment would have recorded before its loss-of-control end.
+
+    It terminates on the step whose new error exceeds the limit, and that sample is not
+    part of its recording.
+    """
+    beyond = np.flatnonzero(~(np.abs(e[1:]) <= limit))  # NaN or overflow counts too
+    return int(beyond[0]) + 1 if beyond.size else int(e.shape[0])
 
 
 def _calibrate(
@@ -803,6 +1069,7 @@ def _calibrate(
     remnant: Remnant,
     noise: FloatArray,
     columns: Mapping[str, FloatArray],
+    sampled: tuple[FloatArray, FloatArray],
     delays: FloatArray | None,
     forced: Mapping[str, FloatArray],
     unit: Mapping[str, FloatArray],
@@ -815,23 +1082,17 @@ def _calibrate(
         return _gain_for_ratio(forced["u"][measured], unit["u"][measured], ratio)
     # Linear simulation at the mean parameter values gives the first gain.
     mean = {name: np.full_like(trace, trace.mean()) for name, trace in traces.items()}
-    linear_setup = SimulationSetup(
-        setup.pilot.with_parameters(
+    linear_setup = dataclasses.replace(
+        setup,
+        pilot=setup.pilot.with_parameters(
             **{name: float(trace.mean()) for name, trace in traces.items()}
         ),
-        setup.element,
-        setup.forcing,
-        setup.task,
-        setup.available_preview,
-        setup.dt,
-        setup.run_in,
-        setup.measurement_time,
     )
     linear, index = _build_loop(linear_setup, mean, remnant, loop)
     linear_delays = None if delays is None else mean[setup.pilot.model.delay_parameter]
     linear_columns = dict(columns)
     if "ft_far" in columns:
-        linear_columns.update(linear_setup.forcing_signals(mean))
+        linear_columns.update(linear_setup.forcing_signals(mean, sampled))
     zero = {name: np.zeros_like(value) for name, value in linear_columns.items()}
     linear_forced = _run(
         linear, index, {**linear_columns, "noise": 0.0 * noise}, linear_delays, setup.dt

@@ -192,11 +192,15 @@ def check_stable(setup: Any, *, on_unstable: str = "raise") -> bool | None:
     """Closed-loop poles of a constant set-up: True when stable; None when time-varying.
 
     An unstable constant loop raises :class:`UnstableLoopError` naming the pole
-    (or warns, ``on_unstable="warn"``, and returns False). Time-varying set-ups are
-    left to :func:`check_growth` on the simulated run.
+    (or warns, ``on_unstable="warn"``, and returns False). Time-varying set-ups, and the
+    gap-postview task, are left to :func:`check_growth` on the simulated run.
     """
     check_choice("on_unstable", on_unstable, ON_UNSTABLE)
     if setup.pilot.is_time_varying or setup.element.is_time_varying:
+        return None
+    if getattr(setup, "task", None) == "postview":
+        # the postview operator extrapolates a displayed past track (no model delay of
+        # its own): the pole analysis has no form for it; the growth check judges the run
         return None
     poles = closed_loop_poles(setup)
     worst = poles[np.argmax(poles.real)]

@@ -56,8 +56,12 @@ __all__ = [
 KalmanWork = namedtuple("KalmanWork", ["PHt", "S", "L", "K", "M", "T", "log_det"])
 
 
-def kalman_work(n: int, m: int) -> KalmanWork:
-    """Scratch arrays for an ``n``-state filter with ``m``-dimensional measurements."""
+def kalman_work(n: int, m: int, log_det: bool = True) -> KalmanWork:
+    """Scratch arrays for an ``n``-state filter with ``m``-dimensional measurements.
+
+    ``log_det=False`` skips the logarithm of each correction's innovation covariance
+    (filters that never read the likelihood).
+    """
     return KalmanWork(
         np.zeros((n, m)),
         np.zeros((m, m)),
@@ -65,7 +69,7 @@ def kalman_work(n: int, m: int) -> KalmanWork:
         np.zeros((n, m)),
         np.zeros((n, m)),
         np.zeros((n, n)),
-        np.zeros(1),
+        np.zeros(1 if log_det else 0),
     )
 
 
@@ -101,6 +105,62 @@ def _innovation_covariance(P, H, R, PHt, S):
 
 
 @numba.njit(cache=True, _nrt=False)
+def _joseph_scalar(x, P, r, H, R, work, jitter):
+    """:func:`joseph_correct` for a scalar measurement, fused (the same numbers).
+
+    The same operations in the same order as the general form, with the loops over
+    the measurement dimension gone and ``P H^T`` and ``S`` taken in one pass: a scalar
+    correction is most of every pilot filter's step.
+    """
+    n = P.shape[0]
+    PHt, K, M = work.PHt, work.K, work.M
+    s = R[0, 0]
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += P[i, j] * H[0, j]
+        PHt[i, 0] = acc
+        s += H[0, i] * acc
+    work.S[0, 0] = s
+    if not s > 0.0 or not np.isfinite(s):
+        return False
+    r0 = r[0]
+    for i in range(n):
+        k_i = PHt[i, 0] / s
+        K[i, 0] = k_i
+        acc = 0.0
+        acc += k_i * r0
+        x[i] += acc
+    if work.log_det.shape[0] > 0:
+        work.log_det[0] = np.log(s)
+    for i in range(n):
+        k_i = K[i, 0]
+        for j in range(n):
+            acc = 0.0
+            acc += k_i * PHt[j, 0]
+            P[i, j] -= acc
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += P[i, j] * H[0, j]
+        M[i, 0] = acc
+    rv = R[0, 0]
+    for i in range(n):
+        m_i = M[i, 0]
+        k_i = K[i, 0]
+        for j in range(n):
+            acc = 0.0
+            acc -= m_i * K[j, 0]
+            acc += k_i * rv * K[j, 0]
+            P[i, j] += acc
+    symmetrise(P)
+    if jitter > 0.0:
+        for i in range(n):
+            P[i, i] += jitter
+    return True
+
+
+@numba.njit(cache=True, _nrt=False)
 def joseph_correct(x, P, r, H, R, work, jitter):
     """Correct the belief ``(x, P)`` with innovation ``r`` (m,); Joseph form.
 
@@ -112,24 +172,19 @@ def joseph_correct(x, P, r, H, R, work, jitter):
     """
     n = P.shape[0]
     m = r.shape[0]
+    if m == 1:
+        return _joseph_scalar(x, P, r, H, R, work, jitter)
     PHt, S, L, K, M = work.PHt, work.S, work.L, work.K, work.M
     _innovation_covariance(P, H, R, PHt, S)
-    if m == 1:
-        s = S[0, 0]
-        if not s > 0.0 or not np.isfinite(s):
-            return False
-        for i in range(n):
-            K[i, 0] = PHt[i, 0] / s
-        work.log_det[0] = np.log(s)
-    else:
-        for a in range(m):
-            for b in range(a + 1, m):
-                v = 0.5 * (S[a, b] + S[b, a])
-                S[a, b] = v
-                S[b, a] = v
-        if not cholesky(S, L):
-            return False
-        cholesky_solve_rows(L, PHt, K)
+    for a in range(m):
+        for b in range(a + 1, m):
+            v = 0.5 * (S[a, b] + S[b, a])
+            S[a, b] = v
+            S[b, a] = v
+    if not cholesky(S, L):
+        return False
+    cholesky_solve_rows(L, PHt, K)
+    if work.log_det.shape[0] > 0:
         work.log_det[0] = log_determinant(L)
     add_product(x, K, r)
     # (I - K H) P = P - K (H P), H P = PHt^T for symmetric P

@@ -44,7 +44,7 @@ REASON_COVARIANCE = 2
 REASON_PINNED = 3
 
 
-@numba.njit(cache=True, _nrt=False)
+@numba.njit(cache=True, _nrt=False, inline="always")
 def belief_health(x, P, max_cov, zero_ok):
     """``(finite, covariance_ok)`` of a belief (module docstring).
 

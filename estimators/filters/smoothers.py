@@ -20,15 +20,14 @@ Storage, ``N`` samples: ``x_filtered[k], P_filtered[k]`` the posterior after sam
 belief); ``link[k]`` for k >= 1 either the cross-covariance ``C_k`` or the transition
 Jacobian ``Phi_k`` (from sample k - 1 to k); ``link[0]`` is not read.
 
-``P^-_{k+1}`` is solved by Cholesky after loading each variance by ``REGULARISATION``
-times itself. The pilot models' canonical states span twenty orders of magnitude in
-variance (Padé coefficients grow like ``tau^-m``); the UKF's ``C`` and ``P^-`` come
-from the same points but separate sums, so their rounding is not exactly consistent,
-and ``C (P^-)^-1`` amplifies it by the condition number (1e26 measured): without the
-loading the unscented RTS smoother of the joint UKF ran to its limits on the
-time-varying Popovici run. The loading changes the smoothed linear-Gaussian answer by
-about 1e-10 relative. A prior that fails even so is loaded 1e3 times more (up to five
-times), and the number of such samples is returned.
+``P^-_{k+1}`` is solved by Cholesky. A prior singular to rounding (a state with no
+process noise that the data have pinned down) is loaded on its diagonal, each
+variance by ``REGULARISATION`` times itself (1e3 times more, up to five times, if that
+is not enough), and the number of such samples is returned. (Loading every prior
+instead changed the RDI's smoothed delay by 2e-8 relative against its exact numpy
+recursion, and did not save the full-state unscented smoother of the pilot models,
+whose canonical variances span twenty orders of magnitude: the unscented pilot
+filters smooth their parameter marginals instead, see ``estimators/ukf.py``.)
 """
 
 from __future__ import annotations
@@ -54,6 +53,7 @@ __all__ = [
     "SmootherWork",
     "rts_smooth",
     "smoother_work",
+    "store_belief",
 ]
 
 #: ``link`` holds cross-covariances ``C_k`` (UKF).
@@ -62,8 +62,8 @@ LINK_CROSS = 0
 LINK_TRANSITION = 1
 #: Random-walk states: no ``link`` needed (``C_k = P^+_{k-1}``).
 LINK_RANDOM_WALK = 2
-#: Relative diagonal loading of each prior covariance before it is factored.
-REGULARISATION = 1e-10
+#: Relative diagonal loading of a prior covariance that does not factor as it is.
+REGULARISATION = 1e-12
 
 SmootherWork = namedtuple("SmootherWork", ["C", "G", "A", "L", "D", "T"])
 
@@ -73,18 +73,31 @@ def smoother_work(n: int) -> SmootherWork:
     return SmootherWork(*(np.zeros((n, n)) for _ in range(6)))
 
 
+@numba.njit(cache=True, _nrt=False, inline="always")
+def store_belief(row, x, P, x_store, P_store):
+    """Copy a belief into row ``row`` of the storage above (a no-op when it has no rows)."""
+    if x_store.shape[0] == 0:
+        return
+    for i in range(x.shape[0]):
+        x_store[row, i] = x[i]
+        for j in range(x.shape[0]):
+            P_store[row, i, j] = P[i, j]
+
+
 @numba.njit(cache=True, _nrt=False)
 def _factor_prior(P, A, L):
-    """Cholesky factor of the prior ``P`` with relative diagonal loading, into ``L``.
+    """Cholesky factor of the prior ``P`` into ``L``, loaded only if it must be.
 
-    ``A = P + REGULARISATION diag(P)`` (each variance loaded by its own size, so the
-    loading is blind to the states' units); if that still fails, the loading grows by
-    1e3 up to five times. Returns the number of extra loadings (0 normally), -1 if none
-    succeeded.
+    When ``P`` does not factor, ``A = P + load diag(P)`` (each variance loaded by its own
+    size, blind to the states' units) is tried with ``load`` from
+    :data:`REGULARISATION` growing by 1e3 up to five times. Returns the number of
+    loadings used (0 normally), -1 if none succeeded.
     """
+    if cholesky(P, L):
+        return 0
     n = P.shape[0]
     load = REGULARISATION
-    for attempt in range(6):
+    for attempt in range(1, 7):
         for i in range(n):
             for j in range(n):
                 A[i, j] = P[i, j]
@@ -137,7 +150,7 @@ def rts_smooth(x_filtered, P_filtered, x_predicted, P_predicted, link, kind, x_s
                 for j in range(n):
                     P_smooth[k, i, j] = Pf[i, j]
             continue
-        regularised += status
+        regularised += 1 if status > 0 else 0
         # G = C P_p^-1 (rows of C solved against the symmetric P_p)
         cholesky_solve_rows(L, C, G)
         for i in range(n):

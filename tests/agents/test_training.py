@@ -113,7 +113,7 @@ def test_evaluation_covers_the_whole_period_despite_loss_of_control(trained):
         (
             {"task": "gap"},
             ValueError,
-            "task must be one of 'compensatory', 'pursuit', 'preview', got 'gap'",
+            "task must be one of 'compensatory', 'pursuit', 'preview', 'lane-keeping', got 'gap'",
         ),
         ({"total_timesteps": 0}, ValueError, "total_timesteps must be >= 1, got 0"),
         ({"wrappers": ({"kind": "fatigue"},)}, ValueError, "wrapper kind must be one of"),

@@ -173,3 +173,16 @@ def test_implausible_identifications_are_flagged():
     assert len(flags) == 2
     assert "fit K_p = -0.016" in flags[0] and "far outside the human range" in flags[0]
     assert "fit zeta_nms = 83.6" in flags[1]
+
+
+def test_motor_noise_variance_is_numpys_to_the_bit():
+    # MotorNoise's compiled window variance replaces np.var per step; it follows numpy's
+    # pairwise summation so the noise scale (and every episode) is unchanged, bit for bit
+    from manualcontrol.agents.wrappers import _population_variance
+
+    rng = np.random.default_rng(0)
+    for _ in range(400):
+        count = int(rng.integers(2, 1200))
+        values = rng.standard_normal(count) * 10.0 ** rng.uniform(-5, 5)
+        values += rng.uniform(-1, 1) * 10.0 ** rng.uniform(-3, 3)
+        assert _population_variance(values) == np.var(values), count

@@ -131,3 +131,28 @@ def test_the_cli_lists_the_family_and_overrides_a_suites_estimators(tmp_path, ca
     assert code == EXIT_USAGE
     assert "unknown estimator(s) ['kalman']" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def test_identify_refuses_a_pilot_model_for_an_estimator_with_its_own(tmp_path, capsys):
+    from manualcontrol.pilots import Pilot, simulate
+
+    recording = simulate(Pilot("precision"), "popovici2017", "popovici2017", measurement_time=10.0)
+    path = recording.save(tmp_path / "run.npz")
+    code = main(
+        [
+            "identify",
+            str(path),
+            "--estimator",
+            "rdi",
+            "--model",
+            "preview",
+            "--out",
+            str(tmp_path / "out"),
+        ]
+    )
+    assert code == EXIT_USAGE
+    assert "the rdi estimator has its own model" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+    code = main(["identify", str(path), "--estimator", "kalman", "--out", str(tmp_path / "o2")])
+    assert code == EXIT_USAGE
+    assert "--estimator must be one of dekf" in capsys.readouterr().err

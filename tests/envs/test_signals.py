@@ -510,7 +510,8 @@ def test_band_limited_noise_has_no_content_above_cutoff_and_exact_std():
         (
             lambda: forcing_preset("vanderel"),
             "forcing preset must be one of 'vanderel-bw4', 'popovici2017', "
-            "'schiess-roland1975', 'plaetinck2018', got 'vanderel'",
+            "'schiess-roland1975', 'plaetinck2018', 'boer-kenyon1998', "
+            "'boer-kenyon1998-postview', 'boer-kenyon1998-critical', got 'vanderel'",
         ),
         (
             lambda: forcing_preset("popovici2017", 5),
@@ -563,7 +564,10 @@ def test_bad_input_raises_value_error_with_message(build, message):
             lambda: design_multisine(3, 10.0, 1.0, 1.0, 0.5, 5.0, 42),
             "rng must be a numpy.random.Generator (numpy.random.default_rng(seed)), got 42",
         ),
-        (lambda: ForcingPair([1.0], None), "target must be a Multisine or None, got [1.0]"),
+        (
+            lambda: ForcingPair([1.0], None),
+            "target must be a Multisine, a BandLimitedNoise or None, got [1.0]",
+        ),
         (
             lambda: realisations([1.0], 2, np.random.default_rng(0)),
             "base must be a Multisine, got [1.0]",

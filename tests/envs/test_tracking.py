@@ -347,3 +347,15 @@ def test_vector_env_rejects_non_finite_actions():
         ValueError, match=re.escape("actions must be finite, got non-finite values for copies [1]")
     ):
         envs.step(np.array([[0.0], [np.inf], [0.0]]))
+
+
+def test_times_are_the_observation_times_and_read_only():
+    env = make("Preview", run_in=1.0, measurement_time=2.0)
+    _, info = env.reset(seed=0)
+    times = env.unwrapped.times
+    assert times[0] == info["t"] == -1.0
+    for k in range(1, 50):
+        _, _, _, _, info = env.step(np.array([0.1]))
+        assert info["t"] == times[k]
+    with pytest.raises(ValueError, match="read-only"):
+        times[0] = 0.0

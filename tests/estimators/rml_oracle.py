@@ -23,7 +23,7 @@ def keys_read(values, newest, position):
         return values[newest]
     if position <= 0.0:
         return values[0]
-    n = int(math.floor(position))
+    n = math.floor(position)
     d = position - n
 
     def kernel(x):

@@ -43,7 +43,9 @@ def test_moving_vaf_by_hand():
     u_hat = np.array([1.0, 1.0, 2.0, 0.0])
     moving = moving_vaf(u, u_hat, dt=0.5, window=1.0)  # two samples a window
     assert math.isnan(moving[0])
-    np.testing.assert_allclose(moving[1:], [100 * (1 - 1 / 5), 100 * (1 - 1 / 8), 100 * (1 - 1 / 5)])
+    np.testing.assert_allclose(
+        moving[1:], [100 * (1 - 1 / 5), 100 * (1 - 1 / 8), 100 * (1 - 1 / 5)]
+    )
 
 
 def test_relative_bias_has_the_sign_of_the_error_and_divides_by_the_magnitude():

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import (
     DEKF,
     DualUKF,
@@ -270,3 +271,48 @@ def test_ukf_settings_round_trip_and_reject_unknown_keys():
         TypeError, match=re.escape("DualUKFSettings.from_dict got unknown key(s) 'sigma'")
     ):
         DualUKFSettings.from_dict({"model": "precision", "sigma": 1})
+
+
+def test_a_pursuit_fit_needs_no_target_ahead():
+    """anticipation_time = 0: the far view reads the current target (van der El's pursuit)."""
+    from manualcontrol.pilots import Pilot, simulate
+
+    truth = {
+        "K_f": 1.0,
+        "omega_f": 3.3,
+        "K_p": 1.3,
+        "K_v": 0.0,
+        "omega_nms": 10.5,
+        "zeta_nms": 0.35,
+        "tau_v": 0.26,
+        "tau_f": 0.0,
+    }
+    recording = simulate(
+        Pilot("preview", truth),
+        "SI",
+        "vanderel-bw4",
+        task="pursuit",
+        seed=1,
+        measurement_time=60.0,
+        keep_run_in=True,
+    )
+    # nothing says what the target will do: no forcing in the metadata
+    bare = Recording(recording.signals, recording.dt, recording.parameters, {})
+    initial = {k: v for k, v in truth.items() if k != "tau_f"}
+    for kind in (DEKF, JointUKF):
+        estimator = kind(
+            model="preview", ce="SI", anticipation_time=0.0, preset="vertregt2020", initial=initial
+        )
+        assert estimator.sample_keys == ("ft", "y", "e", "u")
+        result = estimator.estimate(bare)
+        assert not result.health.diverged
+        assert "tau_f" not in result.estimated
+        np.testing.assert_array_equal(result.mean_of("tau_f"), 0.0)
+        assert result.final()["K_f"] == pytest.approx(1.0, rel=0.05)
+        assert result.final()["K_p"] == pytest.approx(1.3, rel=0.05)
+    with pytest.raises(ValueError, match=re.escape("holds tau_f at 0")):
+        DEKF(model="preview", anticipation_time=0.0, initial={"tau_f": 0.3})
+    with pytest.raises(ValueError, match=re.escape("leave tau_f out of estimated")):
+        DEKF(model="preview", anticipation_time=0.0, estimated=("K_f", "tau_f")).estimate(bare)
+    with pytest.raises(ValueError, match=re.escape("or 0 for a pursuit fit; got 0.1")):
+        DEKF(model="preview", anticipation_time=0.1)

@@ -1,0 +1,182 @@
+"""Online loop cost per step: env, pilot, wrappers, observer and the DEKF's update().
+
+One hour at 100 Hz is 360,000 steps; "1,000x real time" is 10 us a step. Timed here,
+per step, medians of REPEATS episodes of STEPS steps in one process (CPU time of this
+process, so other load on the machine does not count), after one warm-up episode:
+
+- env: ``CompensatoryTracking-v0`` / ``PreviewTracking-v0`` (DI) stepped with a fixed
+  action, through ``gymnasium.make`` (its default wrappers included);
+- env + pilot: a cybernetic pilot acting (``pilot.act`` then ``env.step``);
+- wrappers: ActionDelay (0.125 s, queue observed), MotorNoise (30 %) and
+  NeuromuscularFilter each around the env, the pilot acting;
+- env + pilot + observer: ``EstimatorObserver`` with a causal DEKF around the env;
+- DEKF.update alone, fed the samples of a recorded episode, beside ``estimate()`` of
+  the same recording per sample: the issue asks ``update`` within 2x of that.
+
+Run: .venv/bin/python benchmarks/bench_online.py [--steps N] [--repeats N]
+Old code, for a side-by-side run: PYTHONPATH=<old tree mapped as manualcontrol>.
+"""
+
+import argparse
+import statistics
+import time
+
+import gymnasium as gym
+import numpy as np
+
+import manualcontrol.envs  # noqa: F401
+from manualcontrol.agents.wrappers import ActionDelay, MotorNoise, NeuromuscularFilter
+from manualcontrol.estimators import DEKF
+from manualcontrol.estimators.observer import EstimatorObserver
+from manualcontrol.pilots import Pilot
+
+DI = dict(K_p=0.24, K_v=0.36, omega_nms=8.0, zeta_nms=0.45, tau_v=0.3)
+PREVIEW_DI = dict(K_f=0.9, omega_f=1.0, **DI)
+TASKS = {
+    "compensatory": (
+        "Compensatory",
+        lambda: Pilot("precision", DI),
+        dict(model="precision", ce="DI", initial_variance="causal", initial={"K_p": 0.24}),
+    ),
+    "preview": (
+        "Preview",
+        lambda: Pilot("preview", PREVIEW_DI),
+        dict(
+            model="preview",
+            ce="DI",
+            anticipation_time=0.9,
+            initial_variance="causal",
+            initial={"K_p": 0.24},
+        ),
+    ),
+}
+
+
+def make_env(task, steps):
+    return gym.make(
+        f"ManualControl/{TASKS[task][0]}Tracking-v0",
+        controlled_element="DI",
+        run_in=0.0,
+        measurement_time=steps * 0.01,
+    )
+
+
+def episode(env, pilot, steps, width=None):
+    """CPU seconds of one episode of ``steps`` steps (pilot acting, or a fixed action)."""
+    observation, _ = env.reset(seed=0)
+    if pilot is not None:
+        pilot.reset(seed=1, env=env)
+    action = np.array([0.1])
+    start = time.process_time()
+    for _ in range(steps):
+        if pilot is not None:
+            action = pilot.act(observation if width is None else observation[:width])
+        observation, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:
+            break
+    return time.process_time() - start
+
+
+def summary(times, count):
+    """Median and minimum per item: on a shared machine the minimum is the quiet cost."""
+    return statistics.median(times) / count, min(times) / count
+
+
+def per_step(make, pilot_factory, steps, repeats, width=None):
+    env = make()
+    pilot = None if pilot_factory is None else pilot_factory()
+    episode(env, pilot, min(steps, 200), width)  # warm-up: compile / load kernels
+    return summary([episode(env, pilot, steps, width) for _ in range(repeats)], steps)
+
+
+def dekf_costs(task, steps, repeats):
+    """Per-sample CPU of DEKF.update over a recorded episode and of estimate()."""
+    _, pilot_factory, settings = TASKS[task]
+    env = make_env(task, steps)
+    pilot = pilot_factory()
+    observation, _ = env.reset(seed=0)
+    pilot.reset(seed=1, env=env)
+    for _ in range(steps):
+        observation, *_ = env.step(pilot.act(observation))
+    recording = env.unwrapped.recording(include_run_in=True)
+    estimator = DEKF(**settings)
+    samples = estimator.signals(recording)
+    keys = estimator.sample_keys
+    table = [
+        {**{key: float(samples[key][k]) for key in keys}, "t": float(recording.t[k])}
+        for k in range(len(recording))
+    ]
+
+    def run_update():
+        estimator.reset(recording.dt, t0=float(recording.t[0]))
+        start = time.process_time()
+        for sample in table:
+            estimator.update(sample)
+        return time.process_time() - start
+
+    def run_estimate():
+        start = time.process_time()
+        estimator.estimate(recording)
+        return time.process_time() - start
+
+    run_update()
+    run_estimate()
+    update = summary([run_update() for _ in range(repeats)], len(table))
+    batch = summary([run_estimate() for _ in range(repeats)], len(table))
+    return update, batch
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=20_000)
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args()
+    steps, repeats = args.steps, args.repeats
+    print(f"CPU time per step (us): median and minimum of {repeats} episodes of {steps} steps")
+    for task, (_, pilot_factory, settings) in TASKS.items():
+        width = make_env(task, 10).observation_space.shape[0]
+        rows = {
+            "env": per_step(lambda t=task: make_env(t, steps), None, steps, repeats),
+            "env + pilot": per_step(
+                lambda t=task: make_env(t, steps), pilot_factory, steps, repeats
+            ),
+            "env + pilot + ActionDelay": per_step(
+                lambda t=task: ActionDelay(make_env(t, steps), 0.125),
+                pilot_factory,
+                steps,
+                repeats,
+                width,
+            ),
+            "env + pilot + MotorNoise": per_step(
+                lambda t=task: MotorNoise(make_env(t, steps), 0.3), pilot_factory, steps, repeats
+            ),
+            "env + pilot + NeuromuscularFilter": per_step(
+                lambda t=task: NeuromuscularFilter(make_env(t, steps)),
+                pilot_factory,
+                steps,
+                repeats,
+                width,
+            ),
+            "env + pilot + observer(DEKF)": per_step(
+                lambda t=task, s=settings: EstimatorObserver(make_env(t, steps), DEKF(**s)),
+                pilot_factory,
+                steps,
+                repeats,
+            ),
+        }
+        update, batch = dekf_costs(task, steps, repeats)
+        rows["DEKF.update alone"] = update
+        rows["DEKF.estimate, per sample"] = batch
+        observed = rows["env + pilot + observer(DEKF)"]
+        rows["env + pilot + observer, less update"] = tuple(
+            o - u for o, u in zip(observed, update, strict=True)
+        )
+        print(f"{task}:")
+        print(f"  {'':40s} {'median':>8s} {'minimum':>8s}   (minimum: x real time)")
+        for name, (median, best) in rows.items():
+            print(f"  {name:40s} {median * 1e6:8.2f} {best * 1e6:8.2f}   {0.01 / best:8.0f}x")
+        print(f"  DEKF.update / estimate per sample (minima) {update[1] / batch[1]:8.1f}x")
+
+
+if __name__ == "__main__":
+    main()

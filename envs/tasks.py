@@ -1,0 +1,114 @@
+"""Set-up shared by every tracking run: the environments and the closed-loop simulation.
+
+A tracking run is fixed by its task, controlled element, forcing realisation, sample
+time, run-in and measurement time. The Gymnasium environments
+(:mod:`~manualcontrol.envs.tracking`) and :func:`manualcontrol.pilots.simulate` resolve
+these the same way through the helpers here, so a pilot acting in an environment and
+the simulation of the same run stay one problem:
+
+* :func:`resolve_forcing` -- a preset name (and realisation) or a ``ForcingPair``;
+* :func:`measurement_time_for` -- default: the forcing's period ``T_m`` (120 s when the
+  forcing has none);
+* :func:`available_preview_for` -- the preview a task shows (1 s by default in the
+  preview task, none otherwise) and :func:`check_preview_time` for a point read in it;
+* :func:`sample_counts` -- run-in and total samples;
+* :func:`task_metadata` -- what a recording of the run says about how it was made.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from manualcontrol.envs._validation import check_choice, check_positive
+from manualcontrol.envs.elements import ControlledElement
+from manualcontrol.envs.signals import ForcingPair, forcing_preset
+
+__all__ = [
+    "DEFAULT_AVAILABLE_PREVIEW",
+    "DEFAULT_MEASUREMENT_TIME",
+    "TASKS",
+    "available_preview_for",
+    "check_preview_time",
+    "measurement_time_for",
+    "resolve_forcing",
+    "sample_counts",
+    "task_metadata",
+]
+
+#: The display types, see :mod:`~manualcontrol.envs.tracking`.
+TASKS: tuple[str, ...] = ("compensatory", "pursuit", "preview", "postview")
+#: Preview shown by default in preview tasks (s): covers nominal far-view preview times.
+DEFAULT_AVAILABLE_PREVIEW = 1.0
+#: Measurement time (s) of a forcing that has no period of its own.
+DEFAULT_MEASUREMENT_TIME = 120.0
+
+
+def resolve_forcing(forcing: str | ForcingPair, realisation: int = 0) -> ForcingPair:
+    """The forcing pair of a preset name and realisation, or ``forcing`` itself."""
+    if isinstance(forcing, str):
+        return forcing_preset(forcing, realisation)
+    if not isinstance(forcing, ForcingPair):
+        raise TypeError(f"forcing must be a preset name or a ForcingPair, got {forcing!r}")
+    return forcing
+
+
+def measurement_time_for(forcing: ForcingPair, measurement_time: float | None) -> float:
+    """``measurement_time`` checked, or by default the forcing's period ``T_m``."""
+    if measurement_time is None:
+        signal = forcing.target or forcing.disturbance
+        measurement_time = getattr(signal, "measurement_time", None) or DEFAULT_MEASUREMENT_TIME
+    return check_positive("measurement_time", measurement_time)
+
+
+def available_preview_for(task: str, available_preview: float | None) -> float:
+    """The preview (s) the task's display shows: only the preview task shows any."""
+    check_choice("task", task, TASKS)
+    if task == "preview":
+        preview = DEFAULT_AVAILABLE_PREVIEW if available_preview is None else available_preview
+        return check_positive("available_preview", preview, allow_zero=True)
+    if available_preview not in (None, 0, 0.0):
+        raise ValueError(
+            f"available_preview must be 0 (or omitted) in a {task} task, got {available_preview!r}"
+        )
+    return 0.0
+
+
+def check_preview_time(name: str, values: NDArray[np.float64], available: float, task: str) -> None:
+    """Raise unless every preview time in ``values`` lies within the shown preview."""
+    if np.any(values < 0.0):
+        raise ValueError(f"{name} must be >= 0 s (a preview time), got {float(values.min())!r}")
+    if np.any(values > available + 1e-12):
+        raise ValueError(
+            f"{name} must not exceed the available preview of {available:g} s in a {task} task, "
+            f"got {float(values.max())!r}"
+        )
+
+
+def sample_counts(dt: float, run_in: float, measurement_time: float) -> tuple[int, int]:
+    """Samples of run-in and of the whole run (run-in included)."""
+    n_run_in = round(run_in / dt)
+    return n_run_in, n_run_in + round(measurement_time / dt)
+
+
+def task_metadata(
+    task: str,
+    element: ControlledElement,
+    forcing: ForcingPair,
+    available_preview: float,
+    run_in: float,
+    measurement_time: float,
+) -> dict[str, Any]:
+    """The description every recording of a tracking run carries."""
+    return {
+        "task": task,
+        "controlled_element": element.to_dict(),
+        "forcing": forcing.to_dict(),
+        "forcing_name": forcing.name,
+        "realisation": forcing.realisation,
+        "available_preview": available_preview,
+        "run_in": run_in,
+        "measurement_time": measurement_time,
+    }

@@ -1,0 +1,507 @@
+"""The cybernetic driver model of Zhao et al. (2019) eq. 2, after Saleh et al. (2011).
+
+Symbols are the paper's (DESIGN.md: the driver model keeps them inside its own module).
+The driver reads two visual angles and feels the steering wheel (Zhao Fig. 1, Tables 1-2):
+
+====================  ============================================  =================
+input                 meaning                                       unit
+====================  ============================================  =================
+``theta_far``         visual anticipation angle (far point)         rad
+``theta_near``        visual compensation angle (near point)        rad
+``delta_d``           steering-wheel angle                          rad
+``Gamma_s``           self-aligning torque at the wheel             N m
+====================  ============================================  =================
+
+and produces the torque ``Gamma_d`` on the wheel (N m) through its intended wheel angle
+``delta_sw`` (rad)::
+
+    delta_sw = e^{-tau_p s} [ K_p theta_far + (K_c / v_x) (1 + T_L s)/(1 + T_I s) theta_near ]
+    Gamma_d  = [ (K_r v_x + K_t) delta_sw - K_t delta_d - Gamma_s ] / (1 + T_N s)
+
+(visual anticipation and compensation, processing delay, then the neuromuscular system:
+an internal model ``K_r v_x`` of the steering column's stiffness, the stretch reflex
+``K_t`` on the difference between intended and actual wheel angle, and compensation of
+the felt self-aligning torque). Parameters (Table 2, nominal): ``K_p`` 3.4, ``K_c`` 15,
+``T_I`` 1 s, ``T_L`` 3 s, ``tau_p`` 0.04 s, ``K_r`` 1, ``K_t`` 12, ``T_N`` 0.1 s; ``v_x``
+is the car's speed (18 m/s in Table 2), known, not a parameter.
+
+State space (eq. 2, the delay as the first-order Padé approximant of eq. 1), states
+``x = [x_1, x_2, Gamma_d]``: ``x_1`` the lag ``1/(1 + T_I s)`` of ``theta_near``,
+``x_2`` the Padé state, ``delta_sw = 2 x_2 - w`` with ``w`` the undelayed visual signal.
+The paper prints two entries of the third row wrongly::
+
+    printed   A(3,1) = -(K_r v_x + K_t K_c)/T_N (1/v_x)(1 - T_L/T_I)
+              B(3,2) = -(K_r v_x + K_t K_c T_L)/(v_x T_I T_N)
+    correct   A(3,1) = -(K_r v_x + K_t) K_c (1 - T_L/T_I)/(v_x T_N)
+              B(3,2) = -(K_r v_x + K_t) K_c T_L/(v_x T_I T_N)
+
+Derivation: ``T_N Gamma_d' = -Gamma_d + G delta_sw - K_t delta_d - Gamma_s`` with
+``G = K_r v_x + K_t`` and ``delta_sw = 2 x_2 - K_p theta_far - (K_c/v_x)[(T_L/T_I)
+theta_near + (1 - T_L/T_I) x_1]``; the ``x_1`` and ``theta_near`` coefficients are ``-G
+K_c (1 - T_L/T_I)/(v_x T_N)`` and ``-G K_c T_L/(v_x T_I T_N)``: the printed forms
+misplace the parenthesis (``K_t K_c`` instead of ``(K_r v_x + K_t) K_c``). With the
+nominal values the printed form gives a DC gain ``Gamma_d/theta_near`` of 41 instead
+of ``G K_c/v_x = 25`` (tests/pilots/test_driver.py derives both from the transfer
+functions above). :func:`driver_matrices` is the one definition of eq. 2 (corrected),
+compiled: the structure's Python API and the estimators' kernels both call it.
+
+Simulation (:class:`Driver`, :mod:`manualcontrol.pilots.driving`) uses the exact delay
+(``delay_order=None``: a delay line, the same conventions as the tracking pilots: the
+delayed signal's part held over each sample, ``K_p theta_far + (K_c/v_x)(T_L/T_I)
+theta_near``, delayed as a staircase, its smooth part ``(K_c/v_x)(1 - T_L/T_I) x_1``
+read bicubically and taken linear over the sample; the two lags are integrated exactly
+over the sample) or eq. 2 itself (``delay_order=1``, exact zero-order hold). Remnant:
+any :class:`~manualcontrol.pilots.remnant.Remnant` injected at ``"output"`` (added to
+the wheel torque, or to the wheel angle with angle steering) or ``"input"`` (added to
+the visual signal ``w`` before the delay).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any, ClassVar
+
+import numba
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from manualcontrol.envs._validation import check_choice, check_positive
+from manualcontrol.envs.dynamics import StateSpace, pade, poly_multiply, read_held, read_smooth
+from manualcontrol.envs.schedules import Schedule, as_schedule
+from manualcontrol.pilots.models import ParameterSpec
+from manualcontrol.pilots.pilot import HumanLimitWarning
+from manualcontrol.pilots.remnant import Remnant, make_remnant
+
+__all__ = [
+    "DRIVER_INPUTS",
+    "DRIVER_OUTPUTS",
+    "DRIVER_PARAMETERS",
+    "CyberneticDriverModel",
+    "Driver",
+    "driver_matrices",
+    "printed_driver_matrices",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: The model's inputs ``u`` and outputs ``y`` (Zhao eq. 2).
+DRIVER_INPUTS: tuple[str, ...] = ("theta_far", "theta_near", "delta_d", "Gamma_s")
+DRIVER_OUTPUTS: tuple[str, ...] = ("Gamma_d", "delta_sw")
+
+
+def _spec(name, nominal, human, valid, unit, description, positive=False):
+    return ParameterSpec(name, nominal, human, valid, unit, description, positive)
+
+
+#: Zhao Table 2. The paper gives no human ranges: the bounds here (a third to three
+#: times the nominal value) only flag implausible values.
+DRIVER_PARAMETERS: tuple[ParameterSpec, ...] = (
+    _spec("K_p", 3.4, (1.1, 10.2), (-math.inf, math.inf), "-", "visual anticipation gain"),
+    _spec("K_c", 15.0, (5.0, 45.0), (-math.inf, math.inf), "-", "visual compensation gain"),
+    _spec("T_I", 1.0, (0.33, 3.0), (0.0, math.inf), "s", "compensation lag time constant", True),
+    _spec("T_L", 3.0, (1.0, 9.0), (0.0, math.inf), "s", "compensation lead time constant"),
+    _spec("tau_p", 0.04, (0.013, 0.12), (0.0, math.inf), "s", "processing delay"),
+    _spec("K_r", 1.0, (0.33, 3.0), (-math.inf, math.inf), "-", "internal gain of column stiffness"),
+    _spec("K_t", 12.0, (4.0, 36.0), (-math.inf, math.inf), "-", "gain of stretch reflex"),
+    _spec("T_N", 0.1, (0.033, 0.3), (0.0, math.inf), "s", "neuromuscular time constant", True),
+)
+_NAMES = tuple(spec.name for spec in DRIVER_PARAMETERS)
+_INJECTIONS = ("output", "input")
+
+
+@numba.njit(cache=True, _nrt=False)
+def driver_matrices(p, v_x, A, B, C, D):
+    """Zhao eq. 2 (corrected, module docstring) into ``A`` (3, 3), ``B`` (3, 4), ``C``, ``D``.
+
+    ``p`` holds ``K_p, K_c, T_I, T_L, tau_p, K_r, K_t, T_N``; ``v_x`` the speed (m/s).
+    ``B`` and ``D`` may have a fifth column: it receives the input that adds to the
+    visual signal ``w`` before the delay (remnant at ``"input"``).
+    """
+    K_p, K_c, T_I, T_L, tau_p, K_r, K_t, T_N = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7]
+    G = K_r * v_x + K_t
+    lead = T_L / T_I
+    c = K_c / v_x
+    pade_rate = 2.0 / tau_p
+    for i in range(3):
+        for j in range(3):
+            A[i, j] = 0.0
+        for j in range(B.shape[1]):
+            B[i, j] = 0.0
+    for i in range(2):
+        for j in range(3):
+            C[i, j] = 0.0
+        for j in range(D.shape[1]):
+            D[i, j] = 0.0
+    A[0, 0] = -1.0 / T_I
+    A[1, 0] = c * pade_rate * (1.0 - lead)
+    A[1, 1] = -pade_rate
+    A[2, 0] = -G * c * (1.0 - lead) / T_N
+    A[2, 1] = 2.0 * G / T_N
+    A[2, 2] = -1.0 / T_N
+    B[0, 1] = 1.0 / T_I
+    B[1, 0] = K_p * pade_rate
+    B[1, 1] = c * pade_rate * lead
+    B[2, 0] = -K_p * G / T_N
+    B[2, 1] = -G * c * lead / T_N
+    B[2, 2] = -K_t / T_N
+    B[2, 3] = -1.0 / T_N
+    C[0, 2] = 1.0
+    C[1, 0] = -c * (1.0 - lead)
+    C[1, 1] = 2.0
+    D[1, 0] = -K_p
+    D[1, 1] = -c * lead
+    if B.shape[1] > 4:
+        B[1, 4] = pade_rate
+        B[2, 4] = -G / T_N
+        D[1, 4] = -1.0
+
+
+def printed_driver_matrices(values: Mapping[str, float], v_x: float) -> StateSpace:
+    """Eq. 2 exactly as printed (two entries wrong; kept to show the difference)."""
+    model = CyberneticDriverModel()
+    system = model.state_space(values, v_x)
+    K_c, T_I, T_L = (float(values.get(n, model.spec(n).nominal)) for n in ("K_c", "T_I", "T_L"))
+    K_r, K_t, T_N = (float(values.get(n, model.spec(n).nominal)) for n in ("K_r", "K_t", "T_N"))
+    A = system.A.copy()
+    B = system.B.copy()
+    A[2, 0] = -(K_r * v_x + K_t * K_c) / T_N / v_x * (1.0 - T_L / T_I)
+    B[2, 1] = -(K_r * v_x + K_t * K_c * T_L) / (v_x * T_I * T_N)
+    return StateSpace(A, B, system.C, system.D)
+
+
+class CyberneticDriverModel:
+    """The driver model's structure: parameters, eq. 2, transfer functions (module doc)."""
+
+    name: ClassVar[str] = "cybernetic-driver"
+    inputs: ClassVar[tuple[str, ...]] = DRIVER_INPUTS
+    outputs: ClassVar[tuple[str, ...]] = DRIVER_OUTPUTS
+    delay_parameter: ClassVar[str] = "tau_p"
+
+    @property
+    def parameters(self) -> tuple[ParameterSpec, ...]:
+        """Zhao Table 2, in the order of the paper's parameter vector ``theta``."""
+        return DRIVER_PARAMETERS
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """``K_p, K_c, T_I, T_L, tau_p, K_r, K_t, T_N``."""
+        return _NAMES
+
+    def spec(self, name: str) -> ParameterSpec:
+        """The :class:`~manualcontrol.pilots.models.ParameterSpec` called ``name``."""
+        check_choice("cybernetic driver parameter", name, _NAMES)
+        return DRIVER_PARAMETERS[_NAMES.index(name)]
+
+    def nominal(self) -> dict[str, float]:
+        """Table 2's values."""
+        return {spec.name: spec.nominal for spec in DRIVER_PARAMETERS}
+
+    def vector(self, values: Mapping[str, float]) -> FloatArray:
+        """The parameter vector ``theta`` (model order); missing names take nominal values."""
+        unknown = sorted(set(values) - set(_NAMES))
+        if unknown:
+            raise ValueError(
+                f"the cybernetic driver model has no parameter(s) {unknown}; "
+                f"its parameters are {', '.join(_NAMES)}"
+            )
+        return np.array([float(values.get(s.name, s.nominal)) for s in DRIVER_PARAMETERS])
+
+    def state_space(self, values: Mapping[str, float], v_x: float) -> StateSpace:
+        """Eq. 2 (Padé-1 delay, corrected entries) at these parameter values and speed."""
+        v_x = check_positive("v_x", v_x)
+        p = self.vector(values)
+        if p[4] <= 0.0:
+            raise ValueError(f"tau_p must be > 0 for the Padé form, got {p[4]!r}")
+        A, B, C, D = np.zeros((3, 3)), np.zeros((3, 4)), np.zeros((2, 3)), np.zeros((2, 4))
+        driver_matrices(p, v_x, A, B, C, D)
+        return StateSpace(A, B, C, D)
+
+    def transfer_function(
+        self,
+        values: Mapping[str, float],
+        v_x: float,
+        output: str,
+        input: str,
+        delay_order: int = 1,
+    ) -> tuple[FloatArray, FloatArray]:
+        """``output/input`` from the block diagram (module docstring), Padé delay.
+
+        Built from the blocks, independently of :func:`driver_matrices`.
+        """
+        check_choice("output", output, DRIVER_OUTPUTS)
+        check_choice("input", input, DRIVER_INPUTS)
+        p = dict(zip(_NAMES, self.vector(values), strict=True))
+        v_x = check_positive("v_x", v_x)
+        delay_num, delay_den = pade(p["tau_p"], delay_order)
+        G = p["K_r"] * v_x + p["K_t"]
+        nms = (np.array([1.0]), np.array([p["T_N"], 1.0]))
+        if input == "theta_far":
+            num, den = p["K_p"] * delay_num, delay_den
+        elif input == "theta_near":
+            num = poly_multiply(p["K_c"] / v_x * np.array([p["T_L"], 1.0]), delay_num)
+            den = poly_multiply(np.array([p["T_I"], 1.0]), delay_den)
+        else:
+            if output == "delta_sw":
+                return np.array([0.0]), np.array([1.0])
+            gain = -p["K_t"] if input == "delta_d" else -1.0
+            return gain * nms[0], nms[1]
+        if output == "Gamma_d":
+            num, den = G * poly_multiply(num, nms[0]), poly_multiply(den, nms[1])
+        return num, den
+
+    def frequency_response(
+        self,
+        values: Mapping[str, float],
+        v_x: float,
+        omega: ArrayLike,
+        output: str,
+        input: str,
+    ) -> NDArray[np.complex128]:
+        """``output/input`` at ``omega`` (rad/s) with the delay exact."""
+        omega = np.asarray(omega, dtype=np.float64)
+        s = 1j * omega
+        p = dict(zip(_NAMES, self.vector(values), strict=True))
+        tau = p["tau_p"]
+        rational = self.transfer_function(values, v_x, output, input, delay_order=0)
+        # order 0 is the unit "delay": put the exact one in where the model has it
+        response = np.polyval(rational[0], s) / np.polyval(rational[1], s)
+        if input in ("theta_far", "theta_near"):
+            response = response * np.exp(-tau * s)
+        return response
+
+    def __repr__(self) -> str:
+        return "CyberneticDriverModel()"
+
+
+# ------------------------------------------------------------------ the synthetic driver
+
+
+@dataclass(frozen=True)
+class Driver:
+    """A synthetic driver: parameter values or schedules, remnant and delay mode.
+
+    Parameters
+    ----------
+    parameters
+        Values (floats) or :mod:`~manualcontrol.envs.schedules` for any of ``K_p, K_c,
+        T_I, T_L, tau_p, K_r, K_t, T_N``; the others take Table 2's values.
+    remnant
+        A :class:`~manualcontrol.pilots.remnant.Remnant` (or its dict) injected at
+        ``"output"`` or ``"input"`` (module docstring), or None.
+    delay_order
+        None (exact delay, default) or 1 (eq. 2's Padé form).
+
+    Values outside a parameter's valid range raise ``ValueError``; outside the flagged
+    range they warn with :class:`~manualcontrol.pilots.pilot.HumanLimitWarning`.
+    ``reset(seed, env=env)`` and ``act(observation)`` drive a
+    :class:`~manualcontrol.envs.driving.LaneKeeping` environment exactly as
+    :func:`~manualcontrol.pilots.driving.simulate_driving` does.
+    """
+
+    parameters: Mapping[str, float | Schedule] = field(default_factory=dict)
+    remnant: Remnant | str | Mapping[str, Any] | None = None
+    delay_order: int | None = None
+    _controller: Any = field(default=None, init=False, repr=False, compare=False)
+
+    model: ClassVar[CyberneticDriverModel] = CyberneticDriverModel()
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.parameters, Mapping):
+            raise TypeError(f"parameters must be a mapping of names, got {self.parameters!r}")
+        unknown = sorted(set(self.parameters) - set(_NAMES))
+        if unknown:
+            raise ValueError(
+                f"the cybernetic driver has no parameter(s) {', '.join(map(repr, unknown))}; "
+                f"its parameters are {', '.join(_NAMES)}"
+            )
+        schedules: dict[str, Schedule] = {}
+        for spec in DRIVER_PARAMETERS:
+            value = self.parameters.get(spec.name, spec.nominal)
+            if isinstance(value, Mapping):
+                value = Schedule.from_dict(value)
+            try:
+                schedules[spec.name] = as_schedule(value)
+            except (TypeError, ValueError) as error:
+                raise type(error)(f"driver parameter {spec.name}: {error}") from None
+        object.__setattr__(self, "parameters", MappingProxyType(schedules))
+        remnant = make_remnant(self.remnant)
+        if remnant is not None:
+            check_choice("driver remnant injection", remnant.injection, _INJECTIONS)
+        object.__setattr__(self, "remnant", remnant)
+        if self.delay_order not in (None, 1) or isinstance(self.delay_order, bool):
+            raise ValueError(
+                "delay_order must be None (exact delay) or 1 (Zhao eq. 1), "
+                f"got {self.delay_order!r}"
+            )
+        for name, schedule in schedules.items():
+            if schedule.is_constant:
+                self._check(name, np.atleast_1d(schedule(0.0)))
+
+    def _check(self, name: str, values: FloatArray) -> None:
+        spec = self.model.spec(name)
+        if not np.all(np.isfinite(values)):
+            raise ValueError(f"driver parameter {name} must be finite, got non-finite values")
+        low, high = spec.valid
+        outside = (values <= low if spec.positive else values < low) | (values > high)
+        if name == "tau_p" and self.delay_order == 1:
+            outside |= values <= 0.0
+        if np.any(outside):
+            left = "(" if spec.positive or (name == "tau_p" and self.delay_order == 1) else "["
+            raise ValueError(
+                f"driver parameter {name} must lie in {left}{low:g}, {high:g}] {spec.unit}, "
+                f"got {float(values[outside][0])!r}"
+            )
+        low, high = spec.human
+        if np.any(values < low) or np.any(values > high):
+            extreme = float(values.min() if np.any(values < low) else values.max())
+            warnings.warn(
+                f"driver parameter {name} = {extreme:g} {spec.unit} is outside the flagged range "
+                f"[{low:g}, {high:g}] ({spec.description})",
+                HumanLimitWarning,
+                stacklevel=3,
+            )
+
+    @property
+    def is_time_varying(self) -> bool:
+        """True when any parameter is a non-constant schedule."""
+        return not all(schedule.is_constant for schedule in self.parameters.values())
+
+    def parameter_traces(self, t: ArrayLike) -> dict[str, FloatArray]:
+        """Every parameter at the times ``t`` (s), checked against its ranges."""
+        t = np.asarray(t, dtype=np.float64)
+        traces = {}
+        for name, schedule in self.parameters.items():
+            values = np.broadcast_to(np.asarray(schedule(t), dtype=np.float64), t.shape).copy()
+            self._check(name, values)
+            traces[name] = values
+        return traces
+
+    def reset(self, seed: int | np.random.Generator | None = None, *, env: Any) -> None:
+        """Start driving ``env``'s current episode (call after ``env.reset()``).
+
+        ``seed`` drives the remnant exactly as in
+        :func:`~manualcontrol.pilots.driving.simulate_driving`.
+        """
+        from manualcontrol.pilots.driving import DriverController
+
+        object.__setattr__(self, "_controller", DriverController(self, env, seed))
+
+    def act(self, observation: ArrayLike) -> FloatArray:
+        """The driver's action (torque or wheel angle) for an observation, shape ``(1,)``."""
+        if self._controller is None:
+            raise RuntimeError("call driver.reset(seed, env=env) after env.reset() before act()")
+        return self._controller.act(observation)
+
+    def with_parameters(self, **values: float | Schedule) -> Driver:
+        """Copy with some parameters replaced."""
+        return Driver({**self.parameters, **values}, self.remnant, self.delay_order)
+
+    def with_remnant(self, remnant: Remnant | None) -> Driver:
+        """Copy with another remnant."""
+        return Driver(dict(self.parameters), remnant, self.delay_order)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able description."""
+        return {
+            "model": self.model.name,
+            "parameters": {name: schedule.to_dict() for name, schedule in self.parameters.items()},
+            "remnant": None if self.remnant is None else self.remnant.to_dict(),
+            "delay_order": self.delay_order,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Driver:
+        """Inverse of :meth:`to_dict` (``model`` may be omitted)."""
+        data = dict(data)
+        model = data.pop("model", cls.model.name)
+        if model != cls.model.name:
+            raise ValueError(f"driver model must be {cls.model.name!r}, got {model!r}")
+        unknown = sorted(set(data) - {"parameters", "remnant", "delay_order"})
+        if unknown:
+            raise TypeError(
+                f"driver got unknown key(s) {unknown}; allowed: delay_order, model, "
+                "parameters, remnant"
+            )
+        parameters = {
+            name: Schedule.from_dict(value)
+            for name, value in dict(data.get("parameters") or {}).items()
+        }
+        return cls(parameters, make_remnant(data.get("remnant")), data.get("delay_order"))
+
+
+# -------------------------------------------------------------------- compiled steps
+
+#: Remnant injection codes of the compiled steps.
+INJECT_NONE, INJECT_OUTPUT, INJECT_INPUT = 0, 1, 2
+
+
+@numba.njit(cache=True, _nrt=False)
+def exact_delay_step(p, tau_next, v_x, dt, inputs, noise, inject, state, smooth, held, newest, out):
+    """One sample of the driver with the exact delay (module docstring).
+
+    ``p`` the parameters at this sample, ``tau_next`` the delay at the next one,
+    ``inputs`` (4,) the perceptions held over the sample, ``noise`` the remnant sample,
+    ``inject`` its :data:`INJECT_OUTPUT`/:data:`INJECT_INPUT` code. ``state`` =
+    ``(x_1, Gamma_d, smooth part of delta_sw now)``; ``smooth``/``held`` the delay-line
+    histories, ``newest`` this sample's index in them. ``out`` = (Gamma_d with any
+    output remnant, delta_sw) at this sample; the state is advanced to the next.
+    """
+    K_p, K_c, T_I, T_L, tau_p, K_r, K_t, T_N = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7]
+    c = K_c / v_x
+    lead = T_L / T_I
+    x1 = state[0]
+    smooth[newest] = c * (1.0 - lead) * x1
+    visual = K_p * inputs[0] + c * lead * inputs[1]
+    if inject == 2:
+        visual += noise
+    held[newest] = visual
+    held_mean = read_held(held, newest, newest - tau_p / dt)
+    smooth_now = state[2]
+    delta_sw = smooth_now + held_mean
+    out[0] = state[1] + (noise if inject == 1 else 0.0)
+    out[1] = delta_sw
+    smooth_next = read_smooth(smooth, newest, newest + 1.0 - tau_next / dt)
+    a = math.exp(-dt / T_N)
+    b = 1.0 - a
+    ramp = 1.0 - (T_N / dt) * b
+    G = K_r * v_x + K_t
+    state[1] = (
+        a * state[1]
+        + b * (G * delta_sw - K_t * inputs[2] - inputs[3])
+        + ramp * G * (smooth_next - smooth_now)
+    )
+    a1 = math.exp(-dt / T_I)
+    state[0] = a1 * x1 + (1.0 - a1) * inputs[1]
+    state[2] = smooth_next
+
+
+@numba.njit(cache=True, _nrt=False)
+def pade_step(phi, gamma, C, D, inputs, noise, inject, state, work, out):
+    """One sample of eq. 2 discretised (``phi`` (3, 3), ``gamma`` (3, 5), ``C``, ``D`` (2, 5)).
+
+    Input 5 is the remnant at the visual signal (``inject`` = :data:`INJECT_INPUT`).
+    """
+    for i in range(5):
+        work[i] = inputs[i] if i < 4 else (noise if inject == 2 else 0.0)
+    for r in range(2):
+        acc = 0.0
+        for j in range(3):
+            acc += C[r, j] * state[j]
+        for j in range(5):
+            acc += D[r, j] * work[j]
+        out[r] = acc
+    if inject == 1:
+        out[0] += noise
+    for i in range(3):
+        acc = 0.0
+        for j in range(3):
+            acc += phi[i, j] * state[j]
+        for j in range(5):
+            acc += gamma[i, j] * work[j]
+        work[5 + i] = acc
+    for i in range(3):
+        state[i] = work[5 + i]
