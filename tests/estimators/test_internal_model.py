@@ -212,5 +212,5 @@ def test_far_view_branch_gets_the_anticipation_delay():
 def test_unsupported_models_raise():
     with pytest.raises(ValueError, match=re.escape("single-channel pilot models")):
         build_internal_model(PreviewModel(near_view=True))
-    with pytest.raises(ValueError, match=re.escape("delay_order must be >= 1, got 0")):
-        build_internal_model("precision", 0)
+    with pytest.raises(ValueError, match=re.escape("delay_order must be >= 0, got -1")):
+        build_internal_model("precision", -1)
