@@ -9,6 +9,9 @@ spread of the estimate over the last ten minutes against the truth, and whether 
 filter's health reported divergence (a filter pinned at a limit for 90 % of 30 s says
 so).
 
+"At a limit" is read from the estimates themselves (within 1e-6 of the limits' span),
+"pinned" from the filter's health report.
+
 Tasks: compensatory single integrator (1.5/s, precision pilot K_p 1.3, tau_v 0.26,
 omega_nms 10.5, zeta_nms 0.35) and preview single integrator (the thesis's SI preview
 pilot, tau_f 0.6 s, anticipation 0.9 s), both with vanderel-bw4 forcing (realisation
@@ -124,10 +127,14 @@ def main() -> None:
             for j, parameter in enumerate(run["names"]):
                 truth = float(run["truth"][parameter](0.0))
                 trace = run["means"][:, j]
-                at_limit = run["pinned"][:, j].mean() * 100
+                low, high = run["limits"][parameter] or (-np.inf, np.inf)
+                span = 1e-6 * (high - low) if np.isfinite(high - low) else 0.0
+                at_limit = np.mean((trace <= low + span) | (trace >= high - span)) * 100
+                flagged = run["pinned"][:, j].mean() * 100
                 print(
                     f"    {parameter:10s} truth {truth:6.3f}  limits {run['limits'][parameter]}  "
-                    f"at a limit {at_limit:5.1f} %  last 10 min {trace[last].mean():6.3f} "
+                    f"at a limit {at_limit:5.1f} % (health says pinned {flagged:5.1f} %)  "
+                    f"last 10 min {trace[last].mean():6.3f} "
                     f"+- {trace[last].std():.3f}  whole run [{trace.min():.3f}, {trace.max():.3f}]"
                 )
 

@@ -44,8 +44,15 @@ The remnant
     the estimated parameters, in logarithms.
 
 The ``dS`` term is what identifies a noise intensity: it is zero for parameters that
-move the prediction only. Limits are imposed by projection of the mean and of the bank
-points.
+move the prediction only. It is exact maximum likelihood only if ``S`` is the true
+innovation variance, and ``R`` is not a noise model here but a frequency weighting (see
+:mod:`.rml`): ``S`` exceeds the innovations' variance, and the ``dS`` term then drives
+every parameter it touches towards a smaller ``S``. ``variance_score`` keeps it for the
+parameters that shape the remnant's path to the stick (which the likelihood must see
+to tell the gains from the remnant's level, ``K -> a K``, remnant ``-> n/a``) and drops
+it for the others, which then follow the prediction-error gradient alone.
+
+Limits are imposed by projection of the mean and of the bank points.
 """
 
 from __future__ import annotations
@@ -140,7 +147,9 @@ INJECT_OUTPUT = 1
 #: parameter; ``noise_first``: samples at the start during which only the noise
 #: parameters learn; ``base`` (2,): the log error variance the intensity is relative
 #: to and the sample from which it is fixed (before it, on a causal start, the
-#: variance of the samples so far; no parameter learns before it).
+#: variance of the samples so far; no parameter learns before it);
+#: ``variance_score`` (n_p,) per model parameter: whether the variance part of the
+#: score (the ``dS`` terms) moves it.
 BankConfig = namedtuple(
     "BankConfig",
     [
@@ -157,6 +166,7 @@ BankConfig = namedtuple(
         "estimated",
         "noise_first",
         "base",
+        "variance_score",
     ],
 )
 #: ``th``, ``P``: the parameter belief; ``X`` (m, ns), ``PX`` (m, ns, ns): the m bank
@@ -392,6 +402,10 @@ def _update_parameters(config, belief, s, u_k, k):
     for j in range(n_t):
         s.dz[j] = (s.z[1 + 2 * j] - s.z[2 + 2 * j]) / (2.0 * h)
         s.dS[j] = (s.S[1 + 2 * j] - s.S[2 + 2 * j]) / (2.0 * h)
+    for j in range(n_t):
+        # parameters the remnant does not pass through learn from the prediction only
+        if config.slot[j] >= 0 and not config.variance_score[config.slot[j]]:
+            s.dS[j] = 0.0
     if noise_only:
         # xi_j moves theta along L e_j: keep only the directions of the noise parameters
         # (L is lower triangular with the noise parameters last, so those columns leave

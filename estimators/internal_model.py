@@ -157,6 +157,11 @@ class InternalModel:
         "y")`` for the preview model.
     gain_parameters : tuple of str
         Parameters that appear in the main chain's numerator only, hence only in ``g``.
+    branch_parameters : tuple of str
+        Parameters of the branches alone (the preview model's far-view ``K_f``,
+        ``omega_f`` and the anticipation delay ``tau_f*``): what reaches the main chain
+        through them, and nothing the main chain's input receives directly, depends on
+        them.
     n_states : int
         Number of canonical states.
     input_states : tuple of int
@@ -172,6 +177,7 @@ class InternalModel:
     parameter_names: tuple[str, ...]
     input_names: tuple[str, ...]
     gain_parameters: tuple[str, ...]
+    branch_parameters: tuple[str, ...]
     n_states: int
     input_states: tuple[int, ...]
     # monomials: coefficient, then (variable, exponent) pairs
@@ -440,6 +446,13 @@ def build_internal_model(
         for name in names
         if used_in[name] == {0} and name not in (delay, ANTICIPATED_PARAMETER)
     )
+    main_arrays = {0, 1}  # the main chain's numerator and denominator
+    branch_only = tuple(
+        name
+        for name in names
+        if name == ANTICIPATED_PARAMETER
+        or (used_in[name] and not used_in[name] & main_arrays and name != delay)
+    )
 
     # chains: main (post x Pade(delay)), then branches
     pade_degree = delay_order
@@ -486,6 +499,7 @@ def build_internal_model(
         parameter_names=names,
         input_names=tuple(inputs),
         gain_parameters=gains,
+        branch_parameters=branch_only,
         n_states=n_states,
         input_states=tuple(int(offsets[c] + sizes[c] - 1) for c in range(len(sizes)) if sizes[c]),
         term_coef=np.asarray(term_coef, dtype=np.float64),

@@ -104,6 +104,10 @@ def test_layout_follows_the_papers():
     assert preview.n_states == 9  # thesis eq. 40
     assert preview.input_names == ("ft_ahead", "y")
     assert preview.input_states == (4, 8)
+    # the branches' own parameters: the far view and the anticipation delay
+    assert precision.branch_parameters == ()
+    assert preview.branch_parameters == ("K_f", "omega_f", "tau_f")
+    assert build_internal_model("preview", 0).branch_parameters == ("K_f", "omega_f", "tau_f")
 
 
 @pytest.mark.parametrize("trial", range(5))

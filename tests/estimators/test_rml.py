@@ -172,6 +172,42 @@ def test_with_remnant_it_learns_the_remnant_and_keeps_the_gains():
     assert truth / 2 < learned < truth * 2
 
 
+def test_the_variance_score_moves_only_the_remnant_path():
+    """Which parameters learn from the innovation variance (``variance_score``).
+
+    The precision model has no branches: every parameter is on the remnant's path, so
+    the default and "all" are the same filter, bit for bit. In the preview model the
+    far view is off the path and the two differ; with the remnant at the stick no
+    pilot parameter is on it.
+    """
+    recording = compensatory(True).slice_samples(0, 2000)
+    path = RML(model="precision").estimate(recording)
+    full = RML(model="precision", variance_score="all").estimate(recording)
+    assert np.array_equal(path.mean, full.mean) and np.array_equal(path.std, full.std)
+    at_stick = RML(model="precision", remnant_injection="output")
+    full = RML(model="precision", remnant_injection="output", variance_score="all")
+    assert not np.array_equal(at_stick.estimate(recording).mean, full.estimate(recording).mean)
+    assert not at_stick._variance_score().any()
+    names = build_internal_model("preview", 0).parameter_names
+    score = RML(model="preview", ce="SI", anticipation_time=0.9)._variance_score()
+    assert dict(zip(names, score.tolist(), strict=True)) == {
+        "K_f": False,
+        "omega_f": False,
+        "tau_f": False,
+        "K_p": True,
+        "K_v": True,
+        "tau_v": True,
+        "omega_nms": True,
+        "zeta_nms": True,
+    }
+    recording = preview("SI", True).slice_samples(0, 3000)
+    common = {"model": "preview", "ce": "SI", "anticipation_time": 0.9}
+    far = RML(**common).estimate(recording).mean_of("K_f")
+    assert not np.array_equal(
+        far, RML(**common, variance_score="all").estimate(recording).mean_of("K_f")
+    )
+
+
 def test_smoothed_twin():
     recording = compensatory(True).slice_samples(0, 3000)
     twin = make_estimator({"name": "rml-smoothed", "model": "precision"})
@@ -196,6 +232,7 @@ def test_smoothed_twin():
         ({"noise_first": -1.0}, "noise_first must be >= 0"),
         ({"learn_break": 1}, "learn_break must be True or False, got 1"),
         ({"delay_order": 4}, "delay_order does not apply to the RML"),
+        ({"variance_score": "none"}, "variance_score must be one of"),
     ],
 )
 def test_bad_settings_are_refused_by_name(changes, message):
