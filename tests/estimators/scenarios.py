@@ -18,6 +18,8 @@
 
 import functools
 
+import numpy as np
+
 from manualcontrol.envs.schedules import Sigmoid, Sine
 from manualcontrol.pilots import Pilot, simulate
 
@@ -80,3 +82,28 @@ def preview(ce, remnant=False, realisation=0, seed=1):
 def preview_initial(ce):
     """The thesis initialised at the true values (Sec. III-D); tau_f at its start value."""
     return {**PREVIEW[ce], "tau_f": 0.6}
+
+
+def assert_update_replays_estimate(estimator, recording):
+    """``update`` sample by sample gives exactly what ``estimate`` gave on ``recording``.
+
+    The online run is reset with the first window's variances, as ``estimate`` uses.
+    Returns the offline result.
+    """
+    result = estimator.estimate(recording)
+    signals = estimator.signals(recording)
+    n = round(estimator.settings.window / recording.dt)
+    estimator.reset(
+        recording.dt,
+        var_u0=float(np.nanvar(signals["u"][: n + 1])),
+        var_e0=float(np.nanvar(signals["e"][: n + 1])),
+    )
+    for k in range(len(recording)):
+        estimate = estimator.update({key: signals[key][k] for key in estimator.sample_keys})
+        assert [estimate.mean[n] for n in result.parameter_names] == result.mean[k].tolist()
+        assert [estimate.std[n] for n in result.parameter_names] == result.std[k].tolist()
+        np.testing.assert_array_equal(
+            [estimate.prediction, estimate.innovation, estimate.innovation_variance],
+            [result.prediction[k], result.innovation[k], result.innovation_variance[k]],
+        )
+    return result

@@ -25,7 +25,13 @@ from manualcontrol.pilots import Pilot, simulate
 
 sys.path.insert(0, str(Path(__file__).parent))
 import rml_oracle
-from scenarios import COMPENSATORY, compensatory, preview, preview_initial
+from scenarios import (
+    COMPENSATORY,
+    assert_update_replays_estimate,
+    compensatory,
+    preview,
+    preview_initial,
+)
 
 TRUE = dict(COMPENSATORY)
 
@@ -92,22 +98,7 @@ def test_update_equals_estimate(model):
         estimator = RML(
             model="preview", ce="DI", anticipation_time=1.5, initial=preview_initial("DI")
         )
-    result = estimator.estimate(recording)
-    signals = estimator.signals(recording)
-    n = round(estimator.settings.window / recording.dt)
-    estimator.reset(
-        recording.dt,
-        var_u0=float(np.nanvar(signals["u"][: n + 1])),
-        var_e0=float(np.nanvar(signals["e"][: n + 1])),
-    )
-    for k in range(len(recording)):
-        estimate = estimator.update({key: signals[key][k] for key in estimator.sample_keys})
-        assert [estimate.mean[n] for n in result.parameter_names] == result.mean[k].tolist()
-        assert [estimate.std[n] for n in result.parameter_names] == result.std[k].tolist()
-        np.testing.assert_array_equal(
-            [estimate.prediction, estimate.innovation, estimate.innovation_variance],
-            [result.prediction[k], result.innovation[k], result.innovation_variance[k]],
-        )
+    assert_update_replays_estimate(estimator, recording)
 
 
 def test_the_delay_free_model_is_the_pilot_without_its_delay():

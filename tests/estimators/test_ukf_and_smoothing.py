@@ -32,7 +32,13 @@ from manualcontrol.estimators import (
 
 sys.path.insert(0, str(Path(__file__).parent))
 from dekf_oracle import Model
-from scenarios import compensatory, compensatory_tv, preview, preview_initial
+from scenarios import (
+    assert_update_replays_estimate,
+    compensatory,
+    compensatory_tv,
+    preview,
+    preview_initial,
+)
 
 VALUES = {"K_p": 1.5, "K_v": 0.5, "tau_v": 0.2, "omega_nms": 8.0, "zeta_nms": 0.3}
 
@@ -90,22 +96,7 @@ def test_update_gives_exactly_the_numbers_of_estimate(kind, model):
         estimator = kind(
             model="preview", ce="DI", anticipation_time=1.5, initial=preview_initial("DI")
         )
-    result = estimator.estimate(recording)
-    signals = estimator.signals(recording)
-    n = round(estimator.settings.window / recording.dt)
-    estimator.reset(
-        recording.dt,
-        var_u0=float(np.nanvar(signals["u"][: n + 1])),
-        var_e0=float(np.nanvar(signals["e"][: n + 1])),
-    )
-    for k in range(len(recording)):
-        estimate = estimator.update({key: signals[key][k] for key in estimator.sample_keys})
-        assert [estimate.mean[n] for n in result.parameter_names] == result.mean[k].tolist()
-        assert [estimate.std[n] for n in result.parameter_names] == result.std[k].tolist()
-        np.testing.assert_array_equal(
-            [estimate.prediction, estimate.innovation, estimate.innovation_variance],
-            [result.prediction[k], result.innovation[k], result.innovation_variance[k]],
-        )
+    result = assert_update_replays_estimate(estimator, recording)
     assert result.dropped[700:720].all() if model == "precision" else True
 
 
