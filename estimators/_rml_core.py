@@ -10,7 +10,8 @@ maximum-likelihood step; Ljung & Söderström's recursive prediction-error metho
 its Gauss-Newton form):
 
 * a bank of ``2 n + 1`` Kalman filters runs at ``theta`` and ``theta +- h L e_j``
-  (``L L^T = P``, ``h`` in standard deviations), each carrying its own states and
+  (``L L^T = P``, ``h`` in standard deviations, reduced along a direction that would
+  move a parameter further than its ``spread_cap``), each carrying its own states and
   covariance, so each has its own Kalman gain: the derivatives of the prediction
   include how the filter's gain depends on the parameters, which a joint filter
   (parameters as states) or a dual filter without that term leaves out, and which
@@ -149,7 +150,8 @@ INJECT_OUTPUT = 1
 #: to and the sample from which it is fixed (before it, on a causal start, the
 #: variance of the samples so far; no parameter learns before it);
 #: ``variance_score`` (n_p,) per model parameter: whether the variance part of the
-#: score (the ``dS`` terms) moves it.
+#: score (the ``dS`` terms) moves it; ``spread_cap`` (n_t,): the largest offset of a
+#: bank member from the mean in each parameter (inf: none).
 BankConfig = namedtuple(
     "BankConfig",
     [
@@ -167,6 +169,7 @@ BankConfig = namedtuple(
         "noise_first",
         "base",
         "variance_score",
+        "spread_cap",
     ],
 )
 #: ``th``, ``P``: the parameter belief; ``X`` (m, ns), ``PX`` (m, ns, ns): the m bank
@@ -176,7 +179,8 @@ BankBelief = namedtuple("BankBelief", ["th", "P", "X", "PX", "prev_in", "p", "sc
 #: Scratch: ``L``, ``points`` (m, n_t), ``z``, ``S`` (m,), ``dz``, ``dS``, ``g`` (n_t,),
 #: ``Lam``, ``LamL``, ``B`` (n_t, n_t), ``xi`` (1, n_t), ``Phi``, ``sub``, ``Q``, ``T``
 #: (ns, ns), ``H``, ``K``, ``xs``, ``f``, ``F`` (model), ``dfdp``, ``dgdx``, ``dgdp``,
-#: ``point_p``, ``in_use``, ``variance``, ``scalars``.
+#: ``point_p``, ``in_use``, ``variance``, ``scalars``, ``h_dir`` (n_t,): the spread in
+#: use along each direction.
 BankScratch = namedtuple(
     "BankScratch",
     [
@@ -207,6 +211,7 @@ BankScratch = namedtuple(
         "in_use",
         "variance",
         "scalars",
+        "h_dir",
     ],
 )
 #: Per-row outputs as the other pilot filters', the parameter belief before and after
@@ -361,15 +366,23 @@ def _member_step(model, config, lines, belief, s, i, k, u_k, R, q_error, dropped
 
 @numba.njit(cache=True, _nrt=False)
 def _bank_points(config, belief, s):
-    """``L = chol(P)`` and the points ``theta``, ``theta +- h L e_j`` (projected)."""
+    """``L = chol(P)`` and the points ``theta``, ``theta +- h_j L e_j`` (projected).
+
+    ``h_j`` is the bank's spread, reduced along a direction where it would move a
+    parameter further than its ``spread_cap``.
+    """
     th, P = belief.th, belief.P
     n_t = th.shape[0]
     if not cholesky(P, s.L):
         return False
-    h = config.step
     for a in range(n_t):
         s.points[0, a] = th[a]
     for j in range(n_t):
+        h = config.step
+        for a in range(n_t):
+            if abs(s.L[a, j]) * h > config.spread_cap[a]:
+                h = config.spread_cap[a] / abs(s.L[a, j])
+        s.h_dir[j] = h
         for a in range(n_t):
             d = h * s.L[a, j]
             s.points[1 + 2 * j, a] = th[a] + d
@@ -392,7 +405,6 @@ def _update_parameters(config, belief, s, u_k, k):
     """
     th, P = belief.th, belief.P
     n_t = th.shape[0]
-    h = config.step
     noise_only = k < config.noise_first
     z0 = s.z[0]
     S0 = s.S[0]
@@ -400,8 +412,8 @@ def _update_parameters(config, belief, s, u_k, k):
         return False
     nu = u_k - z0
     for j in range(n_t):
-        s.dz[j] = (s.z[1 + 2 * j] - s.z[2 + 2 * j]) / (2.0 * h)
-        s.dS[j] = (s.S[1 + 2 * j] - s.S[2 + 2 * j]) / (2.0 * h)
+        s.dz[j] = (s.z[1 + 2 * j] - s.z[2 + 2 * j]) / (2.0 * s.h_dir[j])
+        s.dS[j] = (s.S[1 + 2 * j] - s.S[2 + 2 * j]) / (2.0 * s.h_dir[j])
     for j in range(n_t):
         # parameters the remnant does not pass through learn from the prediction only
         if config.slot[j] >= 0 and not config.variance_score[config.slot[j]]:

@@ -50,7 +50,11 @@ rad/s of Popovici et al.), ``remnant_injection`` (``"input"``: at the perception
 fraction of the error variance over the first window), ``learn_intensity`` (True),
 ``learn_break`` (False), ``intensity_P0``/``intensity_Q`` (the log intensity's initial
 variance and random-walk variance per second squared, as the parameters' ``Q``),
-``step`` (the bank's spread in standard deviations), ``substeps`` (Euler substeps per
+``step`` (the bank's spread in standard deviations), ``spread_limit`` (0.1: no
+member lies further from the mean, in any parameter, than this fraction of the
+parameter's limit span; where the spread would, it is reduced along that direction, so
+the differences stay local derivatives and the members inside the limits; 0: no
+limit), ``substeps`` (Euler substeps per
 sample), ``noise_first`` (seconds at the start during which only the noise
 parameters learn). ``r2`` defaults to 1 (``R = var(u)`` over the window): ``R``
 stands for what the model leaves unexplained besides the remnant (the isolated
@@ -140,6 +144,7 @@ class RMLSettings(PilotFilterSettings):
     substeps: int = 2
     noise_first: float = 0.0
     variance_score: str = "remnant-path"
+    spread_limit: float = 0.1
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -150,6 +155,12 @@ class RMLSettings(PilotFilterSettings):
             )
         check_choice("remnant_injection", self.remnant_injection, INJECTIONS)
         check_choice("variance_score", self.variance_score, VARIANCE_SCORES)
+        spread = check_positive("spread_limit", self.spread_limit, allow_zero=True)
+        if spread > 1.0:
+            raise ValueError(
+                f"spread_limit must be in [0, 1] (a fraction of the limit span), got {spread!r}"
+            )
+        object.__setattr__(self, "spread_limit", spread)
         for name in ("learn_intensity", "learn_break"):
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name} must be True or False, got {getattr(self, name)!r}")
@@ -275,6 +286,7 @@ class RML(PilotFilter):
             noise_first=round(settings.noise_first / dt) + (window if causal else 0),
             base=np.array([math.log(var_e0), float(window if causal else 0)]),
             variance_score=self._variance_score(),
+            spread_cap=self._spread_cap(np.array(lo), np.array(hi)),
         )
         state_covariance = np.zeros((members, n_s, n_s))
         for i in range(members):
@@ -321,6 +333,7 @@ class RML(PilotFilter):
             in_use=np.zeros(n_in),
             variance=np.zeros(n_p),
             scalars=np.zeros(3),
+            h_dir=np.zeros(n_t),
         )
         longest = LONGEST_DELAY + (settings.anticipation_time or 0.0)
         lines = core.DelayLines(
@@ -345,6 +358,14 @@ class RML(PilotFilter):
             scratch,
         )
         self._labels = tuple(labels)
+
+    def _spread_cap(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Largest offset of a bank member in each parameter (inf where unlimited)."""
+        span = hi - lo
+        limit = self._settings.spread_limit
+        if limit == 0.0:
+            return np.full(span.shape, np.inf)
+        return np.where(np.isfinite(span), limit * span, np.inf)
 
     def _variance_score(self) -> np.ndarray:
         """Per model parameter: whether the variance part of the score moves it."""
