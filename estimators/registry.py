@@ -28,6 +28,8 @@ class EstimatorEntry:
     a pilot structure; :func:`~manualcontrol.estimators.metrics.resimulate` uses it).
     ``pilot_model``: the member runs on a pilot model structure named by its ``model``
     setting (``precision``, ``preview``), as ``manualcontrol identify --model`` sets it.
+    ``smoothable``: its ``estimate`` takes ``smooth=True`` (a fixed-interval smoother
+    applies), so :mod:`~manualcontrol.estimators.smoothed` registers its offline twin.
     """
 
     name: str
@@ -36,6 +38,7 @@ class EstimatorEntry:
     build: Callable[[Mapping[str, Any]], Any]
     resimulate: Callable[[Any, Any], Any] | None = None
     pilot_model: bool = False
+    smoothable: bool = True
 
 
 #: Registered estimators, by name.

@@ -2,7 +2,7 @@
 
 Offline analysis may use the whole run (:mod:`~manualcontrol.estimators.smoothing`):
 ``estimate(recording, smooth=True)``. For the bench, whose rows are keyed by estimator
-name, every member registered when this module is imported gets an offline twin
+name, every smoothable member registered when this module is imported gets an offline twin
 ``"<name>-smoothed"`` with the same settings, whose :meth:`SmoothedEstimator.estimate`
 returns the smoothed result (``result.smoothed`` is True, and the bench's report ranks
 those apart from the online filters). A smoothed estimate needs the samples after it,
@@ -68,6 +68,8 @@ class SmoothedEstimator:
 def register_smoothed(name: str) -> EstimatorEntry:
     """Register ``name + SUFFIX``: the registered estimator ``name``, smoothed."""
     base = ESTIMATORS[name]
+    if not base.smoothable:
+        raise ValueError(f"{name!r} has no fixed-interval smoother (smoothable is False)")
 
     def build(settings: Mapping[str, Any]) -> SmoothedEstimator:
         return SmoothedEstimator(base.build(settings))
@@ -78,10 +80,13 @@ def register_smoothed(name: str) -> EstimatorEntry:
             summary=f"{name}, smoothed over the whole run (offline; Rauch-Tung-Striebel)",
             reference=base.reference,
             build=build,
+            resimulate=base.resimulate,
+            pilot_model=base.pilot_model,
+            smoothable=False,
         )
     )
 
 
-for _name in [name for name in ESTIMATORS if not name.endswith(SUFFIX)]:
+for _name in [name for name, entry in ESTIMATORS.items() if entry.smoothable]:
     if f"{_name}{SUFFIX}" not in ESTIMATORS:
         register_smoothed(_name)

@@ -1161,5 +1161,6 @@ register(
         "gated shrinkage of their disagreement with re-centring of the slow one",
         reference="Zhao et al. 2019 Sec. 4.2 (fusion rule ours)",
         build=lambda settings: MultiUKF(MultiUKFSettings.from_dict(dict(settings))),
+        smoothable=False,  # the fusion is causal; smooth the members instead
     )
 )

@@ -223,6 +223,22 @@ def test_the_spread_limit_keeps_wide_priors_from_diverging():
     assert evaluate(limited, recording, start=15.0).nrmse["K_p"] < 0.15
 
 
+def test_every_smoothable_member_has_an_offline_twin_and_no_other():
+    from manualcontrol.estimators import ESTIMATORS
+    from manualcontrol.estimators.smoothed import SUFFIX, register_smoothed
+
+    twins = [name for name in ESTIMATORS if name.endswith(SUFFIX)]
+    for name in twins:
+        base = ESTIMATORS[name.removesuffix(SUFFIX)]
+        assert base.smoothable, name
+        assert ESTIMATORS[name].resimulate is base.resimulate  # the RDI's own model
+        assert ESTIMATORS[name].pilot_model == base.pilot_model
+    assert {"rdi-smoothed", "rml-smoothed", "zhao-ukf-smoothed"} <= set(twins)
+    assert "zhao-multi-ukf-smoothed" not in ESTIMATORS  # its fusion is causal
+    with pytest.raises(ValueError, match="'zhao-multi-ukf' has no fixed-interval smoother"):
+        register_smoothed("zhao-multi-ukf")
+
+
 def test_smoothed_twin():
     recording = compensatory(True).slice_samples(0, 3000)
     twin = make_estimator({"name": "rml-smoothed", "model": "precision"})
