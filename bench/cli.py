@@ -609,8 +609,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--model",
         default=None,
-        help="pilot model structure of the pilot-model estimators (dekf, joint-ukf, dual-ukf): "
-        "precision (default) or preview",
+        help="pilot model structure of the pilot-model estimators (dekf, rml, joint-ukf, "
+        "dual-ukf and their -smoothed twins): precision (default) or preview",
     )
     p.add_argument(
         "--set",

@@ -438,5 +438,6 @@ register(
         "a remnant shaping filter whose intensity is learned (survives remnant)",
         reference="issue 15; Ljung & Söderström 1983; Levison et al. 1969",
         build=lambda settings: RML(RMLSettings.from_dict(dict(settings))),
+        pilot_model=True,
     )
 )

@@ -156,3 +156,21 @@ def test_identify_refuses_a_pilot_model_for_an_estimator_with_its_own(tmp_path, 
     code = main(["identify", str(path), "--estimator", "kalman", "--out", str(tmp_path / "o2")])
     assert code == EXIT_USAGE
     assert "--estimator must be one of dekf" in capsys.readouterr().err
+
+
+def test_identify_runs_the_rml_and_its_smoothed_twin_on_a_pilot_model(tmp_path, capsys):
+    from manualcontrol.estimators import load_result
+    from manualcontrol.pilots import Pilot, simulate
+
+    recording = simulate(Pilot("precision"), "popovici2017", "popovici2017", measurement_time=20.0)
+    path = recording.save(tmp_path / "run.npz")
+    for name in ("rml", "rml-smoothed"):
+        out = tmp_path / name
+        code = main(
+            ["identify", str(path), "--estimator", name, "--model", "precision", "--out", str(out)]
+        )
+        assert code == EXIT_OK, capsys.readouterr().err
+        saved = sorted(out.glob("*.npz"))
+        assert saved, list(out.iterdir())
+        result = load_result(saved[0])
+        assert result.estimator == "rml" and result.smoothed == (name != "rml")
