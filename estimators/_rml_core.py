@@ -79,7 +79,7 @@ from manualcontrol.estimators._pilot_core import (
     report_frozen,
     report_row,
 )
-from manualcontrol.estimators.filters.kalman import predict_covariance
+from manualcontrol.estimators.filters.kalman import joseph_correct, predict_covariance
 from manualcontrol.estimators.filters.linalg import cholesky, cholesky_solve_rows, symmetrise
 from manualcontrol.estimators.filters.monitor import window_variance
 from manualcontrol.estimators.filters.smoothers import store_belief
@@ -178,9 +178,10 @@ BankConfig = namedtuple(
 BankBelief = namedtuple("BankBelief", ["th", "P", "X", "PX", "prev_in", "p", "sc"])
 #: Scratch: ``L``, ``points`` (m, n_t), ``z``, ``S`` (m,), ``dz``, ``dS``, ``g`` (n_t,),
 #: ``Lam``, ``LamL``, ``B`` (n_t, n_t), ``xi`` (1, n_t), ``Phi``, ``sub``, ``Q``, ``T``
-#: (ns, ns), ``H``, ``K``, ``xs``, ``f``, ``F`` (model), ``dfdp``, ``dgdx``, ``dgdp``,
-#: ``point_p``, ``in_use``, ``variance``, ``scalars``, ``h_dir`` (n_t,): the spread in
-#: use along each direction.
+#: (ns, ns), ``H`` (1, ns), ``r`` (1,), ``R`` (1, 1), ``work`` (the shared Kalman
+#: correction's scratch, ``filters.kalman.kalman_work``), ``xs``, ``f``, ``F``
+#: (model), ``dfdp``, ``dgdx``, ``dgdp``, ``point_p``, ``in_use``, ``variance``,
+#: ``scalars``, ``h_dir`` (n_t,): the spread in use along each direction.
 BankScratch = namedtuple(
     "BankScratch",
     [
@@ -200,7 +201,9 @@ BankScratch = namedtuple(
         "Q",
         "T",
         "H",
-        "K",
+        "r",
+        "R",
+        "work",
         "xs",
         "f",
         "F",
@@ -324,44 +327,25 @@ def _member_step(model, config, lines, belief, s, i, k, u_k, R, q_error, dropped
         s.xs[c] = x[c]
     z = model_g(s.xs, lines.point_in, model, s.dgdx, s.dgdp, False)
     for c in range(n_c):
-        s.H[c] = s.dgdx[c]  # model_g writes dg/dx whatever its last argument
+        s.H[0, c] = s.dgdx[c]  # model_g writes dg/dx whatever its last argument
     if has_r:
-        s.H[n_c] = 1.0 if config.inject == INJECT_OUTPUT else 0.0
+        s.H[0, n_c] = 1.0 if config.inject == INJECT_OUTPUT else 0.0
         if config.inject == INJECT_OUTPUT:
             z += x[n_c]
-    S = R
-    for a in range(ns):
-        acc = 0.0
-        for b in range(ns):
-            acc += P[a, b] * s.H[b]
-        s.K[a] = acc
-        S += s.H[a] * acc
     s.z[i] = z
-    s.S[i] = S
-    if dropped or not S > 0.0:
+    if dropped:
+        S = R
+        for a in range(ns):
+            acc = 0.0
+            for b in range(ns):
+                acc += P[a, b] * s.H[0, b]
+            S += s.H[0, a] * acc
+        s.S[i] = S
         return
-    nu = u_k - z
-    for a in range(ns):
-        s.K[a] /= S
-    for a in range(ns):
-        x[a] += s.K[a] * nu
-    # Joseph form: P <- (I - K H) P (I - K H)^T + K R K^T
-    for a in range(ns):
-        for b in range(ns):
-            s.sub[a, b] = (1.0 if a == b else 0.0) - s.K[a] * s.H[b]
-    for a in range(ns):
-        for b in range(ns):
-            acc = 0.0
-            for c in range(ns):
-                acc += s.sub[a, c] * P[c, b]
-            s.T[a, b] = acc
-    for a in range(ns):
-        for b in range(ns):
-            acc = 0.0
-            for c in range(ns):
-                acc += s.T[a, c] * s.sub[b, c]
-            P[a, b] = acc + s.K[a] * R * s.K[b]
-    symmetrise(P)
+    s.r[0] = u_k - z
+    s.R[0, 0] = R
+    joseph_correct(x, P, s.r, s.H, s.R, s.work, 0.0)  # leaves x, P as they were if S <= 0
+    s.S[i] = s.work.S[0, 0]
 
 
 @numba.njit(cache=True, _nrt=False)

@@ -94,6 +94,7 @@ import numpy as np
 
 from manualcontrol.envs._validation import check_choice, check_int, check_positive
 from manualcontrol.estimators import _rml_core as core
+from manualcontrol.estimators.filters.kalman import kalman_work
 from manualcontrol.estimators.internal_model import (
     ANTICIPATED_PARAMETER,
     InternalModel,
@@ -321,8 +322,10 @@ class RML(PilotFilter):
             sub=np.zeros((n_s, n_s)),
             Q=np.zeros((n_s, n_s)),
             T=np.zeros((n_s, n_s)),
-            H=np.zeros(n_s),
-            K=np.zeros(n_s),
+            H=np.zeros((1, n_s)),
+            r=np.zeros(1),
+            R=np.zeros((1, 1)),
+            work=kalman_work(n_s, 1, log_det=False),
             xs=np.zeros(n_c),
             f=np.zeros(n_c),
             F=np.zeros((n_c, n_c)),
