@@ -65,6 +65,7 @@ from gymnasium import spaces
 from gymnasium.envs.registration import EnvSpec
 from numpy.typing import NDArray
 
+from manualcontrol.envs._render import close_window, render_display
 from manualcontrol.envs._validation import (
     check_action,
     check_bool,
@@ -484,32 +485,7 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
 
     def render(self) -> NDArray[np.uint8] | None:
         """Draw the participant's display (see the module docstring)."""
-        if self.render_mode is None:
-            gym.logger.warn("render() called without a render_mode; pass render_mode= to the env")
-            return None
-        try:
-            import pygame
-        except ImportError as error:  # pragma: no cover - pygame is a dev dependency
-            raise gym.error.DependencyNotInstalled(
-                "rendering needs pygame: pip install 'manualcontrol[render]'"
-            ) from error
-        if self._screen is None:
-            # display only: pygame.init() would also open the audio device
-            if self.render_mode == "human":
-                pygame.display.init()
-                self._screen = pygame.display.set_mode(_SCREEN)
-                self._clock = pygame.time.Clock()
-            else:
-                self._screen = pygame.Surface(_SCREEN)
-        canvas = pygame.Surface(_SCREEN)
-        self._draw(canvas, pygame)
-        if self.render_mode == "human":
-            self._screen.blit(canvas, (0, 0))
-            pygame.event.pump()
-            pygame.display.flip()
-            self._clock.tick(self.metadata["render_fps"])
-            return None
-        return np.transpose(np.array(pygame.surfarray.pixels3d(canvas)), (1, 0, 2)).copy()
+        return render_display(self, _SCREEN)
 
     def _draw(self, canvas: Any, pygame: Any) -> None:
         width, height = _SCREEN
@@ -556,11 +532,7 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
 
     def close(self) -> None:
         """Close the pygame window, if any."""
-        if self._screen is not None and self.render_mode == "human":
-            import pygame
-
-            pygame.display.quit()
-        self._screen = None
+        close_window(self)
 
 
 class CompensatoryTracking(TrackingEnv):
