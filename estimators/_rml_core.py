@@ -81,7 +81,7 @@ from manualcontrol.estimators._pilot_core import (
 )
 from manualcontrol.estimators.filters.kalman import joseph_correct, predict_covariance
 from manualcontrol.estimators.filters.linalg import cholesky, cholesky_solve_rows, symmetrise
-from manualcontrol.estimators.filters.monitor import window_variance
+from manualcontrol.estimators.filters.monitor import belief_health, window_variance
 from manualcontrol.estimators.filters.smoothers import store_belief
 from manualcontrol.estimators.internal_model import evaluate_coefficients, model_f, model_g
 
@@ -485,18 +485,13 @@ def bank_step(model, config, lines, belief, monitor, report, s, inputs_k, u_k, e
     for i in range(prev_in.shape[0]):
         prev_in[i] = in_use[i]
 
-    finite = np.isfinite(s.z[0]) and np.isfinite(s.S[0])
-    largest = 0.0
-    for a in range(n_t):
-        if not np.isfinite(th[a]) or not np.isfinite(P[a, a]):
-            finite = False
-        elif P[a, a] > largest:
-            largest = P[a, a]
+    finite, cov_ok = belief_health(th, P, cfg[CFG_MAX_COV], False)
+    finite = finite and np.isfinite(s.z[0]) and np.isfinite(s.S[0])
     for i in range(X.shape[0]):
         for a in range(X.shape[1]):
             if not np.isfinite(X[i, a]):
                 finite = False
-    cov_ok = ok and largest <= cfg[CFG_MAX_COV]
+    cov_ok = ok and cov_ok
     variance = s.variance
     for a in range(n_t):
         slot = config.slot[a]

@@ -12,8 +12,10 @@ third of its value. Modelling the remnant as a coloured state of a joint filter
 and the remnant trade ``K -> a K``, remnant ``-> n/a``, and a joint (or dual) filter,
 which approximates the joint posterior of states and parameters rather than the
 likelihood of the parameters, prefers the smaller remnant (Ljung 1979: its parameter
-update leaves out how the Kalman gain depends on the parameters). Measured: gains
-+30 to +60 % on the double integrator, +45 % on the single integrator.
+update leaves out how the Kalman gain depends on the parameters). Measured with a
+remnant state in the joint UKF (four runs a batch of ``vertregt2020-performance``):
+single-integrator ``K_p`` +21 to +46 %; double integrator ``K_p`` -35 to +10 % with
+``omega_f`` +19 to +48 %, depending on the remnant's assumed variance.
 
 The estimator
 -------------

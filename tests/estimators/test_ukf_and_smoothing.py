@@ -33,6 +33,7 @@ from manualcontrol.estimators import (
 sys.path.insert(0, str(Path(__file__).parent))
 from dekf_oracle import Model
 from scenarios import (
+    PREVIEW,
     assert_update_replays_estimate,
     compensatory,
     compensatory_tv,
@@ -268,16 +269,7 @@ def test_a_pursuit_fit_needs_no_target_ahead():
     """anticipation_time = 0: the far view reads the current target (van der El's pursuit)."""
     from manualcontrol.pilots import Pilot, simulate
 
-    truth = {
-        "K_f": 1.0,
-        "omega_f": 3.3,
-        "K_p": 1.3,
-        "K_v": 0.0,
-        "omega_nms": 10.5,
-        "zeta_nms": 0.35,
-        "tau_v": 0.26,
-        "tau_f": 0.0,
-    }
+    truth = {**PREVIEW["SI"], "tau_f": 0.0}
     recording = simulate(
         Pilot("preview", truth),
         "SI",
