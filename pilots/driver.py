@@ -59,7 +59,6 @@ the visual signal ``w`` before the delay).
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -73,7 +72,7 @@ from manualcontrol.envs._validation import check_choice, check_positive
 from manualcontrol.envs.dynamics import StateSpace, pade, poly_multiply, read_held, read_smooth
 from manualcontrol.envs.schedules import Schedule, as_schedule
 from manualcontrol.pilots.models import ParameterSpec
-from manualcontrol.pilots.pilot import HumanLimitWarning
+from manualcontrol.pilots.pilot import check_parameter_values
 from manualcontrol.pilots.remnant import Remnant, make_remnant
 
 __all__ = [
@@ -343,27 +342,11 @@ class Driver:
 
     def _check(self, name: str, values: FloatArray) -> None:
         spec = self.model.spec(name)
-        if not np.all(np.isfinite(values)):
-            raise ValueError(f"driver parameter {name} must be finite, got non-finite values")
-        low, high = spec.valid
-        outside = (values <= low if spec.positive else values < low) | (values > high)
-        if name == "tau_p" and self.delay_order == 1:
-            outside |= values <= 0.0
-        if np.any(outside):
-            left = "(" if spec.positive or (name == "tau_p" and self.delay_order == 1) else "["
-            raise ValueError(
-                f"driver parameter {name} must lie in {left}{low:g}, {high:g}] {spec.unit}, "
-                f"got {float(values[outside][0])!r}"
-            )
-        low, high = spec.human
-        if np.any(values < low) or np.any(values > high):
-            extreme = float(values.min() if np.any(values < low) else values.max())
-            warnings.warn(
-                f"driver parameter {name} = {extreme:g} {spec.unit} is outside the flagged range "
-                f"[{low:g}, {high:g}] ({spec.description})",
-                HumanLimitWarning,
-                stacklevel=3,
-            )
+        # a Padé-1 delay of zero has a vanishing leading coefficient
+        positive = spec.positive or (name == "tau_p" and self.delay_order == 1)
+        check_parameter_values(
+            "driver", name, spec, values, positive=positive, flagged="flagged range"
+        )
 
     @property
     def is_time_varying(self) -> bool:

@@ -25,6 +25,42 @@ class HumanLimitWarning(UserWarning):
     """A pilot parameter leaves the range observed in humans (the model still works)."""
 
 
+def check_parameter_values(
+    who: str,
+    name: str,
+    spec: Any,
+    values: FloatArray,
+    *,
+    positive: bool,
+    flagged: str = "human range",
+) -> None:
+    """Raise if ``values`` leave ``spec.valid``; warn if they leave ``spec.human``.
+
+    ``who`` names the owner in the messages ("pilot", "driver"); ``positive`` makes the
+    lower bound exclusive; ``flagged`` names the warning range. Called from an owner's
+    ``_check``, the warning points at the code that called the owner's method.
+    """
+    if not np.all(np.isfinite(values)):
+        raise ValueError(f"{who} parameter {name} must be finite, got non-finite values")
+    low, high = spec.valid
+    outside = (values <= low if positive else values < low) | (values > high)
+    if np.any(outside):
+        left = "(" if positive else "["
+        raise ValueError(
+            f"{who} parameter {name} must lie in {left}{low:g}, {high:g}] {spec.unit}, "
+            f"got {float(values[outside][0])!r}"
+        )
+    low, high = spec.human
+    if np.any(values < low) or np.any(values > high):
+        extreme = float(values.min() if np.any(values < low) else values.max())
+        warnings.warn(
+            f"{who} parameter {name} = {extreme:g} {spec.unit} is outside the {flagged} "
+            f"[{low:g}, {high:g}] ({spec.description})",
+            HumanLimitWarning,
+            stacklevel=4,
+        )
+
+
 @dataclass(frozen=True)
 class Pilot:
     """A cybernetic pilot: model structure, parameter values or schedules, remnant.
@@ -92,25 +128,7 @@ class Pilot:
 
     def _check(self, name: str, values: FloatArray) -> None:
         spec = self.model.spec(name)
-        if not np.all(np.isfinite(values)):
-            raise ValueError(f"pilot parameter {name} must be finite, got non-finite values")
-        low, high = spec.valid
-        outside = (values <= low if spec.positive else values < low) | (values > high)
-        if np.any(outside):
-            left = "(" if spec.positive else "["
-            raise ValueError(
-                f"pilot parameter {name} must lie in {left}{low:g}, {high:g}] {spec.unit}, "
-                f"got {float(values[outside][0])!r}"
-            )
-        low, high = spec.human
-        if np.any(values < low) or np.any(values > high):
-            extreme = float(values.min() if np.any(values < low) else values.max())
-            warnings.warn(
-                f"pilot parameter {name} = {extreme:g} {spec.unit} is outside the human range "
-                f"[{low:g}, {high:g}] ({spec.description})",
-                HumanLimitWarning,
-                stacklevel=3,
-            )
+        check_parameter_values("pilot", name, spec, values, positive=spec.positive)
 
     @property
     def is_time_varying(self) -> bool:
