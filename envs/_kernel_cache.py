@@ -6,7 +6,8 @@ edited, the caller's cached machine code still holds the old callee, and runs it
 silently. That happens to anyone working on an editable install (``make demo`` after a
 ``git pull`` that changed only a shared kernel). So on import the package compares a
 stamp of its kernel sources (path, size and modification time of every ``.py`` file of
-the five subpackages that uses numba) with the one the last import left; when they
+the five subpackages that compiles a kernel: ``numba.njit``/``numba.jit``, or a bare
+``@njit``/``@jit`` decorator) with the one the last import left; when they
 differ, it deletes the package's cached kernels (``__pycache__/*.nbi``, ``*.nbc``) and
 numba compiles afresh.
 A fresh clone or install has no stamp and nothing to delete. Any failure here (a
@@ -19,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import os
+import re
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -27,6 +29,8 @@ __all__ = ["PACKAGES", "refresh_kernel_cache", "source_stamp"]
 #: The subpackages whose modules hold compiled kernels that call one another.
 PACKAGES = ("envs", "pilots", "estimators", "agents", "bench")
 _STAMP = "manualcontrol-kernel-sources.stamp"
+#: What marks a kernel source: a file that compiles with numba, not one that mentions it.
+_KERNEL = re.compile(rb"numba\.n?jit\b|^\s*@n?jit\b", re.MULTILINE)
 
 
 def _roots() -> list[Path]:
@@ -41,13 +45,13 @@ def _roots() -> list[Path]:
 def source_stamp(roots: Iterable[Path]) -> str:
     """Digest of the path, size and modification time of each kernel source under ``roots``.
 
-    Kernel sources are the ``.py`` files that mention numba; editing any other file
-    keeps the caches.
+    Kernel sources are the ``.py`` files that compile with numba (:data:`_KERNEL`);
+    editing any other file, one that only mentions numba included, keeps the caches.
     """
     digest = hashlib.sha256()
     for root in roots:
         for path in sorted(Path(root).rglob("*.py")):
-            if "__pycache__" in path.parts or b"numba" not in path.read_bytes():
+            if "__pycache__" in path.parts or not _KERNEL.search(path.read_bytes()):
                 continue
             status = path.stat()
             digest.update(f"{path}\0{status.st_size}\0{status.st_mtime_ns}\n".encode())

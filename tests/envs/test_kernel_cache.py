@@ -7,8 +7,8 @@ from manualcontrol.envs._kernel_cache import refresh_kernel_cache, source_stamp
 
 def make_package(root):
     (root / "kernels").mkdir(parents=True)
-    (root / "kernels" / "algebra.py").write_text("import numba\n")
-    (root / "kernels" / "cli.py").write_text("print('no kernels here')\n")
+    (root / "kernels" / "algebra.py").write_text("import numba\n\n@numba.njit\ndef step(): pass\n")
+    (root / "kernels" / "cli.py").write_text("print('no kernels here, numba is only named')\n")
     cache = root / "kernels" / "__pycache__"
     cache.mkdir()
     for name in ("algebra.step-10.py311.nbi", "algebra.step-10.py311.1.nbc"):
@@ -23,12 +23,12 @@ def test_a_changed_kernel_source_drops_the_cached_kernels(tmp_path):
     assert not refresh_kernel_cache(roots)  # nothing changed: caches kept
     assert (cache / "algebra.step-10.py311.nbi").is_file()
     # editing a file without kernels keeps them too
-    (roots[0] / "cli.py").write_text("print('still no kernels')  # longer\n")
+    (roots[0] / "cli.py").write_text("print('numba is named, no kernels')  # longer\n")
     assert not refresh_kernel_cache(roots)
     # editing a kernel source drops every cached kernel of the package
     before = source_stamp(roots)
     source = roots[0] / "algebra.py"
-    source.write_text("import numba  # a callee changed\n")
+    source.write_text("from numba import njit\n\n@njit\ndef step(): return 1  # changed\n")
     os.utime(source, ns=(1, 2))
     assert source_stamp(roots) != before
     assert refresh_kernel_cache(roots)
