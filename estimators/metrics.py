@@ -126,14 +126,16 @@ def _pair(name_a: str, a: ArrayLike, name_b: str, b: ArrayLike) -> tuple[FloatAr
 def vaf(measured: ArrayLike, modelled: ArrayLike) -> float:
     """Variance accounted for (%), thesis eq. 38, over samples where both are finite.
 
-    Returns NaN when no sample is usable or ``sum u^2`` is zero.
+    Returns NaN when no sample is usable or ``sum u^2`` is zero, and ``-inf`` when the
+    model's error is too large to square (a resimulation that diverged).
     """
     u, u_hat = _pair("measured", measured, "modelled", modelled)
     ok = np.isfinite(u) & np.isfinite(u_hat)
     power = float(np.sum(u[ok] ** 2))
     if not ok.any() or power == 0.0:
         return float("nan")
-    return float((1.0 - np.sum((u[ok] - u_hat[ok]) ** 2) / power) * 100.0)
+    with np.errstate(over="ignore"):
+        return float((1.0 - np.sum((u[ok] - u_hat[ok]) ** 2) / power) * 100.0)
 
 
 def moving_vaf(

@@ -38,6 +38,14 @@ def test_vaf_divides_by_the_power_of_the_reference_not_its_variance():
     assert vaf([1.0, 1.0], [2.0, 2.0]) == pytest.approx(0.0)
 
 
+def test_a_diverged_model_scores_minus_infinity_without_a_warning():
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert vaf([1.0, -1.0], [1e200, 0.0]) == -math.inf
+
+
 def test_moving_vaf_by_hand():
     u = np.array([1.0, 2.0, 2.0, 1.0])
     u_hat = np.array([1.0, 1.0, 2.0, 0.0])
