@@ -193,13 +193,12 @@ def _open_loop_lines(results: Mapping[str, Mapping[str, Any]]) -> list[str]:
 
 
 def _open_loop_figure(examples: Mapping[str, Any], out: Path) -> Path | None:
-    from manualcontrol.bench.report import _pyplot, _save
+    from manualcontrol.bench.report import _line, _save, _subplots
 
     if not examples:
         return None
-    plt = _pyplot()
     names = ("d", "a_1", "b_0", "b_1")
-    fig, axes = plt.subplots(
+    fig, axes = _subplots(
         len(names), len(examples), figsize=(4.2 * len(examples), 8.5), sharex=True, squeeze=False
     )
     for column, (batch, (recording, filtered, smoothed)) in enumerate(examples.items()):
@@ -207,10 +206,13 @@ def _open_loop_figure(examples: Mapping[str, Any], out: Path) -> Path | None:
         for row, name in enumerate(names):
             axis = axes[row, column]
             scale = 1000.0 if name == "d" else 1.0
-            axis.plot(t, recording.parameters[name] * scale, color="tab:red", lw=1.2, label="true")
-            axis.plot(t, filtered.mean_of(name) * scale, color="k", lw=0.8, label="filtered")
+            _line(
+                axis, t, recording.parameters[name] * scale, color="tab:red", lw=1.2, label="true"
+            )
+            _line(axis, t, filtered.mean_of(name) * scale, color="k", lw=0.8, label="filtered")
             if name in filtered.estimated:
-                axis.plot(
+                _line(
+                    axis,
                     t,
                     smoothed.mean_of(name) * scale,
                     color="tab:blue",
@@ -223,7 +225,6 @@ def _open_loop_figure(examples: Mapping[str, Any], out: Path) -> Path | None:
         axes[0, column].set_title(batch, fontsize=9)
         axes[-1, column].set_xlabel("time [s]")
     axes[0, 0].legend(loc="upper left", fontsize=7)
-    fig.tight_layout()
     return _save(fig, out / "figures" / "boer-kenyon1998-open-loop.png")
 
 
@@ -270,32 +271,38 @@ def _postview(scenarios: list[Scenario]) -> tuple[dict[str, list[float]], Any]:
 def _task_figure(
     title: str, example: Any, truth_d: FloatArray, truth_gain: Any, path: Path
 ) -> Path:
-    from manualcontrol.bench.report import _pyplot, _save
+    from manualcontrol.bench.report import _line, _save, _subplots
 
     recording, filtered, smoothed = example[:3]
-    plt = _pyplot()
-    fig, axes = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
+    fig, axes = _subplots(2, 1, figsize=(9, 5.5), sharex=True)
     t = np.asarray(recording.t)
     d_name, gain_name = _delay_name(filtered), _gain_name(filtered)
-    axes[0].plot(t, truth_d * 1000.0, color="tab:red", lw=1.2, label="true")
-    axes[0].plot(t, filtered.mean_of(d_name) * 1000.0, color="k", lw=0.8, label="filtered")
-    axes[0].plot(
-        t, smoothed.mean_of(d_name) * 1000.0, color="tab:blue", lw=0.9, ls="--", label="smoothed"
+    _line(axes[0], t, truth_d * 1000.0, color="tab:red", lw=1.2, label="true")
+    _line(axes[0], t, filtered.mean_of(d_name) * 1000.0, color="k", lw=0.8, label="filtered")
+    _line(
+        axes[0],
+        t,
+        smoothed.mean_of(d_name) * 1000.0,
+        color="tab:blue",
+        lw=0.9,
+        ls="--",
+        label="smoothed",
     )
     if "gap" in recording.parameters:
-        axes[0].plot(t, recording.parameters["gap"] * 1000.0, color="tab:gray", lw=0.8, label="gap")
+        _line(
+            axes[0], t, recording.parameters["gap"] * 1000.0, color="tab:gray", lw=0.8, label="gap"
+        )
     axes[0].set_ylabel("delay [ms]")
     axes[0].legend(loc="upper left", fontsize=8)
     if truth_gain is not None:
-        axes[1].plot(t, truth_gain, color="tab:red", lw=1.2, label="true")
-    axes[1].plot(t, filtered.mean_of(gain_name), color="k", lw=0.8, label="filtered")
-    axes[1].plot(
-        t, smoothed.mean_of(gain_name), color="tab:blue", lw=0.9, ls="--", label="smoothed"
+        _line(axes[1], t, truth_gain, color="tab:red", lw=1.2, label="true")
+    _line(axes[1], t, filtered.mean_of(gain_name), color="k", lw=0.8, label="filtered")
+    _line(
+        axes[1], t, smoothed.mean_of(gain_name), color="tab:blue", lw=0.9, ls="--", label="smoothed"
     )
     axes[1].set_ylabel("gain")
     axes[1].set_xlabel("time [s]")
     axes[0].set_title(title)
-    fig.tight_layout()
     return _save(fig, path)
 
 

@@ -87,7 +87,7 @@ def _table(drives: Mapping[str, Mapping[str, list]]) -> list[str]:
 
 
 def _figure(condition: str, drive: str, members: Mapping[str, list], out: Path) -> Path | None:
-    from manualcontrol.bench.report import _pyplot, _save
+    from manualcontrol.bench.report import _line, _save, _subplots
     from manualcontrol.bench.runner import simulate_scenario
     from manualcontrol.bench.scenarios import scenario_from_dict
     from manualcontrol.estimators.protocol import load_result
@@ -106,21 +106,21 @@ def _figure(condition: str, drive: str, members: Mapping[str, list], out: Path) 
             recording = simulate_scenario(scenario_from_dict(runs[0]["scenario"]))
     if not results or recording is None:
         return None
-    plt = _pyplot()
-    fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
+    fig, axes = _subplots(3, 1, figsize=(10, 7.5), sharex=True)
     for axis, name in zip(axes, PARAMETERS, strict=False):
-        axis.plot(recording.t, recording.parameters[name], color="tab:red", lw=1.6, label="true")
+        _line(axis, recording.t, recording.parameters[name], color="tab:red", lw=1.6, label="true")
         for member, result in results.items():
-            axis.plot(result.t, result.mean_of(name), color=_COLOURS[member], lw=0.9, label=member)
+            _line(
+                axis, result.t, result.mean_of(name), color=_COLOURS[member], lw=0.9, label=member
+            )
         axis.set_ylabel(name)
     axes[0].legend(loc="upper left", fontsize=8, ncol=4)
-    axes[2].plot(recording.t, recording["theta_far"], lw=0.8, label=r"$\theta_{far}$")
-    axes[2].plot(recording.t, recording["theta_near"], lw=0.8, label=r"$\theta_{near}$")
+    _line(axes[2], recording.t, recording["theta_far"], lw=0.8, label=r"$\theta_{far}$")
+    _line(axes[2], recording.t, recording["theta_near"], lw=0.8, label=r"$\theta_{near}$")
     axes[2].set_ylabel("rad")
     axes[2].legend(loc="upper left", fontsize=8)
     axes[2].set_xlabel("time [s]")
     axes[0].set_title(f"zhao2019: {drive}, {condition} (first run of each member)")
-    fig.tight_layout()
     slug = f"zhao2019-{drive}-{condition}".replace(" ", "").replace(",", "-").replace("=", "")
     slug = "".join(c for c in slug if c.isalnum() or c in "-_.")
     return _save(fig, out / "figures" / f"{slug}.png")

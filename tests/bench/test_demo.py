@@ -18,3 +18,15 @@ def test_demo_runs_a_quick_suite_and_writes_its_report(tmp_path, capsys):
     assert "popovici2017/report.md" in (tmp_path / "README.md").read_text()
     assert "index:" in capsys.readouterr().out
     assert not list(tmp_path.rglob(".*part*"))  # no temporary debris
+
+
+def test_a_failing_report_is_said_and_fails_the_demo(tmp_path, capsys, monkeypatch):
+    def broken(suite, rows, out):
+        raise RuntimeError("no figures today")
+
+    monkeypatch.setattr(demo, "write_report", broken)
+    assert demo.main(["--out", str(tmp_path), "--suite", "boer-kenyon1998"]) == 3
+    printed = capsys.readouterr()
+    assert "boer-kenyon1998: 6 runs, 0 failed (the report failed" in printed.out
+    assert "boer-kenyon1998 (report failed)" in (tmp_path / "README.md").read_text()
+    assert not (tmp_path / "boer-kenyon1998" / "report.md").exists()
