@@ -186,3 +186,39 @@ def test_first_run_is_made_here_and_the_pool_forks_from_this_process(tmp_path, m
     assert pids[0] == parent
     assert all(pid != parent for pid in pids[1:])
     assert runner._pool_context().get_start_method() == "fork"
+
+
+def test_a_filter_and_its_smoothed_twin_share_one_pass_with_the_same_numbers(tmp_path, monkeypatch):
+    from manualcontrol.estimators.protocol import load_result
+
+    twins = {
+        **SMALL["batch"][0],
+        "realisations": [0],
+        "estimators": [
+            {"name": "dekf", "model": "precision"},
+            {"name": "dekf-smoothed", "model": "precision"},
+        ],
+    }
+    del twins["estimator"]
+    suite = parse_suite({**SMALL, "batch": [twins]})
+    (group,) = runner._groups(suite.scenarios())
+    passes = []
+    make = runner.make_estimator
+
+    def counting(spec):
+        passes.append(spec["name"])
+        return make(spec)
+
+    monkeypatch.setattr(runner, "make_estimator", counting)
+    together = runner.run_scenarios(group, tmp_path / "together")
+    assert passes == ["dekf"]  # one filter pass serves both rows
+    apart = [runner.run_scenarios([scenario], tmp_path / "apart")[0] for scenario in group]
+    assert passes == ["dekf", "dekf", "dekf-smoothed"]
+    for a, b in zip(together, apart, strict=True):
+        assert a["status"] == b["status"] == "ok"
+        assert same(numbers(a), numbers(b))
+        shared = load_result(tmp_path / "together" / "runs" / f"{a['key']}.npz")
+        alone = load_result(tmp_path / "apart" / "runs" / f"{b['key']}.npz")
+        assert shared.smoothed == alone.smoothed == a["estimator"].endswith("-smoothed")
+        assert (shared.mean == alone.mean).all() and (shared.std == alone.std).all()
+        assert shared.smoother_inputs is None
