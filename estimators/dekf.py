@@ -143,6 +143,7 @@ class DEKF(PilotFilter):
 
     name = "dekf"
     settings_type = DEKFSettings
+    _step_kernel = staticmethod(core.dekf_step)
 
     @property
     def settings(self) -> DEKFSettings:
@@ -240,9 +241,6 @@ class DEKF(PilotFilter):
             th_post=np.zeros((rows, n_t)),
             Pp_post=np.zeros((rows, n_t, n_t)),
         )
-
-    def _step(self, inputs: Any, u: float, e: float, out: core.DEKFOutput) -> None:
-        self._call_step(core.dekf_step, (*self._records, inputs, u, e, 0, out))
 
     def _run(self, inputs: Any, u: Any, e: Any, out: core.DEKFOutput) -> None:
         core.dekf_run(*self._records, inputs, u, e, out)

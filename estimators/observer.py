@@ -6,12 +6,13 @@ step's signals to an online estimator, whoever acts: a cybernetic pilot, an RL p
 or a person. After every step ``info["estimates"]`` holds the current estimate:
 
 ``mean``, ``std``
-    every parameter of the estimator's pilot model (held ones with std 0);
+    every parameter of the estimator's pilot model (held ones with std 0), as
+    read-only mappings of this step's values (the estimate's own);
 ``innovation``, ``innovation_variance``, ``prediction``
     the filter's one-step figures for the sample just taken;
 ``health``
-    ``finite``, ``covariance_ok``, ``pinned`` (parameter names), ``dropped``,
-    ``diverged``.
+    a read-only mapping: ``finite``, ``covariance_ok``, ``pinned`` (a tuple of
+    parameter names), ``dropped``, ``diverged``.
 
 With ``append_to_observation=True`` the means of the estimated parameters are
 appended to the observation (in the estimator's order; the initial values before the
@@ -27,6 +28,8 @@ the first window of data is not known at reset).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from types import MappingProxyType
 from typing import Any
 
 import gymnasium as gym
@@ -92,6 +95,7 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._pending: dict[str, float] = {}
         self._ahead: FloatArray | None = None
         self._step_index = 0
+        self._healths: dict[Any, Mapping[str, Any]] = {}
 
     def _estimated_names(self) -> tuple[str, ...]:
         # what is estimated is resolved at reset (e.g. the SI rule holds K_v)
@@ -138,6 +142,27 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
             return np.zeros_like(times)
         return np.asarray(target(times), dtype=np.float64)
 
+    def _health_info(self, health: Any) -> Mapping[str, Any]:
+        """``health`` as a read-only mapping, one per distinct health (most steps share one)."""
+        try:
+            info = self._healths.get(health)
+            cacheable = True
+        except TypeError:  # an estimator of the user's with unhashable health fields
+            info, cacheable = None, False
+        if info is None:
+            info = MappingProxyType(
+                {
+                    "finite": health.finite,
+                    "covariance_ok": health.covariance_ok,
+                    "pinned": tuple(health.pinned),
+                    "dropped": health.dropped,
+                    "diverged": health.diverged,
+                }
+            )
+            if cacheable and len(self._healths) < 1024:
+                self._healths[health] = info
+        return info
+
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
         observation, info = self.env.reset(**kwargs)
         base = self.env.unwrapped
@@ -153,21 +178,14 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         sample = self._pending
         sample["u"] = float(info["u"])
         estimate = self.estimator.update(sample)
-        health = estimate.health
         self._last = {
             "t": estimate.t,
-            "mean": dict(estimate.mean),
-            "std": dict(estimate.std),
+            "mean": estimate.mean,
+            "std": estimate.std,
             "innovation": estimate.innovation,
             "innovation_variance": estimate.innovation_variance,
             "prediction": estimate.prediction,
-            "health": {
-                "finite": health.finite,
-                "covariance_ok": health.covariance_ok,
-                "pinned": list(health.pinned),
-                "dropped": health.dropped,
-                "diverged": health.diverged,
-            },
+            "health": self._health_info(estimate.health),
         }
         self._step_index += 1
         self._pending = self._display(info)

@@ -755,6 +755,9 @@ class PilotFilter:
 
     name: ClassVar[str] = ""
     settings_type: ClassVar[type[PilotFilterSettings]] = PilotFilterSettings
+    #: The compiled one-sample kernel, ``kernel(*records, inputs, u, e, row, out)``
+    #: (a ``staticmethod``: numba's dispatchers bind to instances like functions).
+    _step_kernel: ClassVar[Any] = None
 
     def __init__(self, settings: PilotFilterSettings | None = None, **changes: Any) -> None:
         kind = self.settings_type
@@ -775,6 +778,8 @@ class PilotFilter:
         )
         self._where = f"{type(self).__name__}.update sample"
         self._inputs = np.zeros(len(self._internal.input_names))
+        self._u_at, self._e_at = keys.index("u"), keys.index("e")
+        self._healths: dict[bytes, EstimateHealth] = {}
         self._common: CommonArrays | None = None
         self._resolved: ResolvedSettings | None = None
         self._row: Any = None
@@ -909,7 +914,10 @@ class PilotFilter:
         )
         self._resolved = resolved
         self._start(resolved, self._common)
-        self._row = self._new_output(1, store=False)
+        row = self._row = self._new_output(1, store=False)
+        self._row_views = (row.mean[0], row.std[0], row.scalar[0], row.flag[0], row.pinned[0])
+        self._estimated = resolved.estimated
+        self._healths.clear()
         self._entry = None
         self._t0, self._dt, self._k = t0, dt, 0
 
@@ -920,7 +928,7 @@ class PilotFilter:
         raise NotImplementedError
 
     def _step(self, inputs: FloatArray, u: float, e: float, out: Any) -> None:
-        raise NotImplementedError
+        self._call_step(self._step_kernel, (*self._records, inputs, u, e, 0, out))
 
     def _call_step(self, kernel: Any, arguments: tuple) -> None:
         """Call the compiled one-sample ``kernel``, bypassing numba's dispatcher after once.
@@ -957,31 +965,72 @@ class PilotFilter:
         """
         if self._common is None:
             raise RuntimeError(f"the {type(self).__name__} has not been reset; call reset() first")
-        values = sample_values(self._where, sample, self._sample_keys, self._allowed_sample_keys)
+        values = self._sample_floats(sample)
         inputs = self._inputs
-        for i, name in enumerate(self._internal.input_names):
-            inputs[i] = values[name]
+        for i in range(len(inputs)):
+            inputs[i] = values[i]
+        u, e = values[self._u_at], values[self._e_at]
         out = self._row
-        self._step(inputs, values["u"], values["e"], out)
-        t = float(sample["t"]) if "t" in sample else self._t0 + self._k * self._dt
+        entry = self._entry
+        if entry is None:
+            self._step(inputs, u, e, out)
+        else:  # what _step calls, without its two Python calls (see _call_step)
+            entry(*self._records, inputs, u, e, 0, out)
+        t = sample.get("t")
+        t = self._t0 + self._k * self._dt if t is None else float(t)
         self._k += 1
-        names = self._internal.parameter_names
-        scalar, flag, pinned = out.scalar[0], out.flag[0], out.pinned[0]
-        return Estimate(
-            t=t,
-            mean=ParameterValues(self._columns, out.mean[0].copy()),
-            std=ParameterValues(self._columns, out.std[0].copy()),
-            estimated=self.resolved.estimated,
-            prediction=float(scalar[0]),
-            innovation=float(scalar[1]),
-            innovation_variance=float(scalar[2]),
-            health=EstimateHealth(
-                finite=bool(flag[0]),
-                covariance_ok=bool(flag[1]),
-                pinned=tuple(n for j, n in enumerate(names) if pinned[j]),
-                dropped=bool(flag[2]),
-                diverged=bool(flag[3]),
-            ),
+        return self._estimate_of_row(t)
+
+    def _sample_floats(self, sample: Mapping[str, float]) -> list[float]:
+        """The values of :attr:`sample_keys` in ``sample``, in that order, checked.
+
+        A plain dict of floats, each finite or NaN, is read as it is (the online case);
+        anything else goes through :func:`~manualcontrol.estimators.protocol.sample_values`,
+        whose errors name the key.
+        """
+        keys = self._sample_keys
+        if type(sample) is dict and sample.keys() <= self._allowed_sample_keys:
+            try:
+                values = [sample[key] for key in keys]
+            except KeyError:
+                values = None
+            if values is not None:
+                for value in values:
+                    # a float, finite or NaN (v - v is 0 for finite, NaN for NaN and inf)
+                    if type(value) is not float or (value - value != 0.0 and value == value):
+                        break
+                else:
+                    return values
+        checked = sample_values(self._where, sample, keys, self._allowed_sample_keys)
+        return [checked[key] for key in keys]
+
+    def _estimate_of_row(self, t: float) -> Estimate:
+        """The :class:`Estimate` held in the one-row output the last step wrote."""
+        mean, std, scalar, flag, pinned = self._row_views
+        key = flag.tobytes() + pinned.tobytes()
+        health = self._healths.get(key)
+        if health is None:  # health objects are immutable: one per combination of flags
+            finite, covariance_ok, dropped, diverged = flag.tolist()
+            names = self._internal.parameter_names
+            health = EstimateHealth(
+                finite=finite,
+                covariance_ok=covariance_ok,
+                pinned=tuple(n for n, at in zip(names, pinned.tolist(), strict=True) if at),
+                dropped=dropped,
+                diverged=diverged,
+            )
+            if len(self._healths) < 1024:
+                self._healths[key] = health
+        prediction, innovation, variance = scalar.tolist()
+        return Estimate.of_one_output(
+            t,
+            ParameterValues(self._columns, mean.copy()),
+            ParameterValues(self._columns, std.copy()),
+            self._estimated,
+            prediction,
+            innovation,
+            variance,
+            health,
         )
 
     # -------------------------------------------------------------- estimate

@@ -191,6 +191,42 @@ class Estimate:
     innovations: tuple[float, ...] = ()
     innovation_covariance: tuple[tuple[float, ...], ...] = ()
 
+    @classmethod
+    def of_one_output(
+        cls,
+        t: float,
+        mean: ParameterValues,
+        std: ParameterValues,
+        estimated: tuple[str, ...],
+        prediction: float,
+        innovation: float,
+        innovation_variance: float,
+        health: EstimateHealth,
+    ) -> Estimate:
+        """The estimate of a filter with the one output ``u``, built without checks.
+
+        Equal to ``Estimate(t, mean, std, ...)`` with these fields, for an online update
+        at 100 Hz: the dataclass's frozen ``__init__`` and ``__post_init__`` cost more
+        than the compiled filter step. The caller guarantees the types (floats, a tuple,
+        :class:`ParameterValues` snapshots).
+        """
+        estimate = object.__new__(cls)
+        estimate.__dict__.update(
+            t=t,
+            mean=mean,
+            std=std,
+            estimated=estimated,
+            prediction=prediction,
+            innovation=innovation,
+            innovation_variance=innovation_variance,
+            health=health,
+            outputs=("u",),
+            predictions=(prediction,),
+            innovations=(innovation,),
+            innovation_covariance=((innovation_variance,),),
+        )
+        return estimate
+
     def __post_init__(self) -> None:
         if not isinstance(self.mean, ParameterValues):
             object.__setattr__(self, "mean", MappingProxyType(dict(self.mean)))

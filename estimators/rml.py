@@ -220,6 +220,7 @@ class RML(PilotFilter):
 
     name: ClassVar[str] = "rml"
     settings_type = RMLSettings
+    _step_kernel = staticmethod(core.bank_step)
 
     def __init__(self, settings: RMLSettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
@@ -398,9 +399,6 @@ class RML(PilotFilter):
             P_post=np.zeros((rows, n_t, n_t)),
             extra=np.zeros((n, 3)),
         )
-
-    def _step(self, inputs: Any, u: float, e: float, out: core.BankOutput) -> None:
-        core.bank_step(*self._records, inputs, u, e, 0, out)
 
     def _run(self, inputs: Any, u: Any, e: Any, out: core.BankOutput) -> None:
         core.bank_run(*self._records, inputs, u, e, out)

@@ -264,6 +264,7 @@ class JointUKF(_UnscentedPilotFilter):
 
     name = "joint-ukf"
     settings_type = UKFSettings
+    _step_kernel = staticmethod(core.joint_step)
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
         internal = self._internal
@@ -283,9 +284,6 @@ class JointUKF(_UnscentedPilotFilter):
         self._sizes = (n, 0)
         self._blocks = (names, ())
 
-    def _step(self, inputs: Any, u: float, e: float, out: core.UKFOutput) -> None:
-        self._call_step(core.joint_step, (*self._records, inputs, u, e, 0, out))
-
     def _run(self, inputs: Any, u: Any, e: Any, out: core.UKFOutput) -> None:
         core.joint_run(*self._records, inputs, u, e, out)
 
@@ -302,6 +300,7 @@ class DualUKF(_UnscentedPilotFilter):
 
     name = "dual-ukf"
     settings_type = DualUKFSettings
+    _step_kernel = staticmethod(core.dual_step)
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
         internal = self._internal
@@ -339,9 +338,6 @@ class DualUKF(_UnscentedPilotFilter):
         self._records = (model, config, belief, common.monitor, common.report, scratch, theta_half)
         self._sizes = (n, n_t)
         self._blocks = (gains, theta)
-
-    def _step(self, inputs: Any, u: float, e: float, out: core.UKFOutput) -> None:
-        self._call_step(core.dual_step, (*self._records, inputs, u, e, 0, out))
 
     def _run(self, inputs: Any, u: Any, e: Any, out: core.UKFOutput) -> None:
         core.dual_run(*self._records, inputs, u, e, out)

@@ -17,6 +17,7 @@ import math
 import re
 import sys
 from pathlib import Path
+from types import MappingProxyType
 
 import numpy as np
 import pytest
@@ -27,6 +28,7 @@ from manualcontrol.envs.signals import ForcingPair, Multisine
 from manualcontrol.estimators import (
     DEKF,
     DEKFSettings,
+    Estimate,
     EstimationResult,
     Estimator,
     load_result,
@@ -272,6 +274,67 @@ def test_update_gives_exactly_the_numbers_of_estimate(model):
             [result.prediction[k], result.innovation[k], result.innovation_variance[k]],
         )
         assert estimate.health.dropped == result.dropped[k]
+
+
+def test_update_reads_plain_floats_and_checked_samples_alike_with_every_health_flag():
+    # limits the estimates reach, so samples with and without pinned parameters occur
+    recording = with_gaps(compensatory(True).slice_samples(0, 1500))
+    dekf = DEKF(
+        model="precision",
+        initial_variance="causal",
+        initial={"K_p": 1.3},
+        limits={"K_p": (1.2, 1.45)},
+    )
+    result = dekf.estimate(recording)
+    assert result.pinned.any(axis=1).any() and not result.pinned.any(axis=1).all()
+    signals = dekf.signals(recording)
+    plain = [
+        {key: float(signals[key][k]) for key in dekf.sample_keys} for k in range(len(recording))
+    ]
+    checked = [
+        MappingProxyType({key: signals[key][k] for key in dekf.sample_keys})  # numpy floats
+        for k in range(len(recording))
+    ]
+    names = result.parameter_names
+    for samples in (plain, checked):
+        dekf.reset(recording.dt, t0=float(recording.t[0]))
+        for k, sample in enumerate(samples):
+            estimate = dekf.update(sample)
+            assert [estimate.mean[n] for n in names] == result.mean[k].tolist()
+            assert [estimate.std[n] for n in names] == result.std[k].tolist()
+            health = estimate.health
+            assert health.pinned == tuple(n for j, n in enumerate(names) if result.pinned[k, j])
+            assert (health.finite, health.covariance_ok, health.dropped, health.diverged) == (
+                result.finite[k],
+                result.covariance_ok[k],
+                result.dropped[k],
+                result.diverged[k],
+            )
+            # the fast constructor builds what the dataclass's own __init__ builds
+            assert estimate == Estimate(
+                t=estimate.t,
+                mean=dict(estimate.mean),
+                std=dict(estimate.std),
+                estimated=estimate.estimated,
+                prediction=estimate.prediction,
+                innovation=estimate.innovation,
+                innovation_variance=estimate.innovation_variance,
+                health=health,
+            )
+
+
+def test_update_refuses_bad_samples_by_key():
+    dekf = DEKF(model="precision", initial_variance="causal", initial={"K_p": 1.3})
+    dekf.reset(0.01)
+    with pytest.raises(ValueError, match="'u'\\] must be finite or NaN"):
+        dekf.update({"e": 0.1, "u": math.inf})
+    with pytest.raises(ValueError, match="lacks 'u'"):
+        dekf.update({"e": 0.1})
+    with pytest.raises(TypeError, match=r"sample\['e'\] must be a number"):
+        dekf.update({"e": "0.1", "u": 0.0})
+    with pytest.raises(TypeError, match="unknown key\\(s\\) 'y'"):
+        dekf.update({"e": 0.1, "u": 0.0, "y": 0.0})
+    assert dekf.update({"e": 1, "u": 0.0}).mean["K_p"] > 0  # an int is a number
 
 
 # ------------------------------------------------------------------ dropped samples
