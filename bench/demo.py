@@ -1,21 +1,25 @@
 """``make demo``: the main job on its embedded default, quickly.
 
 Runs the quick version of every built-in benchmark suite (one forcing and one remnant
-realisation per batch: the papers' simulation studies in miniature) with the local
-process pool, writes each suite's results table and report under ``results/demo/``
-and an index page linking them, and prints where they are. The full suites are
-``manualcontrol bench SUITE`` (see ``manualcontrol suites``).
+realisation per batch: the papers' simulation studies in miniature), writes each
+suite's results table and report under ``results/demo/`` and an index page linking
+them, and prints where they are. The full suites are ``manualcontrol bench SUITE``
+(see ``manualcontrol suites``).
 
-Where processes fork (Linux), each suite's report is written by a child process while
-the next suite runs: drawing the figures costs as much as the runs, and the two
-overlap. Suites with the most runs go first, so the last reports to wait for are
-small ones.
+Where processes fork (Linux) the suites run in ``--workers`` streams at once (one
+process each, default: the number of cores), each taking the next suite (the most runs
+first) as it finishes one, and each suite's report is drawn by a child process while
+its stream goes on: drawing the figures costs about as much as the runs. On a fresh
+clone the streams also compile the family's kernels side by side instead of one after
+another.
+Elsewhere the suites run one after the other on the process pool.
 """
 
 from __future__ import annotations
 
 import argparse
 import multiprocessing
+import os
 import sys
 import time
 import traceback
@@ -37,64 +41,131 @@ def _write_report_here(suite: Suite, rows: list[dict[str, Any]], folder: Path) -
         raise SystemExit(1) from None
 
 
-def _report_writer() -> Any:
-    """``Process`` factory for the report children, or None where forking is not safe."""
-    if not sys.platform.startswith("linux"):
-        return None
-    _pyplot()  # imported once here, not in every child
-    return multiprocessing.get_context("fork").Process
+def _progress(name: str) -> Any:
+    def progress(done: int, total: int, row: dict) -> None:
+        # one line per run: make shows it at once, no progress bar needed
+        state = "" if row.get("status", "ok") == "ok" else f" ({row.get('error', '')})"
+        print(f"  {name}: {done}/{total}{state}", flush=True)
+
+    return progress
+
+
+def _run_stream(
+    suites: dict[str, Suite],
+    names: Any,
+    out: Path,
+    forked: bool,
+    results: Any,
+    workers: int | None = None,
+) -> None:
+    """Run ``names`` one after the other; put ``(name, runs, failed, report_ok)`` each.
+
+    ``names``: a list, or a queue shared by the streams, read until it gives None.
+
+    With ``forked`` the runs are made in this process and each report is drawn by a
+    forked child while the next suite runs; otherwise on a process pool of ``workers``,
+    and the reports here.
+    """
+    if forked:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(1)  # one BLAS thread a stream (see runner._one_thread)
+    children = []
+    if not isinstance(names, list):
+        names = iter(names.get, None)
+    for name in names:
+        suite, folder = suites[name], out / name
+        print(f"{name}: {len(suite.scenarios(quick=True))} runs ...", flush=True)
+        if forked:
+            rows = run_suite(
+                suite, folder, quick=True, backend="inprocess", progress=_progress(name)
+            )
+        else:
+            rows = run_suite(suite, folder, quick=True, workers=workers, progress=_progress(name))
+        bad = sum(row.get("status") != "ok" for row in rows)
+        if forked:
+            child = multiprocessing.get_context("fork").Process(
+                target=_write_report_here, args=(suite, rows, folder)
+            )
+            child.start()
+            children.append((name, len(rows), bad, child))
+        else:
+            write_report(suite, rows, folder)
+            _said_done(name, len(rows), bad, True, out)
+            results.put((name, len(rows), bad, True))
+    for name, runs, bad, child in children:
+        child.join()
+        _said_done(name, runs, bad, child.exitcode == 0, out)
+        results.put((name, runs, bad, child.exitcode == 0))
+
+
+def _said_done(name: str, runs: int, bad: int, report_ok: bool, out: Path) -> None:
+    state = f"-> {out / name / 'report.md'}" if report_ok else "(the report failed, see above)"
+    print(f"{name}: {runs} runs, {bad} failed {state}", flush=True)
+
+
+def _count(text: str) -> int:
+    """``--workers``: a whole number of at least 1 (argparse names the option on error)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+class _Collected(list):
+    """What a stream run in this process reports (the ``put`` of a queue)."""
+
+    put = list.append
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the quick suites; return 0 when every run succeeded, 3 otherwise."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/demo"), help="output folder")
-    parser.add_argument("--workers", type=int, default=None, help="process-pool size")
+    parser.add_argument(
+        "--workers", type=_count, default=None, help="suites run at once (default: the cores)"
+    )
     parser.add_argument(
         "--suite", action="append", choices=BUILTIN_SUITES, help="only these suites (repeatable)"
     )
     args = parser.parse_args(argv)
+    workers = args.workers or os.cpu_count() or 1
     started = time.perf_counter()
     suites = {name: load_suite(name) for name in args.suite or BUILTIN_SUITES}
     counts = {name: len(suite.scenarios(quick=True)) for name, suite in suites.items()}
-    order = sorted(suites, key=lambda name: -counts[name])
-    writer = _report_writer()
-    pending: dict[str, tuple[Any, int, int]] = {}
-    summary: dict[str, tuple[int, int, bool]] = {}
-
-    def finish(name: str) -> None:
-        child, runs, bad = pending.pop(name)
-        ok = True
-        if child is not None:
-            child.join()
-            ok = child.exitcode == 0
-        summary[name] = (runs, bad, ok)
-        state = f"-> {args.out / name / 'report.md'}" if ok else "(the report failed, see above)"
-        print(f"{name}: {runs} runs, {bad} failed {state}", flush=True)
-
-    for name in order:
-        suite = suites[name]
-        folder = args.out / name
-        print(f"{name}: {counts[name]} runs ...", flush=True)
-
-        def progress(done: int, total: int, row: dict, name: str = name) -> None:
-            # one line per run: make shows it at once, no progress bar needed
-            state = "" if row.get("status", "ok") == "ok" else f" ({row.get('error', '')})"
-            print(f"  {name}: {done}/{total}{state}", flush=True)
-
-        rows = run_suite(suite, folder, quick=True, workers=args.workers, progress=progress)
-        bad = sum(row.get("status") != "ok" for row in rows)
-        child = None
-        if writer is None:
-            write_report(suite, rows, folder)
-        else:
-            child = writer(target=_write_report_here, args=(suite, rows, folder))
-            child.start()
-        pending[name] = (child, len(rows), bad)
-        for done in [n for n, (c, _, _) in pending.items() if c is None or not c.is_alive()]:
-            finish(done)
-    for name in list(pending):
-        finish(name)
+    if sys.platform.startswith("linux"):
+        _pyplot()  # imported once here, not in every child
+        context = multiprocessing.get_context("fork")
+        results, tasks = context.SimpleQueue(), context.SimpleQueue()
+        # the streams take the next suite as they finish one, the most runs first
+        for name in sorted(suites, key=lambda name: -counts[name]):
+            tasks.put(name)
+        count = min(workers, len(suites))
+        for _ in range(count):
+            tasks.put(None)
+        streams = [
+            context.Process(target=_run_stream, args=(suites, tasks, args.out, True, results))
+            for _ in range(count)
+        ]
+        for stream in streams:
+            stream.start()
+        for stream in streams:  # what a stream puts is a few bytes: it never waits for us
+            stream.join()
+        collected = []
+        while not results.empty():
+            collected.append(results.get())
+    else:
+        collected = _Collected()
+        order = sorted(suites, key=lambda name: -counts[name])
+        _run_stream(suites, order, args.out, False, collected, workers)
+    summary = {name: (runs, bad, ok) for name, runs, bad, ok in collected}
+    for name in suites:
+        if name not in summary:  # its stream died before it finished
+            print(f"{name}: did not finish (see the errors above)", flush=True)
+            summary[name] = (counts[name], counts[name], False)
     lines = ["# manualcontrol demo: the built-in suites, quick", ""]
     for name in sorted(summary):
         runs, bad, ok = summary[name]

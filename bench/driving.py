@@ -242,12 +242,16 @@ def estimate_lag(t: np.ndarray, estimate: np.ndarray, truth: np.ndarray) -> floa
         return float("nan")
     window = (t >= t[changing[0]] - 5.0) & (t <= t[changing[-1] + 1] + 20.0)
     ok = window & np.isfinite(estimate)
+    lags = np.arange(0.0, 20.0 + 1e-9, 0.05)
+    # every lag at once: the same interpolations and row means as one lag at a time
+    times = t[ok]
+    shifted = np.interp((times[None, :] - lags[:, None]).ravel(), t, truth)
+    errors = estimate[ok][None, :] - shifted.reshape(len(lags), len(times))
+    rms = np.sqrt(np.mean(errors**2, axis=1))
     best, best_lag = np.inf, float("nan")
-    for lag in np.arange(0.0, 20.0 + 1e-9, 0.05):
-        shifted = np.interp(t[ok] - lag, t, truth)
-        rms = float(np.sqrt(np.mean((estimate[ok] - shifted) ** 2)))
-        if rms < best - 1e-15:
-            best, best_lag = rms, float(lag)
+    for lag, value in zip(lags.tolist(), rms.tolist(), strict=True):
+        if value < best - 1e-15:  # the earliest of lags within 1e-15 of the best
+            best, best_lag = value, lag
     return best_lag
 
 

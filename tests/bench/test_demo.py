@@ -1,5 +1,7 @@
 import csv
 
+import pytest
+
 from manualcontrol.bench import demo
 
 
@@ -20,13 +22,30 @@ def test_demo_runs_a_quick_suite_and_writes_its_report(tmp_path, capsys):
     assert not list(tmp_path.rglob(".*part*"))  # no temporary debris
 
 
-def test_a_failing_report_is_said_and_fails_the_demo(tmp_path, capsys, monkeypatch):
+def test_a_failing_report_is_said_and_fails_the_demo(tmp_path, capfd, monkeypatch):
     def broken(suite, rows, out):
         raise RuntimeError("no figures today")
 
     monkeypatch.setattr(demo, "write_report", broken)
     assert demo.main(["--out", str(tmp_path), "--suite", "boer-kenyon1998"]) == 3
-    printed = capsys.readouterr()
+    printed = capfd.readouterr()  # the stream and the report child are processes
     assert "boer-kenyon1998: 6 runs, 0 failed (the report failed" in printed.out
     assert "boer-kenyon1998 (report failed)" in (tmp_path / "README.md").read_text()
     assert not (tmp_path / "boer-kenyon1998" / "report.md").exists()
+
+
+def test_two_suites_in_two_streams_and_a_bad_worker_count(tmp_path, capfd):
+    suites = ["--suite", "boer-kenyon1998", "--suite", "schiess-roland1975"]
+    assert demo.main(["--out", str(tmp_path), *suites, "--workers", "2"]) == 0
+    printed = capfd.readouterr().out
+    for name, runs in (("boer-kenyon1998", 6), ("schiess-roland1975", 10)):
+        assert f"{name}: {runs} runs, 0 failed ->" in printed
+        assert (tmp_path / name / "report.md").is_file()
+    index = (tmp_path / "README.md").read_text()
+    assert index.index("boer-kenyon1998") < index.index("schiess-roland1975")
+    for bad in ("0", "two"):
+        with pytest.raises(SystemExit) as stop:
+            demo.main(["--out", str(tmp_path / "bad"), "--workers", bad])
+        assert stop.value.code == 2
+        assert "argument --workers: must be" in capfd.readouterr().err
+    assert not (tmp_path / "bad").exists()

@@ -58,6 +58,28 @@ def test_ukf2_reacts_faster_and_is_noisier_and_the_multi_ukf_beats_both(suite, t
         assert rows["multi"][f"nrmse_{name}"] < best_member
 
 
+def test_the_lag_search_equals_one_lag_at_a_time():
+    def one_at_a_time(t, estimate, truth):  # the search as first written
+        changing = np.flatnonzero(np.abs(np.diff(truth)) > 1e-12 * max(1.0, abs(truth[0])))
+        window = (t >= t[changing[0]] - 5.0) & (t <= t[changing[-1] + 1] + 20.0)
+        ok = window & np.isfinite(estimate)
+        best, best_lag = np.inf, float("nan")
+        for lag in np.arange(0.0, 20.0 + 1e-9, 0.05):
+            shifted = np.interp(t[ok] - lag, t, truth)
+            rms = float(np.sqrt(np.mean((estimate[ok] - shifted) ** 2)))
+            if rms < best - 1e-15:
+                best, best_lag = rms, float(lag)
+        return best_lag
+
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 120.0, 0.01)
+    for seed in range(4):
+        truth = np.interp(t, [40.0, 40.0 + 10 * (seed + 1)], [2.0, 3.0 + seed])
+        estimate = np.interp(t - 0.7 * seed, t, truth) + 0.2 * rng.standard_normal(t.size)
+        estimate[rng.integers(0, t.size, 50)] = np.nan
+        assert estimate_lag(t, estimate, truth) == one_at_a_time(t, estimate, truth)
+
+
 def test_lag_noise_and_straight_metrics_on_known_signals():
     t = np.arange(0.0, 100.0, 0.01)
     truth = np.interp(t, [30.0, 50.0], [1.0, 2.0])
