@@ -26,6 +26,7 @@ import traceback
 from pathlib import Path
 from typing import Any
 
+from manualcontrol.bench.cli import _positive_int
 from manualcontrol.bench.report import _pyplot, write_report
 from manualcontrol.bench.runner import run_suite
 from manualcontrol.bench.scenarios import BUILTIN_SUITES, Suite, load_suite
@@ -104,17 +105,6 @@ def _said_done(name: str, runs: int, bad: int, report_ok: bool, out: Path) -> No
     print(f"{name}: {runs} runs, {bad} failed {state}", flush=True)
 
 
-def _count(text: str) -> int:
-    """``--workers``: a whole number of at least 1 (argparse names the option on error)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
-    return value
-
-
 class _Collected(list):
     """What a stream run in this process reports (the ``put`` of a queue)."""
 
@@ -126,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/demo"), help="output folder")
     parser.add_argument(
-        "--workers", type=_count, default=None, help="suites run at once (default: the cores)"
+        "--workers", type=_positive_int, default=None, help="suites run at once (default: cores)"
     )
     parser.add_argument(
         "--suite", action="append", choices=BUILTIN_SUITES, help="only these suites (repeatable)"
