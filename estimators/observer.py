@@ -93,9 +93,9 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
             )
         self._last: dict[str, Any] | None = None
         self._pending: dict[str, float] = {}
-        self._ahead: FloatArray | None = None
+        self._ahead: list[float] | None = None
         self._step_index = 0
-        self._healths: dict[Any, Mapping[str, Any]] = {}
+        self._healths: dict[int, tuple[Any, Mapping[str, Any]]] = {}
 
     def _estimated_names(self) -> tuple[str, ...]:
         # what is estimated is resolved at reset (e.g. the SI rule holds K_v)
@@ -121,7 +121,7 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         for key in self._display_keys:
             sample[key] = float(info[key])
         if self._ahead is not None:
-            sample["ft_ahead"] = float(self._ahead[self._step_index])
+            sample["ft_ahead"] = self._ahead[self._step_index]
         return sample
 
     def _target_ahead(self) -> FloatArray | None:
@@ -143,31 +143,34 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return np.asarray(target(times), dtype=np.float64)
 
     def _health_info(self, health: Any) -> Mapping[str, Any]:
-        """``health`` as a read-only mapping, one per distinct health (most steps share one)."""
-        try:
-            info = self._healths.get(health)
-            cacheable = True
-        except TypeError:  # an estimator of the user's with unhashable health fields
-            info, cacheable = None, False
-        if info is None:
-            info = MappingProxyType(
-                {
-                    "finite": health.finite,
-                    "covariance_ok": health.covariance_ok,
-                    "pinned": tuple(health.pinned),
-                    "dropped": health.dropped,
-                    "diverged": health.diverged,
-                }
-            )
-            if cacheable and len(self._healths) < 1024:
-                self._healths[health] = info
+        """``health`` as a read-only mapping, one per health object (most steps share one).
+
+        Keyed by identity (the pilot filters hand out one object per combination of
+        flags), and the object is kept with its mapping, so its id cannot be reused.
+        """
+        known = self._healths.get(id(health))
+        if known is not None and known[0] is health:
+            return known[1]
+        info = MappingProxyType(
+            {
+                "finite": health.finite,
+                "covariance_ok": health.covariance_ok,
+                "pinned": tuple(health.pinned),
+                "dropped": health.dropped,
+                "diverged": health.diverged,
+            }
+        )
+        if len(self._healths) >= 1024:  # an estimator that builds a new health every step
+            self._healths.clear()
+        self._healths[id(health)] = (health, info)
         return info
 
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
         observation, info = self.env.reset(**kwargs)
         base = self.env.unwrapped
         self.estimator.reset(base.dt, t0=float(info["t"]))
-        self._ahead = self._target_ahead()
+        ahead = self._target_ahead()
+        self._ahead = None if ahead is None else ahead.tolist()  # floats, read per step
         self._step_index = 0
         self._pending = self._display(info)
         self._last = None
@@ -189,5 +192,5 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         }
         self._step_index += 1
         self._pending = self._display(info)
-        info = {**info, "estimates": self._last}
+        info["estimates"] = self._last  # the env's info is a new dict every step
         return self._observe(observation), reward, terminated, truncated, info

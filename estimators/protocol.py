@@ -211,19 +211,23 @@ class Estimate:
         :class:`ParameterValues` snapshots).
         """
         estimate = object.__new__(cls)
-        estimate.__dict__.update(
-            t=t,
-            mean=mean,
-            std=std,
-            estimated=estimated,
-            prediction=prediction,
-            innovation=innovation,
-            innovation_variance=innovation_variance,
-            health=health,
-            outputs=("u",),
-            predictions=(prediction,),
-            innovations=(innovation,),
-            innovation_covariance=((innovation_variance,),),
+        object.__setattr__(
+            estimate,
+            "__dict__",
+            {
+                "t": t,
+                "mean": mean,
+                "std": std,
+                "estimated": estimated,
+                "prediction": prediction,
+                "innovation": innovation,
+                "innovation_variance": innovation_variance,
+                "health": health,
+                "outputs": ("u",),
+                "predictions": (prediction,),
+                "innovations": (innovation,),
+                "innovation_covariance": ((innovation_variance,),),
+            },
         )
         return estimate
 

@@ -88,6 +88,21 @@ def test_appended_estimates_and_info():
     assert all(estimates["std"][name] > 0 for name in estimated)
 
 
+def test_the_estimates_in_info_are_read_only_snapshots():
+    env, means, _, info = fly("compensatory")
+    estimates = info["estimates"]
+    with pytest.raises(TypeError):
+        estimates["mean"]["K_p"] = 0.0
+    with pytest.raises(TypeError):
+        estimates["health"]["diverged"] = True
+    assert estimates["health"]["pinned"] == ()
+    # each step's values are its own: a later step does not change an earlier one
+    assert len({means[k]["K_p"] for k in (10, 500, -1)}) == 3
+    assert means[10]["K_p"] == env.estimator.estimate(
+        env.unwrapped.recording(include_run_in=True)
+    ).mean_of("K_p")[10]
+
+
 def test_observer_passes_check_env_around_an_agent_wrapper():
     inner = ActionDelay(
         gym.make("ManualControl/CompensatoryTracking-v0", measurement_time=5.0), 0.1
