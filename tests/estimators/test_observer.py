@@ -98,9 +98,10 @@ def test_the_estimates_in_info_are_read_only_snapshots():
     assert estimates["health"]["pinned"] == ()
     # each step's values are its own: a later step does not change an earlier one
     assert len({means[k]["K_p"] for k in (10, 500, -1)}) == 3
-    assert means[10]["K_p"] == env.estimator.estimate(
-        env.unwrapped.recording(include_run_in=True)
-    ).mean_of("K_p")[10]
+    assert (
+        means[10]["K_p"]
+        == env.estimator.estimate(env.unwrapped.recording(include_run_in=True)).mean_of("K_p")[10]
+    )
 
 
 def test_observer_passes_check_env_around_an_agent_wrapper():
