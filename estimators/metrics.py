@@ -72,7 +72,7 @@ Other metrics
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
@@ -86,7 +86,7 @@ from manualcontrol.estimators._targets import target_function
 from manualcontrol.estimators.protocol import EstimationResult
 from manualcontrol.estimators.registry import ESTIMATORS
 from manualcontrol.pilots.models import PilotModel, make_model
-from manualcontrol.pilots.simulation import isolated_pilot_output
+from manualcontrol.pilots.simulation import isolated_pilot_outputs
 
 __all__ = [
     "NEAR_ZERO",
@@ -302,36 +302,68 @@ def has_remnant_parts(recording: Recording) -> bool:
     return all(name in recording for name in REMNANT_PARTS)
 
 
-def _perceptions(
+def _perception_sets(
     model: PilotModel,
     tau_f: FloatArray | None,
     recording: Recording,
-    remnant_free: bool,
+    remnant_free: Sequence[bool],
     forcing: Any,
     target_period: float | None,
-) -> dict[str, FloatArray]:
-    """The model's perceptions as recorded, or those of the remnant-free run."""
-    if remnant_free and not has_remnant_parts(recording):
+) -> list[dict[str, FloatArray]]:
+    """The model's perceptions as recorded or of the remnant-free run, one set per flag."""
+    if any(remnant_free) and not has_remnant_parts(recording):
         raise ValueError(
             "the remnant-free resimulation needs the recording's u_n and y_n (the parts of "
             "u and y the remnant caused, recorded by simulate)"
         )
-    y_n = np.asarray(recording["y_n"]) if remnant_free else 0.0
-    perceptions: dict[str, FloatArray] = {}
-    for signal in model.perceptions:
-        if signal == "ft_far":
-            target = target_function(recording, forcing, target_period)
-            perceptions[signal] = np.asarray(target(recording.t + tau_f), dtype=float)
-        elif signal == "y":
-            perceptions[signal] = _held(np.asarray(recording.y) - y_n)
-        elif signal == "e":
-            if "e" not in recording:
-                recording = recording.with_error_signal()
-            # e = ft - y, so the remnant-free error is e + y_n
-            perceptions[signal] = _held(np.asarray(recording.e) + y_n)
-        else:
-            raise ValueError(f"cannot resimulate a model that reads {signal!r}")
-    return perceptions
+    shared: dict[str, FloatArray] = {}
+    if "ft_far" in model.perceptions:  # the target is the same with or without remnant
+        target = target_function(recording, forcing, target_period)
+        shared["ft_far"] = np.asarray(target(recording.t + tau_f), dtype=float)
+    if "e" in model.perceptions and "e" not in recording:
+        recording = recording.with_error_signal()
+    sets = []
+    for free in remnant_free:
+        y_n = np.asarray(recording["y_n"]) if free else 0.0
+        perceptions: dict[str, FloatArray] = {}
+        for signal in model.perceptions:
+            if signal == "ft_far":
+                perceptions[signal] = shared[signal]
+            elif signal == "y":
+                perceptions[signal] = _held(np.asarray(recording.y) - y_n)
+            elif signal == "e":
+                # e = ft - y, so the remnant-free error is e + y_n
+                perceptions[signal] = _held(np.asarray(recording.e) + y_n)
+            else:
+                raise ValueError(f"cannot resimulate a model that reads {signal!r}")
+        sets.append(perceptions)
+    return sets
+
+
+def _resimulations(
+    model: PilotModel | str,
+    parameters: Mapping[str, ArrayLike],
+    recording: Recording,
+    remnant_free: Sequence[bool],
+    delay_order: int | None,
+    forcing: Any,
+    target_period: float | None,
+) -> list[FloatArray]:
+    """:func:`resimulate_parameters` once per flag of ``remnant_free``, one discretisation."""
+    if not isinstance(recording, Recording):
+        raise TypeError(f"recording must be a Recording, got {recording!r}")
+    model = make_model(model)
+    n = len(recording)
+    values = {}
+    for name in model.parameter_names:
+        if name not in parameters:
+            raise ValueError(f"parameters must include {name!r} for the {model.name} model")
+        values[name] = np.broadcast_to(np.asarray(parameters[name], dtype=np.float64), (n,))
+    sets = _perception_sets(
+        model, values.get("tau_f"), recording, remnant_free, forcing, target_period
+    )
+    order = None if delay_order is None else check_int("delay_order", delay_order, minimum=1)
+    return isolated_pilot_outputs(model, values, sets, recording.dt, order)
 
 
 def resimulate_parameters(
@@ -358,20 +390,21 @@ def resimulate_parameters(
     fractional delay line, as in the simulation; ``delay_order=None``, default) or a
     Padé approximant.
     """
+    (output,) = _resimulations(
+        model, parameters, recording, (remnant_free,), delay_order, forcing, target_period
+    )
+    return output
+
+
+def _check_pair(result: Any, recording: Any) -> None:
+    if not isinstance(result, EstimationResult):
+        raise TypeError(f"result must be an EstimationResult, got {result!r}")
     if not isinstance(recording, Recording):
         raise TypeError(f"recording must be a Recording, got {recording!r}")
-    model = make_model(model)
-    n = len(recording)
-    values = {}
-    for name in model.parameter_names:
-        if name not in parameters:
-            raise ValueError(f"parameters must include {name!r} for the {model.name} model")
-        values[name] = np.broadcast_to(np.asarray(parameters[name], dtype=np.float64), (n,))
-    perceptions = _perceptions(
-        model, values.get("tau_f"), recording, remnant_free, forcing, target_period
-    )
-    order = None if delay_order is None else check_int("delay_order", delay_order, minimum=1)
-    return isolated_pilot_output(model, values, perceptions, recording.dt, order)
+    if len(result) != len(recording):
+        raise ValueError(
+            f"result and recording must have the same samples: {len(result)} != {len(recording)}"
+        )
 
 
 def resimulate(
@@ -392,14 +425,7 @@ def resimulate(
     :mod:`~manualcontrol.estimators.registry`, used instead (against the recording as
     it is; ``remnant_free`` is then refused).
     """
-    if not isinstance(result, EstimationResult):
-        raise TypeError(f"result must be an EstimationResult, got {result!r}")
-    if not isinstance(recording, Recording):
-        raise TypeError(f"recording must be a Recording, got {recording!r}")
-    if len(result) != len(recording):
-        raise ValueError(
-            f"result and recording must have the same samples: {len(result)} != {len(recording)}"
-        )
+    _check_pair(result, recording)
     if not _has_pilot_model(result):
         if remnant_free:
             raise ValueError(
@@ -410,15 +436,10 @@ def resimulate(
         return np.asarray(entry.resimulate(result, recording), dtype=np.float64)
     model = _model_of(result)
     values = {name: np.array(result.mean_of(name)) for name in model.parameter_names}
-    return resimulate_parameters(
-        model,
-        values,
-        recording,
-        remnant_free=remnant_free,
-        delay_order=delay_order,
-        forcing=forcing,
-        target_period=target_period,
+    (output,) = _resimulations(
+        model, values, recording, (remnant_free,), delay_order, forcing, target_period
     )
+    return output
 
 
 # ------------------------------------------------------------------------ summary
@@ -493,15 +514,14 @@ def vaf_ceilings(
     mask = np.asarray(recording.t) >= check_real("start", start)
     if not all(name in truth for name in model.parameter_names) or not mask.any():
         return math.nan, math.nan
-    target = {"delay_order": delay_order, "forcing": forcing, "target_period": target_period}
     u = np.asarray(recording.u)
-    output = resimulate_parameters(model, truth, recording, **target)
-    measured = vaf(u[mask], output[mask])
+    flags = (False, True) if has_remnant_parts(recording) else (False,)
+    outputs = _resimulations(model, truth, recording, flags, delay_order, forcing, target_period)
+    measured = vaf(u[mask], outputs[0][mask])
     free = math.nan
-    if has_remnant_parts(recording):
+    if len(outputs) == 2:
         reference = u - np.asarray(recording["u_n"])
-        output = resimulate_parameters(model, truth, recording, remnant_free=True, **target)
-        free = vaf(reference[mask], output[mask])
+        free = vaf(reference[mask], outputs[1][mask])
     return measured, free
 
 
@@ -529,14 +549,22 @@ def evaluate(
     target = {"delay_order": delay_order, "forcing": forcing, "target_period": target_period}
     truth = recording.parameters
     u = np.asarray(recording.u)
-    vafs = {"resimulated": vaf(u[mask], resimulate(result, recording, **target)[mask])}
-    vafs["remnant_free"] = math.nan
+    vafs = {"remnant_free": math.nan}
     best = (math.nan, math.nan)
+    if _has_pilot_model(result) and has_remnant_parts(recording):
+        # both resimulations on one discretisation of the identified model
+        _check_pair(result, recording)
+        model = _model_of(result)
+        values = {name: np.array(result.mean_of(name)) for name in model.parameter_names}
+        output, remnant_free = _resimulations(
+            model, values, recording, (False, True), delay_order, forcing, target_period
+        )
+        free = u - np.asarray(recording["u_n"])
+        vafs["remnant_free"] = vaf(free[mask], remnant_free[mask])
+    else:
+        output = resimulate(result, recording, **target)
+    vafs["resimulated"] = vaf(u[mask], output[mask])
     if _has_pilot_model(result):
-        if has_remnant_parts(recording):
-            free = u - np.asarray(recording["u_n"])
-            output = resimulate(result, recording, remnant_free=True, **target)
-            vafs["remnant_free"] = vaf(free[mask], output[mask])
         if ceilings:
             best = vaf_ceilings(_model_of(result), recording, start=start, **target)
     errors, biases, kinds = {}, {}, {}

@@ -31,3 +31,30 @@ def test_equal_to_the_numbers_before_issue16(today, name):
     assert today[name].shape == before.shape
     difference = np.max(np.abs(today[name] - before)) / np.max(np.abs(before))
     assert difference < 1e-12, f"{name}: {difference:.2e}"
+
+
+def test_several_perception_sets_share_one_discretisation_bit_for_bit():
+    from manualcontrol.pilots.simulation import isolated_pilot_output, isolated_pilot_outputs
+
+    rng = np.random.default_rng(2)
+    n = 1500
+    ramp = np.linspace(0.0, 1.0, n)
+    traces = {
+        "K_p": 0.24 + 0.1 * ramp,
+        "K_v": 0.36 - 0.05 * ramp,
+        "omega_nms": 8.0 + np.sin(7.0 * ramp),
+        "zeta_nms": 0.45 - 0.1 * ramp,
+        "tau_v": 0.3 - 0.05 * ramp,
+        "K_f": 0.9 + 0.1 * ramp,
+        "omega_f": 1.0 + 0.2 * ramp,
+        "tau_f": 0.6 - 0.3 * ramp,
+    }
+    sets = [{"ft_far": rng.standard_normal(n), "y": rng.standard_normal(n)} for _ in range(3)]
+    together = isolated_pilot_outputs("preview", traces, sets, 0.01)
+    for shared, perceptions in zip(together, sets, strict=True):
+        alone = isolated_pilot_output("preview", traces, perceptions, 0.01)
+        np.testing.assert_array_equal(shared, alone)
+    with pytest.raises(ValueError, match="at least one set"):
+        isolated_pilot_outputs("preview", traces, [], 0.01)
+    with pytest.raises(ValueError, match="perceptions must include y"):
+        isolated_pilot_outputs("preview", traces, [sets[0], {"ft_far": sets[0]["ft_far"]}], 0.01)
