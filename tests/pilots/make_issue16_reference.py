@@ -68,13 +68,7 @@ def cases():
     recording = runs["compensatory_varying"]
     n = len(recording)
     ramp = np.linspace(0.0, 1.0, n)
-    traces = {
-        "K_p": 0.24 + 0.1 * ramp,
-        "K_v": 0.36 - 0.05 * ramp,
-        "omega_nms": 8.0 + np.sin(7.0 * ramp),
-        "zeta_nms": 0.45 - 0.1 * ramp,
-        "tau_v": 0.3 - 0.05 * ramp,
-    }
+    traces = varying_traces(n)
     out["isolated_precision"] = isolated_pilot_output(
         "precision", traces, {"e": np.asarray(recording.e)}, recording.dt
     )
@@ -86,6 +80,18 @@ def cases():
         preview.dt,
     )
     return out
+
+
+def varying_traces(n):
+    """Precision-model parameter traces that change every one of ``n`` samples."""
+    ramp = np.linspace(0.0, 1.0, n)
+    return {
+        "K_p": 0.24 + 0.1 * ramp,
+        "K_v": 0.36 - 0.05 * ramp,
+        "omega_nms": 8.0 + np.sin(7.0 * ramp),
+        "zeta_nms": 0.45 - 0.1 * ramp,
+        "tau_v": 0.3 - 0.05 * ramp,
+    }
 
 
 if __name__ == "__main__":

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from make_issue16_reference import cases
+from make_issue16_reference import cases, varying_traces
 
 STORED = Path(__file__).parent / "data" / "before_issue16.npz"
 
@@ -40,11 +40,7 @@ def test_several_perception_sets_share_one_discretisation_bit_for_bit():
     n = 1500
     ramp = np.linspace(0.0, 1.0, n)
     traces = {
-        "K_p": 0.24 + 0.1 * ramp,
-        "K_v": 0.36 - 0.05 * ramp,
-        "omega_nms": 8.0 + np.sin(7.0 * ramp),
-        "zeta_nms": 0.45 - 0.1 * ramp,
-        "tau_v": 0.3 - 0.05 * ramp,
+        **varying_traces(n),
         "K_f": 0.9 + 0.1 * ramp,
         "omega_f": 1.0 + 0.2 * ramp,
         "tau_f": 0.6 - 0.3 * ramp,
