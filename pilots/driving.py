@@ -26,7 +26,6 @@ from typing import Any
 
 import numba
 import numpy as np
-import scipy.signal
 from numpy.typing import NDArray
 
 from manualcontrol.envs._validation import check_positive, check_vector
@@ -158,6 +157,8 @@ def drive(car, d, out):
 
 def _remnant_noise(remnant: Remnant, white: FloatArray, dt: float) -> FloatArray:
     """The remnant filter's shape driven by held white noise (exact zero-order hold)."""
+    import scipy.signal  # here: importing it costs 1.3 s, which every suite listing paid
+
     num, den = remnant.shape()
     numd, dend, _ = scipy.signal.cont2discrete((num, den), dt, method="zoh")
     return scipy.signal.lfilter(np.ravel(numd), dend, white)
