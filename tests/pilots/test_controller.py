@@ -153,3 +153,32 @@ def test_the_episode_end_and_a_foreign_env_raise():
         controller.act(np.zeros(1))
     with pytest.raises(TypeError, match=re.escape("it has no 'task'")):
         PilotController(Pilot("precision"), gym.make("CartPole-v1"))
+
+
+def test_any_layout_of_observation_gives_the_same_stick():
+    # after its first step the controller calls the compiled step directly, which reads
+    # a contiguous float array; views with strides, lists and ints must be read alike
+    values = {**PREVIEW, "tau_f": 0.505}
+    env = _env("Preview")
+    window = PilotController(Pilot("preview", values), env).setup.preview_window
+    t = np.arange(500) * DT
+    observations = np.column_stack(
+        [np.sin(np.pi * (t[:, None] + np.arange(window) * DT)), 0.5 * np.sin(2.0 * t)]
+    )
+    plain = _act_all(PilotController(Pilot("preview", values), env), observations)
+    strided = np.repeat(observations, 2, axis=1)[:, ::2]  # the same numbers, stride 2
+    assert not strided[0].flags.c_contiguous
+    # the first is contiguous, so the overload called directly afterwards is the C one
+    mixed = [
+        observations[k] if k % 3 == 0 else strided[k] if k % 3 == 1 else observations[k].tolist()
+        for k in range(len(t))
+    ]
+    np.testing.assert_array_equal(
+        _act_all(PilotController(Pilot("preview", values), env), mixed), plain
+    )
+    compensatory = PilotController(Pilot("precision", COMPENSATORY), _env("Compensatory"))
+    e = np.round(10 * _error_sequence(300)).astype(np.int64)  # whole numbers, as ints
+    again = PilotController(Pilot("precision", COMPENSATORY), _env("Compensatory"))
+    np.testing.assert_array_equal(
+        _act_all(compensatory, e[:, None]), _act_all(again, e[:, None].astype(float))
+    )
