@@ -6,13 +6,15 @@ step's signals to an online estimator, whoever acts: a cybernetic pilot, an RL p
 or a person. After every step ``info["estimates"]`` holds the current estimate:
 
 ``mean``, ``std``
-    every parameter of the estimator's pilot model (held ones with std 0), as
-    read-only mappings of this step's values (the estimate's own);
+    every parameter of the estimator's pilot model (held ones with std 0);
 ``innovation``, ``innovation_variance``, ``prediction``
     the filter's one-step figures for the sample just taken;
 ``health``
-    a read-only mapping: ``finite``, ``covariance_ok``, ``pinned`` (a tuple of
-    parameter names), ``dropped``, ``diverged``.
+    ``finite``, ``covariance_ok``, ``pinned`` (parameter names), ``dropped``,
+    ``diverged``.
+
+All are plain dicts, lists and floats, new at every step, so ``info`` pickles (a
+vector env in subprocesses) and a vector env stacks them per key.
 
 With ``append_to_observation=True`` the means of the estimated parameters are
 appended to the observation (in the estimator's order; the initial values before the
@@ -29,7 +31,6 @@ the first window of data is not known at reset).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from types import MappingProxyType
 from typing import Any
 
 import gymnasium as gym
@@ -38,10 +39,16 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from manualcontrol.envs.tracking import TrackingEnv
+from manualcontrol.estimators.protocol import ParameterValues
 
 __all__ = ["EstimatorObserver"]
 
 FloatArray = NDArray[np.float64]
+
+
+def _plain(values: Mapping[str, float]) -> dict[str, float]:
+    """A plain dict of an estimate's values (at once for the filters' row snapshots)."""
+    return values.as_dict() if isinstance(values, ParameterValues) else dict(values)
 
 
 class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -95,7 +102,6 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._pending: dict[str, float] = {}
         self._ahead: list[float] | None = None
         self._step_index = 0
-        self._healths: dict[int, tuple[Any, Mapping[str, Any]]] = {}
 
     def _estimated_names(self) -> tuple[str, ...]:
         # what is estimated is resolved at reset (e.g. the SI rule holds K_v)
@@ -142,29 +148,6 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
             return np.zeros_like(times)
         return np.asarray(target(times), dtype=np.float64)
 
-    def _health_info(self, health: Any) -> Mapping[str, Any]:
-        """``health`` as a read-only mapping, one per health object (most steps share one).
-
-        Keyed by identity (the pilot filters hand out one object per combination of
-        flags), and the object is kept with its mapping, so its id cannot be reused.
-        """
-        known = self._healths.get(id(health))
-        if known is not None and known[0] is health:
-            return known[1]
-        info = MappingProxyType(
-            {
-                "finite": health.finite,
-                "covariance_ok": health.covariance_ok,
-                "pinned": tuple(health.pinned),
-                "dropped": health.dropped,
-                "diverged": health.diverged,
-            }
-        )
-        if len(self._healths) >= 1024:  # an estimator that builds a new health every step
-            self._healths.clear()
-        self._healths[id(health)] = (health, info)
-        return info
-
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
         observation, info = self.env.reset(**kwargs)
         base = self.env.unwrapped
@@ -181,14 +164,21 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         sample = self._pending
         sample["u"] = float(info["u"])
         estimate = self.estimator.update(sample)
+        health = estimate.health
         self._last = {
             "t": estimate.t,
-            "mean": estimate.mean,
-            "std": estimate.std,
+            "mean": _plain(estimate.mean),
+            "std": _plain(estimate.std),
             "innovation": estimate.innovation,
             "innovation_variance": estimate.innovation_variance,
             "prediction": estimate.prediction,
-            "health": self._health_info(estimate.health),
+            "health": {
+                "finite": health.finite,
+                "covariance_ok": health.covariance_ok,
+                "pinned": list(health.pinned),
+                "dropped": health.dropped,
+                "diverged": health.diverged,
+            },
         }
         self._step_index += 1
         self._pending = self._display(info)

@@ -147,6 +147,14 @@ class ParameterValues(Mapping):
     def __repr__(self) -> str:
         return repr(dict(self))
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickle (and copy) as a plain index and the values."""
+        return (type(self), (dict(self._index), self._values))
+
+    def as_dict(self) -> dict[str, float]:
+        """A plain dict of the values, built at once (not name by name)."""
+        return dict(zip(self._index, self._values.tolist(), strict=True))
+
 
 @dataclass(frozen=True)
 class Estimate:
