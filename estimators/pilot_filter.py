@@ -779,6 +779,8 @@ class PilotFilter:
         self._where = f"{type(self).__name__}.update sample"
         self._inputs = np.zeros(len(self._internal.input_names))
         self._u_at, self._e_at = keys.index("u"), keys.index("e")
+        # update() calls the kernel itself only where _step is this class's own call
+        self._direct = type(self)._step is PilotFilter._step
         self._healths: dict[bytes, EstimateHealth] = {}
         self._common: CommonArrays | None = None
         self._resolved: ResolvedSettings | None = None
@@ -972,7 +974,7 @@ class PilotFilter:
         u, e = values[self._u_at], values[self._e_at]
         out = self._row
         entry = self._entry
-        if entry is None:
+        if entry is None or not self._direct:
             self._step(inputs, u, e, out)
         else:  # what _step calls, without its two Python calls (see _call_step)
             entry(*self._records, inputs, u, e, 0, out)

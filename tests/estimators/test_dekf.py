@@ -586,3 +586,18 @@ def test_periodic_extension_is_exact_for_a_multisine():
     extension = PeriodicExtension(signal(t), 0.01)
     later = np.linspace(-7.0, 40.0, 301)
     np.testing.assert_allclose(extension(later), signal(later), atol=1e-12)
+
+
+def test_a_subclass_with_its_own_step_is_called_every_sample():
+    class Counting(DEKF):
+        steps = 0
+
+        def _step(self, inputs, u, e, out):
+            type(self).steps += 1
+            super()._step(inputs, u, e, out)
+
+    dekf = Counting(model="precision", initial_variance="causal", initial={"K_p": 1.3})
+    dekf.reset(0.01)
+    for k in range(5):
+        dekf.update({"e": 0.1 * k, "u": 0.05 * k})
+    assert Counting.steps == 5
