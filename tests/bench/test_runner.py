@@ -222,3 +222,32 @@ def test_a_filter_and_its_smoothed_twin_share_one_pass_with_the_same_numbers(tmp
         assert shared.smoothed == alone.smoothed == a["estimator"].endswith("-smoothed")
         assert (shared.mean == alone.mean).all() and (shared.std == alone.std).all()
         assert shared.smoother_inputs is None
+
+
+def test_the_shared_pass_counts_for_the_online_row_whichever_comes_first(monkeypatch):
+    class Result:
+        smoothed = False
+        smoother_inputs = "kept"
+
+    class Filter:
+        def estimate(self, recording, smoother_inputs=False):
+            return Result()
+
+    clock = iter(range(100))
+    monkeypatch.setattr(runner.time, "perf_counter", lambda: float(next(clock)))
+    monkeypatch.setattr(runner, "make_estimator", lambda spec: Filter())
+    monkeypatch.setattr(runner, "smooth", lambda result: "smoothed")
+    monkeypatch.setattr(runner.dataclasses, "replace", lambda result, **changes: "online")
+    online, twin = (
+        {"name": "dekf", "model": "precision"},
+        {"name": "dekf-smoothed", "model": "precision"},
+    )
+    keys = {runner._filter_key(online)}
+    assert runner._filter_key(twin) in keys
+    shared = {}
+    # the twin first: it ran the pass (1 s on this clock) and hands that second back
+    assert runner._estimate(twin, None, keys, shared) == ("smoothed", -1.0)
+    assert runner._estimate(online, None, keys, shared) == ("online", 1.0)
+    shared = {}
+    assert runner._estimate(online, None, keys, shared) == ("online", 0.0)
+    assert runner._estimate(twin, None, keys, shared) == ("smoothed", 0.0)
