@@ -6,9 +6,10 @@ suite's results table and report under ``results/demo/`` and an index page linki
 them, and prints where they are. The full suites are ``manualcontrol bench SUITE``
 (see ``manualcontrol suites``).
 
-Where processes fork (Linux) the suites run in ``--workers`` streams at once (one
-process each, default: the number of cores), each taking the next suite (the most runs
-first) as it finishes one, and each suite's report is drawn by a child process while
+Where processes fork (Linux) the suites run in streams at once, one process each and
+as many as ``--workers`` (default: the number of cores) or suites allow; a stream runs
+its suites on its share of the workers and takes the next (the most runs first) as it
+finishes one, and each suite's report is drawn by a child process while
 its stream goes on: drawing the figures costs about as much as the runs. On a fresh
 clone the streams also compile the family's kernels side by side instead of one after
 another.
@@ -57,15 +58,14 @@ def _run_stream(
     out: Path,
     forked: bool,
     results: Any,
-    workers: int | None = None,
+    workers: int = 1,
 ) -> None:
     """Run ``names`` one after the other; put ``(name, runs, failed, report_ok)`` each.
 
-    ``names``: a list, or a queue shared by the streams, read until it gives None.
-
-    With ``forked`` the runs are made in this process and each report is drawn by a
-    forked child while the next suite runs; otherwise on a process pool of ``workers``,
-    and the reports here.
+    ``names``: a list, or a queue shared by the streams, read until it gives None. Each
+    suite runs on ``workers`` processes (in this one when 1). With ``forked`` each
+    report is drawn by a forked child while the next suite runs; otherwise here. What
+    finished is put even when a later suite raises.
     """
     if forked:
         from threadpoolctl import threadpool_limits
@@ -74,30 +74,35 @@ def _run_stream(
     children = []
     if not isinstance(names, list):
         names = iter(names.get, None)
-    for name in names:
-        suite, folder = suites[name], out / name
-        print(f"{name}: {len(suite.scenarios(quick=True))} runs ...", flush=True)
-        if forked:
+    try:
+        for name in names:
+            suite, folder = suites[name], out / name
+            print(f"{name}: {len(suite.scenarios(quick=True))} runs ...", flush=True)
+            backend = "inprocess" if workers == 1 else "process"
             rows = run_suite(
-                suite, folder, quick=True, backend="inprocess", progress=_progress(name)
+                suite,
+                folder,
+                quick=True,
+                backend=backend,
+                workers=workers,
+                progress=_progress(name),
             )
-        else:
-            rows = run_suite(suite, folder, quick=True, workers=workers, progress=_progress(name))
-        bad = sum(row.get("status") != "ok" for row in rows)
-        if forked:
-            child = multiprocessing.get_context("fork").Process(
-                target=_write_report_here, args=(suite, rows, folder)
-            )
-            child.start()
-            children.append((name, len(rows), bad, child))
-        else:
-            write_report(suite, rows, folder)
-            _said_done(name, len(rows), bad, True, out)
-            results.put((name, len(rows), bad, True))
-    for name, runs, bad, child in children:
-        child.join()
-        _said_done(name, runs, bad, child.exitcode == 0, out)
-        results.put((name, runs, bad, child.exitcode == 0))
+            bad = sum(row.get("status") != "ok" for row in rows)
+            if forked:
+                child = multiprocessing.get_context("fork").Process(
+                    target=_write_report_here, args=(suite, rows, folder)
+                )
+                child.start()
+                children.append((name, len(rows), bad, child))
+            else:
+                write_report(suite, rows, folder)
+                _said_done(name, len(rows), bad, True, out)
+                results.put((name, len(rows), bad, True))
+    finally:
+        for name, runs, bad, child in children:
+            child.join()
+            _said_done(name, runs, bad, child.exitcode == 0, out)
+            results.put((name, runs, bad, child.exitcode == 0))
 
 
 def _said_done(name: str, runs: int, bad: int, report_ok: bool, out: Path) -> None:
@@ -116,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/demo"), help="output folder")
     parser.add_argument(
-        "--workers", type=_positive_int, default=None, help="suites run at once (default: cores)"
+        "--workers", type=_positive_int, default=None, help="processes in all (default: cores)"
     )
     parser.add_argument(
         "--suite", action="append", choices=BUILTIN_SUITES, help="only these suites (repeatable)"
@@ -136,8 +141,12 @@ def main(argv: list[str] | None = None) -> int:
         count = min(workers, len(suites))
         for _ in range(count):
             tasks.put(None)
+        # more cores than suites: each stream runs its suites on a pool of its share
+        share = workers // count
         streams = [
-            context.Process(target=_run_stream, args=(suites, tasks, args.out, True, results))
+            context.Process(
+                target=_run_stream, args=(suites, tasks, args.out, True, results, share)
+            )
             for _ in range(count)
         ]
         for stream in streams:

@@ -49,3 +49,25 @@ def test_two_suites_in_two_streams_and_a_bad_worker_count(tmp_path, capfd):
         assert stop.value.code == 2
         assert "argument --workers: must be" in capfd.readouterr().err
     assert not (tmp_path / "bad").exists()
+
+
+def test_a_stream_that_fails_still_reports_the_suites_it_finished(tmp_path, capfd, monkeypatch):
+    run_suite = demo.run_suite
+
+    def failing(suite, folder, **options):
+        if suite.name == "boer-kenyon1998":
+            raise OSError("disk full")
+        return run_suite(suite, folder, **options)
+
+    monkeypatch.setattr(demo, "run_suite", failing)
+    suites = ["--suite", "boer-kenyon1998", "--suite", "schiess-roland1975"]
+    # one stream runs both, the most runs first: schiess-roland1975, then the failure
+    assert demo.main(["--out", str(tmp_path), *suites, "--workers", "1"]) == 3
+    printed = capfd.readouterr()
+    assert "OSError: disk full" in printed.err
+    assert "schiess-roland1975: 10 runs, 0 failed ->" in printed.out
+    assert "boer-kenyon1998: did not finish" in printed.out
+    index = (tmp_path / "README.md").read_text()
+    assert "[schiess-roland1975](schiess-roland1975/report.md): 10 runs, 0 failed" in index
+    assert "boer-kenyon1998 (report failed)" in index
+    assert (tmp_path / "schiess-roland1975" / "report.md").is_file()
