@@ -6,10 +6,9 @@ edited, the caller's cached machine code still holds the old callee, and runs it
 silently. That happens to anyone working on an editable install (``make demo`` after a
 ``git pull`` that changed only a shared kernel). So on import the package compares a
 stamp of its kernel sources (path, size and modification time of every ``.py`` file of
-the five subpackages that compiles a kernel: ``numba.njit``/``numba.jit``, or a bare
-``@njit``/``@jit`` decorator) with the one the last import left; when they
-differ, it deletes the package's cached kernels (``__pycache__/*.nbi``, ``*.nbc``) and
-numba compiles afresh.
+the five subpackages that imports numba or compiles a kernel with it) with the one the
+last import left; when they differ, it deletes the package's cached kernels
+(``__pycache__/*.nbi``, ``*.nbc``) and numba compiles afresh.
 A fresh clone or install has no stamp and nothing to delete. Any failure here (a
 read-only install, a race between processes) leaves the caches alone: numba then
 behaves as it always did.
@@ -29,8 +28,9 @@ __all__ = ["PACKAGES", "refresh_kernel_cache", "source_stamp"]
 #: The subpackages whose modules hold compiled kernels that call one another.
 PACKAGES = ("envs", "pilots", "estimators", "agents", "bench")
 _STAMP = "manualcontrol-kernel-sources.stamp"
-#: What marks a kernel source: a file that compiles with numba, not one that mentions it.
-_KERNEL = re.compile(rb"numba\.n?jit\b|^\s*@n?jit\b", re.MULTILINE)
+#: What marks a kernel source: a file that imports or compiles with numba, not one that
+#: only mentions it (a kernel may be built with ``vectorize``, ``cfunc``, ``overload``).
+_KERNEL = re.compile(rb"^\s*(?:import numba\b|from numba\b)|numba\.n?jit\b|^\s*@n?jit\b", re.M)
 
 
 def _roots() -> list[Path]:
@@ -45,8 +45,9 @@ def _roots() -> list[Path]:
 def source_stamp(roots: Iterable[Path]) -> str:
     """Digest of the path, size and modification time of each kernel source under ``roots``.
 
-    Kernel sources are the ``.py`` files that compile with numba (:data:`_KERNEL`);
-    editing any other file, one that only mentions numba included, keeps the caches.
+    Kernel sources are the ``.py`` files that import numba or compile with it
+    (:data:`_KERNEL`); editing any other file, one that only mentions numba included,
+    keeps the caches.
     """
     digest = hashlib.sha256()
     for root in roots:

@@ -697,6 +697,15 @@ def isolated_pilot_outputs(
                 f"perceptions must include {', '.join(missing)} for the {model.name} model"
             )
     n = len(next(iter(perception_sets[0].values())))
+    lengths = {
+        len(np.asarray(signal))
+        for perceptions in perception_sets
+        for signal in perceptions.values()
+    }
+    if lengths != {n}:
+        raise ValueError(
+            f"every perception must have the same samples, got lengths {sorted(lengths)}"
+        )
     traces = {}
     for name in model.parameter_names:
         if name not in parameters:

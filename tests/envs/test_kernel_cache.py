@@ -33,6 +33,12 @@ def test_a_changed_kernel_source_drops_the_cached_kernels(tmp_path):
     assert source_stamp(roots) != before
     assert refresh_kernel_cache(roots)
     assert not list(cache.glob("*.nb[ic]"))
+    # a kernel built another way counts too: numba imported under another name
+    before = source_stamp(roots)
+    (roots[0] / "ufuncs.py").write_text(
+        "import numba as nb\n\nsquare = nb.vectorize(lambda x: x * x)\n"
+    )
+    assert source_stamp(roots) != before
 
 
 def test_a_place_that_cannot_hold_a_stamp_leaves_the_caches_alone(tmp_path):

@@ -52,5 +52,8 @@ def test_several_perception_sets_share_one_discretisation_bit_for_bit():
         np.testing.assert_array_equal(shared, alone)
     with pytest.raises(ValueError, match="at least one set"):
         isolated_pilot_outputs("preview", traces, [], 0.01)
+    short = {"ft_far": sets[0]["ft_far"][:-1], "y": sets[0]["y"][:-1]}
+    with pytest.raises(ValueError, match="the same samples, got lengths"):
+        isolated_pilot_outputs("preview", traces, [sets[0], short], 0.01)
     with pytest.raises(ValueError, match="perceptions must include y"):
         isolated_pilot_outputs("preview", traces, [sets[0], {"ft_far": sets[0]["ft_far"]}], 0.01)
