@@ -14,6 +14,7 @@ table); 1 an unexpected internal error (with traceback).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -761,6 +762,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exit_.code if isinstance(exit_.code, int) else EXIT_USAGE
     try:
         return args.run(args)
+    except BrokenPipeError:
+        # the reader left (`manualcontrol suites | head`): not an error of the command;
+        # stdout goes to devnull so the interpreter's last flush does not fail again
+        # (the Python documentation's recipe, exit status 1)
+        with contextlib.suppress(OSError, ValueError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
     except (UsageError, ValueError, TypeError, KeyError, OSError) as error:
         # our checks raise these for bad input, the file system OSError for paths that
         # cannot be read or written; MANUALCONTROL_DEBUG=1 shows the traceback

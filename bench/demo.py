@@ -118,7 +118,9 @@ class _Collected(list):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the quick suites; return 0 when every run succeeded, 3 otherwise."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m manualcontrol.bench.demo", description=__doc__.splitlines()[0]
+    )
     parser.add_argument("--out", type=Path, default=Path("results/demo"), help="output folder")
     parser.add_argument(
         "--workers", type=_positive_int, default=None, help="processes in all (default: cores)"

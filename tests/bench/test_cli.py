@@ -202,3 +202,16 @@ def test_train_and_evaluate_commands(tmp_path, capsys):
     code, out, _ = run(capsys, "evaluate", str(agent), "--out", str(tmp_path / "eval"))
     assert code == EXIT_OK and "RMS error" in out
     assert (tmp_path / "eval" / "evaluation.md").is_file()
+
+
+def test_a_reader_that_leaves_early_is_no_error(tmp_path):
+    # `manualcontrol suites | head -1`: the pipe closes under the listing
+    listing = subprocess.run(
+        f"'{sys.executable}' -m manualcontrol.bench.cli suites | head -c 10",
+        shell=True,
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
+    assert len(listing.stdout) == 10
+    assert "error" not in listing.stderr and "Traceback" not in listing.stderr
