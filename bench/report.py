@@ -29,6 +29,8 @@ __all__ = [
     "plot_estimation",
     "plot_recording",
     "summarise",
+    "thin_band",
+    "thin_trace",
     "write_report",
 ]
 

@@ -183,12 +183,19 @@ def run_scenarios(scenarios: Sequence[Scenario], out: Path | None = None) -> lis
     return rows
 
 
-def _filter_key(spec: Mapping[str, Any]) -> str:
-    """The online filter a ``spec`` runs, as text: a smoothed twin names its filter."""
+def _is_twin(spec: Mapping[str, Any]) -> bool:
     name = spec["name"]
-    if name.endswith(SUFFIX) and ESTIMATORS.get(name[: -len(SUFFIX)], None) is not None:
-        name = name[: -len(SUFFIX)]
-    return json.dumps({**spec, "name": name}, sort_keys=True, default=str)
+    return name.endswith(SUFFIX) and name[: -len(SUFFIX)] in ESTIMATORS
+
+
+def _online(spec: Mapping[str, Any]) -> dict[str, Any]:
+    """The spec of the online filter ``spec`` runs: a smoothed twin names its filter."""
+    return {**spec, "name": spec["name"][: -len(SUFFIX)]} if _is_twin(spec) else dict(spec)
+
+
+def _filter_key(spec: Mapping[str, Any]) -> str:
+    """:func:`_online` as text, to find a filter and its twin in one group."""
+    return json.dumps(_online(spec), sort_keys=True, default=str)
 
 
 def _twinned_filters(scenarios: Sequence[Scenario]) -> set[str]:
@@ -196,11 +203,6 @@ def _twinned_filters(scenarios: Sequence[Scenario]) -> set[str]:
     online = {_filter_key(s.estimator) for s in scenarios if not _is_twin(s.estimator)}
     smoothed = {_filter_key(s.estimator) for s in scenarios if _is_twin(s.estimator)}
     return online & smoothed
-
-
-def _is_twin(spec: Mapping[str, Any]) -> bool:
-    name = spec["name"]
-    return name.endswith(SUFFIX) and name[: -len(SUFFIX)] in ESTIMATORS
 
 
 def _estimate(
@@ -221,9 +223,8 @@ def _estimate(
         return make_estimator(spec).estimate(recording), 0.0
     computed_here = key not in shared
     if computed_here:
-        base = {**spec, "name": json.loads(key)["name"]}
         begun = time.perf_counter()
-        full = make_estimator(base).estimate(recording, smoother_inputs=True)
+        full = make_estimator(_online(spec)).estimate(recording, smoother_inputs=True)
         shared[key] = full, time.perf_counter() - begun
     full, seconds = shared[key]
     if full.smoothed:  # a filter set to smooth already: nothing to share

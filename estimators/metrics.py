@@ -425,21 +425,35 @@ def resimulate(
     :mod:`~manualcontrol.estimators.registry`, used instead (against the recording as
     it is; ``remnant_free`` is then refused).
     """
+    (output,) = _resimulate_result(
+        result, recording, (remnant_free,), delay_order, forcing, target_period
+    )
+    return output
+
+
+def _resimulate_result(
+    result: EstimationResult,
+    recording: Recording,
+    remnant_free: Sequence[bool],
+    delay_order: int | None,
+    forcing: Any,
+    target_period: float | None,
+) -> list[FloatArray]:
+    """:func:`resimulate` once per flag of ``remnant_free``, one discretisation."""
     _check_pair(result, recording)
     if not _has_pilot_model(result):
-        if remnant_free:
+        if any(remnant_free):
             raise ValueError(
                 f"remnant_free = True needs a pilot model; {result.estimator!r} resimulates "
                 "its own model against the recording as it is"
             )
         entry = ESTIMATORS[result.estimator]
-        return np.asarray(entry.resimulate(result, recording), dtype=np.float64)
+        return [np.asarray(entry.resimulate(result, recording), dtype=np.float64)]
     model = _model_of(result)
     values = {name: np.array(result.mean_of(name)) for name in model.parameter_names}
-    (output,) = _resimulations(
-        model, values, recording, (remnant_free,), delay_order, forcing, target_period
+    return _resimulations(
+        model, values, recording, remnant_free, delay_order, forcing, target_period
     )
-    return output
 
 
 # ------------------------------------------------------------------------ summary
@@ -549,21 +563,16 @@ def evaluate(
     target = {"delay_order": delay_order, "forcing": forcing, "target_period": target_period}
     truth = recording.parameters
     u = np.asarray(recording.u)
-    vafs = {"remnant_free": math.nan}
     best = (math.nan, math.nan)
-    if _has_pilot_model(result) and has_remnant_parts(recording):
-        # both resimulations on one discretisation of the identified model
-        _check_pair(result, recording)
-        model = _model_of(result)
-        values = {name: np.array(result.mean_of(name)) for name in model.parameter_names}
-        output, remnant_free = _resimulations(
-            model, values, recording, (False, True), delay_order, forcing, target_period
-        )
+    _check_pair(result, recording)
+    # both resimulations, where there are two, on one discretisation of the model
+    free_too = _has_pilot_model(result) and has_remnant_parts(recording)
+    flags = (False, True) if free_too else (False,)
+    outputs = _resimulate_result(result, recording, flags, delay_order, forcing, target_period)
+    vafs = {"resimulated": vaf(u[mask], outputs[0][mask]), "remnant_free": math.nan}
+    if free_too:
         free = u - np.asarray(recording["u_n"])
-        vafs["remnant_free"] = vaf(free[mask], remnant_free[mask])
-    else:
-        output = resimulate(result, recording, **target)
-    vafs["resimulated"] = vaf(u[mask], output[mask])
+        vafs["remnant_free"] = vaf(free[mask], outputs[1][mask])
     if _has_pilot_model(result):
         if ceilings:
             best = vaf_ceilings(_model_of(result), recording, start=start, **target)

@@ -84,7 +84,7 @@ from manualcontrol.estimators.protocol import (
     EstimateHealth,
     EstimationResult,
     ParameterValues,
-    sample_values,
+    sample_floats,
 )
 from manualcontrol.pilots.models import MODEL_NAMES, make_model
 
@@ -967,7 +967,7 @@ class PilotFilter:
         """
         if self._common is None:
             raise RuntimeError(f"the {type(self).__name__} has not been reset; call reset() first")
-        values = self._sample_floats(sample)
+        values = sample_floats(self._where, sample, self._sample_keys, self._allowed_sample_keys)
         inputs = self._inputs
         for i in range(len(inputs)):
             inputs[i] = values[i]
@@ -982,29 +982,6 @@ class PilotFilter:
         t = self._t0 + self._k * self._dt if t is None else float(t)
         self._k += 1
         return self._estimate_of_row(t)
-
-    def _sample_floats(self, sample: Mapping[str, float]) -> list[float]:
-        """The values of :attr:`sample_keys` in ``sample``, in that order, checked.
-
-        A plain dict of floats, each finite or NaN, is read as it is (the online case);
-        anything else goes through :func:`~manualcontrol.estimators.protocol.sample_values`,
-        whose errors name the key.
-        """
-        keys = self._sample_keys
-        if type(sample) is dict and sample.keys() <= self._allowed_sample_keys:
-            try:
-                values = [sample[key] for key in keys]
-            except KeyError:
-                values = None
-            if values is not None:
-                for value in values:
-                    # a float, finite or NaN (v - v is 0 for finite, NaN for NaN and inf)
-                    if type(value) is not float or (value - value != 0.0 and value == value):
-                        break
-                else:
-                    return values
-        checked = sample_values(self._where, sample, keys, self._allowed_sample_keys)
-        return [checked[key] for key in keys]
 
     def _estimate_of_row(self, t: float) -> Estimate:
         """The :class:`Estimate` held in the one-row output the last step wrote."""

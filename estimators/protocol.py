@@ -53,6 +53,7 @@ __all__ = [
     "HealthSummary",
     "ParameterValues",
     "load_result",
+    "sample_floats",
     "sample_values",
     "summarise_health",
 ]
@@ -350,17 +351,28 @@ def sample_values(where: str, sample: Any, keys: tuple[str, ...], allowed: Any) 
     each value a real number, finite or NaN (a dropped sample), never infinite. Errors
     name ``where`` and the key.
     """
+    return dict(zip(keys, sample_floats(where, sample, keys, allowed), strict=True))
+
+
+def sample_floats(where: str, sample: Any, keys: tuple[str, ...], allowed: Any) -> list[float]:
+    """:func:`sample_values` as a list in the order of ``keys``.
+
+    A plain dict of floats, each finite or NaN, is read as it is (the online case at
+    100 Hz); anything else is checked value by value.
+    """
     allowed = allowed if isinstance(allowed, (set, frozenset)) else frozenset(allowed)
     if type(sample) is dict and sample.keys() <= allowed:
-        # the usual online sample: a plain dict of floats; anything else is checked below
         try:
-            values = {key: sample[key] for key in keys}
+            values = [sample[key] for key in keys]
         except KeyError:
             values = None
-        if values is not None and all(
-            (type(v) is float and v - v == 0.0) or v != v for v in values.values()
-        ):
-            return values
+        if values is not None:
+            for value in values:
+                # a float, finite or NaN (v - v is 0 for finite, NaN for NaN and inf)
+                if type(value) is not float or (value - value != 0.0 and value == value):
+                    break
+            else:
+                return values
     if not isinstance(sample, Mapping):
         raise TypeError(f"sample must be a mapping of signal values, got {sample!r}")
     reject_unknown(where, sample, allowed)
@@ -369,7 +381,7 @@ def sample_values(where: str, sample: Any, keys: tuple[str, ...], allowed: Any) 
         raise ValueError(
             f"{where} lacks {', '.join(map(repr, missing))}; it needs {', '.join(map(repr, keys))}"
         )
-    values = {}
+    values = []
     for key in keys:
         value = sample[key]
         if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
@@ -377,7 +389,7 @@ def sample_values(where: str, sample: Any, keys: tuple[str, ...], allowed: Any) 
         value = float(value)
         if math.isinf(value):
             raise ValueError(f"sample[{key!r}] must be finite or NaN (dropped), got {value!r}")
-        values[key] = value
+        values.append(value)
     return values
 
 

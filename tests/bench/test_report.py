@@ -31,3 +31,31 @@ def test_equal_to_numpy_with_nans(seed):
 def test_empty_stack_gives_nan():
     assert np.all(np.isnan(nan_percentiles(np.zeros((0, 3)), [25, 75])))
     assert np.all(np.isnan(nan_median(np.zeros((0, 3)))))
+
+
+def test_a_thinned_trace_keeps_every_extreme_in_time_order():
+    from manualcontrol.bench.report import thin_band, thin_trace
+
+    rng = np.random.default_rng(3)
+    t = np.arange(22_000) * 0.01
+    values = np.cumsum(rng.standard_normal(t.size))
+    values[5000] = 1e3  # a one-sample spike
+    values[8000:8100] = np.nan  # a gap longer than a bucket
+    kept_t, kept = thin_trace(t, values, buckets=2000)
+    assert len(kept) <= 2 * 2000 + 11 and np.all(np.diff(kept_t) >= 0)
+    assert np.nanmax(kept) == 1e3 and np.nanmin(kept) == np.nanmin(values)
+    assert np.isnan(kept).any()  # the gap stays a gap
+    # every kept point is a sample of the trace, and each bucket's extremes are kept
+    index = np.searchsorted(t, kept_t)
+    np.testing.assert_array_equal(kept, values[index])
+    bucket = values[11 * 7 : 11 * 8]
+    assert bucket.max() in kept and bucket.min() in kept
+    short = np.arange(100.0)
+    np.testing.assert_array_equal(thin_trace(short, short)[1], short)  # too short to thin
+    low, high = values - 1.0, values + 1.0
+    band_t, band_low, band_high = thin_band(t, low, high, buckets=2000)
+    assert np.all(np.diff(band_t) >= 0)
+    # the drawn band covers the full one: each sample lies within its bucket's edges
+    for k in (0, 4999, 5000, 12_345, 21_999):
+        at = np.searchsorted(band_t, t[k], side="right") - 1
+        assert band_low[at] <= low[k] and band_high[at] >= high[k]
