@@ -59,3 +59,58 @@ def test_a_thinned_trace_keeps_every_extreme_in_time_order():
     for k in (0, 4999, 5000, 12_345, 21_999):
         at = np.searchsorted(band_t, t[k], side="right") - 1
         assert band_low[at] <= low[k] and band_high[at] >= high[k]
+
+
+def _draw(axes, variant):
+    """Panels in the ways the report draws them; ``variant`` changes every kind of content."""
+    t = np.linspace(0.0, 40.0 - 10.0 * variant, 600)  # shorter: stale x limits would show
+    for row, axis in enumerate(axes[:-1]):
+        scale = (row + 1) * (1.0 + variant)
+        axis.fill_between(t, np.sin(t) * scale - 0.3, np.sin(t) * scale + 0.3, alpha=0.2, lw=0)
+        for k in range(2 + variant):  # lines without a colour take the colour cycle
+            axis.plot(t, np.cos(t / (k + 1)) * scale, lw=0.8, label=f"line {k}")
+        axis.set_ylabel(f"p{row}" if variant == 0 else f"parameter {row} [s]")
+    if variant == 0:
+        axes[-1].plot(t, 50.0 + t, color="tab:blue")
+        axes[-1].set_ylim(20.0, 101.0)
+        axes[0].set_title("first", loc="left", fontsize=8)
+        axes[0].text(0.5, 0.5, "note", transform=axes[0].transAxes)
+    # variant 1 leaves the last panel empty: a new figure's limits must come back
+    axes[0].legend(loc="upper right", fontsize=7)
+    axes[0].set_title(f"figure {variant}")
+    axes[-1].set_xlabel("time [s]")
+
+
+def test_a_reused_figure_draws_what_a_new_one_draws(tmp_path):
+    from manualcontrol.bench.report import _pyplot, _reusing_figures, _save, _subplots
+
+    plt = _pyplot()
+    before = set(plt.get_fignums())
+    layout = {"figsize": (6.0, 5.0), "sharex": True}
+    with _reusing_figures():
+        fig, axes = _subplots(3, 1, **layout)
+        _draw(axes, 0)
+        _save(fig, tmp_path / "first.png")
+        again, axes = _subplots(3, 1, **layout)
+        assert again is fig  # handed out again, not made anew
+        _draw(axes, 1)
+        _save(again, tmp_path / "reused.png")
+        other, _ = _subplots(2, 1, **layout)  # another layout gets a figure of its own
+        assert other is not fig
+    assert set(plt.get_fignums()) == before  # all closed on leaving, unsaved ones too
+    fig, axes = _subplots(3, 1, **layout)
+    _draw(axes, 1)
+    _save(fig, tmp_path / "new.png")
+    assert (tmp_path / "reused.png").read_bytes() == (tmp_path / "new.png").read_bytes()
+    assert (tmp_path / "first.png").read_bytes() != (tmp_path / "new.png").read_bytes()
+
+
+def test_figures_are_closed_when_a_report_fails(tmp_path):
+    from manualcontrol.bench.report import _pyplot, _reusing_figures, _subplots
+
+    plt = _pyplot()
+    before = set(plt.get_fignums())
+    with pytest.raises(RuntimeError, match="drawing failed"), _reusing_figures():
+        _subplots(2, 1)
+        raise RuntimeError("drawing failed")
+    assert set(plt.get_fignums()) == before
