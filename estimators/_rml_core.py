@@ -170,18 +170,22 @@ BankConfig = namedtuple(
         "base",
         "variance_score",
         "spread_cap",
+        "drift_rule",
     ],
 )
 #: ``th``, ``P``: the parameter belief; ``X`` (m, ns), ``PX`` (m, ns, ns): the m bank
 #: members' state beliefs (member 0 at ``th``, members ``1 + 2 j`` and ``2 + 2 j`` at
-#: ``th +- h L e_j``); ``prev_in``, ``p``, ``sc`` as in the other pilot filters.
-BankBelief = namedtuple("BankBelief", ["th", "P", "X", "PX", "prev_in", "p", "sc"])
+#: ``th +- h L e_j``); ``prev_in``, ``p``, ``sc`` as in the other pilot filters;
+#: ``drift`` (3, n_t): per parameter the moving mean of its normalised corrections, of
+#: their magnitude, and the factor on its process noise (:func:`_adapt_process_noise`).
+BankBelief = namedtuple("BankBelief", ["th", "P", "X", "PX", "prev_in", "p", "sc", "drift"])
 #: Scratch: ``L``, ``points`` (m, n_t), ``z``, ``S`` (m,), ``dz``, ``dS``, ``g`` (n_t,),
 #: ``Lam``, ``LamL``, ``B`` (n_t, n_t), ``xi`` (1, n_t), ``Phi``, ``sub``, ``Q``, ``T``
 #: (ns, ns), ``H`` (1, ns), ``r`` (1,), ``R`` (1, 1), ``work`` (the shared Kalman
 #: correction's scratch, ``filters.kalman.kalman_work``), ``xs``, ``f``, ``F``
 #: (model), ``dfdp``, ``dgdx``, ``dgdp``, ``point_p``, ``in_use``, ``variance``,
-#: ``scalars``, ``h_dir`` (n_t,): the spread in use along each direction.
+#: ``scalars``, ``h_dir`` (n_t,): the spread in use along each direction; ``prior``
+#: (2, n_t): this sample's prior mean and standard deviation of each parameter.
 BankScratch = namedtuple(
     "BankScratch",
     [
@@ -215,6 +219,7 @@ BankScratch = namedtuple(
         "variance",
         "scalars",
         "h_dir",
+        "prior",
     ],
 )
 #: Per-row outputs as the other pilot filters', the parameter belief before and after
@@ -446,10 +451,38 @@ def _update_parameters(config, belief, s, u_k, k):
 
 
 @numba.njit(cache=True, _nrt=False)
+def _adapt_process_noise(config, th, drift, prior):
+    """Raise a pilot parameter's process noise while its corrections keep one sign.
+
+    The correction of parameter ``a`` at this sample, in prior standard deviations,
+    ``c = (theta_a^+ - theta_a^-) / sigma_a^-``, enters two exponential moving means
+    (weight ``drift_rule[1] = dt / window``): ``m`` of ``c`` and ``M`` of ``|c|``. Their
+    ratio ``rho = |m| / M`` is 0 for corrections that cancel and 1 for corrections that
+    all push one way, which is what a random walk too slow for a changing parameter
+    makes: the estimate lags, and every sample corrects it in the same direction. The
+    factor on the parameter's ``Q`` for the next sample is ``1 + gain (rho - rho_0) /
+    (1 - rho_0)`` above the threshold ``rho_0`` and 1 below (``drift_rule = (gain,
+    dt / window, rho_0)``). Per-parameter rates raised while successive updates agree
+    are the delta-bar-delta rule of Jacobs (1988) and Sutton's IDBD (1992) for tracking;
+    here the rate is the random walk's variance. The noise parameters keep their ``Q``.
+    """
+    gain, weight, threshold = config.drift_rule[0], config.drift_rule[1], config.drift_rule[2]
+    for a in range(th.shape[0]):
+        if config.slot[a] < 0 or not (prior[1, a] > 0.0):
+            continue
+        c = (th[a] - prior[0, a]) / prior[1, a]
+        drift[0, a] += weight * (c - drift[0, a])
+        drift[1, a] += weight * (abs(c) - drift[1, a])
+        rho = abs(drift[0, a]) / drift[1, a] if drift[1, a] > 0.0 else 0.0
+        excess = (rho - threshold) / (1.0 - threshold)
+        drift[2, a] = 1.0 + gain * excess if excess > 0.0 else 1.0
+
+
+@numba.njit(cache=True, _nrt=False)
 def bank_step(model, config, lines, belief, monitor, report, s, inputs_k, u_k, e_k, row, out):
     """One sample of the filter bank; writes row ``row`` of ``out``."""
     cfg = config.cfg
-    th, P, X, _, prev_in, p, sc = belief
+    th, P, X, _, prev_in, p, sc, drift = belief
     n_t = th.shape[0]
     k = int(sc[SC_K])
     in_use = s.in_use
@@ -471,8 +504,11 @@ def bank_step(model, config, lines, belief, monitor, report, s, inputs_k, u_k, e
     if k > 0 and anchored:
         for a in range(n_t):
             if k >= config.noise_first or config.slot[a] < 0:
-                P[a, a] += config.q[a] * gamma2
+                P[a, a] += config.q[a] * drift[2, a] * gamma2
     store_belief(row, th, P, out.th_prior, out.P_prior)
+    for a in range(n_t):
+        s.prior[0, a] = th[a]
+        s.prior[1, a] = math.sqrt(P[a, a])
     for j in range(p.shape[0]):
         s.point_p[j] = p[j]
     ok = _bank_points(config, belief, s)
@@ -481,6 +517,8 @@ def bank_step(model, config, lines, belief, monitor, report, s, inputs_k, u_k, e
             _member_step(model, config, lines, belief, s, i, k, u_k, R, q_error, dropped, k > 0)
         if not dropped and anchored:
             ok = _update_parameters(config, belief, s, u_k, k)
+            if ok and config.drift_rule[0] > 0.0 and k >= config.noise_first:
+                _adapt_process_noise(config, th, drift, s.prior)
     store_belief(row, th, P, out.th_post, out.P_post)
     for i in range(prev_in.shape[0]):
         prev_in[i] = in_use[i]

@@ -77,7 +77,12 @@ class Member:
 
 
 def run_bank(e, u, dt, initial, estimated, P0, Q, settings):
-    """Parameter means after each sample; ``estimated`` in model order, plus log intensity."""
+    """Parameter means after each sample; ``estimated`` in model order, plus log intensity.
+
+    ``settings["drift"] = (gain, window, threshold)`` scales each pilot parameter's
+    random-walk variance by the persistence of its corrections (the RML's drift rule);
+    a gain of 0 leaves it off.
+    """
     var_e0 = settings["var_e0"]
     omega_r = settings["omega_r"]
     log_q = math.log(settings["remnant_variance"] * var_e0 * 2.0 * omega_r)
@@ -90,10 +95,15 @@ def run_bank(e, u, dt, initial, estimated, P0, Q, settings):
         for _ in range(2 * n_t + 1)
     ]
     h = settings["step"]
+    gain, window, threshold = settings.get("drift", (0.0, 1.0, 0.0))
+    factor = np.ones(n_t)
+    mean_correction = np.zeros(n_t - 1)
+    mean_size = np.zeros(n_t - 1)
     means = []
     for k in range(len(u)):
         if k > 0:
-            P = P + np.diag(q) * dt * dt
+            P = P + np.diag(q * factor) * dt * dt
+        prior_mean, prior_std = theta.copy(), np.sqrt(np.diag(P))
         L = np.linalg.cholesky(P)
         points = [theta.copy()]
         for j in range(n_t):
@@ -124,5 +134,12 @@ def run_bank(e, u, dt, initial, estimated, P0, Q, settings):
         theta = theta + L @ np.linalg.solve(Lam, g)
         P = L @ np.linalg.solve(Lam, L.T)
         P = 0.5 * (P + P.T)
+        if gain > 0.0:  # the pilot parameters (all but the last, the log intensity)
+            correction = ((theta - prior_mean) / prior_std)[:-1]
+            mean_correction += dt / window * (correction - mean_correction)
+            mean_size += dt / window * (np.abs(correction) - mean_size)
+            size = np.where(mean_size > 0.0, mean_size, 1.0)
+            persistence = np.where(mean_size > 0.0, np.abs(mean_correction) / size, 0.0)
+            factor[:-1] = 1.0 + gain * np.maximum(persistence - threshold, 0.0) / (1 - threshold)
         means.append(theta.copy())
     return np.array(means)

@@ -50,6 +50,9 @@ def test_the_bank_equals_the_oracle():
         "remnant_variance": 0.4,
         "intensity_P0": 2.0,
         "intensity_Q": 0.01,
+        "drift_gain": 12.0,
+        "drift_window": 0.4,
+        "drift_threshold": 0.2,
     }
     rml = RML(**settings)
     result = rml.estimate(recording)
@@ -75,6 +78,7 @@ def test_the_bank_equals_the_oracle():
             "substeps": 3,
             "R": 0.05,
             "q_error": 0.3,
+            "drift": (12.0, 0.4, 0.2),
         },
     )
     assert resolved.estimated == rml_oracle.NAMES
@@ -83,6 +87,10 @@ def test_the_bank_equals_the_oracle():
     intensity = result.states[:, result.state_names.index("remnant_intensity")]
     np.testing.assert_allclose(intensity, np.exp(expected[:, -1]), rtol=1e-9)
     assert np.max(np.abs(got[-1] - got[0])) > 0.01  # the parameters did move
+    # the drift rule acted: without it the track differs
+    off = RML(**{**settings, "drift_gain": 0.0}).estimate(recording)
+    without = np.column_stack([off.mean_of(name) for name in resolved.estimated])
+    assert np.max(np.abs(got - without)) > 1e-4
 
 
 @pytest.mark.parametrize("model", ["precision", "preview"])
@@ -269,6 +277,10 @@ def test_smoothed_twin():
             {"spread_limit": 1.5},
             "spread_limit must be in [0, 1] (a fraction of the limit span), got 1.5",
         ),
+        ({"drift_gain": -1.0}, "drift_gain must be >= 0, got -1.0"),
+        ({"drift_window": 0.0}, "drift_window must be > 0"),
+        ({"drift_threshold": 1.0}, "drift_threshold must be in [0, 1)"),
+        ({"drift_threshold": -0.1}, "drift_threshold must be >= 0"),
     ],
 )
 def test_bad_settings_are_refused_by_name(changes, message):
