@@ -68,6 +68,14 @@ IntArray = NDArray[np.int64]
 
 #: Harmonic numbers ``ω T_m / 2π`` must be this close to integers.
 _HARMONIC_TOLERANCE = 1e-6
+#: Multisine evaluations on at least ``_REMEMBERED_LENGTH[0]`` and at most
+#: ``_REMEMBERED_LENGTH[1]`` times are remembered, the last ``_REMEMBERED_EVALUATIONS``
+#: of them (keyed by the signal and the exact times; at most about 19 MB): a benchmark run
+#: evaluates its forcing on the same grids six to eight times, each a sine per component
+#: and sample (about a twentieth of the run), and the runs of a batch share them.
+_REMEMBERED_LENGTH = (1024, 100_000)
+_REMEMBERED_EVALUATIONS = 12
+_EVALUATIONS: dict[tuple[Any, ...], tuple[FloatArray, FloatArray]] = {}
 
 
 # ------------------------------------------------------------------------- helpers
@@ -199,6 +207,29 @@ class Multisine:
     # -- evaluation
 
     def _series(self, t: FloatArray, weights: FloatArray, wave: np.ufunc) -> FloatArray:
+        if not _REMEMBERED_LENGTH[0] <= t.size <= _REMEMBERED_LENGTH[1]:
+            return self._sum(t, weights, wave)
+        # the same forcing at the same times: a run's simulation, its filter and its
+        # scoring each evaluate it, and so does every run of a batch
+        key = (
+            wave.__name__,
+            self.frequencies.tobytes(),
+            weights.tobytes(),
+            self.phases.tobytes(),
+            t.shape,
+            float(t.flat[0]),
+            float(t.flat[t.size // 2]),
+            float(t.flat[-1]),
+        )
+        kept = _EVALUATIONS.pop(key, None)
+        if kept is None or not np.array_equal(kept[0], t):  # only the very same times
+            kept = (t.copy(), self._sum(t, weights, wave))
+            while len(_EVALUATIONS) >= _REMEMBERED_EVALUATIONS:
+                _EVALUATIONS.pop(next(iter(_EVALUATIONS)), None)
+        _EVALUATIONS[key] = kept  # the most recently used last
+        return kept[1].copy()
+
+    def _sum(self, t: FloatArray, weights: FloatArray, wave: np.ufunc) -> FloatArray:
         # One sine at a time: memory O(len(t)), never an (n_times, n_sines) matrix.
         out = np.zeros_like(t)
         work = np.empty_like(t)

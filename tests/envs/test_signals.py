@@ -65,6 +65,30 @@ def test_multisine_is_eq_35():
     np.testing.assert_allclose(m(t.reshape(7, 143)), expected.reshape(7, 143), atol=1e-14)
 
 
+def test_a_remembered_evaluation_is_the_evaluation_of_those_very_times():
+    import manualcontrol.envs.signals as signals
+
+    m = example()
+    t = np.arange(-600, 5000) * 0.01  # long enough to be remembered
+    direct = m._sum(t, m.amplitudes, np.sin)
+    first = m(t)
+    np.testing.assert_array_equal(first, direct)
+    first[:] = 0.0  # the caller's copy: what is remembered stays
+    np.testing.assert_array_equal(m(t.copy()), direct)
+    # times that agree where the lookup key looks (ends and middle) but not elsewhere
+    other = t.copy()
+    other[1234] += 0.5
+    np.testing.assert_array_equal(m(other), m._sum(other, m.amplitudes, np.sin))
+    np.testing.assert_array_equal(m(t), direct)
+    # the derivative (cosine weights) and another signal are remembered apart
+    np.testing.assert_array_equal(m.derivative(t), m._sum(t, m.amplitudes * m.frequencies, np.cos))
+    shifted = Multisine(m.frequencies, m.amplitudes, m.phases + 0.3, m.measurement_time)
+    np.testing.assert_array_equal(shifted(t), shifted._sum(t, shifted.amplitudes, np.sin))
+    for start in range(2 * signals._REMEMBERED_EVALUATIONS):  # bounded memory
+        m(t + start)
+    assert len(signals._EVALUATIONS) <= signals._REMEMBERED_EVALUATIONS
+
+
 def test_multisine_is_periodic_over_measurement_time():
     m = example()
     t = np.linspace(0.0, 40.0, 997)
