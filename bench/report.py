@@ -150,40 +150,48 @@ def _band(axis: Any, t: ArrayLike, low: ArrayLike, high: ArrayLike, **style: Any
     return axis.fill_between(*thin_band(t, low, high), **style)
 
 
-def _subplots(rows: int, columns: int, **options: Any) -> tuple[Any, Any]:
+def _subplots(
+    rows: int, columns: int, *, reusable: bool = False, **options: Any
+) -> tuple[Any, Any]:
     """``pyplot.subplots`` with titles at a fixed height above the panels.
 
     Matplotlib otherwise measures every x axis at each draw to lift a title clear of
     tick labels above the panel, which these figures never have (a tenth of a
-    figure's cost). Inside :func:`_reusing_figures`, a figure of the same layout saved
-    before is cleared and handed out instead of a new one.
+    figure's cost).
+
+    ``reusable=True`` is for figures drawn only with what :func:`_clear` takes away
+    again (lines, bands, legends, panel titles, axis labels without font options,
+    limits): inside :func:`_reusing_figures`, a figure of the same layout saved before
+    is cleared and handed out instead of a new one.
     """
     key = (rows, columns, repr(sorted(options.items())))
     pool = _figure_pool
-    if pool is not None and pool.free.get(key):
+    if pool is not None and reusable and pool.free.get(key):
         fig, axes = pool.free[key].pop()
         _clear(fig)
         return fig, axes
     plt = _pyplot()
     with plt.rc_context({"axes.titley": 1.0}):
         fig, axes = plt.subplots(rows, columns, **options)
-    if pool is not None:
-        pool.made[id(fig)] = (key, fig, axes)
+    if pool is not None:  # closed when the report ends, whatever happens
+        pool.made[id(fig)] = (key if reusable else None, fig, axes)
     return fig, axes
 
 
 class _FigurePool(NamedTuple):
     free: dict[tuple[Any, ...], list[tuple[Any, Any]]]
-    made: dict[int, tuple[tuple[Any, ...], Any, Any]]
+    made: dict[int, tuple[tuple[Any, ...] | None, Any, Any]]  # key None: not reusable
 
 
 #: The figures of the report being drawn (:func:`_reusing_figures`); None outside one.
 _figure_pool: _FigurePool | None = None
+#: Saved figures kept for reuse at most (each stays open in pyplot until the report ends).
+_KEPT_FIGURES = 8
 
 
 @contextlib.contextmanager
 def _reusing_figures() -> Iterator[None]:
-    """Within: :func:`_save` keeps each figure for the next one of its layout.
+    """Within: :func:`_save` keeps each reusable figure for the next one of its layout.
 
     A report draws dozens of figures of a few layouts, and creating a figure's axes and
     the ticks they draw is about half of its cost. The next figure of the same layout
@@ -208,9 +216,10 @@ def _reusing_figures() -> Iterator[None]:
 def _clear(fig: Any) -> None:
     """Remove what was drawn on ``fig``'s panels, leaving them as :func:`_subplots` made them.
 
-    Covers what the report's figures draw: lines, bands and other collections, patches,
+    Covers what the reusable figures draw: lines, bands and other collections, patches,
     texts, legends, titles, axis labels, limits set or autoscaled, and the colour cycle
-    of lines drawn without a colour.
+    of lines drawn without a colour. :func:`_plain` keeps figures changed in other
+    ways from being reused.
     """
     from matplotlib.transforms import Bbox
 
@@ -230,6 +239,26 @@ def _clear(fig: Any) -> None:
         axis.set_prop_cycle(None)
 
 
+def _plain(fig: Any, panels: int) -> bool:
+    """``fig`` holds its grid of panels and nothing :func:`_clear` would leave behind."""
+    from matplotlib.ticker import AutoLocator
+
+    if len(fig.get_axes()) != panels or fig.texts or fig.legends or fig.get_suptitle():
+        return False
+    for axis in fig.get_axes():
+        if (
+            axis.get_xscale() != "linear"
+            or axis.get_yscale() != "linear"
+            or axis.get_aspect() != "auto"
+            or not axis.axison
+            or axis.containers
+            or not isinstance(axis.xaxis.get_major_locator(), AutoLocator)
+            or not isinstance(axis.yaxis.get_major_locator(), AutoLocator)
+        ):
+            return False
+    return True
+
+
 def _save(fig: Any, path: Path) -> Path:
     _lay_out(fig)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -237,11 +266,19 @@ def _save(fig: Any, path: Path) -> Path:
         # zlib level 1: half the encoding time of the default 6, and no larger here
         fig.savefig(temporary, dpi=100, format="png", pil_kwargs={"compress_level": 1})
     pool = _figure_pool
-    if pool is not None and id(fig) in pool.made:
-        key, _, axes = pool.made[id(fig)]
-        pool.free.setdefault(key, []).append((fig, axes))
-    else:
-        _pyplot().close(fig)
+    made = pool.made.get(id(fig)) if pool is not None else None
+    if made is not None and made[0] is not None:
+        key, _, axes = made
+        free = pool.free.setdefault(key, [])
+        if any(kept is fig for kept, _ in free):  # saved twice: kept once already
+            return path
+        rows, columns = key[0], key[1]
+        if _plain(fig, rows * columns) and sum(map(len, pool.free.values())) < _KEPT_FIGURES:
+            free.append((fig, axes))
+            return path
+    if made is not None:
+        del pool.made[id(fig)]
+    _pyplot().close(fig)
     return path
 
 
@@ -688,7 +725,9 @@ def _comparison_figure(
     truth = {
         name: schedule(first.t) for name, schedule in scenario.build_pilot().parameters.items()
     }
-    fig, axes = _subplots(len(names), 1, figsize=(9, 1.8 * len(names) + 0.6), sharex=True)
+    fig, axes = _subplots(
+        len(names), 1, reusable=True, figsize=(9, 1.8 * len(names) + 0.6), sharex=True
+    )
     axes = np.atleast_1d(axes)
     for axis, name in zip(axes, names, strict=True):
         if name in truth:
@@ -730,7 +769,9 @@ def _trace_figure(
     pilot = scenario.build_pilot().parameters if scenario.system is None else {}
     truth = {name: schedule(first.t) for name, schedule in pilot.items()}
     rows_in_figure = len(names) + 1
-    fig, axes = _subplots(rows_in_figure, 1, figsize=(9, 1.7 * rows_in_figure), sharex=True)
+    fig, axes = _subplots(
+        rows_in_figure, 1, reusable=True, figsize=(9, 1.7 * rows_in_figure), sharex=True
+    )
     axes = np.atleast_1d(axes)
     for axis, name in zip(axes, names, strict=False):
         stack = np.array(

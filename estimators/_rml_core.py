@@ -176,8 +176,9 @@ BankConfig = namedtuple(
 #: ``th``, ``P``: the parameter belief; ``X`` (m, ns), ``PX`` (m, ns, ns): the m bank
 #: members' state beliefs (member 0 at ``th``, members ``1 + 2 j`` and ``2 + 2 j`` at
 #: ``th +- h L e_j``); ``prev_in``, ``p``, ``sc`` as in the other pilot filters;
-#: ``drift`` (3, n_t): per parameter the moving mean of its normalised corrections, of
-#: their magnitude, and the factor on its process noise (:func:`_adapt_process_noise`).
+#: ``drift`` (4, n_t): per parameter the moving mean of its normalised corrections, of
+#: their magnitude, the factor on its process noise and the means' accumulated weight
+#: (:func:`_adapt_process_noise`).
 BankBelief = namedtuple("BankBelief", ["th", "P", "X", "PX", "prev_in", "p", "sc", "drift"])
 #: Scratch: ``L``, ``points`` (m, n_t), ``z``, ``S`` (m,), ``dz``, ``dS``, ``g`` (n_t,),
 #: ``Lam``, ``LamL``, ``B`` (n_t, n_t), ``xi`` (1, n_t), ``Phi``, ``sub``, ``Q``, ``T``
@@ -450,21 +451,32 @@ def _update_parameters(config, belief, s, u_k, k):
     return True
 
 
+#: Accumulated weight of the drift rule's moving means before it acts: one window's
+#: worth (``1 - 1/e``).
+_FILLED = 1.0 - math.exp(-1.0)
+
+
 @numba.njit(cache=True, _nrt=False)
 def _adapt_process_noise(config, th, drift, prior):
     """Raise a pilot parameter's process noise while its corrections keep one sign.
 
     The correction of parameter ``a`` at this sample, in prior standard deviations,
     ``c = (theta_a^+ - theta_a^-) / sigma_a^-``, enters two exponential moving means
-    (weight ``drift_rule[1] = dt / window``): ``m`` of ``c`` and ``M`` of ``|c|``. Their
-    ratio ``rho = |m| / M`` is 0 for corrections that cancel and 1 for corrections that
-    all push one way, which is what a random walk too slow for a changing parameter
-    makes: the estimate lags, and every sample corrects it in the same direction. The
-    factor on the parameter's ``Q`` for the next sample is ``1 + gain (rho - rho_0) /
-    (1 - rho_0)`` above the threshold ``rho_0`` and 1 below (``drift_rule = (gain,
-    dt / window, rho_0)``). Per-parameter rates raised while successive updates agree
-    are the delta-bar-delta rule of Jacobs (1988) and Sutton's IDBD (1992) for tracking;
-    here the rate is the random walk's variance. The noise parameters keep their ``Q``.
+    (weight ``w = drift_rule[1]``, ``min(1, dt / window)``): ``m`` of ``c`` and ``M`` of
+    ``|c|``. Their ratio ``rho = |m| / M`` is near 0 for corrections that cancel and 1 for
+    corrections that all push one way, which is what a random walk too slow for a
+    changing parameter makes: the estimate lags, and every sample corrects it in the
+    same direction. The factor on the parameter's ``Q`` for the next sample is ``1 +
+    gain (rho - rho_0) / (1 - rho_0)`` above the threshold ``rho_0`` and 1 below
+    (``drift_rule = (gain, w, rho_0)``). Per-parameter rates raised while successive
+    updates agree are the delta-bar-delta rule of Jacobs (1988) and Sutton's IDBD
+    (1992) for tracking; here the rate is the random walk's variance. The noise
+    parameters keep their ``Q``.
+
+    A few corrections always look one-sided (one alone gives ``rho = 1``), so the rule
+    waits until the means hold a window's worth of updates: their accumulated weight
+    ``1 - (1 - w)^n`` (row 3 of ``drift``) must reach ``1 - 1/e``. The means advance on
+    the samples that update the parameters (not on dropped ones).
     """
     gain, weight, threshold = config.drift_rule[0], config.drift_rule[1], config.drift_rule[2]
     for a in range(th.shape[0]):
@@ -473,7 +485,10 @@ def _adapt_process_noise(config, th, drift, prior):
         c = (th[a] - prior[0, a]) / prior[1, a]
         drift[0, a] += weight * (c - drift[0, a])
         drift[1, a] += weight * (abs(c) - drift[1, a])
-        rho = abs(drift[0, a]) / drift[1, a] if drift[1, a] > 0.0 else 0.0
+        drift[3, a] += weight * (1.0 - drift[3, a])
+        if drift[3, a] < _FILLED or not (drift[1, a] > 0.0):
+            continue
+        rho = abs(drift[0, a]) / drift[1, a]
         excess = (rho - threshold) / (1.0 - threshold)
         drift[2, a] = 1.0 + gain * excess if excess > 0.0 else 1.0
 

@@ -327,7 +327,11 @@ class RML(PilotFilter):
             variance_score=self._variance_score(),
             spread_cap=self._spread_cap(np.array(lo), np.array(hi)),
             drift_rule=np.array(
-                [settings.drift_gain, dt / settings.drift_window, settings.drift_threshold]
+                [
+                    settings.drift_gain,
+                    min(1.0, dt / settings.drift_window),  # a window under a sample: one
+                    settings.drift_threshold,
+                ]
             ),
         )
         state_covariance = np.zeros((members, n_s, n_s))
@@ -345,7 +349,7 @@ class RML(PilotFilter):
             prev_in=np.zeros(n_in),
             p=common.p,
             sc=common.sc,
-            drift=np.vstack([np.zeros((2, n_t)), np.ones((1, n_t))]),
+            drift=np.vstack([np.zeros((2, n_t)), np.ones((1, n_t)), np.zeros((1, n_t))]),
         )
         n_p = len(names)
         scratch = core.BankScratch(

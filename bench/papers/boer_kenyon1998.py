@@ -274,7 +274,7 @@ def _task_figure(
     from manualcontrol.bench.report import _line, _save, _subplots
 
     recording, filtered, smoothed = example[:3]
-    fig, axes = _subplots(2, 1, figsize=(9, 5.5), sharex=True)
+    fig, axes = _subplots(2, 1, reusable=True, figsize=(9, 5.5), sharex=True)
     t = np.asarray(recording.t)
     d_name, gain_name = _delay_name(filtered), _gain_name(filtered)
     _line(axes[0], t, truth_d * 1000.0, color="tab:red", lw=1.2, label="true")

@@ -106,7 +106,7 @@ def _figure(condition: str, drive: str, members: Mapping[str, list], out: Path) 
             recording = simulate_scenario(scenario_from_dict(runs[0]["scenario"]))
     if not results or recording is None:
         return None
-    fig, axes = _subplots(3, 1, figsize=(10, 7.5), sharex=True)
+    fig, axes = _subplots(3, 1, reusable=True, figsize=(10, 7.5), sharex=True)
     for axis, name in zip(axes, PARAMETERS, strict=False):
         _line(axis, recording.t, recording.parameters[name], color="tab:red", lw=1.6, label="true")
         for member, result in results.items():

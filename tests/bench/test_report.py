@@ -86,7 +86,7 @@ def test_a_reused_figure_draws_what_a_new_one_draws(tmp_path):
 
     plt = _pyplot()
     before = set(plt.get_fignums())
-    layout = {"figsize": (6.0, 5.0), "sharex": True}
+    layout = {"reusable": True, "figsize": (6.0, 5.0), "sharex": True}
     with _reusing_figures():
         fig, axes = _subplots(3, 1, **layout)
         _draw(axes, 0)
@@ -113,4 +113,31 @@ def test_figures_are_closed_when_a_report_fails(tmp_path):
     with pytest.raises(RuntimeError, match="drawing failed"), _reusing_figures():
         _subplots(2, 1)
         raise RuntimeError("drawing failed")
+    assert set(plt.get_fignums()) == before
+
+
+def test_only_plain_reusable_figures_are_kept(tmp_path):
+    from manualcontrol.bench.report import _pyplot, _reusing_figures, _save, _subplots
+
+    plt = _pyplot()
+    before = set(plt.get_fignums())
+    with _reusing_figures():
+        fig, _ = _subplots(2, 1)  # not marked reusable (a public plot_* figure)
+        _save(fig, tmp_path / "a.png")
+        assert not plt.fignum_exists(fig.number)  # closed at once
+        for change in (
+            lambda f, a: f.suptitle("figure title"),
+            lambda f, a: a[0].set_yscale("log"),
+            lambda f, a: a[0].twinx(),
+            lambda f, a: a[1].set_yticks([0.0, 0.5]),
+        ):
+            fig, axes = _subplots(2, 1, reusable=True)
+            change(fig, axes)
+            _save(fig, tmp_path / "b.png")
+            assert not plt.fignum_exists(fig.number)  # _clear would not undo it
+        fig, _ = _subplots(2, 1, reusable=True)
+        _save(fig, tmp_path / "c.png")
+        _save(fig, tmp_path / "c.png")  # saved twice: kept once, handed out once
+        assert _subplots(2, 1, reusable=True)[0] is fig
+        assert _subplots(2, 1, reusable=True)[0] is not fig
     assert set(plt.get_fignums()) == before

@@ -99,6 +99,7 @@ def run_bank(e, u, dt, initial, estimated, P0, Q, settings):
     factor = np.ones(n_t)
     mean_correction = np.zeros(n_t - 1)
     mean_size = np.zeros(n_t - 1)
+    filled = 0.0  # the moving means' accumulated weight: the rule acts from 1 - 1/e
     means = []
     for k in range(len(u)):
         if k > 0:
@@ -135,11 +136,15 @@ def run_bank(e, u, dt, initial, estimated, P0, Q, settings):
         P = L @ np.linalg.solve(Lam, L.T)
         P = 0.5 * (P + P.T)
         if gain > 0.0:  # the pilot parameters (all but the last, the log intensity)
+            weight = min(1.0, dt / window)
             correction = ((theta - prior_mean) / prior_std)[:-1]
-            mean_correction += dt / window * (correction - mean_correction)
-            mean_size += dt / window * (np.abs(correction) - mean_size)
+            mean_correction += weight * (correction - mean_correction)
+            mean_size += weight * (np.abs(correction) - mean_size)
+            filled += weight * (1.0 - filled)
             size = np.where(mean_size > 0.0, mean_size, 1.0)
             persistence = np.where(mean_size > 0.0, np.abs(mean_correction) / size, 0.0)
-            factor[:-1] = 1.0 + gain * np.maximum(persistence - threshold, 0.0) / (1 - threshold)
+            if filled >= 1.0 - math.exp(-1.0):
+                excess = np.maximum(persistence - threshold, 0.0) / (1 - threshold)
+                factor[:-1] = 1.0 + gain * excess
         means.append(theta.copy())
     return np.array(means)

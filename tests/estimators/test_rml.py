@@ -259,6 +259,16 @@ def test_smoothed_twin():
         twin.update({"e": 0.0, "u": 0.0})
 
 
+def test_a_drift_window_under_a_sample_averages_one_sample():
+    # the moving means' weight is dt / window, at most 1: beyond it they would overshoot
+    recording = compensatory(True).slice_samples(0, 400)
+    settings = {"model": "precision", "initial": dict(COMPENSATORY), "drift_gain": 15.0}
+    one_sample = RML(**settings, drift_window=recording.dt).estimate(recording)
+    shorter = RML(**settings, drift_window=recording.dt / 20).estimate(recording)
+    for name in one_sample.estimated:
+        np.testing.assert_array_equal(shorter.mean_of(name), one_sample.mean_of(name))
+
+
 @pytest.mark.parametrize(
     ("changes", "message"),
     [
