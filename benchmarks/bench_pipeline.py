@@ -9,6 +9,11 @@ of each stage printed (process CPU time, so other load on the machine counts lit
 - score: ``bench.scoring.score`` (metrics, the resimulated isolated pilot);
 - store: the results row and traces written as ``run_scenario`` writes them.
 
+Multisines remember their last evaluations (``envs.signals``), and the runs of a batch
+share them. A repeat of one scenario would find every evaluation remembered, so the
+memory is emptied before each repeat: each figure is a batch's first run, the dearest
+(``--warm-forcing`` keeps it, as for the later runs of a batch).
+
 Run: .venv/bin/python benchmarks/bench_pipeline.py [--suite NAME ...] [--repeats N]
 For the code before a change, run the same file with PYTHONPATH pointing at an old
 tree mapped as ``manualcontrol``; alternate the two for side-by-side medians.
@@ -46,13 +51,25 @@ def stages(scenario, folder):
     return times
 
 
+def _forget_forcing():
+    import manualcontrol.envs.signals as signals
+
+    signals._EVALUATIONS.clear()
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--suite", action="append", help="suite name (repeatable; default the three built-in)"
     )
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument(
+        "--warm-forcing",
+        action="store_true",
+        help="keep remembered forcing evaluations between repeats (a batch's later runs)",
+    )
     args = parser.parse_args()
+    forget = (lambda: None) if args.warm_forcing else _forget_forcing
     names = args.suite or ["vertregt2020-performance", "popovici2017", "vertregt2020-feasibility"]
     with tempfile.TemporaryDirectory() as temporary:
         folder = Path(temporary)
@@ -66,7 +83,10 @@ def main():
                 firsts.setdefault(scenario.batch, scenario)
             for batch, scenario in firsts.items():
                 stages(scenario, folder)  # warm-up
-                runs = [stages(scenario, folder) for _ in range(args.repeats)]
+                runs = []
+                for _ in range(args.repeats):
+                    forget()
+                    runs.append(stages(scenario, folder))
                 median = {key: statistics.median(run[key] for run in runs) for key in runs[0]}
                 totals.append(median["total"])
                 print(
