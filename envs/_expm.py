@@ -253,7 +253,11 @@ def _expm_batch(matrices: FloatArray, coefficients: FloatArray) -> FloatArray:
                 if not same:
                     break
             if same:
-                result[k] = result[k - 1]
+                # element by element: a slice assignment would compile numba's shape
+                # error message (about 4 CPU-s in every process that compiles this)
+                for i in range(n):
+                    for j in range(n):
+                        result[k, i, j] = result[k - 1, i, j]
                 continue
         a = powers[0]
         for i in range(n):

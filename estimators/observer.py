@@ -92,6 +92,8 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._display_keys = tuple(key for key in keys if key in ("e", "y", "ft"))
         self._anticipation = float(getattr(settings, "anticipation_time", None) or 0.0)
         self._estimated = self._estimated_names()
+        # the family's filters build these dicts from their output row directly
+        self._update_plain = getattr(estimator, "_update_plain", None)
         if self.append_to_observation:
             low = np.full(len(self._estimated), -np.inf)
             box = env.observation_space
@@ -102,6 +104,25 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._pending: dict[str, float] = {}
         self._ahead: list[float] | None = None
         self._step_index = 0
+
+    @staticmethod
+    def _as_plain(estimate: Any) -> dict[str, Any]:
+        health = estimate.health
+        return {
+            "t": estimate.t,
+            "mean": _plain(estimate.mean),
+            "std": _plain(estimate.std),
+            "innovation": estimate.innovation,
+            "innovation_variance": estimate.innovation_variance,
+            "prediction": estimate.prediction,
+            "health": {
+                "finite": health.finite,
+                "covariance_ok": health.covariance_ok,
+                "pinned": list(health.pinned),
+                "dropped": health.dropped,
+                "diverged": health.diverged,
+            },
+        }
 
     def _estimated_names(self) -> tuple[str, ...]:
         # what is estimated is resolved at reset (e.g. the SI rule holds K_v)
@@ -163,23 +184,11 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         observation, reward, terminated, truncated, info = self.env.step(action)
         sample = self._pending
         sample["u"] = float(info["u"])
-        estimate = self.estimator.update(sample)
-        health = estimate.health
-        self._last = {
-            "t": estimate.t,
-            "mean": _plain(estimate.mean),
-            "std": _plain(estimate.std),
-            "innovation": estimate.innovation,
-            "innovation_variance": estimate.innovation_variance,
-            "prediction": estimate.prediction,
-            "health": {
-                "finite": health.finite,
-                "covariance_ok": health.covariance_ok,
-                "pinned": list(health.pinned),
-                "dropped": health.dropped,
-                "diverged": health.diverged,
-            },
-        }
+        plain = self._update_plain
+        if plain is None:
+            self._last = self._as_plain(self.estimator.update(sample))
+        else:
+            self._last = plain(sample)
         self._step_index += 1
         self._pending = self._display(info)
         info["estimates"] = self._last  # the env's info is a new dict every step

@@ -965,6 +965,37 @@ class PilotFilter:
         ``ft_ahead`` = ``ft(t + tau_a)``, ``y``, ``e``, ``u``) to floats, optionally
         with ``t``. NaN in ``u`` or an input marks a dropped sample.
         """
+        return self._estimate_of_row(self._consume(sample))
+
+    def _update_plain(self, sample: Mapping[str, float]) -> dict[str, Any]:
+        """:meth:`update` as the online observer reports it, without an :class:`Estimate`.
+
+        Plain dicts, lists and floats, new each call, built straight from the output
+        row (:class:`~manualcontrol.estimators.observer.EstimatorObserver` at 100 Hz).
+        """
+        t = self._consume(sample)
+        mean, std, scalar, flag, pinned = self._row_views
+        health = self._health_of_row(flag, pinned)
+        prediction, innovation, variance = scalar.tolist()
+        columns = self._columns
+        return {
+            "t": t,
+            "mean": dict(zip(columns, mean.tolist(), strict=True)),
+            "std": dict(zip(columns, std.tolist(), strict=True)),
+            "innovation": innovation,
+            "innovation_variance": variance,
+            "prediction": prediction,
+            "health": {
+                "finite": health.finite,
+                "covariance_ok": health.covariance_ok,
+                "pinned": list(health.pinned),
+                "dropped": health.dropped,
+                "diverged": health.diverged,
+            },
+        }
+
+    def _consume(self, sample: Mapping[str, float]) -> float:
+        """Check one sample and step the filter on it; return its time."""
         if self._common is None:
             raise RuntimeError(f"the {type(self).__name__} has not been reset; call reset() first")
         values = sample_floats(self._where, sample, self._sample_keys, self._allowed_sample_keys)
@@ -981,14 +1012,13 @@ class PilotFilter:
         t = sample.get("t")
         t = self._t0 + self._k * self._dt if t is None else float(t)
         self._k += 1
-        return self._estimate_of_row(t)
+        return t
 
-    def _estimate_of_row(self, t: float) -> Estimate:
-        """The :class:`Estimate` held in the one-row output the last step wrote."""
-        mean, std, scalar, flag, pinned = self._row_views
+    def _health_of_row(self, flag: NDArray[np.bool_], pinned: NDArray[np.bool_]) -> EstimateHealth:
+        """The (immutable, shared) health of the row's flags: one per combination."""
         key = flag.tobytes() + pinned.tobytes()
         health = self._healths.get(key)
-        if health is None:  # health objects are immutable: one per combination of flags
+        if health is None:
             finite, covariance_ok, dropped, diverged = flag.tolist()
             names = self._internal.parameter_names
             health = EstimateHealth(
@@ -1000,6 +1030,11 @@ class PilotFilter:
             )
             if len(self._healths) < 1024:
                 self._healths[key] = health
+        return health
+
+    def _estimate_of_row(self, t: float) -> Estimate:
+        """The :class:`Estimate` held in the one-row output the last step wrote."""
+        mean, std, scalar, flag, pinned = self._row_views
         prediction, innovation, variance = scalar.tolist()
         return Estimate.of_one_output(
             t,
@@ -1009,7 +1044,7 @@ class PilotFilter:
             prediction,
             innovation,
             variance,
-            health,
+            self._health_of_row(flag, pinned),
         )
 
     # -------------------------------------------------------------- estimate

@@ -108,6 +108,40 @@ def test_the_estimates_in_info_are_plain_values_of_their_own_step():
     )
 
 
+@pytest.mark.parametrize("case", ["compensatory", "preview"])
+def test_the_filters_plain_path_reports_what_their_estimates_hold(case):
+    """The family's filters fill info from their output row, not via an Estimate:
+    the same dicts, every step, as the general path through update()."""
+    task, element, pilot, settings = CASES[case]
+    streams = []
+    for plain in (True, False):
+        dekf = DEKF(**settings)
+        if not plain:
+            dekf._update_plain = None  # what an estimator outside the family offers
+        env = EstimatorObserver(
+            gym.make(
+                f"ManualControl/{task}Tracking-v0",
+                controlled_element=element,
+                run_in=0.0,
+                measurement_time=8.0,
+            ),
+            dekf,
+        )
+        assert (env._update_plain is not None) is plain
+        observation, _ = env.reset(seed=1)
+        pilot.reset(seed=2, env=env)
+        width = env.env.observation_space.shape[0]
+        stream, done = [], False
+        while not done:
+            observation, _, terminated, truncated, info = env.step(pilot.act(observation[:width]))
+            stream.append(info["estimates"])
+            done = terminated or truncated
+        streams.append(stream)
+    assert len(streams[0]) == 800
+    assert streams[0] == streams[1]
+    assert all(type(e["mean"]) is dict and type(e["health"]["pinned"]) is list for e in streams[0])
+
+
 def test_an_estimate_pickles_with_its_values():
     import pickle
 
