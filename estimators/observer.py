@@ -107,7 +107,6 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     @staticmethod
     def _as_plain(estimate: Any) -> dict[str, Any]:
-        health = estimate.health
         return {
             "t": estimate.t,
             "mean": _plain(estimate.mean),
@@ -115,13 +114,7 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
             "innovation": estimate.innovation,
             "innovation_variance": estimate.innovation_variance,
             "prediction": estimate.prediction,
-            "health": {
-                "finite": health.finite,
-                "covariance_ok": health.covariance_ok,
-                "pinned": list(health.pinned),
-                "dropped": health.dropped,
-                "diverged": health.diverged,
-            },
+            "health": estimate.health.as_dict(),
         }
 
     def _estimated_names(self) -> tuple[str, ...]:

@@ -985,13 +985,7 @@ class PilotFilter:
             "innovation": innovation,
             "innovation_variance": variance,
             "prediction": prediction,
-            "health": {
-                "finite": health.finite,
-                "covariance_ok": health.covariance_ok,
-                "pinned": list(health.pinned),
-                "dropped": health.dropped,
-                "diverged": health.diverged,
-            },
+            "health": health.as_dict(),
         }
 
     def _consume(self, sample: Mapping[str, float]) -> float:

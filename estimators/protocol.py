@@ -121,6 +121,16 @@ class EstimateHealth:
         """True when finite, covariances fine and not diverged."""
         return self.finite and self.covariance_ok and not self.diverged
 
+    def as_dict(self) -> dict[str, Any]:
+        """Plain values, new each call (``pinned`` a list): what an observer reports."""
+        return {
+            "finite": self.finite,
+            "covariance_ok": self.covariance_ok,
+            "pinned": list(self.pinned),
+            "dropped": self.dropped,
+            "diverged": self.diverged,
+        }
+
 
 class ParameterValues(Mapping):
     """A read-only mapping of parameter names to one sample's values (a row copy).

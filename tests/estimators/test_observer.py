@@ -142,6 +142,24 @@ def test_the_filters_plain_path_reports_what_their_estimates_hold(case):
     assert all(type(e["mean"]) is dict and type(e["health"]["pinned"]) is list for e in streams[0])
 
 
+def test_a_health_as_plain_values_is_its_own_copy():
+    from manualcontrol.estimators.protocol import EstimateHealth
+
+    health = EstimateHealth(
+        finite=True, covariance_ok=False, pinned=("K_p",), dropped=True, diverged=False
+    )
+    plain = health.as_dict()
+    assert plain == {
+        "finite": True,
+        "covariance_ok": False,
+        "pinned": ["K_p"],
+        "dropped": True,
+        "diverged": False,
+    }
+    plain["pinned"].append("K_v")  # a user's edit of one step's info stays there
+    assert health.as_dict()["pinned"] == ["K_p"] and health.pinned == ("K_p",)
+
+
 def test_an_estimate_pickles_with_its_values():
     import pickle
 
