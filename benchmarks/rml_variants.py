@@ -22,6 +22,8 @@ import multiprocessing
 import os
 import statistics
 
+from _rml_batches import rml_scenarios
+
 
 def _job(task):
     from manualcontrol.bench.runner import simulate_scenario
@@ -43,17 +45,7 @@ def main():
     parser.add_argument("variants", nargs="+", help="JSON objects of RML settings")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     args = parser.parse_args()
-    from manualcontrol.bench.scenarios import load_suite
-
-    batches = args.batches.split(",")
-    scenarios = [
-        s
-        for s in load_suite(args.suite).scenarios()
-        if s.batch in batches and s.estimator["name"] == "rml"
-    ]
-    missing = sorted(set(batches) - {s.batch for s in scenarios})
-    if missing:
-        parser.error(f"batches without an RML run in {args.suite}: {', '.join(missing)}")
+    batches, scenarios = rml_scenarios(parser, args.suite, args.batches)
     variants = []
     for text in args.variants:
         try:
