@@ -4,7 +4,9 @@ The family (``manualcontrol estimators`` lists it; :data:`ESTIMATORS` holds it):
 DEKF, the joint and dual UKF, the recursive maximum-likelihood filter bank (:class:`RML`,
 remnant modelled) and the papers' other members, all on the shared Kalman core
 :mod:`manualcontrol.estimators.filters`; :func:`smooth` turns a filtered result of any
-of them into a smoothed one (registered as ``"<name>-smoothed"`` for the bench).
+of them into a smoothed one (registered as ``"<name>-smoothed"`` for the bench), and
+:func:`~manualcontrol.estimators.cross_validation.choose_noise_scale` smooths a pilot
+filter's run at the process-noise scale chosen by cross-validation (``"<name>-cv"``).
 """
 
 from manualcontrol.estimators.dekf import DEKF, DEKFSettings, ResolvedSettings
@@ -36,8 +38,10 @@ from manualcontrol.estimators.smoothing import smooth
 from manualcontrol.estimators.ukf import DualUKF, DualUKFSettings, JointUKF, UKFSettings
 from manualcontrol.estimators.zhao_ukf import MultiUKF, MultiUKFSettings, ZhaoUKF, ZhaoUKFSettings
 
-# after every member: the offline (smoothed) variants of the registered estimators
+# after every member: the offline (smoothed, cross-validated) variants of the registered
+# estimators
 from manualcontrol.estimators import smoothed as _smoothed  # noqa: F401  isort: skip
+from manualcontrol.estimators import cross_validation as _cross_validation  # noqa: F401  isort: skip
 
 __all__ = [
     "DEKF",

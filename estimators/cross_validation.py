@@ -1,0 +1,331 @@
+"""The parameters' process noise chosen by cross-validation, for offline (smoothed) runs.
+
+A filter of the family treats each parameter as a random walk whose variance per
+second (``Q``) comes from a preset: the thesis's values, tuned for 20-s sigmoids of
+``tau_f`` (Sec. V-B-2). How fast a pilot's parameters really vary is what the analysis
+wants to learn, and the smoothed estimate depends on it: too small a ``Q`` smears a
+change over tens of seconds, too large a one lets the parameters follow the remnant.
+Offline the whole run is available, so the variance can be chosen by how well the
+estimates predict data they were not fitted to (the classic choice of a smoothing
+parameter by cross-validation; Wahba 1990, ch. 4):
+
+1. the run's stick signal ``u`` is split into ``folds`` interleaved sets of
+   ``gap``-second stretches (stretch ``j`` belongs to fold ``j mod folds``; the first
+   ``window`` seconds, which set the filter's initial variances, are never held out);
+2. for each scale ``c`` of ``scales`` and each fold, the filter runs with every
+   parameter's ``Q`` multiplied by ``c`` and the fold's stretches marked dropped
+   (NaN: the filter predicts through them), and is smoothed over the run;
+3. the isolated pilot model is resimulated with those smoothed traces
+   (:func:`~manualcontrol.estimators.metrics.resimulate`, driven by the recorded
+   perceptions), and its error against ``u`` over the held-out stretches, band-passed
+   to the forcing band (a second-order Butterworth filter run forwards and backwards,
+   from half the lowest to twice the highest forcing frequency), is summed over the
+   folds; the error is divided by the band-passed power of ``u`` outside the first
+   window, so it reads as a fraction (a held-out 1 - VAF);
+4. the scale with the smallest error is chosen, and the result is the filter's run at
+   that scale, smoothed over the whole run.
+
+Why the forcing band: the resimulation integrates the low-frequency remnant that the
+closed loop suppresses (double integrator, remnant break 0.01 rad/s: held-out errors
+of 0.87-0.92 of ``u``'s power whatever the scale), so without the band-pass the choice
+follows the remnant; within the band the forcing dominates ``u``. Why held-out data:
+the same error on the data the smoother saw falls as ``Q`` grows on every batch
+(measured on ``remnant-robustness``: it chose the largest scale on constant-gain
+batches and doubled their NRMSE).
+
+Measured on ``remnant-robustness`` (the RML, scales 0.3, 1, 3, 10, five folds of
+4 s; ``manualcontrol bench remnant-robustness --estimators rml-smoothed,rml-cv``): see
+the notes of issue 15 for the figures. Each run costs ``len(scales) * (folds + 1)``
+filter passes with smoothing and ``len(scales) * folds`` resimulations: about 24 times
+a smoothed run with the defaults.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.signal import butter, sosfiltfilt
+
+from manualcontrol.envs._validation import check_int, check_positive
+from manualcontrol.envs.recording import Recording
+from manualcontrol.envs.signals import ForcingPair, Multisine
+from manualcontrol.estimators.metrics import resimulate
+from manualcontrol.estimators.protocol import EstimationResult
+from manualcontrol.estimators.registry import ESTIMATORS, EstimatorEntry, register
+from manualcontrol.estimators.smoothed import SmoothedEstimator
+
+__all__ = [
+    "DEFAULT_SCALES",
+    "SUFFIX",
+    "CrossValidatedEstimator",
+    "NoiseScaleChoice",
+    "choose_noise_scale",
+    "register_cross_validated",
+]
+
+#: Suffix of the cross-validated members' names.
+SUFFIX = "-cv"
+#: Multipliers of the preset ``Q`` tried by default.
+DEFAULT_SCALES: tuple[float, ...] = (0.3, 1.0, 3.0, 10.0)
+#: Band edges relative to the forcing's lowest and highest frequencies.
+BAND_MARGIN = 2.0
+#: Settings keys of the cross-validated members (suite files, ``make_estimator``).
+OPTION_KEYS = ("cv_scales", "cv_folds", "cv_gap", "cv_band")
+
+
+@dataclass(frozen=True)
+class NoiseScaleChoice:
+    """What :func:`choose_noise_scale` tried and chose.
+
+    ``errors[i]`` is the held-out, band-passed error of ``scales[i]`` (a fraction of
+    the band-passed power of ``u``), the sum of ``fold_errors[i]`` over the folds;
+    ``result`` the run at ``scale``, smoothed.
+    """
+
+    scales: tuple[float, ...]
+    errors: tuple[float, ...]
+    fold_errors: tuple[tuple[float, ...], ...]
+    scale: float
+    folds: int
+    gap: float
+    band: tuple[float, float]
+    result: EstimationResult
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain values (without the result), as the result's settings record them."""
+        return {
+            "scales": list(self.scales),
+            "errors": list(self.errors),
+            "fold_errors": [list(errors) for errors in self.fold_errors],
+            "scale": self.scale,
+            "folds": self.folds,
+            "gap": self.gap,
+            "band": list(self.band),
+        }
+
+
+def _check_scales(scales: Any) -> tuple[float, ...]:
+    if isinstance(scales, (str, bytes)) or not isinstance(scales, Sequence) or not scales:
+        raise ValueError(f"scales must be a non-empty sequence of numbers > 0, got {scales!r}")
+    checked = tuple(check_positive("scales", value) for value in scales)
+    if len(set(checked)) != len(checked):
+        raise ValueError(f"scales must be distinct, got {scales!r}")
+    return checked
+
+
+def _band(band: Any, recording: Recording, forcing: ForcingPair | None) -> tuple[float, float]:
+    nyquist = math.pi / recording.dt
+    if band is not None:
+        if isinstance(band, (str, bytes)) or not isinstance(band, Sequence) or len(band) != 2:
+            raise ValueError(f"band must be (low, high) in rad/s, got {band!r}")
+        low, high = (check_positive("band", value) for value in band)
+        if not low < high < nyquist:
+            raise ValueError(
+                f"band must satisfy 0 < low < high < {nyquist:g} rad/s (the Nyquist "
+                f"frequency of dt = {recording.dt:g} s), got {band!r}"
+            )
+        return low, high
+    if forcing is None:
+        if "forcing" not in recording.metadata:
+            raise ValueError(
+                "band: the recording has no 'forcing' in its metadata; pass forcing= or "
+                "band=(low, high) in rad/s"
+            )
+        forcing = ForcingPair.from_dict(recording.metadata["forcing"])
+    parts = [f for f in (forcing.target, forcing.disturbance) if isinstance(f, Multisine)]
+    if not parts:
+        raise ValueError(
+            "band: the forcing has no multisine whose frequencies set the band; pass "
+            "band=(low, high) in rad/s"
+        )
+    frequencies = np.concatenate([part.frequencies for part in parts])
+    low = float(frequencies.min()) / BAND_MARGIN
+    high = min(float(frequencies.max()) * BAND_MARGIN, 0.9 * nyquist)
+    return low, high
+
+
+def _held_out(t: Any, start: float, folds: int, gap: float) -> list[np.ndarray]:
+    """One boolean mask per fold: its ``gap``-second stretches after ``start``."""
+    eligible = t >= start
+    stretch = np.floor((t - t[0]) / gap).astype(np.int64)
+    return [eligible & (stretch % folds == fold) for fold in range(folds)]
+
+
+def choose_noise_scale(
+    estimator: Any,
+    recording: Recording,
+    *,
+    scales: Sequence[float] = DEFAULT_SCALES,
+    folds: int = 5,
+    gap: float = 4.0,
+    band: tuple[float, float] | None = None,
+    forcing: ForcingPair | None = None,
+    target_period: float | None = None,
+) -> NoiseScaleChoice:
+    """Choose the multiplier of the parameters' ``Q`` by cross-validation (module docstring).
+
+    Parameters
+    ----------
+    estimator
+        A filter of the family on a pilot model (DEKF, RML, joint or dual UKF).
+    recording
+        The run; ``u`` and the filter's perceptions.
+    scales
+        Multipliers of the filter's resolved ``Q`` to try (each > 0, distinct).
+    folds, gap
+        Number of folds (>= 2) and length of each held-out stretch (s, > 0); the run
+        after the first ``window`` seconds must hold at least two cycles of ``folds``
+        stretches.
+    band
+        ``(low, high)`` (rad/s) of the error's band-pass; by default from the
+        forcing's multisine frequencies (``forcing`` or the recording's metadata).
+    forcing, target_period
+        As for the filter's ``estimate`` (the preview model's target ahead), and the
+        forcing whose frequencies set the band.
+
+    """
+    from manualcontrol.estimators.pilot_filter import PilotFilter
+
+    if not isinstance(estimator, PilotFilter):
+        raise TypeError(
+            "estimator must be a filter of the family on a pilot model (DEKF, RML, "
+            f"JointUKF, DualUKF), got {estimator!r}"
+        )
+    if not isinstance(recording, Recording):
+        raise TypeError(f"recording must be a Recording, got {recording!r}")
+    scales = _check_scales(scales)
+    folds = check_int("folds", folds, minimum=2)
+    gap = check_positive("gap", gap)
+    t = np.asarray(recording.t)
+    start = float(t[0]) + estimator.settings.window
+    if t[-1] - start < 2 * folds * gap:
+        raise ValueError(
+            f"gap: {folds} folds of {gap:g} s need at least {2 * folds * gap:g} s of the run "
+            f"after its first {estimator.settings.window:g} s (window); the run has "
+            f"{max(t[-1] - start, 0.0):g} s"
+        )
+    low, high = _band(band, recording, forcing)
+    sos = butter(2, [low, high], btype="band", fs=2.0 * math.pi / recording.dt, output="sos")
+    options = {"forcing": forcing, "target_period": target_period}
+
+    u = np.asarray(recording.u)
+    measured = np.isfinite(u)
+    power = float(np.sum(sosfiltfilt(sos, np.where(measured, u, 0.0))[t >= start] ** 2))
+    estimator.estimate(recording, **options)
+    Q = dict(estimator.resolved.Q)
+    masks = _held_out(t, start, folds, gap)
+    fold_errors = []
+    for scale in scales:
+        variant = type(estimator)(estimator.settings, Q={n: q * scale for n, q in Q.items()})
+        per_fold = []
+        for held in masks:
+            blanked = recording.with_signals(u=np.where(held, np.nan, u))
+            fitted = variant.estimate(blanked, smooth=True, **options)
+            output = resimulate(fitted, recording, forcing=forcing, target_period=target_period)
+            error = sosfiltfilt(sos, np.where(measured, u - output, 0.0))
+            held_error = float(np.sum(error[held & measured] ** 2))
+            per_fold.append(held_error / power if power > 0.0 else math.nan)
+        fold_errors.append(tuple(per_fold))
+    errors = [math.fsum(per_fold) for per_fold in fold_errors]
+    if not all(math.isfinite(error) for error in errors):
+        raise ValueError(
+            f"the held-out errors are not all finite ({errors}): the run's u has no power "
+            f"in the band {low:g}-{high:g} rad/s, or a pass diverged"
+        )
+    best = int(np.argmin(errors))
+    chosen = type(estimator)(estimator.settings, Q={n: q * scales[best] for n, q in Q.items()})
+    result = chosen.estimate(recording, smooth=True, **options)
+    choice = NoiseScaleChoice(
+        scales, tuple(errors), tuple(fold_errors), scales[best], folds, gap, (low, high), result
+    )
+    settings = {**result.settings, "cross_validation": choice.as_dict()}
+    return dataclasses.replace(choice, result=dataclasses.replace(result, settings=settings))
+
+
+class CrossValidatedEstimator(SmoothedEstimator):
+    """A filter whose whole-run results are smoothed at a cross-validated ``Q`` scale.
+
+    Parameters
+    ----------
+    filter
+        The online filter (a family member on a pilot model).
+    scales, folds, gap, band
+        As for :func:`choose_noise_scale`.
+    """
+
+    def __init__(
+        self,
+        filter: Any,
+        *,
+        scales: Sequence[float] = DEFAULT_SCALES,
+        folds: int = 5,
+        gap: float = 4.0,
+        band: tuple[float, float] | None = None,
+    ) -> None:
+        from manualcontrol.estimators.pilot_filter import PilotFilter
+
+        if not isinstance(filter, PilotFilter):
+            raise TypeError(
+                f"filter must be a filter of the family on a pilot model, got {filter!r}"
+            )
+        super().__init__(filter)
+        self._options = {
+            "scales": _check_scales(scales),
+            "folds": check_int("folds", folds, minimum=2),
+            "gap": check_positive("gap", gap),
+            "band": band,
+        }
+
+    def choose(self, recording: Recording, **options: Any) -> NoiseScaleChoice:
+        """:func:`choose_noise_scale` with this estimator's options."""
+        return choose_noise_scale(self.filter, recording, **self._options, **options)
+
+    def estimate(self, recording: Recording, **options: Any) -> EstimationResult:
+        """The smoothed run at the chosen scale (``options``: ``forcing``, ``target_period``)."""
+        unknown = set(options) - {"forcing", "target_period"}
+        if unknown:
+            raise TypeError(
+                f"a cross-validated estimator takes forcing= and target_period=, got "
+                f"{', '.join(sorted(unknown))}"
+            )
+        return self.choose(recording, **options).result
+
+    def __repr__(self) -> str:
+        return f"CrossValidatedEstimator({self.filter!r})"
+
+
+def register_cross_validated(name: str) -> EstimatorEntry:
+    """Register ``name + SUFFIX``: the registered filter ``name`` at a cross-validated ``Q``."""
+    base = ESTIMATORS[name]
+    if not (base.pilot_model and base.smoothable):
+        raise ValueError(f"{name!r} is not a smoothable filter on a pilot model")
+
+    def build(settings: Mapping[str, Any]) -> CrossValidatedEstimator:
+        rest = {k: v for k, v in settings.items() if k not in OPTION_KEYS}
+        options = {k[3:]: settings[k] for k in OPTION_KEYS if k in settings}
+        if "scales" in options and isinstance(options["scales"], list):
+            options["scales"] = tuple(options["scales"])
+        return CrossValidatedEstimator(base.build(rest), **options)
+
+    return register(
+        EstimatorEntry(
+            name=f"{name}{SUFFIX}",
+            summary=f"{name}, smoothed at the process-noise scale that predicts held-out "
+            "stretches best (offline; cross-validation in the forcing band)",
+            reference=base.reference,
+            build=build,
+            resimulate=base.resimulate,
+            pilot_model=True,
+            smoothable=False,
+        )
+    )
+
+
+for _name in [n for n, entry in ESTIMATORS.items() if entry.pilot_model and entry.smoothable]:
+    if f"{_name}{SUFFIX}" not in ESTIMATORS:
+        register_cross_validated(_name)
