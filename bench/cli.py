@@ -340,6 +340,9 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         "closed_loop": stability,
         "health": health.to_dict(),
     }
+    chosen = result.settings.get("cross_validation")
+    if chosen is not None:  # "<name>-cv": which process-noise scale the run chose, and why
+        summary["cross_validation"] = chosen
     out = Path(args.out)
     path = result.save(out / "estimation.npz")
     atomic_write(out / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
@@ -350,6 +353,12 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         f"innovation lag-1 autocorrelation {r_1:.2f}, {100 * outside:.0f} % of lags 1-50 "
         "outside the white-noise band (white innovations give about 5 %)"
     )
+    if chosen is not None:
+        errors = ", ".join(
+            f"x{scale:g} {error:.4f}"
+            for scale, error in zip(chosen["scales"], chosen["errors"], strict=True)
+        )
+        print(f"process noise: the preset's Q x{chosen['scale']:g} (held-out errors {errors})")
     print(f"wrote {path}, {out / 'summary.json'}, {figure}")
     code = EXIT_OK
     if health.diverged:

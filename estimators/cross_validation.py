@@ -28,16 +28,36 @@ parameter by cross-validation; Wahba 1990, ch. 4):
 Why the forcing band: the resimulation integrates the low-frequency remnant that the
 closed loop suppresses (double integrator, remnant break 0.01 rad/s: held-out errors
 of 0.87-0.92 of ``u``'s power whatever the scale), so without the band-pass the choice
-follows the remnant; within the band the forcing dominates ``u``. Why held-out data:
-the same error on the data the smoother saw falls as ``Q`` grows on every batch
-(measured on ``remnant-robustness``: it chose the largest scale on constant-gain
-batches and doubled their NRMSE).
+follows the remnant; within the band the forcing carries most of ``u`` (less so on the
+double integrator, below). Why held-out data: the same comparison on the data the
+smoother saw (the whole run's spectrum at the forcing frequencies) picked the largest
+scale in 23 of the 35 runs of ``remnant-robustness`` and raised the NRMSE where the
+gains are constant (all-free preview SI: ``K_p`` 0.052 -> 0.104).
 
-Measured on ``remnant-robustness`` (the RML, scales 0.3, 1, 3, 10, five folds of
-4 s; ``manualcontrol bench remnant-robustness --estimators rml-smoothed,rml-cv``): see
-the notes of issue 15 for the figures. Each run costs ``len(scales) * (folds + 1)``
-filter passes with smoothing and ``len(scales) * folds`` resimulations: about 24 times
-a smoothed run with the defaults.
+Measured with the RML (defaults; ``manualcontrol bench SUITE --estimators
+rml-smoothed,rml-cv``, batch means of the NRMSE, preset -> cross-validated):
+
+* ``remnant-robustness`` (35 runs): Popovici's time-varying pilot with 30 % remnant
+  ``K_p`` 0.212 -> 0.189, ``K_v`` 0.123 -> 0.114 (``tau_v`` 0.093 -> 0.114), with 20 %
+  ``K_p`` 0.147 -> 0.131; the all-free preview SI pilot ``zeta_nms`` 0.351 -> 0.311,
+  ``tau_v`` 0.300 -> 0.274, ``K_p`` 0.052 -> 0.037; 19 of 33 entries lower, 14 higher
+  (by at most 0.021).
+* ``vertregt2020-performance``, 10 runs a batch (realisations 0-1, seeds 0-4): the
+  single integrator lower in most entries (all free: ``zeta_nms`` 0.140 -> 0.119,
+  ``tau_v`` 0.159 -> 0.139; physical parameters held: ``K_f`` 0.046 -> 0.037, ``K_p``
+  0.048 -> 0.038); the double integrator mixed, and worse where it matters most (all
+  free, 55 % remnant: ``K_f`` 0.142 -> 0.206, remnant-free resimulated VAF 97.2 ->
+  96.6 %); 22 of 44 entries lower, 22 higher.
+
+So: a gain where the remnant is broadband (the single integrator's 10-rad/s break,
+Levison's 3 rad/s) and where the parameters vary faster than the preset allows; on the
+double integrator with its 0.01-rad/s remnant keep the preset, because within the
+forcing band the low-frequency remnant still dominates the held-out errors. Tried and
+not kept: the filter's own prediction through the held-out stretches (no smoothing, no
+resimulation), which chose 10 on constant double-integrator batches.
+
+Each run costs ``len(scales) * (folds + 1) + 2`` filter passes and ``len(scales) *
+folds`` resimulations: about 26 passes with the defaults.
 """
 
 from __future__ import annotations
@@ -133,15 +153,16 @@ def _band(band: Any, recording: Recording, forcing: ForcingPair | None) -> tuple
     if forcing is None:
         if "forcing" not in recording.metadata:
             raise ValueError(
-                "band: the recording has no 'forcing' in its metadata; pass forcing= or "
-                "band=(low, high) in rad/s"
+                "band: the recording has no 'forcing' in its metadata; pass forcing= "
+                "(`--forcing PRESET`) or band=(low, high) in rad/s (`cv_band` in suite files "
+                "and `--set`)"
             )
         forcing = ForcingPair.from_dict(recording.metadata["forcing"])
     parts = [f for f in (forcing.target, forcing.disturbance) if isinstance(f, Multisine)]
     if not parts:
         raise ValueError(
             "band: the forcing has no multisine whose frequencies set the band; pass "
-            "band=(low, high) in rad/s"
+            "band=(low, high) in rad/s (`cv_band` in suite files and `--set`)"
         )
     frequencies = np.concatenate([part.frequencies for part in parts])
     low = float(frequencies.min()) / BAND_MARGIN
@@ -205,8 +226,9 @@ def choose_noise_scale(
     start = float(t[0]) + estimator.settings.window
     if t[-1] - start < 2 * folds * gap:
         raise ValueError(
-            f"gap: {folds} folds of {gap:g} s need at least {2 * folds * gap:g} s of the run "
-            f"after its first {estimator.settings.window:g} s (window); the run has "
+            f"gap: {folds} folds of {gap:g} s (folds, gap; `cv_folds`, `cv_gap` in suite "
+            f"files and `--set`) need at least {2 * folds * gap:g} s of the run after its "
+            f"first {estimator.settings.window:g} s (window); the run has "
             f"{max(t[-1] - start, 0.0):g} s"
         )
     low, high = _band(band, recording, forcing)

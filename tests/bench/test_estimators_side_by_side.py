@@ -174,3 +174,28 @@ def test_identify_runs_the_rml_and_its_smoothed_twin_on_a_pilot_model(tmp_path, 
         assert saved, list(out.iterdir())
         result = load_result(saved[0])
         assert result.estimator == "rml" and result.smoothed == (name != "rml")
+
+
+def test_identify_reports_the_cross_validated_scale(tmp_path, capsys):
+    from manualcontrol.pilots import Pilot, simulate
+
+    recording = simulate(Pilot("precision"), "popovici2017", "popovici2017", measurement_time=30.0)
+    path = recording.save(tmp_path / "run.npz")
+    out = tmp_path / "cv"
+    command = ["identify", str(path), "--estimator", "dekf-cv", "--out", str(out)]
+    code = main([*command, "--set", "cv_scales=[0.5,2.0]", "--set", "cv_folds=2"])
+    printed = capsys.readouterr().out
+    assert code == EXIT_OK
+    summary = json.loads((out / "summary.json").read_text())
+    chosen = summary["cross_validation"]
+    assert chosen["scales"] == [0.5, 2.0] and chosen["folds"] == 2
+    assert chosen["scale"] == chosen["scales"][chosen["errors"].index(min(chosen["errors"]))]
+    assert f"process noise: the preset's Q x{chosen['scale']:g}" in printed
+    # without a forcing to set the band, a usage error that names both ways to give one
+    bare = type(recording)({n: recording[n] for n in recording.signal_names}, recording.dt)
+    bare_path = bare.save(tmp_path / "bare.npz")
+    bare_command = ["identify", str(bare_path), "--estimator", "dekf-cv", "--set", "cv_folds=2"]
+    code = main([*bare_command, "--out", str(tmp_path / "b")])
+    assert code == EXIT_USAGE
+    assert "--forcing PRESET" in capsys.readouterr().err
+    assert not (tmp_path / "b").exists()
