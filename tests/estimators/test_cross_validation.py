@@ -87,6 +87,21 @@ def test_the_result_is_the_chosen_scale_smoothed():
     assert recorded["folds"] == 2 and recorded["gap"] == 3.0
 
 
+@pytest.mark.parametrize("name", ["rml", "joint-ukf", "dual-ukf"])
+def test_every_pilot_filter_has_a_cross_validated_member(name):
+    recording = short_run()
+    options = {"cv_scales": [0.5, 2.0], "cv_folds": 2, "cv_gap": 3.0}
+    member = make_estimator({"name": f"{name}-cv", **SETTINGS, **options})
+    result = member.estimate(recording)
+    chosen = result.settings["cross_validation"]["scale"]
+    base = make_estimator({"name": name, **SETTINGS})
+    base.estimate(recording)
+    scaled = {n: q * chosen for n, q in base.resolved.Q.items()}
+    direct = make_estimator({"name": name, **SETTINGS, "Q": scaled})
+    assert result.estimator == name and result.smoothed
+    np.testing.assert_array_equal(result.mean, direct.estimate(recording, smooth=True).mean)
+
+
 def test_a_varying_gain_gets_more_process_noise_than_a_constant_one():
     """The same pilot (1 % remnant) with K_p constant, and with K_p a +-40 % sine of 30 s.
 
