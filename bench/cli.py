@@ -358,7 +358,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             f"x{scale:g} {error:.4f}"
             for scale, error in zip(chosen["scales"], chosen["errors"], strict=True)
         )
-        print(f"process noise: the preset's Q x{chosen['scale']:g} (held-out errors {errors})")
+        print(f"process noise: the filter's Q x{chosen['scale']:g} (held-out errors {errors})")
     print(f"wrote {path}, {out / 'summary.json'}, {figure}")
     code = EXIT_OK
     if health.diverged:

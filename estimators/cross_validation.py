@@ -10,18 +10,23 @@ estimates predict data they were not fitted to (the classic choice of a smoothin
 parameter by cross-validation; Wahba 1990, ch. 4):
 
 1. the run's stick signal ``u`` is split into ``folds`` interleaved sets of
-   ``gap``-second stretches (stretch ``j`` belongs to fold ``j mod folds``; the first
-   ``window`` seconds, which set the filter's initial variances, are never held out);
-2. for each scale ``c`` of ``scales`` and each fold, the filter runs with every
-   parameter's ``Q`` multiplied by ``c`` and the fold's stretches marked dropped
-   (NaN: the filter predicts through them), and is smoothed over the run;
+   ``gap``-second stretches (stretch ``j`` belongs to fold ``j mod folds``; the samples
+   of the first ``window`` seconds, from which the filter takes its initial variances
+   with ``initial_variance="first-window"``, are never held out);
+2. for each scale ``c`` of ``scales`` and each fold, the filter runs with every pilot
+   parameter's resolved ``Q`` multiplied by ``c`` (the remnant's intensity in the RML
+   keeps its own) and the fold's stretches marked dropped (NaN: the filter predicts
+   through them), and is smoothed over the run;
 3. the isolated pilot model is resimulated with those smoothed traces
    (:func:`~manualcontrol.estimators.metrics.resimulate`, driven by the recorded
-   perceptions), and its error against ``u`` over the held-out stretches, band-passed
-   to the forcing band (a second-order Butterworth filter run forwards and backwards,
-   from half the lowest to twice the highest forcing frequency), is summed over the
-   folds; the error is divided by the band-passed power of ``u`` outside the first
-   window, so it reads as a fraction (a held-out 1 - VAF);
+   perceptions), and its error against ``u``, band-passed to the forcing band (a
+   second-order Butterworth filter run forwards and backwards over the whole run, from
+   half the lowest to twice the highest forcing frequency), is summed over the
+   held-out samples and the folds (the zero-phase filter spreads each error over about
+   a period of the band's low edge, so 12-16 % of a fold's sum came from the errors in
+   the fitted stretches beside it, measured on a compensatory run); the error is
+   divided by the band-passed power of ``u`` outside the first window, so it reads as
+   a fraction (a held-out 1 - VAF);
 4. the scale with the smallest error is chosen, and the result is the filter's run at
    that scale, smoothed over the whole run.
 
@@ -62,8 +67,8 @@ forcing band the low-frequency remnant still dominates the held-out errors. Trie
 not kept: the filter's own prediction through the held-out stretches (no smoothing, no
 resimulation), which chose 10 on constant double-integrator batches.
 
-Each run costs ``len(scales) * (folds + 1) + 2`` filter passes and ``len(scales) *
-folds`` resimulations: about 26 passes with the defaults.
+Each run costs ``len(scales) * folds + 2`` filter passes (smoothed) and ``len(scales) *
+folds`` resimulations: 22 and 20 with the defaults.
 """
 
 from __future__ import annotations
@@ -72,9 +77,10 @@ import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.signal import butter, sosfiltfilt
 
 from manualcontrol.envs._validation import check_int, check_positive
@@ -84,6 +90,9 @@ from manualcontrol.estimators.metrics import resimulate
 from manualcontrol.estimators.protocol import EstimationResult
 from manualcontrol.estimators.registry import ESTIMATORS, EstimatorEntry, register
 from manualcontrol.estimators.smoothed import SmoothedEstimator
+
+if TYPE_CHECKING:
+    from manualcontrol.estimators.pilot_filter import PilotFilter
 
 __all__ = [
     "DEFAULT_SCALES",
@@ -96,7 +105,7 @@ __all__ = [
 
 #: Suffix of the cross-validated members' names.
 SUFFIX = "-cv"
-#: Multipliers of the preset ``Q`` tried by default.
+#: Multipliers of the filter's resolved ``Q`` tried by default.
 DEFAULT_SCALES: tuple[float, ...] = (0.3, 1.0, 3.0, 10.0)
 #: Band edges relative to the forcing's lowest and highest frequencies.
 BAND_MARGIN = 2.0
@@ -135,8 +144,15 @@ class NoiseScaleChoice:
         }
 
 
+def _is_vector(value: Any) -> bool:
+    """A sequence or a 1-D array (not a string)."""
+    if isinstance(value, (str, bytes)):
+        return False
+    return isinstance(value, (Sequence, np.ndarray)) and np.ndim(value) == 1
+
+
 def _check_scales(scales: Any) -> tuple[float, ...]:
-    if isinstance(scales, (str, bytes)) or not isinstance(scales, Sequence) or not scales:
+    if not _is_vector(scales) or len(scales) == 0:
         raise ValueError(f"scales must be a non-empty sequence of numbers > 0, got {scales!r}")
     checked = tuple(check_positive("scales", value) for value in scales)
     if len(set(checked)) != len(checked):
@@ -144,24 +160,36 @@ def _check_scales(scales: Any) -> tuple[float, ...]:
     return checked
 
 
-def _band(band: Any, recording: Recording, forcing: ForcingPair | None) -> tuple[float, float]:
+def _check_band(band: Any) -> tuple[float, float] | None:
+    """``(low, high)`` with ``0 < low < high`` (the Nyquist bound needs the sample time)."""
+    if band is None:
+        return None
+    if not _is_vector(band) or len(band) != 2:
+        raise ValueError(f"band must be (low, high) in rad/s, got {band!r}")
+    low, high = (check_positive("band", value) for value in band)
+    if not low < high:
+        raise ValueError(f"band must satisfy 0 < low < high (rad/s), got {band!r}")
+    return low, high
+
+
+def _band(band: Any, recording: Recording, forcing: Any) -> tuple[float, float]:
     nyquist = math.pi / recording.dt
-    if band is not None:
-        if isinstance(band, (str, bytes)) or not isinstance(band, Sequence) or len(band) != 2:
-            raise ValueError(f"band must be (low, high) in rad/s, got {band!r}")
-        low, high = (check_positive("band", value) for value in band)
-        if not low < high < nyquist:
+    checked = _check_band(band)
+    if checked is not None:
+        if not checked[1] < nyquist:
             raise ValueError(
                 f"band must satisfy 0 < low < high < {nyquist:g} rad/s (the Nyquist "
                 f"frequency of dt = {recording.dt:g} s), got {band!r}"
             )
-        return low, high
-    if forcing is None:
+        return checked
+    if not isinstance(forcing, ForcingPair):
         if "forcing" not in recording.metadata:
+            given = "" if forcing is None else f" (forcing is a {type(forcing).__name__})"
             raise ValueError(
-                "band: the recording has no 'forcing' in its metadata; pass forcing= "
-                "(`--forcing PRESET`) or band=(low, high) in rad/s (`cv_band` in suite files "
-                "and `--set`)"
+                "band: the forcing's multisine frequencies set the band by default, and there "
+                f"is no ForcingPair{given} nor a 'forcing' in the recording's metadata; pass "
+                "forcing= (`--forcing PRESET`) or band=(low, high) in rad/s (`cv_band` in "
+                "suite files and `--set`)"
             )
         forcing = ForcingPair.from_dict(recording.metadata["forcing"])
     parts = [f for f in (forcing.target, forcing.disturbance) if isinstance(f, Multisine)]
@@ -176,22 +204,24 @@ def _band(band: Any, recording: Recording, forcing: ForcingPair | None) -> tuple
     return low, high
 
 
-def _held_out(t: Any, start: float, folds: int, gap: float) -> list[np.ndarray]:
-    """One boolean mask per fold: its ``gap``-second stretches after ``start``."""
-    eligible = t >= start
+def _held_out(
+    t: NDArray[np.float64], first: int, folds: int, gap: float
+) -> list[NDArray[np.bool_]]:
+    """One boolean mask per fold: its ``gap``-second stretches from sample ``first`` on."""
+    eligible = np.arange(t.shape[0]) >= first
     stretch = np.floor((t - t[0]) / gap).astype(np.int64)
     return [eligible & (stretch % folds == fold) for fold in range(folds)]
 
 
 def choose_noise_scale(
-    estimator: Any,
+    estimator: PilotFilter,
     recording: Recording,
     *,
     scales: Sequence[float] = DEFAULT_SCALES,
     folds: int = 5,
     gap: float = 4.0,
     band: tuple[float, float] | None = None,
-    forcing: ForcingPair | None = None,
+    forcing: Any = None,
     target_period: float | None = None,
 ) -> NoiseScaleChoice:
     """Choose the multiplier of the parameters' ``Q`` by cross-validation (module docstring).
@@ -199,7 +229,8 @@ def choose_noise_scale(
     Parameters
     ----------
     estimator
-        A filter of the family on a pilot model (DEKF, RML, joint or dual UKF).
+        A filter of the family on a pilot model (DEKF, RML, joint or dual UKF); it is
+        not run itself (copies with its settings are).
     recording
         The run; ``u`` and the filter's perceptions.
     scales
@@ -210,10 +241,25 @@ def choose_noise_scale(
         stretches.
     band
         ``(low, high)`` (rad/s) of the error's band-pass; by default from the
-        forcing's multisine frequencies (``forcing`` or the recording's metadata).
+        forcing's multisine frequencies (``forcing`` if it is a
+        :class:`~manualcontrol.envs.signals.ForcingPair`, else the recording's metadata).
     forcing, target_period
         As for the filter's ``estimate`` (the preview model's target ahead), and the
         forcing whose frequencies set the band.
+
+    Returns
+    -------
+    NoiseScaleChoice
+        The scales, their held-out errors (total and per fold), the chosen scale and its
+        smoothed run, whose ``settings["cross_validation"]`` records the choice.
+
+    Raises
+    ------
+    TypeError
+        ``estimator`` is not a pilot filter of the family, ``recording`` not a Recording.
+    ValueError
+        A bad ``scales``, ``folds``, ``gap`` or ``band``; a run too short for the folds;
+        no band (no multisine forcing and no ``band``); no scale with a finite error.
 
     """
     from manualcontrol.estimators.pilot_filter import PilotFilter
@@ -229,13 +275,14 @@ def choose_noise_scale(
     folds = check_int("folds", folds, minimum=2)
     gap = check_positive("gap", gap)
     t = np.asarray(recording.t)
-    start = float(t[0]) + estimator.settings.window
-    if t[-1] - start < 2 * folds * gap:
+    window = estimator.settings.window
+    # the samples the filter's first-window variances read (estimate: 0 .. n_window)
+    first = min(round(window / recording.dt) + 1, t.shape[0] - 1)
+    if t[-1] - t[first] < 2 * folds * gap:
         raise ValueError(
             f"gap: {folds} folds of {gap:g} s (folds, gap; `cv_folds`, `cv_gap` in suite "
             f"files and `--set`) need at least {2 * folds * gap:g} s of the run after its "
-            f"first {estimator.settings.window:g} s (window); the run has "
-            f"{max(t[-1] - start, 0.0):g} s"
+            f"first {window:g} s (window); the run has {max(t[-1] - t[first], 0.0):g} s"
         )
     low, high = _band(band, recording, forcing)
     sos = butter(2, [low, high], btype="band", fs=2.0 * math.pi / recording.dt, output="sos")
@@ -243,10 +290,16 @@ def choose_noise_scale(
 
     u = np.asarray(recording.u)
     measured = np.isfinite(u)
-    power = float(np.sum(sosfiltfilt(sos, np.where(measured, u, 0.0))[t >= start] ** 2))
-    estimator.estimate(recording, **options)
-    Q = dict(estimator.resolved.Q)
-    masks = _held_out(t, start, folds, gap)
+    power = float(np.sum(sosfiltfilt(sos, np.where(measured, u, 0.0))[first:] ** 2))
+    if not power > 0.0:
+        raise ValueError(
+            f"band: the run's u has no power in the band {low:g}-{high:g} rad/s after its "
+            f"first {window:g} s"
+        )
+    probe = type(estimator)(estimator.settings)
+    probe.estimate(recording, **options)
+    Q = dict(probe.resolved.Q)
+    masks = _held_out(t, first, folds, gap)
     fold_errors = []
     for scale in scales:
         variant = type(estimator)(estimator.settings, Q={n: q * scale for n, q in Q.items()})
@@ -254,16 +307,16 @@ def choose_noise_scale(
         for held in masks:
             blanked = recording.with_signals(u=np.where(held, np.nan, u))
             fitted = variant.estimate(blanked, smooth=True, **options)
-            output = resimulate(fitted, recording, forcing=forcing, target_period=target_period)
-            error = sosfiltfilt(sos, np.where(measured, u - output, 0.0))
-            held_error = float(np.sum(error[held & measured] ** 2))
-            per_fold.append(held_error / power if power > 0.0 else math.nan)
+            with np.errstate(all="ignore"):  # a diverged pass may overflow: an inf error
+                output = resimulate(fitted, recording, **options)
+                error = sosfiltfilt(sos, np.where(measured, u - output, 0.0))
+                held_error = float(np.sum(error[held & measured] ** 2)) / power
+            per_fold.append(held_error if math.isfinite(held_error) else math.inf)
         fold_errors.append(tuple(per_fold))
     errors = [math.fsum(per_fold) for per_fold in fold_errors]
-    if not all(math.isfinite(error) for error in errors):
+    if not any(math.isfinite(error) for error in errors):
         raise ValueError(
-            f"the held-out errors are not all finite ({errors}): the run's u has no power "
-            f"in the band {low:g}-{high:g} rad/s, or a pass diverged"
+            f"no scale of {list(scales)} gave a finite held-out error: every pass diverged"
         )
     best = int(np.argmin(errors))
     chosen = type(estimator)(estimator.settings, Q={n: q * scales[best] for n, q in Q.items()})
@@ -306,7 +359,7 @@ class CrossValidatedEstimator(SmoothedEstimator):
             "scales": _check_scales(scales),
             "folds": check_int("folds", folds, minimum=2),
             "gap": check_positive("gap", gap),
-            "band": band,
+            "band": _check_band(band),
         }
 
     def choose(self, recording: Recording, **options: Any) -> NoiseScaleChoice:
@@ -324,20 +377,25 @@ class CrossValidatedEstimator(SmoothedEstimator):
         return self.choose(recording, **options).result
 
     def __repr__(self) -> str:
-        return f"CrossValidatedEstimator({self.filter!r})"
+        options = ", ".join(f"{key}={value!r}" for key, value in self._options.items())
+        return f"CrossValidatedEstimator({self.filter!r}, {options})"
 
 
 def register_cross_validated(name: str) -> EstimatorEntry:
     """Register ``name + SUFFIX``: the registered filter ``name`` at a cross-validated ``Q``."""
-    base = ESTIMATORS[name]
-    if not (base.pilot_model and base.smoothable):
+    base = ESTIMATORS.get(name)
+    if base is None or not (base.pilot_model and base.smoothable):
         raise ValueError(f"{name!r} is not a smoothable filter on a pilot model")
 
     def build(settings: Mapping[str, Any]) -> CrossValidatedEstimator:
+        unknown = [k for k in settings if k.startswith("cv_") and k not in OPTION_KEYS]
+        if unknown:
+            raise TypeError(
+                f"unknown cross-validation setting(s) {', '.join(map(repr, unknown))}; "
+                f"known: {', '.join(OPTION_KEYS)}"
+            )
         rest = {k: v for k, v in settings.items() if k not in OPTION_KEYS}
         options = {k[3:]: settings[k] for k in OPTION_KEYS if k in settings}
-        if "scales" in options and isinstance(options["scales"], list):
-            options["scales"] = tuple(options["scales"])
         return CrossValidatedEstimator(base.build(rest), **options)
 
     return register(

@@ -190,7 +190,7 @@ def test_identify_reports_the_cross_validated_scale(tmp_path, capsys):
     chosen = summary["cross_validation"]
     assert chosen["scales"] == [0.5, 2.0] and chosen["folds"] == 2
     assert chosen["scale"] == chosen["scales"][chosen["errors"].index(min(chosen["errors"]))]
-    assert f"process noise: the preset's Q x{chosen['scale']:g}" in printed
+    assert f"process noise: the filter's Q x{chosen['scale']:g}" in printed
     # without a forcing to set the band, a usage error that names both ways to give one
     bare = type(recording)({n: recording[n] for n in recording.signal_names}, recording.dt)
     bare_path = bare.save(tmp_path / "bare.npz")
