@@ -301,10 +301,15 @@ def choose_noise_scale(
     probe = type(estimator)(estimator.settings)
     probe.estimate(recording, **options)
     Q = dict(probe.resolved.Q)
+
+    def scaled(scale: float) -> PilotFilter:
+        """A copy of the filter with every resolved ``Q`` multiplied by ``scale``."""
+        return type(estimator)(estimator.settings, Q={n: q * scale for n, q in Q.items()})
+
     masks = _held_out(t, first, folds, gap)
     fold_errors = []
     for scale in scales:
-        variant = type(estimator)(estimator.settings, Q={n: q * scale for n, q in Q.items()})
+        variant = scaled(scale)
         per_fold = []
         for held in masks:
             blanked = recording.with_signals(u=np.where(held, np.nan, u))
@@ -321,8 +326,7 @@ def choose_noise_scale(
             f"no scale of {list(scales)} gave a finite held-out error: every pass diverged"
         )
     best = int(np.argmin(errors))
-    chosen = type(estimator)(estimator.settings, Q={n: q * scales[best] for n, q in Q.items()})
-    result = chosen.estimate(recording, smooth=True, **options)
+    result = scaled(scales[best]).estimate(recording, smooth=True, **options)
     choice = NoiseScaleChoice(
         scales, tuple(errors), tuple(fold_errors), scales[best], folds, gap, (low, high), result
     )
