@@ -6,7 +6,9 @@ remnant modelled) and the papers' other members, all on the shared Kalman core
 :mod:`manualcontrol.estimators.filters`; :func:`smooth` turns a filtered result of any
 of them into a smoothed one (registered as ``"<name>-smoothed"`` for the bench), and
 :func:`~manualcontrol.estimators.cross_validation.choose_noise_scale` smooths a pilot
-filter's run at the process-noise scale chosen by cross-validation (``"<name>-cv"``).
+filter's run at the process-noise scale chosen by cross-validation (``"<name>-cv"``);
+:func:`fit_pilot_sigmoid` fits a pilot that changes once, along a sigmoid
+(``"sigmoid-fit"``, offline).
 """
 
 from manualcontrol.estimators.dekf import DEKF, DEKFSettings, ResolvedSettings
@@ -33,6 +35,7 @@ from manualcontrol.estimators.protocol import (
 from manualcontrol.estimators.rdi import RDI, RDISettings
 from manualcontrol.estimators.registry import ESTIMATORS, EstimatorEntry, make_estimator
 from manualcontrol.estimators.rml import RML, RMLSettings
+from manualcontrol.estimators.schedule_fit import SigmoidFit, SigmoidFitEstimator, fit_pilot_sigmoid
 from manualcontrol.estimators.schiess_roland import SchiessRoland, SchiessRolandSettings
 from manualcontrol.estimators.smoothing import smooth
 from manualcontrol.estimators.ukf import DualUKF, DualUKFSettings, JointUKF, UKFSettings
@@ -67,11 +70,14 @@ __all__ = [
     "ResolvedSettings",
     "SchiessRoland",
     "SchiessRolandSettings",
+    "SigmoidFit",
+    "SigmoidFitEstimator",
     "UKFSettings",
     "ZhaoUKF",
     "ZhaoUKFSettings",
     "build_internal_model",
     "evaluate",
+    "fit_pilot_sigmoid",
     "innovation_fractions",
     "load_result",
     "make_estimator",
