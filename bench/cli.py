@@ -317,6 +317,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         raise
     finite = np.isfinite(recording.u) & np.isfinite(result.prediction)
     one_step = vaf(recording.u[finite], result.prediction[finite]) if finite.any() else math.nan
+    if not finite.any():  # an output-error fit has no one-step prediction: score the samples of u
+        finite = np.isfinite(recording.u)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a diverged fit may overflow its resimulation
         try:
@@ -343,22 +345,37 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     chosen = result.settings.get("cross_validation")
     if chosen is not None:  # "<name>-cv": which process-noise scale the run chose, and why
         summary["cross_validation"] = chosen
+    sigmoid = result.settings.get("sigmoid")
+    if sigmoid is not None:  # "sigmoid-fit": the change it found
+        summary["sigmoid"] = sigmoid
     out = Path(args.out)
     path = result.save(out / "estimation.npz")
     atomic_write(out / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
     figure = plot_estimation(recording, result, out / "parameters.png", model_output=model_output)
     print(f"estimated {', '.join(result.estimated)}; final values {final}")
-    print(
-        f"fit: one-step VAF {one_step:.1f} %, resimulated VAF {resimulated:.1f} %; "
-        f"innovation lag-1 autocorrelation {r_1:.2f}, {100 * outside:.0f} % of lags 1-50 "
-        "outside the white-noise band (white innovations give about 5 %)"
-    )
+    if math.isnan(one_step) and math.isnan(r_1):
+        print(f"fit: resimulated VAF {resimulated:.1f} % (no one-step prediction: offline fit)")
+    else:
+        print(
+            f"fit: one-step VAF {one_step:.1f} %, resimulated VAF {resimulated:.1f} %; "
+            f"innovation lag-1 autocorrelation {r_1:.2f}, {100 * outside:.0f} % of lags 1-50 "
+            "outside the white-noise band (white innovations give about 5 %)"
+        )
     if chosen is not None:
         errors = ", ".join(
             f"x{scale:g} {error:.4f}"
             for scale, error in zip(chosen["scales"], chosen["errors"], strict=True)
         )
         print(f"process noise: the filter's Q x{chosen['scale']:g} (held-out errors {errors})")
+    if sigmoid is not None:
+        changes = ", ".join(
+            f"{name} {sigmoid['start'][name]:.4g} -> {sigmoid['end'][name]:.4g}"
+            for name in sigmoid["varying"]
+        )
+        print(
+            f"change: inflection at {sigmoid['t_mid']:.2f} s, 99 % of it in "
+            f"{sigmoid['transition_time']:.2f} s; {changes}"
+        )
     print(f"wrote {path}, {out / 'summary.json'}, {figure}")
     code = EXIT_OK
     if health.diverged:

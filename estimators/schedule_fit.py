@@ -67,6 +67,11 @@ _LOG_199_TWICE = 2.0 * math.log(199.0)
 _SHORTEST_TRANSITION = 10
 #: Longest transition time, in run durations (beyond it the change is a ramp).
 _LONGEST_TRANSITION = 4.0
+#: Closest the inflection time may come to either end of the fitted window, as a
+#: fraction of the window.
+_EDGE = 0.05
+#: The starting inflection times span the window less this fraction at either end.
+_START_MARGIN = 0.1
 #: Initial transition time, as a fraction of the run.
 _INITIAL_TRANSITION = 0.1
 
@@ -204,8 +209,9 @@ def fit_pilot_sigmoid(
         The fitted parameters that follow the sigmoid (default: all of them); the
         others are fitted as constants.
     starts
-        Inflection times tried as starting points, spread evenly over the middle 80 %
-        of the run (besides the constant fit's answer).
+        Inflection times tried as starting points (each from the constant fit's
+        values), spread evenly over the middle 80 % of the fitted window; the
+        inflection is kept within the window's middle 90 %.
     skip
         Seconds at the start left out of the cost (the model starts at rest).
     forcing
@@ -245,15 +251,19 @@ def fit_pilot_sigmoid(
     low = {name: _lower(model, name) for name in names}
     high = {name: min(model.spec(name).valid[1], 1e3) for name in names}
     shortest = _SHORTEST_TRANSITION * recording.dt
+    # the inflection stays inside the fitted window, away from its edges: a change that
+    # ends before the window (or starts after it) leaves its start (end) value free
+    first = float(t[0]) + skip
+    edge = _EDGE * (float(t[-1]) - first)
     lower = np.array(
         [low[n] for n in layout.constant]
         + [low[n] for n in varying] * 2
-        + [t[0], math.log(shortest)]
+        + [first + edge, math.log(shortest)]
     )
     upper = np.array(
         [high[n] for n in layout.constant]
         + [high[n] for n in varying] * 2
-        + [t[-1], math.log(_LONGEST_TRANSITION * duration)]
+        + [t[-1] - edge, math.log(_LONGEST_TRANSITION * duration)]
     )
 
     def residual(x: FloatArray) -> FloatArray:
@@ -265,8 +275,8 @@ def fit_pilot_sigmoid(
         return error if np.all(np.isfinite(error)) else np.full(error.shape, 1e6)
 
     base = [constant[n] for n in layout.constant] + [constant[n] for n in varying] * 2
-    margin = 0.1 * duration
-    mids = np.linspace(t[0] + margin, t[-1] - margin, starts)
+    margin = _START_MARGIN * (float(t[-1]) - first)
+    mids = np.linspace(first + margin, float(t[-1]) - margin, starts)
     best = None
     for t_mid in mids:
         x0 = np.array([*base, t_mid, math.log(_INITIAL_TRANSITION * duration)])
@@ -445,7 +455,7 @@ class SigmoidFitEstimator:
             pinned=pinned,
             settings={
                 "settings": self.settings,
-                "fit": {
+                "sigmoid": {
                     "t_mid": fit.t_mid,
                     "transition_time": fit.transition_time,
                     "varying": list(fit.varying),
