@@ -20,13 +20,20 @@ e.g. ``K_p`` about +13 % on Popovici's late pilot, ``K_p = 0.6``, with 30 % remn
 
 Why it is kept beside the random-walk filters (issue 15): a random walk must stay free
 to follow a change at any moment, so on a stationary stretch the remnant moves it as
-much as a real change would; four free numbers per parameter do not. On Popovici's
-time-varying pilot with 30 % remnant (``remnant-robustness``, ``popovici-tv-30``, 10
-runs) the smoothed RML's ``K_p`` NRMSE is 0.212, this fit's 0.130. The price is the
-assumption: a parameter that changes otherwise (a sine, two steps, a drift) is fitted
-with the sigmoid closest to it. Use it where one transition is what the experiment
-imposed (a change of controlled element, of task, of display); otherwise the filters,
-whose cross-validated members (``rml-cv``) choose their own pace.
+much as a real change would; four free numbers per parameter do not. Popovici's
+time-varying pilot (``manualcontrol bench remnant-robustness``, batches
+``popovici-tv-30`` and ``-20``, 10 and 5 runs, NRMSE batch means, smoothed RML ->
+cross-validated RML -> this fit): with 30 % remnant ``K_p`` 0.212 -> 0.189 -> 0.132,
+``K_v`` 0.123 -> 0.114 -> 0.112; with 20 % ``K_p`` 0.147 -> 0.131 -> 0.110, ``K_v``
+0.116 -> 0.111 -> 0.080. The neuromuscular parameters and the delay, which the
+remnant's band overlaps, come out worse with 30 % (``omega_nms`` 0.078 -> 0.136,
+``zeta_nms`` 0.125 -> 0.201, ``tau_v``, a sine in that pilot, 0.093 -> 0.124). The
+price is the assumption: a parameter that changes otherwise (a sine, two steps, a
+drift) is fitted with the sigmoid closest to it. Use it where one transition is what
+the experiment imposed (a change of controlled element, of task, of display);
+otherwise the filters, whose cross-validated members (``rml-cv``) choose their own
+pace. It is slow: every cost evaluation resimulates the model with a parameter set per
+sample (20-50 s for a 90-s compensatory run, 20-260 s for a 180-s preview run).
 
 The fit is local: it starts from the constant-parameter fit and from ``starts``
 inflection times spread over the run, and keeps the best optimum. The standard
