@@ -54,11 +54,17 @@ import scipy.optimize
 import scipy.special
 from numpy.typing import NDArray
 
-from manualcontrol.envs._validation import check_int, check_positive, reject_unknown
+from manualcontrol.envs._validation import (
+    check_choice,
+    check_int,
+    check_positive,
+    reject_unknown,
+)
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.schedules import Constant, Schedule, Sigmoid
 from manualcontrol.envs.signals import ForcingPair
 from manualcontrol.estimators.offline import _lower, _perceptions, fit_pilot
+from manualcontrol.estimators.pilot_filter import TABLE_I, TAU_F_MARGIN
 from manualcontrol.estimators.protocol import EstimationResult, summarise_health
 from manualcontrol.estimators.registry import EstimatorEntry, register
 from manualcontrol.pilots.models import PilotModel, make_model
@@ -199,6 +205,7 @@ def fit_pilot_sigmoid(
     starts: int = 5,
     skip: float = 2.0,
     forcing: ForcingPair | None = None,
+    limits: Mapping[str, tuple[float, float]] | None = None,
 ) -> SigmoidFit:
     """Fit a pilot whose parameters change along one shared sigmoid (module docstring).
 
@@ -223,12 +230,19 @@ def fit_pilot_sigmoid(
         Seconds at the start left out of the cost (the model starts at rest).
     forcing
         Target for preview models (default: the recording's metadata).
+    limits
+        ``{name: (low, high)}`` bounds of the start and end values, within the model's
+        validity (default: the model's validity alone). Output error with remnant can
+        run a parameter far past anything human (the preview model's ``omega_nms`` to
+        four times its value with 30 % remnant): the estimator passes the family's
+        limits (thesis Table I).
 
     """
     model = make_model(model)
     fixed = dict(fixed or {})
     initial = dict(initial or {})
-    unknown = sorted((set(fixed) | set(initial)) - set(model.parameter_names))
+    limits = dict(limits or {})
+    unknown = sorted((set(fixed) | set(initial) | set(limits)) - set(model.parameter_names))
     if unknown:
         raise ValueError(f"{model.name} model has no parameter(s) {unknown}")
     names = tuple(name for name in model.parameter_names if name not in fixed)
@@ -257,6 +271,15 @@ def fit_pilot_sigmoid(
     layout = _Layout(names, varying, fixed)
     low = {name: _lower(model, name) for name in names}
     high = {name: min(model.spec(name).valid[1], 1e3) for name in names}
+    for name, bounds in limits.items():
+        if name in low:
+            low[name] = max(low[name], float(bounds[0]))
+            high[name] = min(high[name], float(bounds[1]))
+            if not low[name] < high[name]:
+                raise ValueError(
+                    f"limits of {name} must leave a range within the model's validity, "
+                    f"got {tuple(bounds)!r}"
+                )
     shortest = _SHORTEST_TRANSITION * recording.dt
     # the inflection stays inside the fitted window, away from its edges: a change that
     # ends before the window (or starts after it) leaves its start (end) value free
@@ -323,15 +346,22 @@ def fit_pilot_sigmoid(
 
 
 #: The settings :class:`SigmoidFitEstimator` reads.
-OWN_KEYS: tuple[str, ...] = ("model", "initial", "estimated", "varying", "starts", "skip")
-#: The pilot filters' tuning settings: accepted so that a bench batch's shared estimator
-#: settings serve this member too, and not used (an output-error fit has no noise model,
-#: random walk or filter limits).
-FILTER_KEYS: tuple[str, ...] = (
+OWN_KEYS: tuple[str, ...] = (
+    "model",
     "ce",
     "anticipation_time",
-    "preset",
+    "initial",
+    "estimated",
     "limits",
+    "varying",
+    "starts",
+    "skip",
+)
+#: The pilot filters' tuning settings: accepted so that a bench batch's shared estimator
+#: settings serve this member too, and not used (an output-error fit has no noise model
+#: or random walk).
+FILTER_KEYS: tuple[str, ...] = (
+    "preset",
     "q2",
     "r2",
     "r2_parameter",
@@ -347,7 +377,12 @@ class SigmoidFitEstimator:
     """:func:`fit_pilot_sigmoid` behind the estimators' ``estimate`` (offline only).
 
     ``estimated`` names the fitted parameters (the others are held at ``initial``, else
-    the model's nominal values), ``varying`` those of them that follow the sigmoid.
+    the model's nominal values; by default all, less ``K_v`` and ``omega_f`` for
+    ``ce="SI"``, as the filters hold them), ``varying`` those of them that follow the
+    sigmoid. ``limits`` bound the fitted values as the filters' do: ``"table-I"``
+    (default: thesis Table I for ``ce``, else the model's human ranges, and ``tau_f``
+    within 0.1 s of 0 and of ``anticipation_time`` when that is given), ``"none"`` (the
+    model's validity) or ``{name: (low, high)}``.
     """
 
     name = "sigmoid-fit"
@@ -356,21 +391,33 @@ class SigmoidFitEstimator:
         self,
         model: str = "precision",
         *,
+        ce: str | None = None,
+        anticipation_time: float | None = None,
         initial: Mapping[str, float] | None = None,
         estimated: Sequence[str] | None = None,
+        limits: str | Mapping[str, Sequence[float]] = "table-I",
         varying: Sequence[str] | None = None,
         starts: int = 5,
         skip: float = 2.0,
     ) -> None:
         self._model = make_model(model)
         names = self._model.parameter_names
+        self._ce = None if ce is None else check_choice("ce", ce, tuple(TABLE_I))
+        self._anticipation_time = (
+            None
+            if anticipation_time is None
+            else check_positive("anticipation_time", anticipation_time)
+        )
         self._initial = dict(initial or {})
         unknown = sorted(set(self._initial) - set(names))
         if unknown:
             raise ValueError(f"initial names {unknown}, which the {model} model does not have")
-        self._estimated = (
-            names if estimated is None else _check_names("estimated", estimated, names)
-        )
+        if estimated is None:
+            held = {"K_v", "omega_f"} if self._ce == "SI" else set()
+            self._estimated = tuple(name for name in names if name not in held)
+        else:
+            self._estimated = _check_names("estimated", estimated, names)
+        self._limits = self._resolve_limits(limits)
         self._varying = (
             None if varying is None else _check_names("varying", varying, self._estimated)
         )
@@ -382,6 +429,9 @@ class SigmoidFitEstimator:
         """The settings this estimator was built with."""
         return {
             "model": self._model.name,
+            "ce": self._ce,
+            "anticipation_time": self._anticipation_time,
+            "limits": {name: list(bounds) for name, bounds in self._limits.items()},
             "initial": dict(self._initial),
             "estimated": list(self._estimated),
             "varying": None if self._varying is None else list(self._varying),
@@ -402,7 +452,34 @@ class SigmoidFitEstimator:
             starts=self._starts,
             skip=self._skip,
             forcing=forcing,
+            limits={n: b for n, b in self._limits.items() if n in self._estimated},
         )
+
+    def _resolve_limits(self, limits: Any) -> dict[str, tuple[float, float]]:
+        names = self._model.parameter_names
+        if isinstance(limits, str):
+            check_choice("limits", limits, ("table-I", "none"))
+            if limits == "none":
+                return {}
+            if self._ce is not None:
+                table = dict(TABLE_I[self._ce])
+            else:
+                table = {spec.name: spec.human for spec in self._model.parameters}
+            if "tau_f" in names and self._anticipation_time is not None:
+                table["tau_f"] = (TAU_F_MARGIN, self._anticipation_time - TAU_F_MARGIN)
+            return {name: table[name] for name in names if name in table}
+        if not isinstance(limits, Mapping):
+            raise TypeError(
+                f"limits must be 'table-I', 'none' or {{name: (low, high)}}, got {limits!r}"
+            )
+        resolved = {}
+        for name, bounds in limits.items():
+            _check_names("limits", [name], names)
+            low, high = (float(b) for b in bounds)
+            if not low < high:
+                raise ValueError(f"limits of {name} must satisfy low < high, got {bounds!r}")
+            resolved[name] = (low, high)
+        return resolved
 
     def estimate(self, recording: Recording, **options: Any) -> EstimationResult:
         """The fitted traces as an offline :class:`EstimationResult` (``options``: ``forcing``).
@@ -439,8 +516,10 @@ class SigmoidFitEstimator:
                 variance = np.einsum("ki,ij,kj->k", g, fit.covariance, g)
                 std[:, j] = np.sqrt(np.maximum(variance, 0.0))
         n = len(t)
-        lows = np.array([_lower(self._model, name) for name in names])
-        highs = np.array([self._model.spec(name).valid[1] for name in names])
+        bounds = {n: (_lower(self._model, n), self._model.spec(n).valid[1]) for n in names}
+        bounds.update(self._limits)
+        lows = np.array([bounds[name][0] for name in names])
+        highs = np.array([bounds[name][1] for name in names])
         pinned = (mean <= lows + 1e-6) | (mean >= highs - 1e-6)
         pinned[:, [name not in fit.fitted for name in names]] = False
         no = np.zeros(n, dtype=np.bool_)

@@ -131,6 +131,11 @@ def test_trace_gradients_match_finite_differences():
         ({"varying": "K_p"}, TypeError, "varying must be a sequence of parameter names"),
         ({"initial": {"K_f": 1.0}}, ValueError, "initial names ['K_f']"),
         ({"skip": -1.0}, ValueError, "skip must be >= 0, got -1.0"),
+        ({"ce": "TI"}, ValueError, "ce must be one of"),
+        ({"limits": "tabel-I"}, ValueError, "limits must be one of"),
+        ({"limits": 5}, TypeError, "limits must be 'table-I', 'none' or"),
+        ({"limits": {"K_p": (1.0, 0.5)}}, ValueError, "limits of K_p must satisfy low < high"),
+        ({"limits": {"K_f": (0.0, 1.0)}}, ValueError, "limits names ['K_f']"),
     ],
 )
 def test_bad_settings_are_refused_by_name(settings, error, message):
@@ -154,3 +159,31 @@ def test_bad_recordings_and_calls_are_refused(changing):
         estimator.estimate(changing, smooth=True)
     with pytest.raises(TypeError, match="works on whole recordings"):
         estimator.reset(0.01)
+
+
+def test_the_familys_limits_bound_the_fit_and_pinned_values_are_reported(changing):
+    # K_p truly ends at 0.40: held under 0.3, the fit ends on that bound, says so in its
+    # health, and the model's human range (no ce) is what applies otherwise
+    estimator = make_estimator(
+        {
+            "name": "sigmoid-fit",
+            "initial": DI_PILOT,
+            "estimated": ["K_p", "K_v"],
+            "limits": {"K_p": (0.1, 0.3)},
+            "starts": 1,
+        }
+    )
+    result = estimator.estimate(changing)
+    fit = result.settings["sigmoid"]
+    assert fit["end"]["K_p"] == pytest.approx(0.3, abs=1e-6)
+    assert result.health.pinned_fraction["K_p"] > 0.3
+    assert result.health.pinned_fraction["K_v"] == 0.0
+    assert result.settings["settings"]["limits"] == {"K_p": [0.1, 0.3]}
+    # ce="SI" holds the parameters the filters hold there, and takes Table I
+    si = make_estimator({"name": "sigmoid-fit", "ce": "SI"})
+    assert "K_v" not in si.settings["estimated"]
+    assert si.settings["limits"]["omega_nms"] == [6.0, 15.0]
+    preview = make_estimator(
+        {"name": "sigmoid-fit", "model": "preview", "ce": "DI", "anticipation_time": 1.5}
+    )
+    assert preview.settings["limits"]["tau_f"] == [0.1, 1.4]
