@@ -377,12 +377,12 @@ class SigmoidFitEstimator:
     """:func:`fit_pilot_sigmoid` behind the estimators' ``estimate`` (offline only).
 
     ``estimated`` names the fitted parameters (the others are held at ``initial``, else
-    the model's nominal values; by default all, less ``K_v`` and ``omega_f`` for
-    ``ce="SI"``, as the filters hold them), ``varying`` those of them that follow the
-    sigmoid. ``limits`` bound the fitted values as the filters' do: ``"table-I"``
-    (default: thesis Table I for ``ce``, else the model's human ranges, and ``tau_f``
-    within 0.1 s of 0 and of ``anticipation_time`` when that is given), ``"none"`` (the
-    model's validity) or ``{name: (low, high)}``.
+    the model's nominal values, ``K_v = 0`` for ``ce="SI"``; by default all are fitted,
+    less ``K_v`` and ``omega_f`` for ``ce="SI"``, as the filters hold them), ``varying``
+    those of them that follow the sigmoid. ``limits`` bound the fitted values as the
+    filters' do: ``"table-I"`` (default: thesis Table I for ``ce``, else the model's
+    human ranges, and ``tau_f`` within 0.1 s of 0 and of ``anticipation_time`` when that
+    is given), ``"none"`` (the model's validity) or ``{name: (low, high)}``.
     """
 
     name = "sigmoid-fit"
@@ -441,7 +441,10 @@ class SigmoidFitEstimator:
 
     def fit(self, recording: Recording, *, forcing: Any = None) -> SigmoidFit:
         """The :class:`SigmoidFit` of ``recording``."""
-        nominal = {**self._model.nominal(), **self._initial}
+        nominal = self._model.nominal()
+        if self._ce == "SI" and "K_v" in nominal:
+            nominal["K_v"] = 0.0  # the single integrator needs no lead (Popovici eq. 28)
+        nominal.update(self._initial)
         fixed = {n: nominal[n] for n in self._model.parameter_names if n not in self._estimated}
         return fit_pilot_sigmoid(
             recording,

@@ -180,8 +180,19 @@ def test_the_familys_limits_bound_the_fit_and_pinned_values_are_reported(changin
     assert result.health.pinned_fraction["K_v"] == 0.0
     assert result.settings["settings"]["limits"] == {"K_p": [0.1, 0.3]}
     # ce="SI" holds the parameters the filters hold there, and takes Table I
-    si = make_estimator({"name": "sigmoid-fit", "ce": "SI"})
+    si = make_estimator({"name": "sigmoid-fit", "ce": "SI", "starts": 1})
     assert "K_v" not in si.settings["estimated"]
+    single = simulate(
+        Pilot("precision", {"K_p": K_P, "K_v": 0.0}),
+        "SI",
+        "vanderel-bw4",
+        loop="sampled",
+        run_in=10.0,
+        measurement_time=30.0,
+    )
+    held = si.estimate(single)
+    assert np.all(held.mean[:, list(held.parameter_names).index("K_v")] == 0.0)
+    assert held.settings["sigmoid"]["end"]["K_p"] == pytest.approx(0.40, rel=1e-2)
     assert si.settings["limits"]["omega_nms"] == [6.0, 15.0]
     preview = make_estimator(
         {"name": "sigmoid-fit", "model": "preview", "ce": "DI", "anticipation_time": 1.5}
