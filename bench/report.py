@@ -319,10 +319,12 @@ def plot_estimation(
     With ``model_output`` (the identified model resimulated) a last panel shows the
     measured ``u`` against it, so the quality of the fit can be seen. The innovation
     panel is scaled to the 0.5-99.5 % range of its values, so the start-up transient
-    of the filter does not flatten the rest.
+    of the filter does not flatten the rest; a result without innovations (an offline
+    fit such as ``sigmoid-fit``) has no such panel.
     """
     names = list(result.estimated)
-    panels = len(names) + 1 + (model_output is not None)
+    innovations = bool(np.any(np.isfinite(result.innovation)))
+    panels = len(names) + innovations + (model_output is not None)
     fig, axes = _subplots(panels, 1, figsize=(9, 1.8 * panels), sharex=True)
     axes = np.atleast_1d(axes)
     t = result.t
@@ -336,18 +338,8 @@ def plot_estimation(
             )
         axis.set_ylabel(_unit(name))
     axes[0].legend(loc="upper right")
-    innovation_axis = axes[len(names)]
-    _line(innovation_axis, t, result.innovation, color="tab:red", lw=0.5, label="innovation")
-    spread = np.sqrt(result.innovation_variance)
-    _line(innovation_axis, t, spread, color="k", lw=0.8, label="sqrt(variance)")
-    both = np.concatenate([np.asarray(result.innovation), spread])
-    both = both[np.isfinite(both)]
-    if both.size:
-        low, high = np.percentile(both, [0.5, 99.5])
-        margin = 0.1 * (high - low) or 1.0
-        innovation_axis.set_ylim(low - margin, high + margin)
-    innovation_axis.set_ylabel("innovation [stick]")
-    innovation_axis.legend(loc="upper right")
+    if innovations:
+        _innovation_panel(axes[len(names)], t, result)
     if model_output is not None:
         _line(axes[-1], recording.t, recording.u, color="k", lw=0.6, label="measured u")
         _line(
@@ -357,6 +349,19 @@ def plot_estimation(
         axes[-1].legend(loc="upper right")
     axes[-1].set_xlabel("time [s]")
     return _save(fig, Path(path))
+
+
+def _innovation_panel(axis: Any, t: Any, result: Any) -> None:
+    _line(axis, t, result.innovation, color="tab:red", lw=0.5, label="innovation")
+    spread = np.sqrt(result.innovation_variance)
+    _line(axis, t, spread, color="k", lw=0.8, label="sqrt(variance)")
+    both = np.concatenate([np.asarray(result.innovation), spread])
+    both = both[np.isfinite(both)]
+    low, high = np.percentile(both, [0.5, 99.5])
+    margin = 0.1 * (high - low) or 1.0
+    axis.set_ylim(low - margin, high + margin)
+    axis.set_ylabel("innovation [stick]")
+    axis.legend(loc="upper right")
 
 
 def _number(value: Any) -> float:

@@ -198,3 +198,29 @@ def test_the_familys_limits_bound_the_fit_and_pinned_values_are_reported(changin
         {"name": "sigmoid-fit", "model": "preview", "ce": "DI", "anticipation_time": 1.5}
     )
     assert preview.settings["limits"]["tau_f"] == [0.1, 1.4]
+
+
+def test_the_parameter_figure_of_a_fit_without_innovations_has_no_innovation_panel(
+    changing, tmp_path
+):
+    import dataclasses
+
+    import matplotlib.image
+
+    from manualcontrol.bench.report import plot_estimation
+
+    estimator = make_estimator(
+        {"name": "sigmoid-fit", "initial": DI_PILOT, "estimated": ["K_p"], "starts": 1}
+    )
+    result = estimator.estimate(changing)
+    with_innovations = dataclasses.replace(
+        result,
+        innovations=np.zeros_like(result.innovations),
+        innovation_covariance=np.ones_like(result.innovation_covariance),
+    )
+    heights = []
+    for label, shown in (("fit", result), ("filter", with_innovations)):
+        path = plot_estimation(changing, shown, tmp_path / f"{label}.png")
+        heights.append(matplotlib.image.imread(path).shape[0])
+    # 1.8 inches at 100 dpi a panel: one parameter alone, or with the innovation panel
+    assert heights == [180, 360]
