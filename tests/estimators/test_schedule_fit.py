@@ -132,6 +132,8 @@ def test_trace_gradients_match_finite_differences():
         ({"initial": {"K_f": 1.0}}, ValueError, "initial names ['K_f']"),
         ({"skip": -1.0}, ValueError, "skip must be >= 0, got -1.0"),
         ({"ce": "TI"}, ValueError, "ce must be one of"),
+        ({"highpass": "always"}, ValueError, "highpass must be one of"),
+        ({"highpass": -0.1}, ValueError, "highpass must be > 0, got -0.1"),
         ({"limits": "tabel-I"}, ValueError, "limits must be one of"),
         ({"limits": 5}, TypeError, "limits must be 'table-I', 'none' or"),
         ({"limits": {"K_p": (1.0, 0.5)}}, ValueError, "limits of K_p must satisfy low < high"),
@@ -224,3 +226,35 @@ def test_the_parameter_figure_of_a_fit_without_innovations_has_no_innovation_pan
         heights.append(matplotlib.image.imread(path).shape[0])
     # 1.8 inches at 100 dpi a panel: one parameter alone, or with the innovation panel
     assert heights == [180, 360]
+
+
+def test_the_highpass_prefilter_takes_a_drift_below_it_out_of_the_cost(changing):
+    # u drifts at 0.01 rad/s (amplitude 1 against a stick of std 2), as the double
+    # integrator's remnant does: the plain output error bends the sigmoid to it; the
+    # error high-passed at 0.05 rad/s (the drift attenuated to 0.2^4 by the zero-phase
+    # filter) finds the change again, but for the filter's edge transients on a 38-s
+    # window (measured: values 0.2 %, transition time 10 %)
+    drifting = changing.with_signals(u=changing.u + np.sin(0.01 * changing.t + 0.3))
+    options = dict(initial=DI_PILOT, varying=("K_p", "K_v"), starts=2)
+    plain = fit_pilot_sigmoid(drifting, "precision", **options)
+    assert abs(plain.transition_time / 6.0 - 1.0) > 0.5 or abs(plain.start["K_p"] / 0.24 - 1) > 0.03
+    fit = fit_pilot_sigmoid(drifting, "precision", highpass=0.05, **options)
+    assert fit.start["K_p"] == pytest.approx(0.24, rel=0.01)
+    assert fit.end["K_p"] == pytest.approx(0.40, rel=0.01)
+    assert fit.t_mid == pytest.approx(22.0, abs=0.3)
+    assert fit.transition_time == pytest.approx(6.0, rel=0.2)
+    assert fit.highpass == 0.05 and fit.vaf < 99.0  # the VAF is of the unfiltered error
+
+
+def test_highpass_is_automatic_on_the_double_integrator_only(changing):
+    common = {"name": "sigmoid-fit", "initial": DI_PILOT, "estimated": ["K_p"], "starts": 1}
+    di = make_estimator({**common, "ce": "DI"}).estimate(changing)
+    # half the lowest frequency of vanderel-bw4 (0.1047 rad/s)
+    assert di.settings["sigmoid"]["highpass"] == pytest.approx(0.1047198 / 2, rel=1e-6)
+    si = make_estimator({**common, "ce": "SI"}).estimate(changing)
+    assert si.settings["sigmoid"]["highpass"] is None
+    bare = type(changing)({n: changing[n] for n in changing.signal_names}, changing.dt)
+    with pytest.raises(ValueError, match="no multisine forcing"):
+        make_estimator({**common, "ce": "DI"}).estimate(bare)
+    with pytest.raises(ValueError, match="highpass must lie below the Nyquist frequency"):
+        fit_pilot_sigmoid(changing, "precision", highpass=1000.0)
