@@ -235,7 +235,7 @@ def test_the_highpass_prefilter_takes_a_drift_below_it_out_of_the_cost(changing)
     # filter) finds the change again, but for the filter's edge transients on a 38-s
     # window (measured: values 0.2 %, transition time 10 %)
     drifting = changing.with_signals(u=changing.u + np.sin(0.01 * changing.t + 0.3))
-    options = dict(initial=DI_PILOT, varying=("K_p", "K_v"), starts=2)
+    options = dict(initial=DI_PILOT, varying=("K_p", "K_v"), starts=1)
     plain = fit_pilot_sigmoid(drifting, "precision", **options)
     assert abs(plain.transition_time / 6.0 - 1.0) > 0.5 or abs(plain.start["K_p"] / 0.24 - 1) > 0.03
     fit = fit_pilot_sigmoid(drifting, "precision", highpass=0.05, **options)
