@@ -114,9 +114,9 @@ class SigmoidFit:
     ``fitted`` all that were fitted. ``vaf`` is the variance accounted for (%) of the
     measured ``u`` over the fitted window (thesis eq. 38), ``cost`` half the sum of
     squared output errors there (after the ``highpass`` prefilter, when there is one;
-    ``vaf`` is of the unfiltered error). ``covariance`` is the least-squares covariance of the
-    fitted vector ``x`` (constant values, start values, end values of the varying
-    parameters in that order, then ``t_mid`` and ``log(transition_time)``).
+    ``vaf`` is of the unfiltered error). ``covariance`` is the least-squares covariance
+    of the fitted vector ``x`` (constant values, start values, end values of the
+    varying parameters in that order, then ``t_mid`` and ``log(transition_time)``).
     """
 
     model: str
@@ -572,8 +572,19 @@ class SigmoidFitEstimator:
                 f"the sigmoid fit takes forcing= (and target_period=), got "
                 f"{', '.join(sorted(unknown))}"
             )
+        if options.get("target_period") is not None:
+            raise ValueError(
+                "the sigmoid fit reads the target from the forcing, not from the recorded "
+                "target's periodic extension: pass forcing= (`--forcing PRESET`) instead of "
+                "target_period="
+            )
         forcing = options.get("forcing")
-        fit = self.fit(recording, forcing=forcing if isinstance(forcing, ForcingPair) else None)
+        if forcing is not None and not isinstance(forcing, ForcingPair):
+            raise TypeError(
+                f"forcing must be a ForcingPair (a preset's: forcing_preset(name, "
+                f"realisation)), got {type(forcing).__name__}"
+            )
+        fit = self.fit(recording, forcing=forcing)
         t = np.asarray(recording.t, dtype=np.float64)
         names = self._model.parameter_names
         traces = fit.traces(t)

@@ -161,6 +161,10 @@ def test_bad_recordings_and_calls_are_refused(changing):
         estimator.estimate(changing, smooth=True)
     with pytest.raises(TypeError, match="works on whole recordings"):
         estimator.reset(0.01)
+    with pytest.raises(ValueError, match=r"pass forcing= .* instead of target_period="):
+        estimator.estimate(changing, target_period=40.0)
+    with pytest.raises(TypeError, match="forcing must be a ForcingPair"):
+        estimator.estimate(changing, forcing=np.sin)
 
 
 def test_the_familys_limits_bound_the_fit_and_pinned_values_are_reported(changing):
