@@ -20,7 +20,7 @@ e.g. ``K_p`` about +13 % on Popovici's late pilot, ``K_p = 0.6``, with 30 % remn
 
 Why it is kept beside the random-walk filters (issue 15): a random walk must stay free
 to follow a change at any moment, so on a stationary stretch the remnant moves it as
-much as a real change would; four free numbers per parameter do not. Popovici's
+much as a real change would; two numbers a parameter and two shared ones do not. Popovici's
 time-varying pilot (``manualcontrol bench remnant-robustness``, batches
 ``popovici-tv-30`` and ``-20``, 10 and 5 runs, NRMSE batch means, smoothed RML ->
 cross-validated RML -> this fit): with 30 % remnant ``K_p`` 0.212 -> 0.189 -> 0.128,
@@ -59,6 +59,7 @@ value; with remnant, whose residual is coloured, they are too small.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -101,6 +102,11 @@ _LONGEST_TRANSITION = 4.0
 _EDGE = 0.05
 #: The starting inflection times span the window less this fraction at either end.
 _START_MARGIN = 0.1
+#: Fewest samples a fit takes (the prefilter and the bounds of the transition time need
+#: a run much longer than the shortest transition).
+_FEWEST_SAMPLES = 200
+#: Perceptions the fit builds (the postview model's edge signals it does not).
+_PERCEPTIONS = ("e", "y", "ft_far", "ft_near_rate")
 #: Initial transition time, as a fraction of the run.
 _INITIAL_TRANSITION = 0.1
 
@@ -116,7 +122,8 @@ class SigmoidFit:
     squared output errors there (after the ``highpass`` prefilter, when there is one;
     ``vaf`` is of the unfiltered error). ``covariance`` is the least-squares covariance
     of the fitted vector ``x`` (constant values, start values, end values of the
-    varying parameters in that order, then ``t_mid`` and ``log(transition_time)``).
+    varying parameters in that order, then ``t_mid`` and ``log(transition_time)``);
+    ``bounds`` the bounds each fitted value was held within.
     """
 
     model: str
@@ -132,6 +139,7 @@ class SigmoidFit:
     message: str
     covariance: FloatArray
     highpass: float | None = None
+    bounds: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
 
     def schedules(self) -> dict[str, Schedule]:
         """Each parameter's schedule: a :class:`Sigmoid` if varying, else a constant."""
@@ -200,6 +208,15 @@ class _Layout:
         return out
 
 
+def _check_model(model: PilotModel) -> None:
+    unsupported = [name for name in model.perceptions if name not in _PERCEPTIONS]
+    if unsupported:
+        raise ValueError(
+            f"the sigmoid fit builds the perceptions {', '.join(_PERCEPTIONS)}; the "
+            f"{model.name} model perceives {', '.join(unsupported)}"
+        )
+
+
 def _check_names(label: str, names: Any, allowed: Sequence[str]) -> tuple[str, ...]:
     if isinstance(names, str) or not isinstance(names, Sequence):
         raise TypeError(f"{label} must be a sequence of parameter names, got {names!r}")
@@ -210,6 +227,10 @@ def _check_names(label: str, names: Any, allowed: Sequence[str]) -> tuple[str, .
             f"{label} names {unknown}, which are not among {', '.join(allowed)}; "
             f"{label} = {list(names)!r}"
         )
+    if len(set(names)) != len(names):
+        raise ValueError(f"{label} names a parameter twice: {list(names)!r}")
+    if not names:
+        raise ValueError(f"{label} must name at least one parameter, got []")
     return names
 
 
@@ -235,7 +256,9 @@ def fit_pilot_sigmoid(
     model
         Pilot model structure or name.
     initial
-        Starting values (default: the model's nominal values).
+        Starting values of the constant fit that every start begins from (default: the
+        model's nominal values; the delay is tried over a grid, as
+        :func:`~manualcontrol.estimators.offline.fit_pilot` does).
     fixed
         Parameters held at given values (not fitted).
     varying
@@ -265,6 +288,7 @@ def fit_pilot_sigmoid(
 
     """
     model = make_model(model)
+    _check_model(model)
     fixed = dict(fixed or {})
     initial = dict(initial or {})
     limits = dict(limits or {})
@@ -279,6 +303,10 @@ def fit_pilot_sigmoid(
     skip = check_positive("skip", skip, allow_zero=True)
     t = np.asarray(recording.t, dtype=np.float64)
     duration = float(t[-1] - t[0])
+    if len(t) < _FEWEST_SAMPLES:
+        raise ValueError(
+            f"the recording has {len(t)} samples; a sigmoid fit needs at least {_FEWEST_SAMPLES}"
+        )
     if skip >= duration / 2:
         raise ValueError(
             f"skip = {skip:g} s leaves less than half of the {duration:g}-s run to fit"
@@ -296,6 +324,13 @@ def fit_pilot_sigmoid(
     u = np.asarray(recording.u, dtype=np.float64)
     if np.isnan(u[window]).any():
         raise ValueError("u has dropped samples (NaN) inside the fitted window")
+    for name in model.perceptions:
+        if name in ("e", "y") and not np.all(np.isfinite(np.asarray(recording[name]))):
+            # the model is resimulated from the first sample: one gap spoils every sample
+            raise ValueError(
+                f"{name} has dropped samples (NaN); the model resimulated from it needs "
+                "every sample"
+            )
 
     # the constant fit: the starting point of every sigmoid start
     constant = fit_pilot(
@@ -350,7 +385,9 @@ def fit_pilot_sigmoid(
 
     base = [constant[n] for n in layout.constant] + [constant[n] for n in varying] * 2
     margin = _START_MARGIN * (float(t[-1]) - first)
-    mids = np.linspace(first + margin, float(t[-1]) - margin, starts)
+    span = float(t[-1]) - first - 2.0 * margin
+    # the centres of equal parts: one start sits mid-window
+    mids = first + margin + (np.arange(starts) + 0.5) * span / starts
     best = None
     for t_mid in mids:
         x0 = np.array([*base, t_mid, math.log(_INITIAL_TRANSITION * duration)])
@@ -387,6 +424,7 @@ def fit_pilot_sigmoid(
         message=str(best.message),
         covariance=covariance,
         highpass=highpass,
+        bounds={n: (low[n], high[n]) for n in names},
     )
 
 
@@ -452,6 +490,7 @@ class SigmoidFitEstimator:
         skip: float = 2.0,
     ) -> None:
         self._model = make_model(model)
+        _check_model(self._model)
         if isinstance(highpass, str):
             check_choice("highpass", highpass, ("auto",))
         elif highpass is not None:
@@ -464,6 +503,11 @@ class SigmoidFitEstimator:
             if anticipation_time is None
             else check_positive("anticipation_time", anticipation_time)
         )
+        if self._anticipation_time is not None and self._anticipation_time <= 2 * TAU_F_MARGIN:
+            raise ValueError(
+                f"anticipation_time must exceed {2 * TAU_F_MARGIN:g} s (tau_f is kept "
+                f"{TAU_F_MARGIN:g} s from 0 and from it), got {self._anticipation_time:g}"
+            )
         self._initial = dict(initial or {})
         unknown = sorted(set(self._initial) - set(names))
         if unknown:
@@ -554,6 +598,8 @@ class SigmoidFitEstimator:
         resolved = {}
         for name, bounds in limits.items():
             _check_names("limits", [name], names)
+            if isinstance(bounds, str) or len(bounds) != 2:
+                raise ValueError(f"limits of {name} must be (low, high), got {bounds!r}")
             low, high = (float(b) for b in bounds)
             if not low < high:
                 raise ValueError(f"limits of {name} must satisfy low < high, got {bounds!r}")
@@ -606,8 +652,7 @@ class SigmoidFitEstimator:
                 variance = np.einsum("ki,ij,kj->k", g, fit.covariance, g)
                 std[:, j] = np.sqrt(np.maximum(variance, 0.0))
         n = len(t)
-        bounds = {n: (_lower(self._model, n), self._model.spec(n).valid[1]) for n in names}
-        bounds.update(self._limits)
+        bounds = {n: fit.bounds.get(n, (-np.inf, np.inf)) for n in names}
         lows = np.array([bounds[name][0] for name in names])
         highs = np.array([bounds[name][1] for name in names])
         pinned = (mean <= lows + 1e-6) | (mean >= highs - 1e-6)
