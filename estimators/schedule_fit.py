@@ -27,7 +27,7 @@ cross-validated RML -> this fit): with 30 % remnant ``K_p`` 0.212 -> 0.189 -> 0.
 ``K_v`` 0.123 -> 0.114 -> 0.112, remnant-free resimulated VAF 98.69 -> 98.41 -> 98.87 %;
 with 20 % ``K_p`` 0.147 -> 0.131 -> 0.110, ``K_v`` 0.116 -> 0.111 -> 0.080. The
 neuromuscular parameters and the delay, which the remnant's band overlaps, come out
-worse with 30 % (``omega_nms`` 0.078 -> 0.134, ``zeta_nms`` 0.125 -> 0.202, ``tau_v``, a
+worse with 30 % (``omega_nms`` 0.078 -> 0.134, ``zeta_nms`` 0.125 -> 0.201, ``tau_v``, a
 sine in that pilot, 0.093 -> 0.118).
 
 On the double integrator the remnant drifts below the forcing band (van der El's
