@@ -169,6 +169,21 @@ class _Layout:
     def size(self) -> int:
         return self.n_c + 2 * self.n_v + 2
 
+    def pack(
+        self,
+        start: Mapping[str, float],
+        end: Mapping[str, float],
+        t_mid: float,
+        log_transition: float,
+    ) -> FloatArray:
+        """The vector of these values (a constant parameter's from ``start``)."""
+        return np.array(
+            [start[n] for n in self.constant]
+            + [start[n] for n in self.varying]
+            + [end[n] for n in self.varying]
+            + [t_mid, log_transition]
+        )
+
     def split(self, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, float, float]:
         c, v = self.n_c, self.n_v
         return x[:c], x[c : c + v], x[c + v : c + 2 * v], float(x[-2]), math.exp(float(x[-1]))
@@ -322,8 +337,6 @@ def fit_pilot_sigmoid(
             )
     window = t >= t[0] + skip - 1e-9
     u = np.asarray(recording.u, dtype=np.float64)
-    if np.isnan(u[window]).any():
-        raise ValueError("u has dropped samples (NaN) inside the fitted window")
     for name in model.perceptions:
         if name in ("e", "y") and not np.all(np.isfinite(np.asarray(recording[name]))):
             # the model is resimulated from the first sample: one gap spoils every sample
@@ -332,7 +345,7 @@ def fit_pilot_sigmoid(
                 "every sample"
             )
 
-    # the constant fit: the starting point of every sigmoid start
+    # the constant fit (it refuses a u with gaps in the window): where every start begins
     constant = fit_pilot(
         recording, model, initial=initial, fixed=fixed, skip=skip, forcing=forcing
     ).parameters
@@ -353,16 +366,8 @@ def fit_pilot_sigmoid(
     # ends before the window (or starts after it) leaves its start (end) value free
     first = float(t[0]) + skip
     edge = _EDGE * (float(t[-1]) - first)
-    lower = np.array(
-        [low[n] for n in layout.constant]
-        + [low[n] for n in varying] * 2
-        + [first + edge, math.log(shortest)]
-    )
-    upper = np.array(
-        [high[n] for n in layout.constant]
-        + [high[n] for n in varying] * 2
-        + [t[-1] - edge, math.log(_LONGEST_TRANSITION * duration)]
-    )
+    lower = layout.pack(low, low, first + edge, math.log(shortest))
+    upper = layout.pack(high, high, float(t[-1]) - edge, math.log(_LONGEST_TRANSITION * duration))
 
     sos = (
         None
@@ -383,14 +388,13 @@ def fit_pilot_sigmoid(
             return np.full(error.shape, 1e6)
         return error if sos is None else sosfiltfilt(sos, error)
 
-    base = [constant[n] for n in layout.constant] + [constant[n] for n in varying] * 2
     margin = _START_MARGIN * (float(t[-1]) - first)
     span = float(t[-1]) - first - 2.0 * margin
     # the centres of equal parts: one start sits mid-window
     mids = first + margin + (np.arange(starts) + 0.5) * span / starts
     best = None
     for t_mid in mids:
-        x0 = np.array([*base, t_mid, math.log(_INITIAL_TRANSITION * duration)])
+        x0 = layout.pack(constant, constant, t_mid, math.log(_INITIAL_TRANSITION * duration))
         x0 = np.clip(x0, lower + 1e-9, upper - 1e-9)
         result = scipy.optimize.least_squares(
             residual, x0, bounds=(lower, upper), x_scale="jac", max_nfev=100 * len(x0)
@@ -404,11 +408,11 @@ def fit_pilot_sigmoid(
     dof = max(int(window.sum()) - len(best.x), 1)
     information = best.jac.T @ best.jac
     covariance = np.linalg.pinv(information) * (2.0 * float(best.cost) / dof)
-    values, first, last, t_mid, transition = layout.split(best.x)
+    values, at_start, at_end, t_mid, transition = layout.split(best.x)
     start = {**fixed, **{n: float(values[i]) for i, n in enumerate(layout.constant)}}
     end = dict(start)
-    start.update({n: float(first[i]) for i, n in enumerate(varying)})
-    end.update({n: float(last[i]) for i, n in enumerate(varying)})
+    start.update({n: float(at_start[i]) for i, n in enumerate(varying)})
+    end.update({n: float(at_end[i]) for i, n in enumerate(varying)})
     order = model.parameter_names
     return SigmoidFit(
         model=model.name,
@@ -635,14 +639,7 @@ class SigmoidFitEstimator:
         names = self._model.parameter_names
         traces = fit.traces(t)
         layout = _Layout(fit.fitted, fit.varying, {})
-        x = np.concatenate(
-            [
-                [fit.start[n] for n in layout.constant],
-                [fit.start[n] for n in fit.varying],
-                [fit.end[n] for n in fit.varying],
-                [fit.t_mid, math.log(fit.transition_time)],
-            ]
-        )
+        x = layout.pack(fit.start, fit.end, fit.t_mid, math.log(fit.transition_time))
         gradients = layout.gradients(x, t)
         mean = np.column_stack([traces[n] for n in names])
         std = np.zeros_like(mean)
@@ -652,7 +649,7 @@ class SigmoidFitEstimator:
                 variance = np.einsum("ki,ij,kj->k", g, fit.covariance, g)
                 std[:, j] = np.sqrt(np.maximum(variance, 0.0))
         n = len(t)
-        bounds = {n: fit.bounds.get(n, (-np.inf, np.inf)) for n in names}
+        bounds = {name: fit.bounds.get(name, (-np.inf, np.inf)) for name in names}
         lows = np.array([bounds[name][0] for name in names])
         highs = np.array([bounds[name][1] for name in names])
         pinned = (mean <= lows + 1e-6) | (mean >= highs - 1e-6)
