@@ -94,6 +94,7 @@ __all__ = [
     "EstimationMetrics",
     "evaluate",
     "has_remnant_parts",
+    "innovation_cost",
     "innovation_fractions",
     "innovation_whiteness",
     "moving_vaf",
@@ -196,6 +197,21 @@ def innovation_fractions(innovation: ArrayLike, variance: ArrayLike) -> tuple[fl
     sigma = np.sqrt(s[ok])
     magnitude = np.abs(r[ok])
     return float(np.mean(magnitude <= sigma)), float(np.mean(magnitude <= 2.0 * sigma))
+
+
+def innovation_cost(innovation: ArrayLike, variance: ArrayLike) -> float:
+    """Mean negative log-likelihood of Gaussian innovations, per sample, up to a constant.
+
+    ``mean(ln S_k + nu_k^2 / S_k)`` over the samples where both are finite and ``S_k >
+    0`` (twice the negative log-likelihood of the prediction-error decomposition,
+    without ``ln 2 pi``; Harvey 1989, Sec. 3.4): lower is more likely. NaN when no
+    sample counts.
+    """
+    r, s = _pair("innovation", innovation, "variance", variance)
+    ok = np.isfinite(r) & np.isfinite(s) & (s > 0.0)
+    if not ok.any():
+        return float("nan")
+    return float(np.mean(np.log(s[ok]) + r[ok] ** 2 / s[ok]))
 
 
 def observability_gramian(A: ArrayLike, C: ArrayLike, horizon: int | None = None) -> FloatArray:

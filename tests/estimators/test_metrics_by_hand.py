@@ -15,6 +15,7 @@ import pytest
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators.metrics import (
     evaluate,
+    innovation_cost,
     innovation_fractions,
     innovation_whiteness,
     moving_vaf,
@@ -78,6 +79,16 @@ def test_innovation_fractions_by_hand():
     assert (within_1, within_2) == (0.5, 0.75)
     within_1, within_2 = innovation_fractions([1.9, 3.0], [4.0, 1.0])  # sigma 2 and 1
     assert (within_1, within_2) == (0.5, 0.5)
+
+
+def test_innovation_cost_by_hand():
+    # mean of ln S + nu^2 / S over the samples with a finite nu and a positive S
+    cost = innovation_cost([1.0, 2.0, math.nan, 3.0], [1.0, 4.0, 1.0, 0.0])
+    assert cost == pytest.approx((0.0 + 1.0 + math.log(4.0) + 1.0) / 2.0)
+    # a larger innovation costs more, a variance that explains it costs less
+    assert innovation_cost([2.0], [1.0]) > innovation_cost([1.0], [1.0])
+    assert innovation_cost([2.0], [4.0]) < innovation_cost([2.0], [1.0])
+    assert math.isnan(innovation_cost([math.nan], [1.0]))
 
 
 def test_innovation_whiteness_by_hand():
