@@ -348,6 +348,9 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     sigmoid = result.settings.get("sigmoid")
     if sigmoid is not None:  # "sigmoid-fit": the change it found
         summary["sigmoid"] = sigmoid
+    restarts = result.settings.get("restarts")
+    if restarts is not None:  # a filter with restarts: which pass the likelihood kept
+        summary["restarts"] = restarts
     out = Path(args.out)
     path = result.save(out / "estimation.npz")
     atomic_write(out / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
@@ -375,6 +378,16 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         print(
             f"change: inflection at {sigmoid['t_mid']:.2f} s, 99 % of it in "
             f"{sigmoid['transition_time']:.2f} s; {changes}"
+        )
+        for warning in sigmoid["warnings"]:
+            print(f"manualcontrol identify: warning: sigmoid fit: {warning}", file=sys.stderr)
+    if restarts is not None:
+        costs = ", ".join(
+            "n/a" if cost is None else f"{cost:.4f}" for cost in restarts["innovation_cost"]
+        )
+        print(
+            f"restarts: pass {restarts['chosen'] + 1} of {len(restarts['innovation_cost'])} kept "
+            f"(innovation cost of each pass {costs}; lower is more likely)"
         )
     print(f"wrote {path}, {out / 'summary.json'}, {figure}")
     code = EXIT_OK

@@ -213,7 +213,8 @@ def test_identify_reports_the_change_a_sigmoid_fit_found(tmp_path, capsys):
     out = tmp_path / "sigmoid"
     command = ["identify", str(path), "--estimator", "sigmoid-fit", "--out", str(out)]
     code = main([*command, "--set", "starts=1", "--set", 'estimated=["K_p","K_v"]'])
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
     assert code == EXIT_OK
     found = json.loads((out / "summary.json").read_text())["sigmoid"]
     # remnant-free, sampled loop, the pilot's own structure: the change found but for
@@ -222,7 +223,31 @@ def test_identify_reports_the_change_a_sigmoid_fit_found(tmp_path, capsys):
     assert found["start"]["K_p"] == pytest.approx(1.5, rel=1e-2)
     assert found["end"]["K_p"] == pytest.approx(0.8, rel=1e-2)
     assert "change: inflection at 12.00 s" in printed and "K_p 1.5 -> 0.8" in printed
+    assert found["warnings"] == [] and "warning" not in captured.err
     assert "no one-step prediction" in printed, printed
     # scored from the first sample, where the model's start at rest costs most of the 1 %
     resimulated = json.loads((out / "summary.json").read_text())["fit"]["vaf_resimulated_percent"]
     assert resimulated > 99.0 and f"resimulated VAF {resimulated:.1f} %" in printed
+
+
+def test_identify_reports_which_pass_a_restarted_filter_kept(tmp_path, capsys):
+    from manualcontrol.pilots import Pilot, simulate
+
+    pilot = Pilot("precision", {"K_p": 1.5, "K_v": 0.5})
+    recording = simulate(pilot, "popovici2017", "popovici2017", measurement_time=30.0)
+    path = recording.save(tmp_path / "run.npz")
+    out = tmp_path / "restarts"
+    command = ["identify", str(path), "--estimator", "rml-smoothed", "--out", str(out)]
+    code = main([*command, "--set", "restarts=1", "--set", 'initial={"K_p": 0.6}'])
+    printed = capsys.readouterr().out
+    assert code == EXIT_OK
+    record = json.loads((out / "summary.json").read_text())["restarts"]
+    assert len(record["initial"]) == len(record["innovation_cost"]) == 2
+    assert record["initial"][0] == {"K_p": 0.6}
+    kept = record["chosen"] + 1
+    costs = ", ".join(f"{cost:.4f}" for cost in record["innovation_cost"])
+    assert f"restarts: pass {kept} of 2 kept (innovation cost of each pass {costs}" in printed
+    # without restarts nothing is said
+    main(["identify", str(path), "--estimator", "rml-smoothed", "--out", str(tmp_path / "one")])
+    assert "restarts" not in capsys.readouterr().out
+    assert "restarts" not in json.loads((tmp_path / "one" / "summary.json").read_text())
