@@ -123,7 +123,10 @@ class SigmoidFit:
     ``vaf`` is of the unfiltered error). ``covariance`` is the least-squares covariance
     of the fitted vector ``x`` (constant values, start values, end values of the
     varying parameters in that order, then ``t_mid`` and ``log(transition_time)``);
-    ``bounds`` the bounds each fitted value was held within.
+    ``bounds`` the bounds each fitted value was held within. ``warnings`` says, in
+    words, where the answer is not to be read as found: the optimiser stopped without
+    converging, or the inflection or the transition time ended on its bound (see
+    :func:`_fit_warnings`).
     """
 
     model: str
@@ -140,6 +143,7 @@ class SigmoidFit:
     covariance: FloatArray
     highpass: float | None = None
     bounds: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
 
     def schedules(self) -> dict[str, Schedule]:
         """Each parameter's schedule: a :class:`Sigmoid` if varying, else a constant."""
@@ -414,6 +418,7 @@ def fit_pilot_sigmoid(
     start.update({n: float(at_start[i]) for i, n in enumerate(varying)})
     end.update({n: float(at_end[i]) for i, n in enumerate(varying)})
     order = model.parameter_names
+    changes = [abs(end[n] - start[n]) for n in varying]
     return SigmoidFit(
         model=model.name,
         start={n: start[n] for n in order},
@@ -429,7 +434,49 @@ def fit_pilot_sigmoid(
         covariance=covariance,
         highpass=highpass,
         bounds={n: (low[n], high[n]) for n in names},
+        warnings=_fit_warnings(
+            best,
+            t_mid=(t_mid, first + edge, float(t[-1]) - edge),
+            transition=(transition, shortest, _LONGEST_TRANSITION * duration),
+            changed=any(change > 0.0 for change in changes),
+        ),
     )
+
+
+def _fit_warnings(
+    best: Any,
+    *,
+    t_mid: tuple[float, float, float],
+    transition: tuple[float, float, float],
+    changed: bool,
+) -> tuple[str, ...]:
+    """What a user should know before reading the fit: ``(value, low, high)`` of each.
+
+    A bound counts as reached within 0.1 % of the range (``t_mid``) or of the
+    logarithm's range (the transition time, fitted in logarithms).
+    """
+    out = []
+    if not best.success:
+        out.append(f"the optimiser stopped without converging ({best.message})")
+    if changed:
+        value, low, high = t_mid
+        if min(value - low, high - value) <= 1e-3 * (high - low):
+            out.append(
+                f"the inflection ({value:.2f} s) is at the edge of the window it may lie "
+                f"in ([{low:.2f}, {high:.2f}] s): the change may lie outside the run"
+            )
+        value, low, high = (math.log(v) for v in transition)
+        if value - low <= 1e-3 * (high - low):
+            out.append(
+                f"the transition time is at its shortest ({transition[1]:.2f} s): a step, "
+                "or a transient the fit follows"
+            )
+        elif high - value <= 1e-3 * (high - low):
+            out.append(
+                f"the transition time is at its longest ({transition[2]:.0f} s): a drift "
+                "rather than one change; a filter (rml-smoothed) may describe it better"
+            )
+    return tuple(out)
 
 
 #: The settings :class:`SigmoidFitEstimator` reads.
@@ -682,6 +729,7 @@ class SigmoidFitEstimator:
                     "end": dict(fit.end),
                     "vaf": fit.vaf,
                     "success": fit.success,
+                    "warnings": list(fit.warnings),
                 },
             },
             health=summarise_health(

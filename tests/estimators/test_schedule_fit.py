@@ -52,6 +52,44 @@ def test_recovers_a_remnant_free_sigmoid_change(changing):
     np.testing.assert_allclose(traces["K_p"], changing.parameters["K_p"], rtol=1e-3)
 
 
+def test_a_clean_change_has_no_warnings(changing):
+    fit = fit_pilot_sigmoid(changing, "precision", initial=DI_PILOT, varying=("K_p",), starts=1)
+    assert fit.success and fit.warnings == ()
+
+
+@pytest.mark.parametrize(
+    ("schedule", "warning"),
+    [
+        # a step (0.02 s) is shorter than the shortest transition (10 samples)
+        (Sigmoid(0.24, 0.40, 22.0, 0.02), "the transition time is at its shortest (0.10 s)"),
+        # 99 % of the change over 2000 s: inside a 40-s window, a drift
+        (Sigmoid(0.20, 0.60, 22.0, 2000.0), "the transition time is at its longest (160 s)"),
+        # the change is over before the window starts (the run-in is cut off)
+        (Sigmoid(0.40, 0.24, -8.0, 3.0), "the inflection (3.90 s) is at the edge"),
+    ],
+)
+def test_a_fit_that_ends_on_a_bound_says_so(schedule, warning):
+    pilot = Pilot("precision", {**DI_PILOT, "K_p": schedule})
+    recording = simulate(
+        pilot, "DI", "vanderel-bw4", loop="sampled", run_in=10.0, measurement_time=40.0, seed=3
+    )
+    fit = fit_pilot_sigmoid(recording, "precision", initial=DI_PILOT, varying=("K_p",), starts=1)
+    assert any(text.startswith(warning) for text in fit.warnings), fit.warnings
+
+
+def test_an_optimiser_that_did_not_converge_is_reported():
+    from types import SimpleNamespace
+
+    from manualcontrol.estimators.schedule_fit import _fit_warnings
+
+    best = SimpleNamespace(success=False, message="the maximum number of evaluations")
+    bounds = {"t_mid": (20.0, 2.0, 38.0), "transition": (5.0, 0.1, 160.0)}
+    (text,) = _fit_warnings(best, changed=True, **bounds)
+    assert text == "the optimiser stopped without converging (the maximum number of evaluations)"
+    # a fit without change has no inflection or transition to speak of
+    assert _fit_warnings(SimpleNamespace(success=True, message=""), changed=False, **bounds) == ()
+
+
 def test_a_constant_pilot_gets_a_flat_sigmoid():
     pilot = Pilot("precision", DI_PILOT)
     recording = simulate(
