@@ -502,6 +502,11 @@ class PilotFilterSettings:
         return (type(self).from_dict, (self.to_dict(),))
 
 
+def _nan_last(value: float) -> float:
+    """``value``, or infinity for NaN (an unscored pass loses every comparison)."""
+    return math.inf if math.isnan(value) else value
+
+
 def _restart_point(result: EstimationResult, names: tuple[str, ...]) -> dict[str, float] | None:
     """Median of each of ``names`` over the last half of ``result`` (None if not finite).
 
@@ -1173,38 +1178,68 @@ class PilotFilter:
         first: EstimationResult,
         store: bool,
     ) -> EstimationResult:
-        """``first`` and ``restarts`` passes after it; the most likely, its record added."""
+        """``first`` and ``restarts`` passes after it; the most likely, its record added.
+
+        Every pass runs with the first pass's resolved numbers but the estimated
+        parameters' start: its held values, ``P0`` and ``Q`` (the preset's rules derive
+        them from the initial values, and the likelihood should compare starts, not
+        noise models). A pass that stopped (non-finite values or a covariance blow-up)
+        is not chosen, and no pass starts from it.
+        """
         from manualcontrol.estimators.metrics import innovation_cost
         from manualcontrol.estimators.smoothing import smooth as smooth_result
 
+        resolved = self.resolved
         n_window = round(self._settings.window / recording.dt)
-        passes = [first]
-        starts = [dict(self._settings.initial)]
-        for _ in range(self._settings.restarts):
-            start = _restart_point(smooth_result(passes[-1]), self.resolved.estimated)
+
+        def cost_of(result: EstimationResult) -> float:
+            if result.health.stopped:
+                return math.nan
+            return innovation_cost(
+                result.innovation[n_window:], result.innovation_variance[n_window:]
+            )
+
+        def start_of(result: EstimationResult) -> dict[str, float] | None:
+            if result.health.stopped:
+                return None
+            return _restart_point(smooth_result(result), resolved.estimated)
+
+        fixed = {"P0": dict(resolved.P0), "Q": dict(resolved.Q), "restarts": 0}
+        starts = [dict(resolved.initial)]
+        costs = [cost_of(first)]
+        finals = [(first.mean[-1], first.std[-1])]
+        best, chosen = first, 0
+        latest = first
+        ended = ""
+        for number in range(1, self._settings.restarts + 1):
+            start = start_of(latest)
             if start is None:
-                break  # the pass left no finite estimate to start from
-            starts.append({**self._settings.initial, **start})
-            again = self.configure(initial=starts[-1], restarts=0)
-            passes.append(again._pass(recording, signals, store=True))
-        costs = [
-            innovation_cost(result.innovation[n_window:], result.innovation_variance[n_window:])
-            for result in passes
-        ]
-        finite = [j for j, cost in enumerate(costs) if math.isfinite(cost)]
-        chosen = min(finite, key=costs.__getitem__) if finite else 0
-        best = passes[chosen]
+                ended = f"pass {number} stopped or left no finite estimate to start from"
+                break
+            initial = {**resolved.initial, **start}
+            try:
+                again = self.configure(initial=initial, **fixed)
+                latest = again._pass(recording, signals, store=True)
+            except ValueError as error:  # a start the settings refuse (tau_f past tau_a)
+                ended = f"pass {number + 1} could not start: {error}"
+                break
+            starts.append(initial)
+            costs.append(cost_of(latest))
+            finals.append((latest.mean[-1], latest.std[-1]))
+            if math.isfinite(costs[-1]) and not costs[-1] >= _nan_last(costs[chosen]):
+                best, chosen = latest, number
         record = {
             "chosen": chosen,
             "initial": starts,
             "innovation_cost": [cost if math.isfinite(cost) else None for cost in costs],
+            "ended": ended,
         }
         return dataclasses.replace(
             best,
             settings={**best.settings, "settings": self._settings.to_dict(), "restarts": record},
-            passes=len(passes),
-            pass_mean=np.array([result.mean[-1] for result in passes]),
-            pass_std=np.array([result.std[-1] for result in passes]),
+            passes=len(starts),
+            pass_mean=np.array([mean for mean, _ in finals]),
+            pass_std=np.array([std for _, std in finals]),
             smoother_inputs=best.smoother_inputs if store else None,
         )
 

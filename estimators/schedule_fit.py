@@ -418,7 +418,9 @@ def fit_pilot_sigmoid(
     start.update({n: float(at_start[i]) for i, n in enumerate(varying)})
     end.update({n: float(at_end[i]) for i, n in enumerate(varying)})
     order = model.parameter_names
-    changes = [abs(end[n] - start[n]) for n in varying]
+    # a change of under 1 % of the value is no change to speak of (a constant pilot's
+    # fit moves 0.2 % from the model's start at rest), and has no inflection to report
+    changed = any(abs(end[n] - start[n]) > 0.01 * max(abs(end[n]), abs(start[n])) for n in varying)
     return SigmoidFit(
         model=model.name,
         start={n: start[n] for n in order},
@@ -438,7 +440,7 @@ def fit_pilot_sigmoid(
             best,
             t_mid=(t_mid, first + edge, float(t[-1]) - edge),
             transition=(transition, shortest, _LONGEST_TRANSITION * duration),
-            changed=any(change > 0.0 for change in changes),
+            changed=changed,
         ),
     )
 

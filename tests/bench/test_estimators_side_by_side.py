@@ -243,7 +243,7 @@ def test_identify_reports_which_pass_a_restarted_filter_kept(tmp_path, capsys):
     assert code == EXIT_OK
     record = json.loads((out / "summary.json").read_text())["restarts"]
     assert len(record["initial"]) == len(record["innovation_cost"]) == 2
-    assert record["initial"][0] == {"K_p": 0.6}
+    assert record["initial"][0]["K_p"] == 0.6 and record["ended"] == ""
     kept = record["chosen"] + 1
     costs = ", ".join(f"{cost:.4f}" for cost in record["innovation_cost"])
     assert f"restarts: pass {kept} of 2 kept (innovation cost of each pass {costs}" in printed

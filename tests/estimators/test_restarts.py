@@ -17,9 +17,10 @@ from manualcontrol.bench.scoring import score
 from manualcontrol.estimators import DEKF, RML, make_estimator
 from manualcontrol.estimators.metrics import innovation_cost
 from manualcontrol.estimators.smoothing import smooth
+from manualcontrol.pilots import Pilot, simulate
 
 sys.path.insert(0, str(Path(__file__).parent))
-from scenarios import COMPENSATORY, compensatory, compensatory_tv
+from scenarios import COMPENSATORY, PREVIEW, compensatory, compensatory_tv
 
 #: A start far from the pilot: K_p and K_v 2.5 times off, the neuromuscular system faster.
 FAR = {"K_p": 0.6, "K_v": 1.25, "omega_nms": 12.0, "zeta_nms": 0.6, "tau_v": 0.3}
@@ -34,16 +35,20 @@ def cost_after_window(result, window=5.0):
 def test_each_pass_starts_from_the_last_and_the_likeliest_is_returned(kind):
     recording = compensatory(False)
     settings = {"model": "precision", "initial": FAR}
-    first = kind(**settings).estimate(recording)
+    probe = kind(**settings)
+    first = probe.estimate(recording)
+    # every pass has the first pass's covariances (the presets derive them from the
+    # initial values; the likelihood compares starts, not noise models)
+    same = {"P0": dict(probe.resolved.P0), "Q": dict(probe.resolved.Q)}
     result = kind(**settings, restarts=2).estimate(recording)
     record = result.settings["restarts"]
     assert result.passes == 3 and result.settings["settings"]["restarts"] == 2
-    assert record["initial"][0] == FAR
+    assert record["initial"][0] == FAR and record["ended"] == ""
     passes = [first]
     for number in (1, 2):
         # each pass starts at the median of the previous one's smoothed last half
         smoothed = smooth(
-            kind(**{**settings, "initial": record["initial"][number - 1]}).estimate(
+            kind(**{**settings, **same, "initial": record["initial"][number - 1]}).estimate(
                 recording, smoother_inputs=True
             )
         )
@@ -52,7 +57,7 @@ def test_each_pass_starts_from_the_last_and_the_likeliest_is_returned(kind):
             expected = float(np.median(smoothed.mean_of(name)[half:]))
             assert record["initial"][number][name] == expected, (number, name)
         passes.append(
-            kind(**{**settings, "initial": record["initial"][number]}).estimate(recording)
+            kind(**{**settings, **same, "initial": record["initial"][number]}).estimate(recording)
         )
     costs = [cost_after_window(one) for one in passes]
     assert record["innovation_cost"] == costs
@@ -102,6 +107,47 @@ def test_the_likelihood_keeps_the_first_pass_when_the_restart_starts_worse():
     np.testing.assert_array_equal(result.mean, plain.mean)
     np.testing.assert_array_equal(result.innovation, plain.innovation)
     assert result.pass_mean.shape == (2, len(result.parameter_names))
+
+
+def test_held_parameters_and_covariances_are_the_first_pass_s_in_every_pass():
+    recording = compensatory(False)
+    # K_v held and not given: the generic rule (Popovici eq. 28) makes it K_p0 / 2 once
+    estimated = ("K_p", "omega_nms", "zeta_nms", "tau_v")
+    filter = RML(model="precision", estimated=estimated, initial={"K_p": 0.6}, restarts=1)
+    result = filter.estimate(recording)
+    record = result.settings["restarts"]
+    assert [start["K_v"] for start in record["initial"]] == [0.3, 0.3]
+    assert record["initial"][1]["K_p"] > 1.0  # the restart did move K_p
+    assert list(result.pass_mean[:, result.parameter_names.index("K_v")]) == [0.3, 0.3]
+    resolved = result.settings["resolved"]
+    # the RML's thesis preset (Sec. V-B) from the FIRST K_p0 = 0.6, whichever pass is kept
+    assert resolved["P0"]["K_p"] == pytest.approx((0.5 * 0.6) ** 2)
+    assert resolved["Q"]["K_p"] == pytest.approx(0.05 * 0.6)
+
+
+def test_a_restart_the_settings_refuse_ends_the_restarts_instead_of_the_run():
+    """Without limits the preview time may pass tau_a, where no filter can start."""
+    pilot = Pilot("preview", {**PREVIEW["SI"], "tau_f": 0.95})
+    recording = simulate(pilot, "SI", "vanderel-bw4", measurement_time=60.0)
+    settings = {"model": "preview", "anticipation_time": 0.7, "limits": "none"}
+    initial = {**PREVIEW["SI"], "tau_f": 0.6, "K_v": 0.2}
+    single = RML(**settings, initial=initial).estimate(recording)
+    result = RML(**settings, initial=initial, restarts=1).estimate(recording)
+    record = result.settings["restarts"]
+    assert result.passes == 1 and record["chosen"] == 0
+    assert record["ended"].startswith("pass 2 could not start: initial tau_f must be <")
+    np.testing.assert_array_equal(result.mean, single.mean)
+
+
+def test_no_pass_starts_from_or_is_chosen_after_a_stopped_pass():
+    recording = compensatory(False).slice_samples(0, 3000)
+    # a covariance bound this low stops the third pass at once (measured)
+    filter = DEKF(model="precision", initial=FAR, max_covariance=1e4, restarts=3)
+    result = filter.estimate(recording)
+    record = result.settings["restarts"]
+    assert result.passes == 3 and record["innovation_cost"][2] is None
+    assert record["ended"] == "pass 3 stopped or left no finite estimate to start from"
+    assert record["chosen"] != 2 and not result.health.stopped
 
 
 def test_smoothing_a_restarted_run_is_smoothing_the_chosen_pass():

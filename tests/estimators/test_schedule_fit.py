@@ -64,8 +64,8 @@ def test_a_clean_change_has_no_warnings(changing):
         (Sigmoid(0.24, 0.40, 22.0, 0.02), "the transition time is at its shortest (0.10 s)"),
         # 99 % of the change over 2000 s: inside a 40-s window, a drift
         (Sigmoid(0.20, 0.60, 22.0, 2000.0), "the transition time is at its longest (160 s)"),
-        # the change is over before the window starts (the run-in is cut off)
-        (Sigmoid(0.40, 0.24, -8.0, 3.0), "the inflection (3.90 s) is at the edge"),
+        # the change is mostly over when the fitted window starts (at 2 s, after the skip)
+        (Sigmoid(0.40, 0.24, 1.0, 6.0), "the inflection (3.90 s) is at the edge"),
     ],
 )
 def test_a_fit_that_ends_on_a_bound_says_so(schedule, warning):
@@ -102,6 +102,7 @@ def test_a_constant_pilot_gets_a_flat_sigmoid():
     for name, value in DI_PILOT.items():
         assert fit.start[name] == pytest.approx(value, rel=5e-3), name
         assert fit.end[name] == pytest.approx(value, rel=5e-3), name
+    assert fit.warnings == ()  # no change, so no inflection at an edge to warn of
 
 
 def test_estimator_reports_the_traces_their_spread_and_the_fit(changing):
