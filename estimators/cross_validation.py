@@ -70,7 +70,8 @@ not kept: the filter's own prediction through the held-out stretches (no smoothi
 resimulation), which chose 10 on constant double-integrator batches.
 
 Each run costs ``len(scales) * folds + 2`` filter passes (smoothed) and ``len(scales) *
-folds`` resimulations: 22 and 20 with the defaults.
+folds`` resimulations: 22 and 20 with the defaults (each filter pass ``restarts + 1``
+passes for a filter with restarts, :mod:`~manualcontrol.estimators.pilot_filter`).
 """
 
 from __future__ import annotations

@@ -82,6 +82,12 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 "initial_variance='causal' (and initial K_p), got "
                 f"initial_variance={settings.initial_variance!r}"
             )
+        if getattr(settings, "restarts", 0):
+            raise ValueError(
+                "restarts pass a whole recording again (estimate, offline); an observer "
+                f"runs the filter online: configure it with restarts=0, got "
+                f"restarts={settings.restarts!r}"
+            )
         self.estimator = estimator
         self.append_to_observation = bool(append_to_observation)
         keys = tuple(estimator.sample_keys)

@@ -188,3 +188,6 @@ def test_observer_needs_a_causal_estimator():
         EstimatorObserver(env, DEKF(model="precision"))
     with pytest.raises(TypeError, match="must be a manualcontrol tracking environment"):
         EstimatorObserver(gym.make("CartPole-v1"), DEKF(**CASES["compensatory"][3]))
+    # restarts pass the whole recording again: nothing an online observer can do
+    with pytest.raises(ValueError, match=re.escape("configure it with restarts=0, got restarts=1")):
+        EstimatorObserver(env, DEKF(**CASES["compensatory"][3], restarts=1))
