@@ -5,8 +5,10 @@ previous pass's smoothed estimate over the last half of the run; the pass with t
 smallest innovation cost (mean ``ln S + nu^2 / S`` after the first window) is returned.
 """
 
+import math
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -16,6 +18,7 @@ from manualcontrol.bench.scenarios import load_suite
 from manualcontrol.bench.scoring import score
 from manualcontrol.estimators import DEKF, RML, make_estimator
 from manualcontrol.estimators.metrics import innovation_cost
+from manualcontrol.estimators.pilot_filter import _paired_score
 from manualcontrol.estimators.smoothing import smooth
 from manualcontrol.pilots import Pilot, simulate
 
@@ -61,7 +64,13 @@ def test_each_pass_starts_from_the_last_and_the_likeliest_is_returned(kind):
         )
     costs = [cost_after_window(one) for one in passes]
     assert record["innovation_cost"] == costs
-    assert record["chosen"] == int(np.argmin(costs))
+    # a pass replaces the kept one on evidence of more than two standard errors
+    kept = 0
+    for number in (1, 2):
+        score = _paired_score(passes[number], passes[kept], skip=500, block=500)
+        assert record["evidence"][number] == score
+        kept = number if score < -2.0 else kept
+    assert record["chosen"] == kept and record["evidence"][0] is None
     np.testing.assert_array_equal(result.mean, passes[record["chosen"]].mean)
     np.testing.assert_array_equal(result.pass_mean, [one.mean[-1] for one in passes])
     np.testing.assert_array_equal(result.pass_std, [one.std[-1] for one in passes])
@@ -107,6 +116,24 @@ def test_the_likelihood_keeps_the_first_pass_when_the_restart_starts_worse():
     np.testing.assert_array_equal(result.mean, plain.mean)
     np.testing.assert_array_equal(result.innovation, plain.innovation)
     assert result.pass_mean.shape == (2, len(result.parameter_names))
+
+
+def test_the_evidence_is_the_mean_paired_difference_in_batch_standard_errors():
+    def run(nu):
+        return SimpleNamespace(
+            innovation=np.asarray(nu, float), innovation_variance=np.ones(len(nu))
+        )
+
+    # per-sample costs nu^2 (S = 1): the candidate's 0, the incumbent's 1 then 3, so the
+    # stretch means of the difference are -1 and -3: mean -2, standard error
+    # std([-1, -3], ddof=1) / sqrt(2) = 1, evidence -2 (the first sample skipped)
+    candidate = run([9.0, 0.0, 0.0, 0.0, 0.0])
+    incumbent = run([0.0, 1.0, 1.0, 3.0**0.5, 3.0**0.5])
+    assert _paired_score(candidate, incumbent, skip=1, block=2) == pytest.approx(-2.0)
+    assert _paired_score(incumbent, candidate, skip=1, block=2) == pytest.approx(2.0)
+    # one stretch gives no standard error; identical passes no evidence either way
+    assert math.isnan(_paired_score(candidate, incumbent, skip=1, block=4))
+    assert _paired_score(incumbent, incumbent, skip=1, block=2) == 0.0
 
 
 def test_held_parameters_and_covariances_are_the_first_pass_s_in_every_pass():
