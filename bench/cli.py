@@ -385,10 +385,14 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         costs = ", ".join(
             "n/a" if cost is None else f"{cost:.4f}" for cost in restarts["innovation_cost"]
         )
+        evidence = ", ".join(f"{z:+.1f}" for z in restarts["evidence"][1:] if z is not None)
         print(
             f"restarts: pass {restarts['chosen'] + 1} of {len(restarts['innovation_cost'])} kept "
-            f"(innovation cost of each pass {costs}; lower is more likely)"
+            f"(innovation cost of each pass {costs}; lower is more likely; a restart is kept "
+            f"below -2 standard errors against the pass kept before it: {evidence or 'n/a'})"
         )
+        if restarts["ended"]:
+            print(f"restarts ended early: {restarts['ended']}")
     print(f"wrote {path}, {out / 'summary.json'}, {figure}")
     code = EXIT_OK
     if health.diverged:

@@ -247,6 +247,9 @@ def test_identify_reports_which_pass_a_restarted_filter_kept(tmp_path, capsys):
     kept = record["chosen"] + 1
     costs = ", ".join(f"{cost:.4f}" for cost in record["innovation_cost"])
     assert f"restarts: pass {kept} of 2 kept (innovation cost of each pass {costs}" in printed
+    assert (
+        f"standard errors against the pass kept before it: {record['evidence'][1]:+.1f})" in printed
+    )
     # without restarts nothing is said
     main(["identify", str(path), "--estimator", "rml-smoothed", "--out", str(tmp_path / "one")])
     assert "restarts" not in capsys.readouterr().out
