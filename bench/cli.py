@@ -19,7 +19,7 @@ import json
 import math
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -351,11 +351,20 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     restarts = result.settings.get("restarts")
     if restarts is not None:  # a filter with restarts: which pass the likelihood kept
         summary["restarts"] = restarts
+    assumed = _held_by_rule(result)
+    if assumed:  # held at values no one measured
+        summary["held_at_generic_values"] = assumed
     out = Path(args.out)
     path = result.save(out / "estimation.npz")
     atomic_write(out / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
     figure = plot_estimation(recording, result, out / "parameters.png", model_output=model_output)
     print(f"estimated {', '.join(result.estimated)}; final values {final}")
+    if assumed:
+        listed = ", ".join(f"{name} {value:.4g}" for name, value in assumed.items())
+        print(
+            f"held at the generic starting values, not estimated: {listed}; if the pilot's "
+            "are known, give them (--set initial='{\"name\": value}'), else estimate them"
+        )
     if math.isnan(one_step) and math.isnan(r_1):
         print(f"fit: resimulated VAF {resimulated:.1f} % (no one-step prediction: offline fit)")
     else:
@@ -418,6 +427,28 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 
 def _rounded(value: float) -> float | None:
     return round(float(value), 4) if math.isfinite(value) else None
+
+
+def _held_by_rule(result: Any) -> dict[str, float]:
+    """Parameters a filter held at a generic rule's value (not given, not estimated).
+
+    The single-integrator rule's ``K_v = 0`` and constant ``omega_f`` are the thesis's
+    design, not an assumption about this pilot, and so is the pursuit form's ``tau_f =
+    0``: left out.
+    """
+    resolved = result.settings.get("resolved")
+    settings = result.settings.get("settings")
+    if not isinstance(resolved, Mapping) or not isinstance(settings, Mapping):
+        return {}
+    given = settings.get("initial") or {}
+    rule = {"K_v", "omega_f"} if settings.get("ce") == "SI" else set()
+    if settings.get("anticipation_time") == 0.0:
+        rule.add("tau_f")
+    return {
+        name: float(value)
+        for name, value in resolved.get("initial", {}).items()
+        if name not in result.estimated and name not in given and name not in rule
+    }
 
 
 def _identified_loop(recording: Any, result: Any, args: argparse.Namespace) -> dict[str, Any]:

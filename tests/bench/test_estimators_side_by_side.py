@@ -254,3 +254,24 @@ def test_identify_reports_which_pass_a_restarted_filter_kept(tmp_path, capsys):
     main(["identify", str(path), "--estimator", "rml-smoothed", "--out", str(tmp_path / "one")])
     assert "restarts" not in capsys.readouterr().out
     assert "restarts" not in json.loads((tmp_path / "one" / "summary.json").read_text())
+
+
+def test_identify_says_which_held_parameters_sit_at_generic_values(tmp_path, capsys):
+    from manualcontrol.pilots import Pilot, simulate
+
+    recording = simulate(Pilot("precision"), "popovici2017", "popovici2017", measurement_time=20.0)
+    path = recording.save(tmp_path / "run.npz")
+    base = ["identify", str(path), "--estimator", "dekf"]
+    held = ["--set", 'estimated=["K_p","K_v"]', "--set", 'initial={"tau_v": 0.25}']
+    assert main([*base, *held, "--out", str(tmp_path / "held")]) == EXIT_OK
+    printed = capsys.readouterr().out
+    # tau_v was given; the neuromuscular parameters took Popovici's eqs. 29-30
+    assert "held at the generic starting values, not estimated: omega_nms 10, zeta_nms 0.3;" in (
+        printed
+    )
+    summary = json.loads((tmp_path / "held" / "summary.json").read_text())
+    assert summary["held_at_generic_values"] == {"omega_nms": 10.0, "zeta_nms": 0.3}
+    # every parameter estimated, or held by the single integrator's rule: nothing to say
+    assert main([*base, "--set", "ce=SI", "--out", str(tmp_path / "si")]) == EXIT_OK
+    assert "generic starting values" not in capsys.readouterr().out
+    assert "held_at_generic_values" not in (tmp_path / "si" / "summary.json").read_text()
