@@ -204,7 +204,7 @@ def innovation_cost(innovation: ArrayLike, variance: ArrayLike) -> float:
 
     ``mean(ln S_k + nu_k^2 / S_k)`` over the samples where both are finite and ``S_k >
     0`` (twice the negative log-likelihood of the prediction-error decomposition,
-    without ``ln 2 pi``; Harvey 1989, Sec. 3.4): lower is more likely. NaN when no
+    without ``ln 2 pi``; Harvey 1989, ch. 3): lower is more likely. NaN when no
     sample counts.
     """
     r, s = _pair("innovation", innovation, "variance", variance)
