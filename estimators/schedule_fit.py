@@ -81,7 +81,7 @@ from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.schedules import Constant, Schedule, Sigmoid
 from manualcontrol.envs.signals import ForcingPair, Multisine
 from manualcontrol.estimators.offline import _lower, _perceptions, fit_pilot
-from manualcontrol.estimators.pilot_filter import TABLE_I, TAU_F_MARGIN
+from manualcontrol.estimators.pilot_filter import DI_FAR_BREAK, TABLE_I, TAU_F_MARGIN
 from manualcontrol.estimators.protocol import EstimationResult, summarise_health
 from manualcontrol.estimators.registry import EstimatorEntry, register
 from manualcontrol.pilots.models import PilotModel, make_model
@@ -514,7 +514,8 @@ class SigmoidFitEstimator:
     """:func:`fit_pilot_sigmoid` behind the estimators' ``estimate`` (offline only).
 
     ``estimated`` names the fitted parameters (the others are held at ``initial``, else
-    the model's nominal values, ``K_v = 0`` for ``ce="SI"``; by default all are fitted,
+    the model's nominal values, ``K_v = 0`` for ``ce="SI"`` and ``omega_f`` 1 rad/s for
+    ``ce="DI"`` as the filters start it; by default all are fitted,
     less ``K_v`` and ``omega_f`` for ``ce="SI"``, as the filters hold them), ``varying``
     those of them that follow the sigmoid. ``limits`` bound the fitted values as the
     filters' do: ``"table-I"`` (default: thesis Table I for ``ce``, else the model's
@@ -598,6 +599,8 @@ class SigmoidFitEstimator:
         nominal = self._model.nominal()
         if self._ce == "SI" and "K_v" in nominal:
             nominal["K_v"] = 0.0  # the single integrator needs no lead (Popovici eq. 28)
+        if self._ce == "DI" and "omega_f" in nominal:
+            nominal["omega_f"] = DI_FAR_BREAK  # the filters' DI start (thesis Table 6.3)
         nominal.update(self._initial)
         fixed = {n: nominal[n] for n in self._model.parameter_names if n not in self._estimated}
         return fit_pilot_sigmoid(

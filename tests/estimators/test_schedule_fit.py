@@ -324,3 +324,20 @@ def test_highpass_is_automatic_on_the_double_integrator_only(changing):
         make_estimator({**common, "ce": "DI"}).estimate(bare)
     with pytest.raises(ValueError, match="highpass must lie below the Nyquist frequency"):
         fit_pilot_sigmoid(changing, "precision", highpass=1000.0)
+
+
+def test_the_double_integrator_starts_the_far_view_break_where_the_filters_do():
+    preview = dict(DI_PILOT, K_f=0.9, omega_f=1.0, tau_f=0.8)
+    recording = simulate(
+        Pilot("preview", preview), "DI", "vanderel-bw4", loop="sampled", measurement_time=20.0
+    )
+    settings = {
+        "name": "sigmoid-fit",
+        "model": "preview",
+        "anticipation_time": 1.5,
+        "estimated": ["K_p"],
+        "starts": 1,
+    }
+    held = make_estimator({**settings, "ce": "DI"}).estimate(recording).final()
+    assert held["omega_f"] == 1.0  # pilot_filter.DI_FAR_BREAK, thesis Table 6.3
+    assert make_estimator(settings).estimate(recording).final()["omega_f"] == 3.3  # nominal
