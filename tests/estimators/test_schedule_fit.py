@@ -329,7 +329,7 @@ def test_highpass_is_automatic_on_the_double_integrator_only(changing):
 def test_the_double_integrator_starts_the_far_view_break_where_the_filters_do():
     preview = dict(DI_PILOT, K_f=0.9, omega_f=1.0, tau_f=0.8)
     recording = simulate(
-        Pilot("preview", preview), "DI", "vanderel-bw4", loop="sampled", measurement_time=20.0
+        Pilot("preview", preview), "DI", "vanderel-bw4", loop="sampled", measurement_time=8.0
     )
     settings = {
         "name": "sigmoid-fit",
