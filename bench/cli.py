@@ -287,6 +287,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from manualcontrol.bench.runner import make_estimator
     from manualcontrol.envs._files import atomic_write
     from manualcontrol.estimators.metrics import innovation_whiteness, resimulate, vaf
+    from manualcontrol.estimators.pilot_filter import EVIDENCE
 
     _check_output("--out", args.out, folder=True)
     recording = _load_trial(args)
@@ -398,7 +399,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         print(
             f"restarts: pass {restarts['chosen'] + 1} of {len(restarts['innovation_cost'])} kept "
             f"(innovation cost of each pass {costs}; lower is more likely; a restart is kept "
-            f"below -2 standard errors against the pass kept before it: {evidence or 'n/a'})"
+            f"below -{EVIDENCE:g} standard errors against the pass kept before it: "
+            f"{evidence or 'n/a'})"
         )
         if restarts["ended"]:
             print(f"restarts ended early: {restarts['ended']}")
@@ -432,18 +434,18 @@ def _rounded(value: float) -> float | None:
 def _held_by_rule(result: Any) -> dict[str, float]:
     """Parameters a filter held at a generic rule's value (not given, not estimated).
 
-    The single-integrator rule's ``K_v = 0`` and constant ``omega_f`` are the thesis's
-    design, not an assumption about this pilot, and so is the pursuit form's ``tau_f =
-    0``: left out.
+    What the family holds by design (the single integrator's ``K_v = 0`` and constant
+    ``omega_f``, the pursuit form's ``tau_f = 0``) is no assumption about this pilot:
+    left out.
     """
+    from manualcontrol.estimators.pilot_filter import held_by_design
+
     resolved = result.settings.get("resolved")
     settings = result.settings.get("settings")
     if not isinstance(resolved, Mapping) or not isinstance(settings, Mapping):
         return {}
     given = settings.get("initial") or {}
-    rule = {"K_v", "omega_f"} if settings.get("ce") == "SI" else set()
-    if settings.get("anticipation_time") == 0.0:
-        rule.add("tau_f")
+    rule = held_by_design(settings.get("ce"), settings.get("anticipation_time") == 0.0)
     return {
         name: float(value)
         for name, value in resolved.get("initial", {}).items()

@@ -95,11 +95,13 @@ __all__ = [
     "evaluate",
     "has_remnant_parts",
     "innovation_cost",
+    "innovation_cost_terms",
     "innovation_fractions",
     "innovation_whiteness",
     "moving_vaf",
     "nrmse",
     "observability_gramian",
+    "paired_cost_evidence",
     "relative_bias",
     "resimulate",
     "resimulate_parameters",
@@ -199,6 +201,18 @@ def innovation_fractions(innovation: ArrayLike, variance: ArrayLike) -> tuple[fl
     return float(np.mean(magnitude <= sigma)), float(np.mean(magnitude <= 2.0 * sigma))
 
 
+def innovation_cost_terms(innovation: ArrayLike, variance: ArrayLike) -> FloatArray:
+    """Per sample ``ln S_k + nu_k^2 / S_k`` (see :func:`innovation_cost`).
+
+    NaN where ``nu_k`` or ``S_k`` is not finite or ``S_k <= 0``.
+    """
+    r, s = _pair("innovation", innovation, "variance", variance)
+    ok = np.isfinite(r) & np.isfinite(s) & (s > 0.0)
+    terms = np.full(r.shape, np.nan)
+    terms[ok] = np.log(s[ok]) + r[ok] ** 2 / s[ok]
+    return terms
+
+
 def innovation_cost(innovation: ArrayLike, variance: ArrayLike) -> float:
     """Mean negative log-likelihood of Gaussian innovations, per sample, up to a constant.
 
@@ -207,11 +221,35 @@ def innovation_cost(innovation: ArrayLike, variance: ArrayLike) -> float:
     without ``ln 2 pi``; Harvey 1989, ch. 3): lower is more likely. NaN when no
     sample counts.
     """
-    r, s = _pair("innovation", innovation, "variance", variance)
-    ok = np.isfinite(r) & np.isfinite(s) & (s > 0.0)
-    if not ok.any():
-        return float("nan")
-    return float(np.mean(np.log(s[ok]) + r[ok] ** 2 / s[ok]))
+    terms = innovation_cost_terms(innovation, variance)
+    ok = np.isfinite(terms)
+    return float(np.mean(terms[ok])) if ok.any() else float("nan")
+
+
+def paired_cost_evidence(candidate: ArrayLike, incumbent: ArrayLike, block: int) -> float:
+    """How much lower ``candidate``'s per-sample costs are, in standard errors (< 0: lower).
+
+    ``candidate`` and ``incumbent`` are :func:`innovation_cost_terms` of two runs over the
+    same samples, so their differences ``d_k`` are paired; consecutive ``d_k`` are
+    strongly correlated (two slowly parting parameter tracks), so the standard error of
+    their mean is taken from the means of ``block``-sample stretches (batch means). NaN
+    with fewer than two stretches holding a finite difference.
+    """
+    a, b = _pair("candidate", candidate, "incumbent", incumbent)
+    block = check_int("block", block, minimum=1)
+    difference = a - b
+    stretches = [
+        chunk[np.isfinite(chunk)].mean()
+        for chunk in np.array_split(difference, max(len(difference) // block, 1))
+        if np.isfinite(chunk).any()
+    ]
+    if len(stretches) < 2:
+        return math.nan
+    spread = float(np.std(stretches, ddof=1)) / math.sqrt(len(stretches))
+    mean = float(np.mean(stretches))
+    if spread == 0.0:
+        return 0.0 if mean == 0.0 else math.copysign(math.inf, mean)
+    return mean / spread
 
 
 def observability_gramian(A: ArrayLike, C: ArrayLike, horizon: int | None = None) -> FloatArray:

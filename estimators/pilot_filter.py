@@ -130,6 +130,7 @@ __all__ = [
     "PilotFilter",
     "PilotFilterSettings",
     "ResolvedSettings",
+    "held_by_design",
     "resolve_settings",
 ]
 
@@ -182,13 +183,13 @@ TABLE_I: Mapping[str, Mapping[str, tuple[float, float]]] = MappingProxyType(
 )
 #: Distance of the ``tau_f*`` limits from 0 and from ``tau_a`` (Table I: 0.1 s).
 TAU_F_MARGIN = 0.1
-#: Popovici eqs. 29-31 and the preview extension: generic initial values.
 #: Initial far-view break frequency (rad/s) on the double integrator: the thesis's DI
 #: benchmark started there (Part II Table 6.3, estimation 8.1); the preview model's
 #: nominal 3.3 rad/s is the single integrator's, where the target is hardly filtered
 #: (thesis Part I Sec. II). Started at 3.3 on DI data (55 % remnant, 30 runs, the RML
 #: smoothed) the estimate stayed near it: NRMSE 1.54 against 0.21 from 1 rad/s.
 DI_FAR_BREAK = 1.0
+#: Popovici eqs. 29-31 and the preview extension: generic initial values.
 GENERIC_INITIAL = MappingProxyType({"omega_nms": 10.0, "zeta_nms": 0.3, "tau_v": 0.3, "K_f": 1.0})
 #: Order of the parameter filter's vector (Popovici eq. 39, thesis eq. 41).
 _THETA_ORDER = ("omega_nms", "zeta_nms", "tau_v", "K_f", "omega_f", "tau_f")
@@ -515,37 +516,16 @@ class PilotFilterSettings:
 EVIDENCE = 2.0
 
 
-def _paired_score(
-    candidate: EstimationResult, incumbent: EstimationResult, *, skip: int, block: int
-) -> float:
-    """How much more likely ``candidate``'s innovations are, in standard errors (< 0: more).
+def held_by_design(ce: str | None, pursuit: bool) -> frozenset[str]:
+    """Parameters the family holds whatever the pilot, unless ``estimated`` names them.
 
-    The per-sample costs ``ln S + nu^2 / S`` of the two passes (the same samples, so
-    paired) differ by ``d_k``; consecutive ``d_k`` are strongly correlated (the two
-    parameter tracks differ slowly), so the standard error of their mean is taken from
-    the means of ``block``-sample stretches (batch means). NaN with fewer than two
-    stretches.
+    The single integrator's ``K_v`` (at 0) and ``omega_f`` (thesis Sec. III-A), and the
+    pursuit form's preview time (no preview: ``tau_f = 0`` enters nowhere).
     """
-    terms = []
-    for result in (candidate, incumbent):
-        nu = result.innovation[skip:]
-        variance = result.innovation_variance[skip:]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            terms.append(np.log(variance) + nu**2 / variance)
-    difference = terms[0] - terms[1]
-    usable = np.isfinite(difference)
-    stretches = [
-        chunk[np.isfinite(chunk)].mean()
-        for chunk in np.array_split(difference, max(len(difference) // block, 1))
-        if np.isfinite(chunk).any()
-    ]
-    if len(stretches) < 2 or not usable.any():
-        return math.nan
-    spread = float(np.std(stretches, ddof=1)) / math.sqrt(len(stretches))
-    mean = float(np.mean(stretches))
-    if spread == 0.0:
-        return 0.0 if mean == 0.0 else math.copysign(math.inf, mean)
-    return mean / spread
+    held = {"K_v", "omega_f"} if ce == "SI" else set()
+    if pursuit:
+        held.add(ANTICIPATED_PARAMETER)
+    return frozenset(held)
 
 
 def _restart_point(result: EstimationResult, names: tuple[str, ...]) -> dict[str, float] | None:
@@ -650,9 +630,7 @@ def resolve_settings(
     preview = ANTICIPATED_PARAMETER in names and "ft_far" in model.perceptions and not pursuit
     si = settings.ce == "SI"
     if settings.estimated is None:
-        held = {"K_v", "omega_f"} if si else set()
-        if pursuit:
-            held.add(ANTICIPATED_PARAMETER)  # no preview: tau_f = 0 enters nowhere
+        held = held_by_design(settings.ce, pursuit)
         estimated = tuple(name for name in names if name not in held)
     else:
         estimated = settings.estimated
@@ -1227,18 +1205,22 @@ class PilotFilter:
         noise models). A pass that stopped (non-finite values or a covariance blow-up)
         is not chosen, and no pass starts from it.
         """
-        from manualcontrol.estimators.metrics import innovation_cost
+        from manualcontrol.estimators.metrics import innovation_cost_terms, paired_cost_evidence
         from manualcontrol.estimators.smoothing import smooth as smooth_result
 
         resolved = self.resolved
         n_window = round(self._settings.window / recording.dt)
 
-        def cost_of(result: EstimationResult) -> float:
-            if result.health.stopped:
-                return math.nan
-            return innovation_cost(
+        def terms_of(result: EstimationResult) -> FloatArray:
+            """Per-sample costs after the first window (NaN throughout for a stopped pass)."""
+            terms = innovation_cost_terms(
                 result.innovation[n_window:], result.innovation_variance[n_window:]
             )
+            return np.full_like(terms, np.nan) if result.health.stopped else terms
+
+        def cost_of(terms: FloatArray) -> float:
+            finite = np.isfinite(terms)
+            return float(np.mean(terms[finite])) if finite.any() else math.nan
 
         def start_of(result: EstimationResult) -> dict[str, float] | None:
             if result.health.stopped:
@@ -1247,7 +1229,8 @@ class PilotFilter:
 
         fixed = {"P0": dict(resolved.P0), "Q": dict(resolved.Q), "restarts": 0}
         starts = [dict(resolved.initial)]
-        costs = [cost_of(first)]
+        best_terms = terms_of(first)
+        costs = [cost_of(best_terms)]
         finals = [(first.mean[-1], first.std[-1])]
         best, chosen = first, 0
         latest = first
@@ -1266,13 +1249,14 @@ class PilotFilter:
                 ended = f"pass {number + 1} could not start: {error}"
                 break
             starts.append(initial)
-            costs.append(cost_of(latest))
+            latest_terms = terms_of(latest)
+            costs.append(cost_of(latest_terms))
             finals.append((latest.mean[-1], latest.std[-1]))
             score = math.nan
             if math.isfinite(costs[-1]):
-                score = _paired_score(latest, best, skip=n_window, block=n_window)
+                score = paired_cost_evidence(latest_terms, best_terms, block=n_window)
                 if best.health.stopped or score < -EVIDENCE:
-                    best, chosen = latest, number
+                    best, best_terms, chosen = latest, latest_terms, number
             scores.append(score)
         record = {
             "chosen": chosen,

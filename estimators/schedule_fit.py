@@ -81,7 +81,12 @@ from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.schedules import Constant, Schedule, Sigmoid
 from manualcontrol.envs.signals import ForcingPair, Multisine
 from manualcontrol.estimators.offline import _lower, _perceptions, fit_pilot
-from manualcontrol.estimators.pilot_filter import DI_FAR_BREAK, TABLE_I, TAU_F_MARGIN
+from manualcontrol.estimators.pilot_filter import (
+    DI_FAR_BREAK,
+    TABLE_I,
+    TAU_F_MARGIN,
+    held_by_design,
+)
 from manualcontrol.estimators.protocol import EstimationResult, summarise_health
 from manualcontrol.estimators.registry import EstimatorEntry, register
 from manualcontrol.pilots.models import PilotModel, make_model
@@ -567,7 +572,7 @@ class SigmoidFitEstimator:
         if unknown:
             raise ValueError(f"initial names {unknown}, which the {model} model does not have")
         if estimated is None:
-            held = {"K_v", "omega_f"} if self._ce == "SI" else set()
+            held = held_by_design(self._ce, pursuit=False)  # a fit has no pursuit form
             self._estimated = tuple(name for name in names if name not in held)
         else:
             self._estimated = _check_names("estimated", estimated, names)

@@ -8,7 +8,6 @@ smallest innovation cost (mean ``ln S + nu^2 / S`` after the first window) is re
 import math
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -17,8 +16,11 @@ from manualcontrol.bench.runner import simulate_scenario
 from manualcontrol.bench.scenarios import load_suite
 from manualcontrol.bench.scoring import score
 from manualcontrol.estimators import DEKF, RML, make_estimator
-from manualcontrol.estimators.metrics import innovation_cost
-from manualcontrol.estimators.pilot_filter import _paired_score
+from manualcontrol.estimators.metrics import (
+    innovation_cost,
+    innovation_cost_terms,
+    paired_cost_evidence,
+)
 from manualcontrol.estimators.smoothing import smooth
 from manualcontrol.pilots import Pilot, simulate
 
@@ -67,7 +69,8 @@ def test_each_pass_starts_from_the_last_and_the_likeliest_is_returned(kind):
     # a pass replaces the kept one on evidence of more than two standard errors
     kept = 0
     for number in (1, 2):
-        score = _paired_score(passes[number], passes[kept], skip=500, block=500)
+        terms = [innovation_cost_terms(p.innovation, p.innovation_variance)[500:] for p in passes]
+        score = paired_cost_evidence(terms[number], terms[kept], block=500)
         assert record["evidence"][number] == score
         kept = number if score < -2.0 else kept
     assert record["chosen"] == kept and record["evidence"][0] is None
@@ -119,21 +122,19 @@ def test_the_likelihood_keeps_the_first_pass_when_the_restart_starts_worse():
 
 
 def test_the_evidence_is_the_mean_paired_difference_in_batch_standard_errors():
-    def run(nu):
-        return SimpleNamespace(
-            innovation=np.asarray(nu, float), innovation_variance=np.ones(len(nu))
-        )
+    def terms(nu):  # the first sample skipped, as the first window is
+        return innovation_cost_terms(nu, np.ones(len(nu)))[1:]
 
     # per-sample costs nu^2 (S = 1): the candidate's 0, the incumbent's 1 then 3, so the
     # stretch means of the difference are -1 and -3: mean -2, standard error
-    # std([-1, -3], ddof=1) / sqrt(2) = 1, evidence -2 (the first sample skipped)
-    candidate = run([9.0, 0.0, 0.0, 0.0, 0.0])
-    incumbent = run([0.0, 1.0, 1.0, 3.0**0.5, 3.0**0.5])
-    assert _paired_score(candidate, incumbent, skip=1, block=2) == pytest.approx(-2.0)
-    assert _paired_score(incumbent, candidate, skip=1, block=2) == pytest.approx(2.0)
+    # std([-1, -3], ddof=1) / sqrt(2) = 1, evidence -2
+    candidate = terms([9.0, 0.0, 0.0, 0.0, 0.0])
+    incumbent = terms([0.0, 1.0, 1.0, 3.0**0.5, 3.0**0.5])
+    assert paired_cost_evidence(candidate, incumbent, block=2) == pytest.approx(-2.0)
+    assert paired_cost_evidence(incumbent, candidate, block=2) == pytest.approx(2.0)
     # one stretch gives no standard error; identical passes no evidence either way
-    assert math.isnan(_paired_score(candidate, incumbent, skip=1, block=4))
-    assert _paired_score(incumbent, incumbent, skip=1, block=2) == 0.0
+    assert math.isnan(paired_cost_evidence(candidate, incumbent, block=4))
+    assert paired_cost_evidence(incumbent, incumbent, block=2) == 0.0
 
 
 def test_held_parameters_and_covariances_are_the_first_pass_s_in_every_pass():
