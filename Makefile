@@ -30,9 +30,11 @@ $(STAMP): $(BIN)/python pyproject.toml
 demo: $(STAMP)
 	$(BIN)/python -m manualcontrol.bench.demo
 
+# one pytest worker a core (pytest-xdist); a test file stays on one worker, so its
+# module fixtures (simulated runs) are built once. `pytest tests/...` alone runs serially.
 test: $(STAMP)
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist loadfile
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
