@@ -81,6 +81,31 @@ free) ``K_f`` NRMSE 0.349 and ``omega_f`` 0.387 with ``"all"``, 0.248 and 0.316 
 ``"remnant-path"``; on the single integrator the two agree within 0.04. Learning ``R``
 as a noise parameter instead lets it collapse (one-step VAF 100 %, ``K_p`` +180 %).
 
+What ``R``'s level does with remnant, and what it leaves (measured for issue 15;
+``manualcontrol bench`` on copies of the suites' batches with ``r2`` set, mean relative
+bias, smoothed): ``R`` also decides how the gains and the remnant share the stick's slow
+power. On the double integrator ``K_p``'s bias falls as ``r2`` rises, and the ``r2``
+without bias grows with the remnant (``remnant-robustness``'s preview DI pilot, all
+free, 6 runs a level, ``r2`` = 1 / 2 / 4: 15 % remnant -9 / -42 / -65 %, 35 % +8 / -3 /
+-38 %; the thesis's, 55 %, 10 runs of ``all-DI-full``: +18 % at 1, +2 % at 4, where its
+remnant-free resimulated VAF is 97.6 against 97.2 %); on the single integrator ``r2`` =
+0.5 against 1 moves ``K_p`` by under 0.07 and the neuromuscular parameters both ways
+(the preview pilot with all parameters free, 30 % remnant, 4 runs: ``zeta_nms`` +32 ->
++5 %, ``tau_v`` -28 -> -12 %; Popovici's time-varying pilot, 30 %, 10 runs: ``zeta_nms``
+-7 -> -12 %, ``K_v`` -9 -> -13 %). No one ``r2`` serves every remnant level and pilot,
+so it stays 1, the remnant-free choice. The double integrator's steady biases in
+``K_v``, ``omega_nms`` and ``zeta_nms`` (55 % remnant, those 10 runs: -11, -13 and -23
+%; all 100: -9, -13 and -21 %, from run to run 3-6 %) are the ``dS`` term's pull towards
+a smaller ``S`` (above): centring that term on the innovations' observed level (a moving
+mean of ``nu^2/S``) turns them to +6, +5 and -56 % and frees ``K_p`` (+81 %), whose
+split from the remnant's level is what that level decides; leaving ``omega_nms``,
+``zeta_nms`` and ``tau_v`` out of it lets ``zeta_nms`` fall by 69 %. They are not the
+remnant's delay (a remnant injected after the pilot's delay, where the filter puts it:
+the same biases), nor the random walk's memory (``Q`` a hundred times smaller for the
+constant parameters: larger errors), nor the break frequency (learned: the same). A
+noise model in which ``R`` is a noise, not a weighting, is what would remove them; none
+of these variants is an option.
+
 Process noise that follows a change (the drift rule): the parameters' random-walk
 variances are the family's presets (thesis Sec. V-B-2), tuned for 20-s sigmoids of
 ``tau_f``. When a parameter changes faster, the estimate lags and every sample corrects
