@@ -287,7 +287,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from manualcontrol.bench.runner import make_estimator
     from manualcontrol.envs._files import atomic_write
     from manualcontrol.estimators.metrics import innovation_whiteness, resimulate, vaf
-    from manualcontrol.estimators.pilot_filter import EVIDENCE
+    from manualcontrol.estimators.pilot_filter import EVIDENCE, GenericValuesWarning
 
     _check_output("--out", args.out, folder=True)
     recording = _load_trial(args)
@@ -309,7 +309,10 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             f"{', '.join(n for n, e in ESTIMATORS.items() if e.pilot_model)}; the "
             f"{args.estimator} estimator has its own model (set its settings with --set)"
         )
-    estimator = make_estimator(spec)
+    with warnings.catch_warnings():
+        # identify says so itself, with the values (below)
+        warnings.simplefilter("ignore", GenericValuesWarning)
+        estimator = make_estimator(spec)
     try:
         result = estimator.estimate(recording, **target)
     except ValueError as error:
@@ -438,19 +441,21 @@ def _held_by_rule(result: Any) -> dict[str, float]:
     ``omega_f``, the pursuit form's ``tau_f = 0``) is no assumption about this pilot:
     left out.
     """
-    from manualcontrol.estimators.pilot_filter import held_by_design
+    from manualcontrol.estimators.pilot_filter import held_without_values
 
     resolved = result.settings.get("resolved")
     settings = result.settings.get("settings")
     if not isinstance(resolved, Mapping) or not isinstance(settings, Mapping):
         return {}
-    given = settings.get("initial") or {}
-    rule = held_by_design(settings.get("ce"), settings.get("anticipation_time") == 0.0)
-    return {
-        name: float(value)
-        for name, value in resolved.get("initial", {}).items()
-        if name not in result.estimated and name not in given and name not in rule
-    }
+    values = resolved.get("initial", {})
+    assumed = held_without_values(
+        values,
+        result.estimated,
+        settings.get("initial") or {},
+        settings.get("ce"),
+        settings.get("anticipation_time") == 0.0,
+    )
+    return {name: float(values[name]) for name in assumed}
 
 
 def _identified_loop(recording: Any, result: Any, args: argparse.Namespace) -> dict[str, Any]:

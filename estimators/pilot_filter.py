@@ -33,7 +33,10 @@ Settings rules, with the papers' defaults
   ``zeta_nms0 = 0.3``, ``tau_v0 = 0.3``; for the preview model (no rule in the thesis,
   which started at the true values) ``K_f0 = 1``, ``omega_f0`` its nominal value
   (3.3 rad/s; 1 rad/s for ``ce="DI"``, where the thesis's DI benchmark started,
-  :data:`DI_FAR_BREAK`) and ``tau_f0 = tau_a/2``, the middle of its limits.
+  :data:`DI_FAR_BREAK`) and ``tau_f0 = tau_a/2``, the middle of its limits. A
+  parameter left out of ``estimated`` as well stays at that value all run, a value no
+  one measured for this pilot: the filter says so when it is built
+  (:class:`GenericValuesWarning`, :func:`held_without_values`).
 * ``limits``: estimate projection (thesis eqs. 20, 25, 27-28) with Table I for the
   ``ce`` type (``"SI"``/``"DI"``); without a CE type the union of both columns (the
   structure's human ranges); ``tau_f*`` always within ``[0.1, tau_a - 0.1]``.
@@ -81,7 +84,9 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Mapping
+import sys
+import warnings
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, ClassVar
@@ -126,11 +131,13 @@ __all__ = [
     "PRESETS",
     "TABLE_I",
     "TAU_F_MARGIN",
+    "GenericValuesWarning",
     "ParameterMap",
     "PilotFilter",
     "PilotFilterSettings",
     "ResolvedSettings",
     "held_by_design",
+    "held_without_values",
     "resolve_settings",
 ]
 
@@ -528,6 +535,47 @@ def held_by_design(ce: str | None, pursuit: bool) -> frozenset[str]:
     return frozenset(held)
 
 
+class GenericValuesWarning(UserWarning):
+    """A filter holds parameters at generic starting values (:func:`held_without_values`)."""
+
+
+#: The library's own packages: a warning points past them, at the code that called in.
+_LIBRARY = tuple(
+    f"manualcontrol.{name}" for name in ("envs", "pilots", "estimators", "agents", "bench")
+)
+
+
+def _caller_level() -> int:
+    """``stacklevel`` of the first caller outside the library, seen from the caller of this."""
+    frame, level = sys._getframe(1), 1
+    while frame.f_back is not None and frame.f_globals.get("__name__", "").startswith(_LIBRARY):
+        frame, level = frame.f_back, level + 1
+    return level
+
+
+def held_without_values(
+    names: Iterable[str],
+    estimated: Iterable[str] | None,
+    initial: Mapping[str, float],
+    ce: str | None,
+    pursuit: bool,
+) -> tuple[str, ...]:
+    """Of ``names``, those held all run at a generic rule's starting value.
+
+    Not estimated, no value given in ``initial``, and not held by design
+    (:func:`held_by_design`): such a parameter stays all run at a value no one measured
+    for this pilot (Popovici's eqs. 27-31, the preview model's nominal values: the
+    module docstring). ``estimated=None`` (all but the design's holds) holds none.
+    """
+    if estimated is None:
+        return ()
+    estimated = set(estimated)
+    rule = held_by_design(ce, pursuit)
+    return tuple(
+        name for name in names if name not in estimated and name not in initial and name not in rule
+    )
+
+
 def _restart_point(result: EstimationResult, names: tuple[str, ...]) -> dict[str, float] | None:
     """Median of each of ``names`` over the last half of ``result`` (None if not finite).
 
@@ -842,6 +890,22 @@ class PilotFilter:
             settings = dataclasses.replace(settings, **changes)
         self._settings = settings
         self._internal = internal_model(settings.model, settings.delay_order, settings.pursuit)
+        assumed = held_without_values(
+            self._internal.parameter_names,
+            settings.estimated,
+            settings.initial,
+            settings.ce,
+            settings.pursuit,
+        )
+        if assumed:
+            warnings.warn(
+                f"{type(self).__name__} holds {', '.join(assumed)} at generic starting "
+                "values all run (not estimated, no value in initial): give the pilot's "
+                f"values in initial={{{', '.join(repr(n) + ': ...' for n in assumed)}}} or "
+                "name them in estimated",
+                GenericValuesWarning,
+                stacklevel=_caller_level(),
+            )
         keys = list(self._internal.input_names)
         keys += [name for name in ("e", "u") if name not in keys]
         self._sample_keys = tuple(keys)

@@ -34,6 +34,7 @@ from manualcontrol.estimators import (
     load_result,
 )
 from manualcontrol.estimators._targets import PeriodicExtension
+from manualcontrol.estimators.pilot_filter import GenericValuesWarning
 
 sys.path.insert(0, str(Path(__file__).parent))
 from dekf_oracle import Model, NumpyDEKF
@@ -457,7 +458,8 @@ def test_bad_settings_raise(settings, message):
 
 
 def test_settings_that_resolve_to_zero_covariance_raise():
-    dekf = DEKF(model="precision", ce="SI", estimated=("K_p", "K_v"))
+    with pytest.warns(GenericValuesWarning, match="holds tau_v, omega_nms, zeta_nms"):
+        dekf = DEKF(model="precision", ce="SI", estimated=("K_p", "K_v"))
     with pytest.raises(ValueError, match=re.escape("Q['K_v'] resolves to 0.0")):
         dekf.reset(0.01, var_u0=1.0, var_e0=1.0)
     outside = DEKF(model="precision", initial={"K_p": 3.0})

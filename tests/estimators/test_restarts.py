@@ -21,6 +21,7 @@ from manualcontrol.estimators.metrics import (
     innovation_cost_terms,
     paired_cost_evidence,
 )
+from manualcontrol.estimators.pilot_filter import GenericValuesWarning
 from manualcontrol.estimators.smoothing import smooth
 from manualcontrol.pilots import Pilot, simulate
 
@@ -141,7 +142,8 @@ def test_held_parameters_and_covariances_are_the_first_pass_s_in_every_pass():
     recording = compensatory(False)
     # K_v held and not given: the generic rule (Popovici eq. 28) makes it K_p0 / 2 once
     estimated = ("K_p", "omega_nms", "zeta_nms", "tau_v")
-    filter = RML(model="precision", estimated=estimated, initial={"K_p": 0.6}, restarts=1)
+    with pytest.warns(GenericValuesWarning, match="RML holds K_v at generic starting values"):
+        filter = RML(model="precision", estimated=estimated, initial={"K_p": 0.6}, restarts=1)
     result = filter.estimate(recording)
     record = result.settings["restarts"]
     assert [start["K_v"] for start in record["initial"]] == [0.3, 0.3]

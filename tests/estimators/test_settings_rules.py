@@ -11,13 +11,16 @@ written out here by hand, so a change of any rule fails a test.
 
 import math
 import re
+import warnings
 
 import pytest
 
-from manualcontrol.estimators import DEKF, DualUKF, JointUKF
+from manualcontrol.estimators import DEKF, RML, DualUKF, JointUKF
 from manualcontrol.estimators.pilot_filter import (
     TABLE_I,
+    GenericValuesWarning,
     ParameterMap,
+    held_without_values,
     internal_model,
     resolve_settings,
 )
@@ -130,3 +133,45 @@ def test_generic_gain_needs_the_first_window():
     assert math.isclose(resolved(model="precision", var_u0=2.25, var_e0=1.0).initial["K_p"], 1.5)
     # a generic value outside the limits starts at the limit (K_p's human range ends at 2.5)
     assert resolved(model="precision", var_u0=9.0, var_e0=1.0).initial["K_p"] == 2.5
+
+
+#: Values a study might give for what it holds (SI-like, thesis Table II).
+TYPICAL_HELD = {"K_v": 0.5, "tau_v": 0.25, "omega_nms": 10.5, "zeta_nms": 0.35}
+
+
+def test_a_filter_says_which_parameters_it_holds_at_generic_values():
+    # the neuromuscular parameters and the delay neither estimated nor given: Popovici's
+    # eqs. 29-31 hold them all run; K_v is the single integrator's rule, not an assumption
+    with pytest.warns(GenericValuesWarning) as record:
+        DEKF(model="precision", ce="SI", estimated=("K_p",))
+    (warning,) = record
+    assert str(warning.message).startswith(
+        "DEKF holds tau_v, omega_nms, zeta_nms at generic starting values all run"
+    )
+    assert "initial={'tau_v': ..., 'omega_nms': ..., 'zeta_nms': ...}" in str(warning.message)
+    # it points at the code that built the filter, through a subclass's __init__ too
+    assert warning.filename == __file__
+    with pytest.warns(GenericValuesWarning, match="RML holds K_v at") as record:
+        RML(model="precision", ce="DI", estimated=("K_p", "omega_nms", "zeta_nms", "tau_v"))
+    assert record[0].filename == __file__
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        # given values, every parameter estimated, or held by design: nothing to say
+        DEKF(model="precision", estimated=("K_p",), initial=dict(TYPICAL_HELD))
+        DEKF(model="precision", ce="DI")
+        DEKF(model="precision", ce="SI", estimated=("K_p", "tau_v", "omega_nms", "zeta_nms"))
+        DEKF(
+            model="preview",
+            anticipation_time=0.0,
+            initial={"omega_f": 3.3},
+            estimated=("K_f", "K_p", "K_v", "tau_v", "omega_nms", "zeta_nms"),
+        )
+
+
+def test_held_without_values_by_hand():
+    names = ("K_f", "omega_f", "tau_f", "K_p", "K_v", "tau_v")
+    assert held_without_values(names, None, {}, "SI", False) == ()
+    held = held_without_values(names, ("K_p",), {"tau_v": 0.3}, None, False)
+    assert held == ("K_f", "omega_f", "tau_f", "K_v")
+    # the single integrator's K_v and omega_f, the pursuit form's tau_f: by design
+    assert held_without_values(names, ("K_p",), {"tau_v": 0.3}, "SI", True) == ("K_f",)
