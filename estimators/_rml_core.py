@@ -151,7 +151,9 @@ INJECT_OUTPUT = 1
 #: variance of the samples so far; no parameter learns before it);
 #: ``variance_score`` (n_p,) per model parameter: whether the variance part of the
 #: score (the ``dS`` terms) moves it; ``spread_cap`` (n_t,): the largest offset of a
-#: bank member from the mean in each parameter (inf: none).
+#: bank member from the mean in each parameter (inf: none); ``remnant_weight`` (2,):
+#: ``r2_remnant`` and the model index of the gain the remnant passes (-1: none, at the
+#: stick), :func:`_remnant_weight`.
 BankConfig = namedtuple(
     "BankConfig",
     [
@@ -171,6 +173,7 @@ BankConfig = namedtuple(
         "variance_score",
         "spread_cap",
         "drift_rule",
+        "remnant_weight",
     ],
 )
 #: ``th``, ``P``: the parameter belief; ``X`` (m, ns), ``PX`` (m, ns, ns): the m bank
@@ -494,6 +497,29 @@ def _adapt_process_noise(config, th, drift, prior):
 
 
 @numba.njit(cache=True, _nrt=False)
+def _remnant_weight(config, point, p):
+    """The part of ``R`` that follows the remnant: ``r2_remnant g^2 var(r)``.
+
+    ``var(r)`` is the remnant state's stationary variance and ``g`` the gain it passes
+    on its way to the stick (``K_p`` at the perception, 1 at the stick), both at the
+    bank's centre ``point`` (model parameters not estimated from ``p``): a weighting
+    evaluated at the current estimate, as ``var(u)`` is evaluated on the data, not a
+    function of each member's parameters (the bank's differences would then pull
+    ``K_p`` and the intensity towards a smaller ``R``; tried: ``K_p`` at its lower
+    limit).
+    """
+    index = int(config.remnant_weight[1])
+    gain = 1.0 if index < 0 else p[index]
+    log_rel = config.remnant[0]
+    for j in range(point.shape[0]):
+        if index >= 0 and config.slot[j] == index:
+            gain = point[j]
+        elif config.slot[j] == SLOT_LOG_INTENSITY:
+            log_rel = point[j]
+    return config.remnant_weight[0] * gain * gain * math.exp(log_rel + config.base[0])
+
+
+@numba.njit(cache=True, _nrt=False)
 def bank_step(model, config, lines, belief, monitor, report, s, inputs_k, u_k, e_k, row, out):
     """One sample of the filter bank; writes row ``row`` of ``out``."""
     cfg = config.cfg
@@ -528,6 +554,8 @@ def bank_step(model, config, lines, belief, monitor, report, s, inputs_k, u_k, e
         s.point_p[j] = p[j]
     ok = _bank_points(config, belief, s)
     if ok:
+        if config.remnant_weight[0] > 0.0 and config.has_remnant:
+            R += _remnant_weight(config, s.points[0], p)
         for i in range(s.points.shape[0]):
             _member_step(model, config, lines, belief, s, i, k, u_k, R, q_error, dropped, k > 0)
         if not dropped and anchored:

@@ -208,6 +208,7 @@ class RMLSettings(PilotFilterSettings):
     preset: str = "vertregt2020"
     q2: float = 1e-6
     r2: float | None = 1.0
+    r2_remnant: float = 0.0
     remnant: str = "levison"
     remnant_break: float | None = None
     remnant_injection: str = "input"
@@ -243,6 +244,14 @@ class RMLSettings(PilotFilterSettings):
         for name in ("learn_intensity", "learn_break"):
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name} must be True or False, got {getattr(self, name)!r}")
+        object.__setattr__(
+            self, "r2_remnant", check_positive("r2_remnant", self.r2_remnant, allow_zero=True)
+        )
+        if self.r2_remnant > 0.0 and self.remnant == "none":
+            raise ValueError(
+                f"r2_remnant = {self.r2_remnant!r} weights R by the remnant's variance; "
+                'remnant="none" has none (set r2_remnant=0 or a remnant model)'
+            )
         for name in ("remnant_variance", "intensity_P0", "step", "drift_window"):
             object.__setattr__(self, name, check_positive(name, getattr(self, name)))
         object.__setattr__(
@@ -384,6 +393,7 @@ class RML(PilotFilter):
                     settings.drift_threshold,
                 ]
             ),
+            remnant_weight=np.array([settings.r2_remnant, float(self._remnant_gain_index())]),
         )
         state_covariance = np.zeros((members, n_s, n_s))
         for i in range(members):
@@ -467,6 +477,12 @@ class RML(PilotFilter):
         if limit == 0.0:
             return np.full(span.shape, np.inf)
         return np.where(np.isfinite(span), limit * span, np.inf)
+
+    def _remnant_gain_index(self) -> int:
+        """Model index of the gain the remnant passes to the stick (-1: at the stick)."""
+        if self._settings.remnant_injection == "output":
+            return -1
+        return self._internal.parameter_names.index("K_p")
 
     def _variance_score(self) -> np.ndarray:
         """Per model parameter: whether the variance part of the score moves it."""
