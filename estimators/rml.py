@@ -56,8 +56,9 @@ standard deviations), ``spread_limit`` (0.1: no member lies further from the mea
 any parameter, than this fraction of the parameter's limit span; where the spread would,
 it is reduced along that direction, so the differences stay local derivatives and the
 members inside the limits; 0: no limit), ``substeps`` (Euler substeps per sample),
-``noise_first`` (seconds at the start during which only the noise parameters learn), and
-the drift rule's ``drift_gain`` (15; 0 = off), ``drift_window`` (2.5 s) and
+``noise_first`` (seconds at the start during which only the noise parameters learn),
+``r2_remnant`` (0 = off: the part of ``R`` that follows the remnant, below), and the
+drift rule's ``drift_gain`` (15; 0 = off), ``drift_window`` (2.5 s) and
 ``drift_threshold`` (0.3), below. ``r2`` defaults to 1 (``R = var(u)`` over the window):
 ``R`` stands for what the model leaves unexplained besides the remnant (the isolated
 pilot is a model; the Euler step), and it sets the frequency weighting of the
@@ -197,6 +198,10 @@ VARIANCE_SCORES: tuple[str, ...] = ("remnant-path", "all")
 INTENSITY_RANGE = 12.0
 #: Range of the break frequency when it is learned (rad/s).
 BREAK_RANGE = (1e-3, 100.0)
+#: ``r2`` and ``r2_remnant`` by default where the remnant drifts (``ce="DI"``, module
+#: docstring): ``R = 0.5 var(u) + 5 K_p^2 var(r)``.
+DRIFTING_REMNANT_R2 = 0.5
+DRIFTING_REMNANT_WEIGHT = 5.0
 #: Longest pilot delay the delay lines keep (s), beyond the Table I limit of 0.8 s.
 LONGEST_DELAY = 1.5
 
@@ -207,8 +212,8 @@ class RMLSettings(PilotFilterSettings):
 
     preset: str = "vertregt2020"
     q2: float = 1e-6
-    r2: float | None = 1.0
-    r2_remnant: float = 0.0
+    r2: float | None = None
+    r2_remnant: float | None = None
     remnant: str = "levison"
     remnant_break: float | None = None
     remnant_injection: str = "input"
@@ -244,10 +249,11 @@ class RMLSettings(PilotFilterSettings):
         for name in ("learn_intensity", "learn_break"):
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name} must be True or False, got {getattr(self, name)!r}")
-        object.__setattr__(
-            self, "r2_remnant", check_positive("r2_remnant", self.r2_remnant, allow_zero=True)
-        )
-        if self.r2_remnant > 0.0 and self.remnant == "none":
+        if self.r2_remnant is not None:
+            object.__setattr__(
+                self, "r2_remnant", check_positive("r2_remnant", self.r2_remnant, allow_zero=True)
+            )
+        if self.r2_remnant is not None and self.r2_remnant > 0.0 and self.remnant == "none":
             raise ValueError(
                 f"r2_remnant = {self.r2_remnant!r} weights R by the remnant's variance; "
                 'remnant="none" has none (set r2_remnant=0 or a remnant model)'
@@ -276,6 +282,30 @@ class RMLSettings(PilotFilterSettings):
                 "delay_order does not apply to the RML, whose delays act on the inputs through "
                 f"delay lines (no Padé approximant); got {self.delay_order!r}"
             )
+
+    @property
+    def remnant_drifts(self) -> bool:
+        """Whether the element-type defaults weight ``R`` by the remnant (module docstring).
+
+        The double integrator (``ce="DI"``) with a remnant at the perception: van der El's
+        remnant there drifts below the forcing band and shares the stick's slow power
+        with the gains.
+        """
+        return self.ce == "DI" and self.remnant != "none" and self.remnant_injection == "input"
+
+    @property
+    def r2_value(self) -> float:
+        """``r^2`` in use: the given one, else 0.5 where :attr:`remnant_drifts`, else 1."""
+        if self.r2 is not None:
+            return self.r2
+        return DRIFTING_REMNANT_R2 if self.remnant_drifts else 1.0
+
+    @property
+    def r2_remnant_value(self) -> float:
+        """``r2_remnant`` in use: the given one, else 5 where :attr:`remnant_drifts`, else 0."""
+        if self.r2_remnant is not None:
+            return self.r2_remnant
+        return DRIFTING_REMNANT_WEIGHT if self.remnant_drifts else 0.0
 
     @property
     def break_frequency(self) -> float:
@@ -393,7 +423,7 @@ class RML(PilotFilter):
                     settings.drift_threshold,
                 ]
             ),
-            remnant_weight=np.array([settings.r2_remnant, float(self._remnant_gain_index())]),
+            remnant_weight=np.array([settings.r2_remnant_value, float(self._remnant_gain_index())]),
         )
         state_covariance = np.zeros((members, n_s, n_s))
         for i in range(members):

@@ -81,7 +81,8 @@ def run_bank(e, u, dt, initial, estimated, P0, Q, settings):
 
     ``settings["drift"] = (gain, window, threshold)`` scales each pilot parameter's
     random-walk variance by the persistence of its corrections (the RML's drift rule);
-    a gain of 0 leaves it off.
+    a gain of 0 leaves it off. ``settings["r2_remnant"]`` adds ``r2_remnant K_p^2
+    var(r)`` to ``R``, evaluated at the parameter mean of the sample (0: none).
     """
     var_e0 = settings["var_e0"]
     omega_r = settings["omega_r"]
@@ -111,6 +112,13 @@ def run_bank(e, u, dt, initial, estimated, P0, Q, settings):
             points += [theta + h * L[:, j], theta - h * L[:, j]]
         z = np.zeros(len(points))
         S = np.zeros(len(points))
+        # the part of R that follows the remnant: r2_remnant K_p^2 var(r) at the centre,
+        # var(r) = q / (2 omega_r), the remnant state's stationary variance
+        centre = dict(initial)
+        centre.update(zip(estimated, theta[:-1], strict=True))
+        R = settings["R"] + settings.get("r2_remnant", 0.0) * centre["K_p"] ** 2 * math.exp(
+            theta[-1]
+        ) / (2.0 * omega_r)
         for i, point in enumerate(points):
             p = dict(initial)
             p.update(zip(estimated, point[:-1], strict=True))
@@ -121,7 +129,7 @@ def run_bank(e, u, dt, initial, estimated, P0, Q, settings):
                 u[k],
                 dt,
                 settings["substeps"],
-                settings["R"],
+                R,
                 settings["q_error"],
                 math.exp(point[-1]),
                 omega_r,
