@@ -39,8 +39,9 @@ smoother saw (the whole run's spectrum at the forcing frequencies) picked the la
 scale in 23 of the 35 runs of ``remnant-robustness`` and raised the NRMSE where the
 gains are constant (all-free preview SI: ``K_p`` 0.052 -> 0.104).
 
-Measured with the RML (defaults; ``manualcontrol bench SUITE --estimators
-rml-smoothed,rml-cv``, batch means of the NRMSE, preset -> cross-validated):
+Measured with the RML (the defaults of the time, ``R = var(u)`` on the double integrator
+too; ``manualcontrol bench SUITE --estimators rml-smoothed,rml-cv``, batch means of the
+NRMSE, preset -> cross-validated):
 
 * ``remnant-robustness`` (35 runs): Popovici's time-varying pilot with 30 % remnant
   ``K_p`` 0.212 -> 0.189, ``K_v`` 0.123 -> 0.114 (``tau_v`` 0.093 -> 0.114), with 20 %

@@ -299,6 +299,7 @@ def test_a_drift_window_under_a_sample_averages_one_sample():
         ({"drift_threshold": 1.0}, "drift_threshold must be in [0, 1)"),
         ({"drift_threshold": -0.1}, "drift_threshold must be >= 0"),
         ({"r2_remnant": -1.0}, "r2_remnant must be >= 0, got -1.0"),
+        ({"ce": "DI", "restarts": 1}, "restarts = 1: a restart is kept by its innovations'"),
         (
             {"r2_remnant": 2.0, "remnant": "none"},
             'r2_remnant = 2.0 weights R by the remnant\'s variance; remnant="none" has none',
