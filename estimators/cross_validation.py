@@ -79,6 +79,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -208,6 +209,19 @@ def _band(band: Any, recording: Recording, forcing: Any) -> tuple[float, float]:
     return low, high
 
 
+def _copy(estimator: PilotFilter, **changes: Any) -> PilotFilter:
+    """The filter built again (with ``changes``), its construction's warning not repeated.
+
+    The user's own construction said which parameters it holds at generic values
+    (:class:`~manualcontrol.estimators.pilot_filter.GenericValuesWarning`).
+    """
+    from manualcontrol.estimators.pilot_filter import GenericValuesWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", GenericValuesWarning)
+        return type(estimator)(estimator.settings, **changes)
+
+
 def _held_out(
     t: NDArray[np.float64], first: int, folds: int, gap: float
 ) -> list[NDArray[np.bool_]]:
@@ -300,13 +314,13 @@ def choose_noise_scale(
             f"band: the run's u has no power in the band {low:g}-{high:g} rad/s after its "
             f"first {window:g} s"
         )
-    probe = type(estimator)(estimator.settings)
+    probe = _copy(estimator)
     probe.estimate(recording, **options)
     Q = dict(probe.resolved.Q)
 
     def scaled(scale: float) -> PilotFilter:
         """A copy of the filter with every resolved ``Q`` multiplied by ``scale``."""
-        return type(estimator)(estimator.settings, Q={n: q * scale for n, q in Q.items()})
+        return _copy(estimator, Q={n: q * scale for n, q in Q.items()})
 
     masks = _held_out(t, first, folds, gap)
     fold_errors = []

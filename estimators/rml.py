@@ -220,6 +220,7 @@ from manualcontrol.estimators.pilot_filter import (
     ResolvedSettings,
 )
 from manualcontrol.estimators.registry import EstimatorEntry, register
+from manualcontrol.pilots.models import make_model
 
 __all__ = ["BREAK_FREQUENCY", "RML", "RMLSettings"]
 
@@ -239,6 +240,8 @@ BREAK_RANGE = (1e-3, 100.0)
 #: docstring): ``R = 0.5 var(u) + 5 K_p^2 var(r)``.
 DRIFTING_REMNANT_R2 = 0.5
 DRIFTING_REMNANT_WEIGHT = 5.0
+#: The gain a remnant at the perception passes on its way to the stick.
+_REMNANT_GAIN = "K_p"
 #: Longest pilot delay the delay lines keep (s), beyond the Table I limit of 0.8 s.
 LONGEST_DELAY = 1.5
 
@@ -295,6 +298,16 @@ class RMLSettings(PilotFilterSettings):
                 f"r2_remnant = {self.r2_remnant!r} weights R by the remnant's variance; "
                 'remnant="none" has none (set r2_remnant=0 or a remnant model)'
             )
+        if (
+            self.r2_remnant_value > 0.0
+            and self.remnant_injection == "input"
+            and _REMNANT_GAIN not in make_model(self.model).parameter_names
+        ):
+            raise ValueError(
+                f"r2_remnant = {self.r2_remnant_value:g} weights R by the remnant's pass "
+                f"through {_REMNANT_GAIN}, which the {self.model} model does not have "
+                '(set r2_remnant=0, or remnant_injection="output")'
+            )
         if self.restarts > 0 and self.r2_remnant_value > 0.0:
             raise ValueError(
                 f"restarts = {self.restarts!r}: a restart is kept by its innovations' "
@@ -336,7 +349,12 @@ class RMLSettings(PilotFilterSettings):
         remnant there drifts below the forcing band and shares the stick's slow power
         with the gains.
         """
-        return self.ce == "DI" and self.remnant != "none" and self.remnant_injection == "input"
+        return (
+            self.ce == "DI"
+            and self.remnant != "none"
+            and self.remnant_injection == "input"
+            and _REMNANT_GAIN in make_model(self.model).parameter_names
+        )
 
     @property
     def r2_value(self) -> float:
@@ -554,10 +572,11 @@ class RML(PilotFilter):
         return np.where(np.isfinite(span), limit * span, np.inf)
 
     def _remnant_gain_index(self) -> int:
-        """Model index of the gain the remnant passes to the stick (-1: at the stick)."""
-        if self._settings.remnant_injection == "output":
+        """Model index of the gain the remnant passes to the stick (-1: at it, or no weight)."""
+        settings = self._settings
+        if settings.remnant_injection == "output" or settings.r2_remnant_value == 0.0:
             return -1
-        return self._internal.parameter_names.index("K_p")
+        return self._internal.parameter_names.index(_REMNANT_GAIN)
 
     def _variance_score(self) -> np.ndarray:
         """Per model parameter: whether the variance part of the score moves it."""

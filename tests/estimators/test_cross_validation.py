@@ -12,6 +12,7 @@
 
 import math
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +26,7 @@ from manualcontrol.estimators.cross_validation import (
     CrossValidatedEstimator,
     choose_noise_scale,
 )
+from manualcontrol.estimators.pilot_filter import GenericValuesWarning
 from manualcontrol.pilots import Pilot, simulate
 from manualcontrol.pilots.remnant import LevisonRemnant
 
@@ -71,6 +73,16 @@ def test_errors_are_held_out_band_passed_resimulation_errors():
         expected.append(total / power)
     np.testing.assert_allclose(choice.errors, expected, rtol=1e-12)
     assert choice.scale == (0.5, 4.0)[int(np.argmin(expected))]
+
+
+def test_the_held_generic_values_are_said_once_at_construction():
+    recording = short_run()
+    with pytest.warns(GenericValuesWarning):
+        dekf = DEKF(**{**SETTINGS, "estimated": ("K_p", "K_v"), "initial": {}})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        choose_noise_scale(dekf, recording, scales=(1.0,), folds=2, gap=3.0)
+    assert not [w for w in caught if issubclass(w.category, GenericValuesWarning)]
 
 
 def test_the_result_is_the_chosen_scale_smoothed():

@@ -341,6 +341,23 @@ def test_the_double_integrator_weights_R_by_its_remnant():
     assert RMLSettings.from_dict(di.to_dict()) == di
 
 
+def test_a_model_without_K_p_runs_without_the_remnant_weight():
+    """The weight needs the gain the remnant passes (``K_p``): elsewhere it is off.
+
+    The Schiess-Roland structure (``K_1``, ``tau_1-3``, ``theta``) on a simulated case
+    of their paper runs as it did before the weight, and the weight asked for by hand
+    is refused by name.
+    """
+    from test_schiess_roland import paper_run
+
+    settings = RMLSettings(model="schiess-roland", ce="DI")
+    assert (settings.r2_value, settings.r2_remnant_value) == (1.0, 0.0)
+    result = RML(model="schiess-roland").estimate(paper_run(0.01, 5.0, 0))
+    assert np.all(np.isfinite(result.mean))
+    with pytest.raises(ValueError, match="which the schiess-roland model does not have"):
+        RMLSettings(model="schiess-roland", r2_remnant=2.0)
+
+
 def test_the_remnant_weight_keeps_the_double_integrator_run_that_R_alone_loses():
     """``vertregt2020-performance``, ``all-DI-full``, realisation 1, remnant seed 11.
 
