@@ -539,16 +539,15 @@ class GenericValuesWarning(UserWarning):
     """A filter holds parameters at generic starting values (:func:`held_without_values`)."""
 
 
-#: The library's own packages: a warning points past them, at the code that called in.
-_LIBRARY = tuple(
-    f"manualcontrol.{name}" for name in ("envs", "pilots", "estimators", "agents", "bench")
-)
+def _in_library(module: str) -> bool:
+    """Whether ``module`` is the package's own code (its tests are callers, like users)."""
+    return module.startswith("manualcontrol.") and not module.startswith("manualcontrol.tests")
 
 
 def _caller_level() -> int:
     """``stacklevel`` of the first caller outside the library, seen from the caller of this."""
     frame, level = sys._getframe(1), 1
-    while frame.f_back is not None and frame.f_globals.get("__name__", "").startswith(_LIBRARY):
+    while frame.f_back is not None and _in_library(frame.f_globals.get("__name__", "")):
         frame, level = frame.f_back, level + 1
     return level
 

@@ -107,3 +107,17 @@ def assert_update_replays_estimate(estimator, recording):
             [result.prediction[k], result.innovation[k], result.innovation_variance[k]],
         )
     return result
+
+
+def performance_run(batch, realisation, remnant_seed):
+    """One run of ``vertregt2020-performance`` for ``rml-smoothed``: (scenario, recording)."""
+    from manualcontrol.bench.runner import simulate_scenario
+    from manualcontrol.bench.scenarios import load_suite
+
+    suite = load_suite("vertregt2020-performance").with_estimators(["rml-smoothed"])
+    (scenario,) = [
+        s
+        for s in suite.scenarios()
+        if s.batch == batch and (s.realisation, s.remnant_seed) == (realisation, remnant_seed)
+    ]
+    return scenario, simulate_scenario(scenario)

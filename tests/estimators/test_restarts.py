@@ -12,8 +12,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from manualcontrol.bench.runner import simulate_scenario
-from manualcontrol.bench.scenarios import load_suite
 from manualcontrol.bench.scoring import score
 from manualcontrol.estimators import DEKF, RML, make_estimator
 from manualcontrol.estimators.metrics import (
@@ -26,7 +24,7 @@ from manualcontrol.estimators.smoothing import smooth
 from manualcontrol.pilots import Pilot, simulate
 
 sys.path.insert(0, str(Path(__file__).parent))
-from scenarios import COMPENSATORY, PREVIEW, compensatory, compensatory_tv
+from scenarios import COMPENSATORY, PREVIEW, compensatory, compensatory_tv, performance_run
 
 #: A start far from the pilot: K_p and K_v 2.5 times off, the neuromuscular system faster.
 FAR = {"K_p": 0.6, "K_v": 1.25, "omega_nms": 12.0, "zeta_nms": 0.6, "tau_v": 0.3}
@@ -91,13 +89,7 @@ def test_a_restart_rescues_a_filter_lost_in_its_run_in():
     integrator's defaults weighted ``R`` by the remnant; with those defaults this run is
     not lost (98.2 %).
     """
-    suite = load_suite("vertregt2020-performance").with_estimators(["rml-smoothed"])
-    (scenario,) = [
-        s
-        for s in suite.scenarios()
-        if s.batch == "all-DI-full" and (s.realisation, s.remnant_seed) == (1, 11)
-    ]
-    recording = simulate_scenario(scenario)
+    scenario, recording = performance_run("all-DI-full", 1, 11)
     spec = {**scenario.estimator, "r2": 1.0, "r2_remnant": 0.0}
     first = make_estimator(spec).estimate(recording)
     again = make_estimator({**spec, "restarts": 1}).estimate(recording)

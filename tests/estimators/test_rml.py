@@ -29,6 +29,7 @@ from scenarios import (
     COMPENSATORY,
     assert_update_replays_estimate,
     compensatory,
+    performance_run,
     preview,
     preview_initial,
 )
@@ -365,17 +366,9 @@ def test_the_remnant_weight_keeps_the_double_integrator_run_that_R_alone_loses()
     limit in the run-in (remnant-free resimulated VAF 81.7 %); with the double
     integrator's default weighting it keeps its way (98.2 %, measured).
     """
-    from manualcontrol.bench.runner import simulate_scenario
-    from manualcontrol.bench.scenarios import load_suite
     from manualcontrol.bench.scoring import score
 
-    suite = load_suite("vertregt2020-performance").with_estimators(["rml-smoothed"])
-    (scenario,) = [
-        s
-        for s in suite.scenarios()
-        if s.batch == "all-DI-full" and (s.realisation, s.remnant_seed) == (1, 11)
-    ]
-    recording = simulate_scenario(scenario)
+    scenario, recording = performance_run("all-DI-full", 1, 11)
     weighted = make_estimator(dict(scenario.estimator)).estimate(recording)
     plain = make_estimator({**scenario.estimator, "r2": 1.0, "r2_remnant": 0.0}).estimate(recording)
     assert score(scenario, recording, plain)["vaf_resimulated_ideal"] < 85.0
