@@ -300,6 +300,71 @@ def plot_recording(recording: Recording, path: str | Path) -> Path:
     return _save(fig, Path(path))
 
 
+def plot_describing_function(
+    describing: Any,
+    path: str | Path,
+    *,
+    models: Mapping[str, Mapping[str, float]] | None = None,
+    model: str = "precision",
+) -> Path:
+    """Bode plot of a measured describing function with its spread and fitted models.
+
+    Measured points (filled where u's signal-to-noise ratio is at least 10, open below,
+    error bars one standard deviation between periods when there are several) and, for
+    each entry of ``models`` (a label and the ``model`` structure's parameter values),
+    the model's exact response on a fine grid, e.g. the frequency-domain fit beside a
+    time-domain estimate's second-half values.
+    """
+    from manualcontrol.pilots.models import make_model
+
+    fig, axes = _subplots(2, 1, figsize=(7.5, 6.5), sharex=True)
+    omega = describing.frequencies
+    gain, phase = describing.gain_db, describing.phase_deg
+    strong = describing.snr >= 10.0
+    spread = np.isfinite(describing.gain_spread_db)
+    for axis, values, error in (
+        (axes[0], gain, describing.gain_spread_db),
+        (axes[1], phase, describing.phase_spread_deg),
+    ):
+        if spread.any():
+            axis.errorbar(omega, values, yerr=error, fmt="none", ecolor="k", lw=0.8, capsize=2)
+        axis.plot(omega[strong], values[strong], "ko", ms=5, label="measured (SNR >= 10)")
+        if (~strong).any():
+            axis.plot(
+                omega[~strong],
+                values[~strong],
+                "o",
+                mfc="white",
+                mec="k",
+                ms=5,
+                label="measured (SNR < 10)",
+            )
+    grid = np.geomspace(omega[0] / 2.0, omega[-1] * 2.0, 400)
+    structure = make_model(model)
+    for (label, values), colour in zip(
+        (models or {}).items(), ("tab:red", "tab:blue", "tab:green", "tab:orange"), strict=False
+    ):
+        response = structure.frequency_response(values, grid, "e")
+        axes[0].plot(grid, 20.0 * np.log10(np.abs(response)), color=colour, lw=1.2, label=label)
+        unwrapped = np.degrees(np.unwrap(np.angle(response)))
+        # start on the same branch as the measured phase at the lowest frequency
+        offset = 360.0 * np.round((phase[0] - np.interp(omega[0], grid, unwrapped)) / 360.0)
+        axes[1].plot(grid, unwrapped + offset, color=colour, lw=1.2, label=label)
+    axes[0].set_xscale("log")
+    axes[0].set_ylabel("|H_p| [dB]")
+    axes[1].set_ylabel("phase H_p [deg]")
+    axes[1].set_xlabel("frequency [rad/s]")
+    crossover = describing.crossover_frequency
+    title = "pilot describing function at the forcing frequencies"
+    if np.isfinite(crossover):
+        title += (
+            f"; crossover {crossover:.2f} rad/s, phase margin {describing.phase_margin:.0f} deg"
+        )
+    axes[0].set_title(title, fontsize=9)
+    axes[0].legend(loc="lower left", fontsize=8)
+    return _save(fig, Path(path))
+
+
 def _unit(name: str) -> str:
     from manualcontrol.pilots.models import MODEL_NAMES, make_model
 

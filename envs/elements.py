@@ -13,6 +13,8 @@ Popovici compensatory dynamics 4/(s(s + 3)), constant and time-varying.
 
 from __future__ import annotations
 
+import json
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any, ClassVar
@@ -35,6 +37,7 @@ __all__ = [
     "UnstableFirstOrder",
     "critical_task",
     "make_element",
+    "parse_element",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -114,6 +117,12 @@ class ControlledElement:
     def transfer_function(self, t: ArrayLike = 0.0) -> tuple[FloatArray, FloatArray]:
         """Coefficients at time(s) ``t``: shapes ``(*t.shape, degree + 1)``."""
         return self.coefficients(**self.parameters_at(t))
+
+    def frequency_response(self, omega: ArrayLike, t: float = 0.0) -> NDArray[np.complex128]:
+        """``H_c(j omega)`` with the parameters at time ``t``, one value per ``omega``."""
+        s = 1j * np.asarray(omega, dtype=np.float64)
+        num, den = (np.asarray(c, dtype=np.float64).reshape(-1) for c in self.transfer_function(t))
+        return np.polyval(num, s) / np.polyval(den, s)
 
     def state_space(self, t: ArrayLike = 0.0) -> StateSpace:
         """Controllable canonical form (thesis eq. 4.7) at time(s) ``t``, batched over ``t``."""
@@ -381,3 +390,207 @@ def make_element(spec: str | ControlledElement | Mapping[str, Any]) -> Controlle
     raise TypeError(
         f"controlled element must be a preset name, a ControlledElement or a dict, got {spec!r}"
     )
+
+
+# ------------------------------------------------------------- written transfer functions
+
+
+class _Rational:
+    """``num(s)/den(s)`` with exact polynomial arithmetic, for :func:`parse_element`."""
+
+    def __init__(self, num: Any, den: Any = (1.0,)) -> None:
+        self.num = np.trim_zeros(np.atleast_1d(np.asarray(num, dtype=np.float64)), "f")
+        self.den = np.trim_zeros(np.atleast_1d(np.asarray(den, dtype=np.float64)), "f")
+        if self.num.size == 0:
+            self.num = np.zeros(1)
+
+    def __add__(self, other: _Rational) -> _Rational:
+        return _Rational(
+            np.polyadd(np.polymul(self.num, other.den), np.polymul(other.num, self.den)),
+            np.polymul(self.den, other.den),
+        )
+
+    def __neg__(self) -> _Rational:
+        return _Rational(-self.num, self.den)
+
+    def __mul__(self, other: _Rational) -> _Rational:
+        return _Rational(np.polymul(self.num, other.num), np.polymul(self.den, other.den))
+
+    def __truediv__(self, other: _Rational) -> _Rational:
+        if not np.any(other.num):
+            raise ZeroDivisionError("division by zero")
+        return _Rational(np.polymul(self.num, other.den), np.polymul(self.den, other.num))
+
+
+_TOKEN = re.compile(r"\s*(?:(\d+\.?\d*(?:[eE][-+]?\d+)?|\.\d+(?:[eE][-+]?\d+)?)|(s)|([-+*/^()]))")
+
+
+class _ExpressionParser:
+    """Recursive descent over ``+ - * / ^ ( )``, numbers and ``s``.
+
+    ``2s`` and ``s(s+1)`` multiply implicitly; ``^`` takes a non-negative integer exponent.
+    """
+
+    def __init__(self, text: str) -> None:
+        self.tokens: list[tuple[str, str]] = []
+        position = 0
+        stripped = text.rstrip()
+        while position < len(stripped):
+            match = _TOKEN.match(stripped, position)
+            if match is None:
+                bad = stripped[position:].lstrip()[:1]
+                raise ValueError(f"unexpected character {bad!r}")
+            number, variable, operator = match.groups()
+            if number is not None:
+                self.tokens.append(("number", number))
+            elif variable is not None:
+                self.tokens.append(("s", variable))
+            else:
+                self.tokens.append(("op", operator))
+            position = match.end()
+        self.index = 0
+
+    def peek(self) -> tuple[str, str] | None:
+        return self.tokens[self.index] if self.index < len(self.tokens) else None
+
+    def take(self) -> tuple[str, str]:
+        token = self.peek()
+        if token is None:
+            raise ValueError("the expression ends too early")
+        self.index += 1
+        return token
+
+    def parse(self) -> _Rational:
+        value = self.sum()
+        if self.peek() is not None:
+            raise ValueError(f"unexpected {self.peek()[1]!r}")  # type: ignore[index]
+        return value
+
+    def sum(self) -> _Rational:
+        value = self.product()
+        while self.peek() in (("op", "+"), ("op", "-")):
+            sign = self.take()[1]
+            term = self.product()
+            value = value + (term if sign == "+" else -term)
+        return value
+
+    def product(self) -> _Rational:
+        value = self.signed()
+        while True:
+            token = self.peek()
+            if token in (("op", "*"), ("op", "/")):
+                self.take()
+                factor = self.signed()
+                value = value * factor if token[1] == "*" else value / factor  # type: ignore[index]
+            elif token is not None and (token[0] in ("number", "s") or token == ("op", "(")):
+                value = value * self.power()  # implicit multiplication: 2s, s(s+1)
+            else:
+                return value
+
+    def signed(self) -> _Rational:
+        if self.peek() in (("op", "-"), ("op", "+")):
+            sign = self.take()[1]
+            value = self.signed()
+            return -value if sign == "-" else value
+        return self.power()
+
+    def power(self) -> _Rational:
+        base = self.atom()
+        if self.peek() == ("op", "^"):
+            self.take()
+            kind, text = self.take()
+            if kind != "number" or not text.isdigit():
+                raise ValueError(f"an exponent must be a non-negative integer, got {text!r}")
+            result = _Rational(1.0)
+            for _ in range(int(text)):
+                result = result * base
+            return result
+        return base
+
+    def atom(self) -> _Rational:
+        kind, text = self.take()
+        if kind == "number":
+            return _Rational(float(text))
+        if kind == "s":
+            return _Rational([1.0, 0.0])
+        if text == "(":
+            value = self.sum()
+            if self.take() != ("op", ")"):
+                raise ValueError("a '(' is not closed")
+            return value
+        raise ValueError(f"unexpected {text!r}")
+
+
+def _cancel_common_s(num: FloatArray, den: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Strip factors of ``s`` shared by numerator and denominator (``s/s^2`` is ``1/s``)."""
+    while num.size > 1 and den.size > 1 and num[-1] == 0.0 and den[-1] == 0.0:
+        num, den = num[:-1], den[:-1]
+    return num, den
+
+
+def parse_element(text: str) -> ControlledElement:
+    """A constant controlled element written as a preset name or a transfer function in ``s``.
+
+    Accepted: the presets of :data:`ELEMENT_PRESETS`; expressions such as ``"1"``,
+    ``"1/s"``, ``"2.5/s^2"``, ``"1/(s(s+1))"``, ``"4/(s^2 + 3s)"`` or
+    ``"(s + 2)/(s^2 + 0.5 s + 4)"`` (numbers, ``s``, ``+ - * / ^`` and brackets;
+    ``2s`` and ``s(s+1)`` multiply); and coefficient lists ``"num=[1]; den=[1, 1, 0]"``
+    (descending powers, as :class:`TransferFunctionElement`). The written forms become
+    the named element where one fits (``K`` :class:`Gain`, ``K/s`` :class:`Integrator`,
+    ``K/s^2`` :class:`DoubleIntegrator`, ``K/(s(s+a))`` :class:`IntegratorWithLag`), so
+    the element's type, which the estimators and envs read, does not depend on how it
+    was written; anything else is a :class:`TransferFunctionElement`.
+
+    Raises ``ValueError`` naming the text, what is wrong and what is accepted.
+    """
+    if not isinstance(text, str) or not text.strip():
+        raise ValueError(f"element must be a preset name or a transfer function, got {text!r}")
+    spec = text.strip()
+    if spec in ELEMENT_PRESETS:
+        return make_element(spec)
+    accepted = (
+        f"a preset ({', '.join(ELEMENT_PRESETS)}), a transfer function in s such as "
+        "'1/s', '2.5/s^2', '1/(s(s+1))', '(s+2)/(s^2+0.5s+4)', or 'num=[1]; den=[1, 1, 0]'"
+    )
+    try:
+        if spec.startswith("num"):
+            parts = dict(part.split("=", 1) for part in spec.split(";"))
+            parts = {key.strip(): value for key, value in parts.items()}
+            if set(parts) != {"num", "den"}:
+                raise ValueError("give exactly num=[...] and den=[...]")
+            lists = [json.loads(parts[key]) for key in ("num", "den")]
+            num, den = (np.atleast_1d(np.asarray(v, dtype=np.float64)) for v in lists)
+        else:
+            value = _ExpressionParser(spec).parse()
+            num, den = value.num, value.den
+    except (ValueError, ZeroDivisionError, TypeError, json.JSONDecodeError) as error:
+        raise ValueError(
+            f"element {spec!r} cannot be read ({error}); allowed: {accepted}"
+        ) from None
+    num = np.trim_zeros(num, "f")
+    den = np.trim_zeros(den, "f")
+    if num.size == 0 or den.size == 0 or not (np.isfinite(num).all() and np.isfinite(den).all()):
+        raise ValueError(f"element {spec!r} is zero or not finite; allowed: {accepted}")
+    num, den = _cancel_common_s(num, den)
+    num, den = num / den[0], den / den[0]
+    if num.size > den.size:
+        raise ValueError(
+            f"element {spec!r} is not proper (numerator degree {num.size - 1} > denominator "
+            f"degree {den.size - 1}): a controlled element cannot differentiate its input"
+        )
+    if num.size == 1:
+        gain = float(num[0])
+        if den.size == 1:
+            return Gain(gain)
+        if den.size == 2 and den[1] == 0.0:
+            return Integrator(gain)
+        if den.size == 3 and den[2] == 0.0:
+            return DoubleIntegrator(gain) if den[1] == 0.0 else _with_lag(gain, float(den[1]))
+    return TransferFunctionElement(num, den)
+
+
+def _with_lag(gain: float, omega_b: float) -> ControlledElement:
+    """``K/(s(s + a))`` as :class:`IntegratorWithLag` where ``a > 0`` (its allowed range)."""
+    if omega_b > 0.0:
+        return IntegratorWithLag(gain, omega_b)
+    return TransferFunctionElement([gain], [1.0, omega_b, 0.0])

@@ -1,29 +1,56 @@
-"""Frequency-domain identification at the forcing frequencies (non-parametric).
+"""Frequency-domain identification at the forcing frequencies: the laboratory's standard.
 
-With multisine forcing functions on integer harmonics of the measurement time, the
-discrete Fourier transform of a run that spans whole periods puts every forcing
-component in one bin. At the target frequencies the disturbance has no power
-(interleaved sets), so for a compensatory task
+With multisine forcing functions on integer harmonics of their period, the Fourier
+coefficients of a stretch that spans whole periods put every forcing component in one
+bin (the Fourier-coefficient method of McRuer-type identification; van Paassen &
+Mulder 1998). At a forcing frequency the signals are dominated by the forcing, and the
+remnant, uncorrelated with it, averages out of the ratio of coefficients, so for a
+compensatory task
 
-    H_p(j w_t) = U(w_t) / E(w_t),      H_ol(j w_t) = Y(w_t) / E(w_t) = H_p H_c
+    H_p(j w_k) = U(w_k) / E(w_k),      H_ol(j w_k) = H_p(j w_k) H_c(j w_k)
 
-(the classic estimators of McRuer-type identification). Crossover frequency and phase
-margin follow from the open loop by interpolation between forcing frequencies
-(log-log in magnitude, log-linear in phase).
+at every forcing frequency, target or disturbance, wherever the disturbance enters the
+loop (at the element's output or its input). :func:`describing_function` estimates
+``H_p`` there, its spread between periods, a per-frequency signal-to-noise ratio (u's
+power at the forcing bin over its mean power at the neighbouring bins, which hold
+remnant only), the element's response (the one the user gave, or measured from
+``y``, ``u`` and the disturbance), the open loop, crossover frequency and phase margin
+(interpolated between forcing frequencies: log-log in magnitude, log-linear in phase).
+:func:`fit_describing_function` fits a compensatory pilot model's exact frequency
+response to it, and :func:`response_error` scores any identified model against it,
+which is how every time-domain identification is cross-checked.
+
+:func:`forcing_frequency_response` is the older, narrower form (target frequencies
+only, ``Y/E`` as the open loop) that the agents' evaluation uses.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from manualcontrol.envs._validation import check_choice, check_int, check_positive
+from manualcontrol.envs.elements import ControlledElement, make_element, parse_element
 from manualcontrol.envs.recording import Recording
-from manualcontrol.envs.signals import ForcingPair
+from manualcontrol.envs.signals import ForcingPair, Multisine
+from manualcontrol.pilots.models import PilotModel, make_model
 
-__all__ = ["FrequencyResponse", "forcing_frequency_response"]
+__all__ = [
+    "DISTURBANCE_POINTS",
+    "DescribingFunction",
+    "FrequencyResponse",
+    "ModelFit",
+    "describing_function",
+    "fit_describing_function",
+    "forcing_frequency_response",
+    "response_error",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -96,3 +123,709 @@ def _crossover(frequencies: FloatArray, open_loop: NDArray[np.complex128]) -> tu
             margin = (margin + 180.0) % 360.0 - 180.0
             return math.exp(log_crossover), margin
     return math.nan, math.nan
+
+
+# ------------------------------------------------------------------ describing function
+
+#: Where a disturbance forcing function enters the loop: added to the element's output
+#: (``y = H_c u + fd``, the default of the simulations and envs) or to its input
+#: (``y = H_c (u + fd)``, e.g. a force on the stick or a gust on the aircraft).
+DISTURBANCE_POINTS: tuple[str, ...] = ("output", "input")
+
+#: Relative power below the strongest line under which a bin of a recorded forcing
+#: signal is not a forcing line (60 dB: amplitude profiles of tracking experiments span
+#: well under 30 dB; a signal that does not repeat over the stretch leaks far above it).
+_LINE_POWER_FLOOR = 1e-6
+#: How far (in samples) the period may be from a whole number of samples.
+_PERIOD_SAMPLE_TOLERANCE = 1e-3
+
+
+@dataclass(frozen=True)
+class DescribingFunction:
+    """The pilot's describing function measured at the forcing frequencies of one run.
+
+    Every array has one entry per forcing frequency, in ascending order.
+
+    Attributes
+    ----------
+    frequencies
+        Forcing frequencies (rad/s).
+    source
+        ``"target"`` or ``"disturbance"``: which forcing function each belongs to.
+    pilot
+        ``H_p = U/E`` from the Fourier coefficients over the whole stretch.
+    gain_spread_db, phase_spread_deg
+        Standard deviation of the per-period estimates around ``pilot`` (gain in dB,
+        phase in degrees); for a stretch of one period the spread the remnant implies,
+        ``1/sqrt(2 snr_injected)`` (relative) in each of gain and phase.
+    snr
+        u's power at the forcing bin over its mean power at the ``neighbours`` nearest
+        non-forcing bins each side (linear power ratio; those bins carry remnant only):
+        the figure laboratories report.
+    snr_injected
+        u's power at the forcing bin over the power of the remnant as the pilot injects
+        it, ``N = U - H_p E`` at the same neighbouring bins with ``H_p`` of the line.
+        The loop shapes the remnant that reaches ``u`` by ``1/(1 + H_ol)``, so below
+        crossover ``snr`` flatters the estimate; ``U/E = H_p + N/E`` errs by
+        ``|N/U|``, about ``1/sqrt(snr_injected)`` (relative), which sets the fit's
+        weights and, for a single period, the spread. It reads ``N`` with the line's own
+        estimate of ``H_p``, so where that estimate is far off (a line with little forcing
+        power under strong remnant) it can flatter the line.
+    element
+        ``H_c`` used for the open loop: the given element's, else the measured one.
+    element_measured
+        ``H_c`` measured from the signals (``Y/(U + Fd)`` with the disturbance at the
+        input, ``(Y - Fd)/U`` at the output); NaN without ``y``.
+    open_loop
+        ``H_p H_c``.
+    crossover_frequency, phase_margin
+        First downward crossing of ``|H_ol| = 1`` (rad/s) and the margin there
+        (degrees); NaN when the open loop does not cross inside the forcing band.
+    remnant_share
+        Fraction of u's variance over the stretch that lies off the forcing frequencies.
+    period, periods, window
+        Forcing period (s), whole periods used, and the stretch ``(start, end)`` (s):
+        the last whole periods of the run, so a run-in at the start is left out.
+    disturbance_at, element_given
+        Where the disturbance entered; whether ``element`` came from the user.
+    element_transfer_function
+        ``(num, den)`` of the given element (descending powers of ``s``), else None.
+
+    """
+
+    frequencies: FloatArray
+    source: tuple[str, ...]
+    pilot: NDArray[np.complex128]
+    gain_spread_db: FloatArray
+    phase_spread_deg: FloatArray
+    snr: FloatArray
+    snr_injected: FloatArray
+    element: NDArray[np.complex128]
+    element_measured: NDArray[np.complex128]
+    open_loop: NDArray[np.complex128]
+    crossover_frequency: float
+    phase_margin: float
+    remnant_share: float
+    period: float
+    periods: int
+    window: tuple[float, float]
+    disturbance_at: str
+    element_given: bool
+    element_transfer_function: tuple[FloatArray, FloatArray] | None = None
+
+    @property
+    def gain_db(self) -> FloatArray:
+        """``20 log10 |H_p|``."""
+        return 20.0 * np.log10(np.abs(self.pilot))
+
+    @property
+    def phase_deg(self) -> FloatArray:
+        """Phase of ``H_p`` in degrees, unwrapped from the lowest frequency."""
+        return np.degrees(np.unwrap(np.angle(self.pilot)))
+
+    def element_error(self) -> tuple[float, float]:
+        """Mean absolute gap (dB, degrees) between the given and the measured element.
+
+        Large values say the element or the disturbance's entry point given does not
+        describe the experiment. NaN when either is missing.
+        """
+        if not self.element_given or not np.all(np.isfinite(self.element_measured)):
+            return math.nan, math.nan
+        return _mean_errors(self.element_measured, self.element)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able summary: per-frequency table and the loop's figures."""
+        return {
+            "frequencies": _listed(self.frequencies),
+            "source": list(self.source),
+            "gain_db": _listed(self.gain_db),
+            "phase_deg": _listed(self.phase_deg),
+            "gain_spread_db": _listed(self.gain_spread_db),
+            "phase_spread_deg": _listed(self.phase_spread_deg),
+            "snr": _listed(self.snr),
+            "crossover_frequency": _finite_or_none(self.crossover_frequency),
+            "phase_margin": _finite_or_none(self.phase_margin),
+            "remnant_share": _finite_or_none(self.remnant_share),
+            "period": self.period,
+            "periods": self.periods,
+            "window": list(self.window),
+            "disturbance_at": self.disturbance_at,
+            "element_given": self.element_given,
+            "element_error_db_deg": [_finite_or_none(v) for v in self.element_error()],
+        }
+
+
+def _listed(values: FloatArray) -> list[float | None]:
+    return [_finite_or_none(v) for v in np.asarray(values, dtype=np.float64)]
+
+
+def _finite_or_none(value: float) -> float | None:
+    return round(float(value), 6) if math.isfinite(value) else None
+
+
+def _mean_errors(
+    measured: NDArray[np.complex128], model: NDArray[np.complex128]
+) -> tuple[float, float]:
+    """Mean absolute gain (dB) and phase (degrees, wrapped to +-180) of ``model/measured``."""
+    ratio = model / measured
+    return (
+        float(np.mean(np.abs(20.0 * np.log10(np.abs(ratio))))),
+        float(np.mean(np.abs(np.degrees(np.angle(ratio))))),
+    )
+
+
+def _forcing_lines(
+    forcing: ForcingPair, period: float | None
+) -> tuple[float, list[tuple[int, str]]]:
+    """Period and ``(harmonic, source)`` of every periodic forcing line with power."""
+    lines: list[tuple[int, str]] = []
+    periods: list[float] = []
+    for source, signal in (("target", forcing.target), ("disturbance", forcing.disturbance)):
+        if signal is None:
+            continue
+        if not isinstance(signal, Multisine) or signal.measurement_time is None:
+            raise ValueError(
+                f"the forcing's {source} is not a periodic multisine (one with a "
+                "measurement time): its frequencies are not forcing lines"
+            )
+        periods.append(signal.measurement_time)
+        lines += [
+            (int(h), source)
+            for h, a in zip(signal.harmonics, signal.amplitudes, strict=True)
+            if a > 0.0
+        ]
+    if not lines:
+        raise ValueError("the forcing has neither a target nor a disturbance multisine")
+    if max(periods) - min(periods) > 1e-9 * max(periods):
+        raise ValueError(
+            f"the target and disturbance repeat at different periods ({periods[0]:g} and "
+            f"{periods[1]:g} s); give a forcing whose signals share one period"
+        )
+    if period is not None and abs(period - periods[0]) > 1e-9 * period:
+        raise ValueError(f"period={period:g} s contradicts the forcing's {periods[0]:g} s")
+    return periods[0], lines
+
+
+def _recorded_lines(recording: Recording, per_period: int, first: int, count: int) -> list:
+    """Forcing lines read off the recorded ``ft`` and ``fd`` over one period each."""
+    lines: list[tuple[int, str]] = []
+    for name, source in (("ft", "target"), ("fd", "disturbance")):
+        if name not in recording:
+            continue
+        signal = recording[name][first : first + per_period * count]
+        if not np.all(np.isfinite(signal)) or not np.any(signal):
+            continue
+        power = np.abs(np.fft.rfft(signal.reshape(count, per_period).mean(axis=0))) ** 2
+        power[0] = 0.0
+        found = np.flatnonzero(power > _LINE_POWER_FLOOR * power.max())
+        if found.size > per_period // 8:
+            raise ValueError(
+                f"signal {name!r} does not repeat over the period given: {found.size} of "
+                f"{power.size} frequency bins carry power (a multisine repeating every period "
+                "puts it in a few); check the period"
+            )
+        lines += [(int(h), source) for h in found]
+    if not lines:
+        raise ValueError(
+            "the recording has no forcing signal with power (ft or fd): the forcing "
+            "frequencies cannot be found; give the forcing"
+        )
+    return lines
+
+
+def describing_function(
+    recording: Recording,
+    forcing: ForcingPair | None = None,
+    *,
+    period: float | None = None,
+    element: str | ControlledElement | Mapping[str, Any] | None = None,
+    disturbance_at: str | None = None,
+    neighbours: int = 2,
+) -> DescribingFunction:
+    """Measure the pilot's describing function at the forcing frequencies of a run.
+
+    Parameters
+    ----------
+    recording
+        A compensatory run with ``u`` and ``e`` (or ``ft`` and ``y`` to form it).
+    forcing
+        The run's forcing functions (periodic multisines); defaults to
+        ``recording.metadata["forcing"]``. Without one, give ``period``: the forcing
+        lines are then read off the recorded ``ft`` and ``fd`` (bins with power within
+        60 dB of the strongest, over one period).
+    period
+        The forcing's period (s), when no forcing is known.
+    element
+        The controlled element (preset, transfer function text as
+        :func:`~manualcontrol.envs.elements.parse_element` reads it, element or dict);
+        defaults to ``recording.metadata["controlled_element"]``, else the element is
+        measured from the signals. A time-varying element is taken at the stretch's
+        middle.
+    disturbance_at
+        ``"output"`` or ``"input"`` (see :data:`DISTURBANCE_POINTS`); defaults to
+        ``recording.metadata["disturbance_at"]``, else ``"output"``. Only the measured
+        element depends on it.
+    neighbours
+        Non-forcing bins each side of a forcing line whose mean u power is the remnant's
+        in the signal-to-noise ratio.
+
+    The stretch is the last whole number of periods of the run. Raises ``ValueError``
+    naming what is missing or inconsistent.
+    """
+    if not isinstance(recording, Recording):
+        raise TypeError(f"recording must be a Recording, got {type(recording).__name__}")
+    neighbours = check_int("neighbours", neighbours, minimum=1)
+    task = recording.metadata.get("task", "compensatory")
+    if task != "compensatory":
+        raise ValueError(
+            f"the recording is of a {task} task: U/E is the pilot's describing function in a "
+            "compensatory task only (a pursuit or preview pilot responds to the target and "
+            "to y through two channels)"
+        )
+    if forcing is None and period is None and recording.metadata.get("forcing") is not None:
+        forcing = ForcingPair.from_dict(recording.metadata["forcing"])
+    if period is not None:
+        period = check_positive("period", period)
+    if forcing is None and period is None:
+        raise ValueError(
+            "the forcing frequencies are unknown: give the forcing (forcing=) or its "
+            "period (period=, seconds), the forcing signals being in the recording"
+        )
+    if disturbance_at is None:
+        disturbance_at = recording.metadata.get("disturbance_at", "output")
+    check_choice("disturbance_at", disturbance_at, DISTURBANCE_POINTS)
+    if "e" not in recording and "ft" in recording and "y" in recording:
+        recording = recording.with_error_signal()
+    for name in ("e", "u"):
+        if name not in recording:
+            raise ValueError(f"the recording needs signal {name!r} for a describing function")
+    lines: list[tuple[int, str]] | None = None
+    if forcing is not None:
+        period, lines = _forcing_lines(forcing, period)
+    assert period is not None  # for the type checker; both branches set it
+    dt = recording.dt
+    exact = period / dt
+    per_period = round(exact)
+    if per_period < 4 or abs(exact - per_period) > _PERIOD_SAMPLE_TOLERANCE:
+        raise ValueError(
+            f"the forcing's period {period:g} s is {exact:.4f} samples at dt = {dt:g} s: it "
+            "must be a whole number of samples for the Fourier coefficients to hold one "
+            "forcing line each"
+        )
+    count = len(recording) // per_period
+    if count < 1:
+        raise ValueError(
+            f"the recording ({recording.duration:g} s) is shorter than one forcing period "
+            f"({period:g} s)"
+        )
+    first = len(recording) - count * per_period
+    if lines is None:
+        lines = _recorded_lines(recording, per_period, first, count)
+    stretch = slice(first, first + count * per_period)
+    names = ["e", "u"] + [n for n in ("y", "fd") if n in recording]
+    signals = {}
+    for name in names:
+        values = recording[name][stretch]
+        if not np.all(np.isfinite(values)):
+            raise ValueError(
+                f"signal {name!r} has dropped samples (NaN) in the last {count} period(s); "
+                "fill or cut them first"
+            )
+        signals[name] = values
+    lines = sorted(set(lines))
+    harmonics = np.array([h for h, _ in lines], dtype=np.int64)
+    if harmonics.max() >= per_period // 2:
+        raise ValueError(f"a forcing line lies at or above the Nyquist frequency of dt = {dt:g} s")
+    source = tuple(s for _, s in lines)
+    frequencies = 2.0 * np.pi * harmonics / period
+    whole = {name: np.fft.rfft(values) for name, values in signals.items()}
+    bins = harmonics * count
+    spectra = {name: values[bins] for name, values in whole.items()}
+    pilot = spectra["u"] / spectra["e"]
+    snr = _signal_to_noise(np.abs(whole["u"]) ** 2, bins, neighbours)
+    snr_injected = _injected_signal_to_noise(whole["u"], whole["e"], pilot, bins, neighbours)
+    if count >= 2:
+        gain_spread, phase_spread = _period_spread(signals, count, per_period, harmonics, pilot)
+    else:  # one period: the spread the remnant implies, |N/U| split over gain and phase
+        relative = 1.0 / np.sqrt(2.0 * snr_injected)
+        gain_spread = 20.0 / math.log(10.0) * relative
+        phase_spread = np.degrees(np.minimum(relative, np.pi))
+    u_power = np.abs(whole["u"][1:]) ** 2
+    remnant_share = 1.0 - float(np.abs(spectra["u"]) @ np.abs(spectra["u"]) / u_power.sum())
+    measured = _measured_element(spectra, disturbance_at)
+    if element is None and recording.metadata.get("controlled_element") is not None:
+        element = recording.metadata["controlled_element"]
+    transfer_function = None
+    if element is not None:
+        plant = _as_element(element)
+        t_middle = float(recording.t[first] + 0.5 * count * period)
+        response = plant.frequency_response(frequencies, t_middle)
+        transfer_function = tuple(
+            np.asarray(c, dtype=np.float64).reshape(-1) for c in plant.transfer_function(t_middle)
+        )
+    else:
+        response = measured
+    open_loop = pilot * response
+    if np.all(np.isfinite(open_loop)):
+        crossover, margin = _crossover(frequencies, open_loop)
+    else:
+        crossover, margin = math.nan, math.nan
+    start = float(recording.t[first])
+    return DescribingFunction(
+        frequencies=frequencies,
+        source=source,
+        pilot=pilot,
+        gain_spread_db=gain_spread,
+        phase_spread_deg=phase_spread,
+        snr=snr,
+        snr_injected=snr_injected,
+        element=response,
+        element_measured=measured,
+        open_loop=open_loop,
+        crossover_frequency=crossover,
+        phase_margin=margin,
+        remnant_share=remnant_share,
+        period=float(period),
+        periods=count,
+        window=(start, start + count * per_period * dt),
+        disturbance_at=disturbance_at,
+        element_given=element is not None,
+        element_transfer_function=transfer_function,
+    )
+
+
+def _as_element(element: Any) -> ControlledElement:
+    if isinstance(element, str):
+        return parse_element(element)
+    return make_element(element)
+
+
+def _period_spread(
+    signals: Mapping[str, FloatArray],
+    count: int,
+    per_period: int,
+    harmonics: NDArray[np.int64],
+    pilot: NDArray[np.complex128],
+) -> tuple[FloatArray, FloatArray]:
+    """Standard deviation of the per-period estimates around the whole-stretch one."""
+    u = np.fft.rfft(signals["u"].reshape(count, per_period), axis=1)[:, harmonics]
+    e = np.fft.rfft(signals["e"].reshape(count, per_period), axis=1)[:, harmonics]
+    ratio = (u / e) / pilot
+    gain = np.std(20.0 * np.log10(np.abs(ratio)), axis=0, ddof=1)
+    phase = np.std(np.degrees(np.angle(ratio)), axis=0, ddof=1)
+    return gain, phase
+
+
+def _signal_to_noise(power: FloatArray, bins: NDArray[np.int64], neighbours: int) -> FloatArray:
+    """Power at each forcing bin over the mean power of its nearest non-forcing bins."""
+    forcing = set(bins.tolist())
+    ratios = np.empty(bins.shape)
+    for i, b in enumerate(bins):
+        near = _neighbour_bins(b, forcing, power.size, neighbours)
+        noise = float(np.mean(power[near])) if near else 0.0
+        ratios[i] = power[b] / noise if noise > 0.0 else math.inf
+    return ratios
+
+
+def _injected_signal_to_noise(
+    u: NDArray[np.complex128],
+    e: NDArray[np.complex128],
+    pilot: NDArray[np.complex128],
+    bins: NDArray[np.int64],
+    neighbours: int,
+) -> FloatArray:
+    """Power of u at each forcing bin over the injected remnant's ``|U - H_p E|^2`` nearby."""
+    forcing = set(bins.tolist())
+    ratios = np.empty(bins.shape)
+    for i, b in enumerate(bins):
+        near = _neighbour_bins(b, forcing, u.size, neighbours)
+        noise = float(np.mean(np.abs(u[near] - pilot[i] * e[near]) ** 2)) if near else 0.0
+        ratios[i] = abs(u[b]) ** 2 / noise if noise > 0.0 else math.inf
+    return ratios
+
+
+def _neighbour_bins(b: int, forcing: set[int], size: int, neighbours: int) -> list[int]:
+    """The ``neighbours`` nearest bins each side of ``b`` that carry no forcing line."""
+    near: list[int] = []
+    for direction in (-1, 1):
+        k, taken = b + direction, 0
+        while 0 < k < size and taken < neighbours:
+            if k not in forcing:
+                near.append(k)
+                taken += 1
+            k += direction
+    return near
+
+
+def _measured_element(
+    spectra: Mapping[str, NDArray[np.complex128]], disturbance_at: str
+) -> NDArray[np.complex128]:
+    """``H_c`` at the forcing lines from ``y``, ``u`` and the disturbance as recorded."""
+    u = spectra["u"]
+    if "y" not in spectra:
+        return np.full(u.shape, complex(math.nan, math.nan))
+    y = spectra["y"]
+    fd = spectra.get("fd", np.zeros_like(u))
+    if disturbance_at == "input":
+        return y / (u + fd)
+    return (y - fd) / u
+
+
+# ----------------------------------------------------------------------- model fit
+
+#: Bounds of the describing-function fit: the ranges human tracking experiments report
+#: (delays 0.05-0.6 s, neuromuscular frequency 4-30 rad/s, damping 0.05-1.2), and gains
+#: of any size, which the plant decides. A fit that ends on a bound says the model does
+#: not describe these data there (reported in ``ModelFit.at_bounds``).
+FIT_BOUNDS: dict[str, tuple[float, float]] = {
+    "K_p": (1e-6, math.inf),
+    "K_v": (0.0, math.inf),
+    "tau_v": (0.05, 0.6),
+    "omega_nms": (4.0, 30.0),
+    "zeta_nms": (0.05, 1.2),
+}
+#: Starting values tried for the fitted parameters (every combination; ``K_p`` is then
+#: solved for the mean gain of each start): the delays, neuromuscular modes and leads
+#: humans show, so the multistart covers the basins the phase wrap makes.
+FIT_STARTS: dict[str, tuple[float, ...]] = {
+    "tau_v": (0.12, 0.2, 0.3, 0.45),
+    "omega_nms": (7.0, 12.0, 20.0),
+    "zeta_nms": (0.2, 0.6),
+    "T_L": (0.0, 0.5),
+}
+
+
+@dataclass(frozen=True)
+class ModelFit:
+    """A pilot model fitted to a describing function.
+
+    ``values`` holds every model parameter (fixed ones as given), ``standard_deviations``
+    the fitted ones' (from the weighted residuals' Jacobian), ``response`` the model's
+    ``H_p`` at the forcing frequencies, ``gain_error_db``/``phase_error_deg`` its mean
+    absolute gap to the measured points, ``crossover_frequency``/``phase_margin`` the
+    model's open loop with the element (on a fine grid), ``at_bounds`` the fitted
+    parameters that ended on a bound of :data:`FIT_BOUNDS`.
+    """
+
+    model: str
+    values: dict[str, float]
+    standard_deviations: dict[str, float]
+    fitted: tuple[str, ...]
+    response: NDArray[np.complex128]
+    gain_error_db: float
+    phase_error_deg: float
+    crossover_frequency: float
+    phase_margin: float
+    cost: float
+    at_bounds: tuple[str, ...] = field(default=())
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able summary."""
+        return {
+            "model": self.model,
+            "values": {k: _finite_or_none(v) for k, v in self.values.items()},
+            "standard_deviations": {
+                k: _finite_or_none(v) for k, v in self.standard_deviations.items()
+            },
+            "fitted": list(self.fitted),
+            "gain_error_db": _finite_or_none(self.gain_error_db),
+            "phase_error_deg": _finite_or_none(self.phase_error_deg),
+            "crossover_frequency": _finite_or_none(self.crossover_frequency),
+            "phase_margin": _finite_or_none(self.phase_margin),
+            "at_bounds": list(self.at_bounds),
+        }
+
+
+def fit_weights(snr: FloatArray) -> FloatArray:
+    """Weight of each forcing frequency in a fit: ``SNR / (1 + SNR)`` of ``snr_injected``.
+
+    The share of the line's power that is the forcing's: near 1 where the remnant is
+    small, falling as it grows. Not the inverse variance (``~ SNR``), which would let the
+    two or three lines of highest SNR decide the whole fit of a model that is only an
+    approximation of a human.
+    """
+    snr = np.asarray(snr, dtype=np.float64)
+    return 1.0 - 1.0 / (1.0 + snr)
+
+
+def response_error(
+    describing: DescribingFunction, model: str | PilotModel, values: Mapping[str, float]
+) -> tuple[float, float]:
+    """Mean absolute gap of a compensatory model's ``H_p`` to the measured one (dB, degrees)."""
+    structure = _compensatory_model(model)
+    response = structure.frequency_response(values, describing.frequencies, "e")
+    return _mean_errors(describing.pilot, response)
+
+
+def _compensatory_model(model: str | PilotModel) -> PilotModel:
+    structure = make_model(model)
+    if structure.perceptions != ("e",):
+        raise ValueError(
+            f"the {structure.name} model does not respond to the error alone "
+            f"(perceptions {', '.join(structure.perceptions)}): its response is not U/E"
+        )
+    return structure
+
+
+def fit_describing_function(
+    describing: DescribingFunction,
+    model: str | PilotModel = "precision",
+    *,
+    fixed: Mapping[str, float] | None = None,
+) -> ModelFit:
+    """Fit a compensatory pilot model's exact frequency response to a describing function.
+
+    Minimises ``sum_k w_k |ln(H_model(j w_k) / H_p(j w_k))|^2`` (the complex logarithm:
+    gain ratio and phase gap on one footing) with ``w_k`` from :func:`fit_weights`, by
+    bounded least squares (:data:`FIT_BOUNDS`) from every start of :data:`FIT_STARTS`,
+    ``K_p`` of each start solved for the mean log gain. ``fixed`` holds parameters at
+    given values (e.g. ``{"K_v": 0.0}`` for a pilot without lead); by default ``K_v`` is
+    held at 0 where the element is a single integrator ``K/s``, on which humans need no
+    lead and the time-domain filters hold it at 0 too (a free lead there trades off
+    against the neuromuscular lag along a ridge that remnant moves the fit along).
+    """
+    import scipy.optimize
+
+    structure = _compensatory_model(model)
+    names = structure.parameter_names
+    if fixed is None:
+        fixed = {"K_v": 0.0} if _single_integrator(describing) and "K_v" in names else {}
+    fixed = dict(fixed)
+    unknown = sorted(set(fixed) - set(names))
+    if unknown:
+        raise ValueError(
+            f"fixed names {unknown}, which the {structure.name} model does not have "
+            f"(its parameters: {', '.join(names)})"
+        )
+    fitted = tuple(n for n in names if n not in fixed)
+    if not fitted:
+        raise ValueError("every parameter is fixed: nothing to fit")
+    if describing.frequencies.size < len(fitted):
+        raise ValueError(
+            f"{describing.frequencies.size} forcing frequencies cannot determine "
+            f"{len(fitted)} parameters"
+        )
+    omega = describing.frequencies
+    measured = describing.pilot
+    weights = np.sqrt(fit_weights(describing.snr_injected))
+    nominal = structure.nominal()
+    bounds = [FIT_BOUNDS.get(n, (-math.inf, math.inf)) for n in fitted]
+    lower = np.array([b[0] for b in bounds])
+    upper = np.array([b[1] for b in bounds])
+
+    def values_of(x: FloatArray) -> dict[str, float]:
+        return {**nominal, **fixed, **dict(zip(fitted, map(float, x), strict=True))}
+
+    def residuals(x: FloatArray) -> FloatArray:
+        response = structure.frequency_response(values_of(x), omega, "e")
+        log_ratio = np.log(response / measured)
+        return np.concatenate([weights * log_ratio.real, weights * _wrap(log_ratio.imag)])
+
+    best = None
+    for start in _starts(structure, fitted, fixed, nominal, omega, measured):
+        x0 = np.clip([start[n] for n in fitted], lower, upper)
+        x0 = np.where(x0 == lower, lower + 1e-6 * np.maximum(1.0, np.abs(lower)), x0)
+        with np.errstate(all="ignore"):
+            result = scipy.optimize.least_squares(
+                residuals, x0, bounds=(lower, upper), x_scale="jac"
+            )
+        if np.isfinite(result.cost) and (best is None or result.cost < best.cost):
+            best = result
+    if best is None:
+        raise ValueError("the fit found no finite solution from any start")
+    values = values_of(best.x)
+    deviations = _standard_deviations(best, fitted, omega.size)
+    response = structure.frequency_response(values, omega, "e")
+    gain_error, phase_error = _mean_errors(measured, response)
+    crossover, margin = _model_crossover(structure, values, describing)
+    span = upper - lower
+    near = np.abs(best.x - lower) <= 1e-4 * np.where(np.isfinite(span), span, np.abs(best.x))
+    near |= np.abs(best.x - upper) <= 1e-4 * np.where(np.isfinite(span), span, np.abs(best.x))
+    at_bounds = tuple(n for n, hit in zip(fitted, near, strict=True) if hit and n != "K_v")
+    return ModelFit(
+        model=structure.name,
+        values=values,
+        standard_deviations=deviations,
+        fitted=fitted,
+        response=response,
+        gain_error_db=gain_error,
+        phase_error_deg=phase_error,
+        crossover_frequency=crossover,
+        phase_margin=margin,
+        cost=float(best.cost),
+        at_bounds=at_bounds,
+    )
+
+
+def _single_integrator(describing: DescribingFunction) -> bool:
+    """Whether the given element is ``K/s``."""
+    if describing.element_transfer_function is None:
+        return False
+    num, den = (np.trim_zeros(c, "f") for c in describing.element_transfer_function)
+    return num.size == 1 and den.size == 2 and den[1] == 0.0
+
+
+def _wrap(phase: FloatArray) -> FloatArray:
+    return (phase + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def _starts(
+    structure: PilotModel,
+    fitted: Sequence[str],
+    fixed: Mapping[str, float],
+    nominal: Mapping[str, float],
+    omega: FloatArray,
+    measured: NDArray[np.complex128],
+) -> list[dict[str, float]]:
+    grid = [
+        (name, FIT_STARTS[name])
+        for name in ("tau_v", "omega_nms", "zeta_nms", "T_L")
+        if (name in fitted) or (name == "T_L" and "K_v" in fitted)
+    ]
+    starts = []
+    for combination in itertools.product(*(options for _, options in grid)):
+        start = {**nominal, **fixed, **dict(zip((n for n, _ in grid), combination, strict=True))}
+        lead = start.pop("T_L", 0.0)
+        if "K_p" in fitted:
+            start["K_p"] = 1.0
+            if "K_v" in fitted:
+                start["K_v"] = lead
+            unit = structure.frequency_response(start, omega, "e")
+            start["K_p"] = float(np.exp(np.mean(np.log(np.abs(measured) / np.abs(unit)))))
+            if "K_v" in fitted:
+                start["K_v"] = lead * start["K_p"]
+        starts.append(start)
+    return starts
+
+
+def _standard_deviations(result: Any, fitted: Sequence[str], count: int) -> dict[str, float]:
+    """From ``(J'J)^-1`` scaled by the residual variance (Gauss-Newton, local)."""
+    dof = 2 * count - len(fitted)
+    jacobian = result.jac
+    if dof <= 0:
+        return dict.fromkeys(fitted, math.nan)
+    variance = 2.0 * result.cost / dof
+    try:
+        covariance = np.linalg.pinv(jacobian.T @ jacobian) * variance
+    except np.linalg.LinAlgError:
+        return dict.fromkeys(fitted, math.nan)
+    return {n: float(np.sqrt(max(covariance[i, i], 0.0))) for i, n in enumerate(fitted)}
+
+
+def _model_crossover(
+    structure: PilotModel, values: Mapping[str, float], describing: DescribingFunction
+) -> tuple[float, float]:
+    """Crossover and phase margin of the model's open loop with the element, fine grid.
+
+    The element's response between forcing frequencies needs its transfer function:
+    with only a measured element the model's loop is read at the forcing frequencies.
+    """
+    if describing.element_transfer_function is not None:
+        num, den = describing.element_transfer_function
+        grid = np.geomspace(describing.frequencies[0] / 3.0, describing.frequencies[-1] * 3.0, 2000)
+        element = np.polyval(num, 1j * grid) / np.polyval(den, 1j * grid)
+        return _crossover(grid, structure.frequency_response(values, grid, "e") * element)
+    loop = structure.frequency_response(values, describing.frequencies, "e") * describing.element
+    if not np.all(np.isfinite(loop)):
+        return math.nan, math.nan
+    return _crossover(describing.frequencies, loop)

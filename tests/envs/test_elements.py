@@ -17,6 +17,7 @@ from manualcontrol.envs.elements import (
     UnstableFirstOrder,
     critical_task,
     make_element,
+    parse_element,
 )
 from manualcontrol.envs.schedules import Ramp, Sigmoid
 
@@ -145,3 +146,56 @@ def test_schedule_leaving_the_valid_range_raises_where_it_is_evaluated():
     element.parameters_at(np.array([0.0, 4.0]))  # still positive
     with pytest.raises(ValueError, match="omega_b must be > 0"):
         element.parameters_at(np.linspace(0, 10, 11))
+
+
+# --------------------------------------------------------------- written transfer functions
+
+
+@pytest.mark.parametrize(
+    ("text", "kind", "values"),
+    [
+        ("SI", "integrator", {"K": 1.5}),
+        ("1", "gain", {"K": 1.0}),
+        ("1/s", "integrator", {"K": 1.0}),
+        ("-2/s", "integrator", {"K": -2.0}),
+        ("2.5/s^2", "double_integrator", {"K": 2.5}),
+        ("1/(s(s+1))", "integrator_with_lag", {"K": 1.0, "omega_b": 1.0}),
+        ("4/(s^2 + 3s)", "integrator_with_lag", {"K": 4.0, "omega_b": 3.0}),
+        ("2/(2s^2 + 6*s)", "integrator_with_lag", {"K": 1.0, "omega_b": 3.0}),
+        ("num=[1]; den=[1, 1, 0]", "integrator_with_lag", {"K": 1.0, "omega_b": 1.0}),
+        ("s/s^3", "double_integrator", {"K": 1.0}),
+    ],
+)
+def test_written_elements_become_the_named_ones(text, kind, values):
+    element = parse_element(text)
+    assert element.kind == kind
+    for name, value in values.items():
+        assert getattr(element, name)(0.0) == pytest.approx(value)
+
+
+def test_a_general_written_element_matches_scipy():
+    element = parse_element("(s + 2)/(s^2 + 0.5 s + 4)")
+    assert element.kind == "transfer_function"
+    omega = np.array([0.3, 1.0, 2.0, 7.0])
+    _, expected = scipy.signal.freqs([1.0, 2.0], [1.0, 0.5, 4.0], worN=omega)
+    np.testing.assert_allclose(element.frequency_response(omega), expected, rtol=1e-12)
+    unstable = parse_element("1/(s(s-1))")  # outside IntegratorWithLag's range: kept general
+    assert unstable.kind == "transfer_function"
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("s", "is not proper (numerator degree 1 > denominator degree 0)"),
+        ("1/(s", "cannot be read (the expression ends too early)"),
+        ("x/s", "cannot be read (unexpected character 'x')"),
+        ("1/0", "cannot be read (division by zero)"),
+        ("s^1.5", "an exponent must be a non-negative integer, got '1.5'"),
+        ("num=[1]", "give exactly num=[...] and den=[...]"),
+        ("0/s", "is zero or not finite"),
+        ("", "element must be a preset name or a transfer function, got ''"),
+    ],
+)
+def test_unreadable_elements_say_what_is_allowed(text, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        parse_element(text)
