@@ -14,6 +14,12 @@ Part I Sec. III-B), which a recording of ``ft`` alone does not hold near its end
    any time, so a multisine on the period's harmonics is reproduced to rounding.
 
 Anything else raises ``ValueError`` saying what to pass.
+
+:func:`previewed_target` gives the target a preview model's far view perceives,
+``ft(t + tau_f)`` (thesis Part I eq. 26 with ``tau_f* = tau_a - tau_f``): ahead of the
+samples only where ``tau_f > 0``. With ``tau_f = 0`` throughout, the pursuit form of the
+preview model (van der El et al.'s pursuit display: the current target, nothing ahead),
+it is the recorded ``ft`` and needs none of the sources above.
 """
 
 from __future__ import annotations
@@ -138,3 +144,26 @@ def target_function(
         "callable of time), record metadata['forcing'], or pass target_period= for a "
         "recording that lasts a whole number of forcing periods"
     )
+
+
+def previewed_target(
+    recording: Recording,
+    tau_f: ArrayLike,
+    forcing: Any = None,
+    target_period: float | None = None,
+) -> FloatArray:
+    """The target the far view perceives, ``ft(t + tau_f)``, at every sample.
+
+    ``tau_f`` is the preview time, a constant or one value per sample. Where it is 0 at
+    every sample (the pursuit form: the model reads no future target) and the
+    recording holds ``ft``, the answer is the recorded ``ft`` itself: no forcing,
+    metadata or period is needed, and a ``forcing`` given is not consulted. Otherwise
+    the target ahead comes from :func:`target_function`, with its sources and its
+    ``ValueError`` when none applies.
+    """
+    t = np.asarray(recording.t, dtype=np.float64)
+    preview = np.broadcast_to(np.asarray(tau_f, dtype=np.float64), t.shape)
+    if "ft" in recording and not np.any(preview):
+        return np.array(recording.ft, dtype=np.float64)
+    target = target_function(recording, forcing, target_period)
+    return np.asarray(target(t + preview), dtype=np.float64)

@@ -25,10 +25,11 @@ tracking tasks the two agree). They differ in what ``a`` and ``b`` are:
 * **resimulated VAF against u** (``resimulated_vaf``): ``b`` is the output of the
   isolated pilot model with the identified parameter traces, started at rest and
   driven by the perceptions as recorded (the error ``e``; or the previewed target
-  ``ft(t + tau_f)`` at the identified ``tau_f`` and the output ``y``), see
-  :func:`resimulate`; ``a`` is ``u`` as measured, remnant included. The recorded
-  perceptions carry the remnant's effect on the loop but not the remnant itself, so
-  even the true parameters leave the open-loop response to the remnant unexplained:
+  ``ft(t + tau_f)`` at the identified ``tau_f`` and the output ``y``; the pursuit form,
+  ``tau_f = 0``, reads the recorded ``ft``), see :func:`resimulate`; ``a`` is ``u`` as
+  measured, remnant included. The recorded perceptions carry the remnant's effect on
+  the loop but not the remnant itself, so even the true parameters leave the open-loop
+  response to the remnant unexplained:
   its **ceiling** (``resimulated_vaf_ceiling``, the same resimulation with the true
   parameter traces, what a perfect estimator scores on that run) is below 100 %:
   about 79 % for the thesis's single-integrator preview pilot with 35 % remnant, and
@@ -82,7 +83,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from manualcontrol.envs._validation import check_int, check_positive, check_real
 from manualcontrol.envs.recording import Recording
-from manualcontrol.estimators._targets import target_function
+from manualcontrol.estimators._targets import previewed_target
 from manualcontrol.estimators.protocol import EstimationResult
 from manualcontrol.estimators.registry import ESTIMATORS
 from manualcontrol.pilots.models import PilotModel, make_model
@@ -372,8 +373,8 @@ def _perception_sets(
         )
     shared: dict[str, FloatArray] = {}
     if "ft_far" in model.perceptions:  # the target is the same with or without remnant
-        target = target_function(recording, forcing, target_period)
-        shared["ft_far"] = np.asarray(target(recording.t + tau_f), dtype=float)
+        # ft(t + tau_f): the recorded ft where tau_f = 0 throughout (the pursuit form)
+        shared["ft_far"] = previewed_target(recording, tau_f, forcing, target_period)
     if "e" in model.perceptions and "e" not in recording:
         recording = recording.with_error_signal()
     sets = []
@@ -438,11 +439,13 @@ def resimulate_parameters(
     isolated pilot, started at rest), driven by the recorded perceptions (the error
     ``e``, or the previewed target ``ft(t + tau_f(t))`` at the given preview time and
     the output ``y``; target from ``forcing``, the recording's metadata, or its periodic
-    extension, as for the DEKF), or with ``remnant_free`` by those of the remnant-free
-    run (``y - y_n``, ``e + y_n``; see the module docstring). Perceptions are held over
-    each sample; dropped samples hold the last value. The model delay is exact (a
-    fractional delay line, as in the simulation; ``delay_order=None``, default) or a
-    Padé approximant.
+    extension, as for the DEKF; with ``tau_f = 0`` at every sample, the preview model's
+    pursuit form, the recorded ``ft`` itself, which needs none of them:
+    :func:`~manualcontrol.estimators._targets.previewed_target`), or with
+    ``remnant_free`` by those of the remnant-free run (``y - y_n``, ``e + y_n``; see
+    the module docstring). Perceptions are held over each sample; dropped samples hold
+    the last value. The model delay is exact (a fractional delay line, as in the
+    simulation; ``delay_order=None``, default) or a Padé approximant.
     """
     (output,) = _resimulations(
         model, parameters, recording, (remnant_free,), delay_order, forcing, target_period
@@ -474,10 +477,11 @@ def resimulate(
 
     The model structure of ``result`` (from its settings) with the parameters of every
     sample, in :func:`resimulate_parameters` (see there for ``remnant_free``,
-    ``delay_order``, ``forcing`` and ``target_period``). Estimators whose model is
-    their own (the RDI's ARMAX model) register a ``resimulate`` in
-    :mod:`~manualcontrol.estimators.registry`, used instead (against the recording as
-    it is; ``remnant_free`` is then refused).
+    ``delay_order``, ``forcing`` and ``target_period``; a pursuit fit of the preview
+    model, ``anticipation_time = 0``, holds ``tau_f`` at 0 and is resimulated from the
+    recorded ``ft``, without them). Estimators whose model is their own (the RDI's
+    ARMAX model) register a ``resimulate`` in :mod:`~manualcontrol.estimators.registry`,
+    used instead (against the recording as it is; ``remnant_free`` is then refused).
     """
     (output,) = _resimulate_result(
         result, recording, (remnant_free,), delay_order, forcing, target_period

@@ -40,7 +40,11 @@ remnant in the model (:mod:`~manualcontrol.estimators._rml_core`):
   Boer & Kenyon (1998) instead of Padé approximants: with the true parameters the
   model then reproduces the simulated pilot to 99.94 % VAF (double integrator,
   remnant-free) where the Padé-3 internal model of the DEKF reaches 97.7 %, an error
-  the parameters otherwise absorb.
+  the parameters otherwise absorb;
+* the preview model's pursuit form (``anticipation_time = 0``: the display shows the
+  current target, nothing ahead, ``tau_f = 0`` held) reads the recorded ``ft`` through
+  the pilot's delay alone, as the family's other filters do, so a pursuit recording
+  needs no forcing or target period.
 
 Settings (beyond the shared ones of
 :class:`~manualcontrol.estimators.pilot_filter.PilotFilterSettings`) and their defaults:
@@ -378,14 +382,22 @@ class RMLSettings(PilotFilterSettings):
         return BREAK_FREQUENCY.get(self.ce, DEFAULT_BREAK)
 
 
-_MODELS: dict[str, InternalModel] = {}
+_MODELS: dict[tuple[str, bool], InternalModel] = {}
 
 
-def _delay_free_model(model: str) -> InternalModel:
-    """The internal model without its delays (cached): they act on the inputs."""
-    if model not in _MODELS:
-        _MODELS[model] = build_internal_model(model, 0)
-    return _MODELS[model]
+def _delay_free_model(model: str, pursuit: bool = False) -> InternalModel:
+    """The internal model without its delays (cached): they act on the inputs.
+
+    ``pursuit``: the preview model's pursuit form (``anticipation_time = 0``), whose far
+    view reads the recorded target ``ft`` itself (``tau_f = 0``: nothing shown ahead,
+    :func:`~manualcontrol.estimators.internal_model.build_internal_model`); otherwise
+    it reads the anticipated target ``ft(t + tau_a)``, which a recording of a pursuit
+    display does not hold.
+    """
+    key = (model, pursuit)
+    if key not in _MODELS:
+        _MODELS[key] = build_internal_model(model, 0, pursuit=pursuit)
+    return _MODELS[key]
 
 
 class RML(PilotFilter):
@@ -412,7 +424,8 @@ class RML(PilotFilter):
 
     def __init__(self, settings: RMLSettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
-        self._internal = _delay_free_model(self._settings.model)
+        # the pursuit form reads ft, as the family's filters (PilotFilter.__init__) do
+        self._internal = _delay_free_model(self._settings.model, self._settings.pursuit)
 
     @property
     def settings(self) -> RMLSettings:
