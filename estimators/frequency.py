@@ -49,6 +49,7 @@ __all__ = [
     "describing_function",
     "fit_describing_function",
     "forcing_frequency_response",
+    "model_crossover",
     "response_error",
 ]
 
@@ -651,10 +652,21 @@ def fit_weights(snr: FloatArray) -> FloatArray:
 def response_error(
     describing: DescribingFunction, model: str | PilotModel, values: Mapping[str, float]
 ) -> tuple[float, float]:
-    """Mean absolute gap of a compensatory model's ``H_p`` to the measured one (dB, degrees)."""
+    """Gap of a compensatory model's ``H_p`` to the measured one: (dB, degrees).
+
+    Mean absolute gain and phase gaps over the forcing frequencies, each line weighted
+    by :func:`fit_weights` (its share of forcing power), so lines the remnant swamps,
+    on which even the true pilot misses the measurement, count little.
+    """
     structure = _compensatory_model(model)
     response = structure.frequency_response(values, describing.frequencies, "e")
-    return _mean_errors(describing.pilot, response)
+    ratio = response / describing.pilot
+    weights = fit_weights(describing.snr_injected)
+    weights = weights / weights.sum()
+    return (
+        float(weights @ np.abs(20.0 * np.log10(np.abs(ratio)))),
+        float(weights @ np.abs(np.degrees(np.angle(ratio)))),
+    )
 
 
 def _compensatory_model(model: str | PilotModel) -> PilotModel:
@@ -737,7 +749,7 @@ def fit_describing_function(
     deviations = _standard_deviations(best, fitted, omega.size)
     response = structure.frequency_response(values, omega, "e")
     gain_error, phase_error = _mean_errors(measured, response)
-    crossover, margin = _model_crossover(structure, values, describing)
+    crossover, margin = model_crossover(structure, values, describing)
     span = upper - lower
     near = np.abs(best.x - lower) <= 1e-4 * np.where(np.isfinite(span), span, np.abs(best.x))
     near |= np.abs(best.x - upper) <= 1e-4 * np.where(np.isfinite(span), span, np.abs(best.x))
@@ -812,7 +824,7 @@ def _standard_deviations(result: Any, fitted: Sequence[str], count: int) -> dict
     return {n: float(np.sqrt(max(covariance[i, i], 0.0))) for i, n in enumerate(fitted)}
 
 
-def _model_crossover(
+def model_crossover(
     structure: PilotModel, values: Mapping[str, float], describing: DescribingFunction
 ) -> tuple[float, float]:
     """Crossover and phase margin of the model's open loop with the element, fine grid.
