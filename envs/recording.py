@@ -45,10 +45,25 @@ Files from tracking experiments (one trial per file, flat columns under varied n
 read too: columns are matched to signals through :data:`FILE_ALIASES` (exact names first,
 then ignoring case), ``columns={our_name: file_name}`` overrides or extends the matching,
 ``dt`` is inferred from the time column, and columns named ``param:<name>`` or
-``param__<name>`` become parameter traces. Other columns of such files are ignored unless
-mapped. A missing error signal is not invented; see :meth:`Recording.with_error_signal`.
+``param__<name>`` become parameter traces. Other columns of such files are not read (an
+unknown column is not a signal: its meaning and units are unknown); their names are listed
+in the metadata under ``"ignored_columns"`` so that a column left out by a misspelt name
+shows. A missing error signal is not invented; see :meth:`Recording.with_error_signal`.
 Files written by :meth:`Recording.save` carry the ``recording_format`` tag and are read
 literally (no aliases; every column comes back under its own name).
+
+What laboratories' own files need, and how it is read:
+
+* a CSV header written as a comment (``# t,target,stick``): the last comment line before
+  the first row of numbers names the columns when that row would otherwise be the header;
+* a trailing separator on every line (``t,u,``): the empty, unnamed last column is dropped;
+* time stamps rounded when written (float32, few decimals): stamps within 1 % of ``dt`` of
+  the uniform grid ``t[0] + i dt`` are read as that grid; stamps off by more (a logging
+  clock's jitter) are refused with the jitter measured, or, with ``resample=True``, every
+  signal is interpolated onto a uniform grid and the metadata say so (``"resampled"``);
+* a time column in milliseconds: ``time_unit="ms"``; a time column whose step would be
+  1-100 s (10-1000 Hz if read as milliseconds) is refused with that hint unless the unit
+  is given.
 """
 
 from __future__ import annotations
@@ -80,7 +95,10 @@ __all__ = [
     "FORMAT_TAG",
     "MEASURED_SIGNALS",
     "SIGNAL_NAMES",
+    "TIME_UNITS",
+    "MissingColumnError",
     "MissingSignalError",
+    "NonUniformTimeError",
     "Recording",
     "load_recording",
     "save_recording",
@@ -113,6 +131,33 @@ FILE_ALIASES: Mapping[str, tuple[str, ...]] = MappingProxyType(
 )
 """Column names recognised for each standard signal in files from other sources, in order."""
 
+TIME_UNITS: tuple[str, ...] = ("s", "ms")
+"""Units :meth:`Recording.load` accepts for a file's time column (``time_unit=``)."""
+
+_PER_SECOND = {"s": 1.0, "ms": 1000.0}  # divisors: x / 1000 is exact where x * 1e-3 is not
+
+_SIGNAL_ROLES = {
+    "t": "time",
+    "ft": "target forcing function",
+    "fd": "disturbance forcing function",
+    "y": "controlled-element output",
+    "e": "tracking error",
+    "u": "pilot control output",
+    "n": "remnant",
+}
+
+# Time stamps of a file within this fraction of dt of the uniform grid t[0] + i dt are
+# taken as rounding of the stamps and read as the grid; farther off, the samples were not
+# taken at a fixed rate. The bound is relative to dt, not to |t|: a bound relative to |t|
+# lets clock time stamps (t ~ 1.7e9 s since 1970) through with any jitter. 1 % of dt is
+# far below what the identification notices (a phase error of 0.01 dt w, 1e-3 rad at
+# 1.6 Hz and 60 Hz sampling) and covers float32 stamps (half an ulp is 2**(k - 24) s below
+# 2**k s: trials up to 34 min at 60 Hz, 17 min at 100 Hz, 2 min at 1 kHz); a logging
+# clock's jitter of 0.4 ms at 60 Hz (2.4 % of dt) is refused.
+_GRID_TOLERANCE = 0.01
+# Sample times at most 1-100 s apart are 10-1000 Hz if the time column is in milliseconds.
+_MILLISECOND_STEPS = (1.0, 100.0)
+
 _NAME_PATTERN = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
 _RESERVED_NAMES = ("dt", "metadata", "recording_format")
 _PARAMETER_PREFIXES = ("param:", "param__")
@@ -134,6 +179,125 @@ class MissingSignalError(KeyError, AttributeError):
 
     def __str__(self) -> str:
         return str(self.args[0])
+
+
+class MissingColumnError(MissingSignalError, ValueError):
+    """A file with no column for a signal that :meth:`Recording.load` was asked to require.
+
+    A :class:`MissingSignalError` (so a ``KeyError``) and a ``ValueError``, so callers that
+    catch either for a missing signal or a bad file still do. The message lists the file's
+    columns and says how to map one; :meth:`explain` words the mapping for another
+    interface (the command line's ``--column u=COLUMN``).
+
+    Attributes
+    ----------
+    path : Path
+        The file.
+    name : str
+        The signal missing.
+    looked_for : tuple of str
+        The column names tried (:data:`FILE_ALIASES`).
+    columns : tuple of str
+        The file's columns, in file order.
+    unmatched : tuple of str
+        The columns no signal or parameter reads.
+
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        name: str,
+        looked_for: tuple[str, ...],
+        columns: tuple[str, ...],
+        unmatched: tuple[str, ...],
+    ) -> None:
+        self.path = path
+        self.name = name
+        self.looked_for = looked_for
+        self.columns = columns
+        self.unmatched = unmatched
+        Exception.__init__(self, self.explain(f"columns={{{name!r}: 'COLUMN'}}"))
+
+    def explain(self, mapping: str) -> str:
+        """The message, with ``mapping`` as the way to map a column to the signal."""
+        role = _SIGNAL_ROLES.get(self.name)
+        what = f"signal {self.name!r}" + (f" ({role})" if role else "")
+        found = ", ".join(self.columns) or "none"
+        text = (
+            f"{self.path} has no column for {what}: looked for "
+            f"{', '.join(self.looked_for)}, in any case; columns in the file: {found}"
+        )
+        if self.unmatched and len(self.unmatched) < len(self.columns):
+            text += f" (read as no signal: {', '.join(self.unmatched)})"
+        return f"{text}; map one with {mapping}"
+
+
+class NonUniformTimeError(ValueError):
+    """A file whose time stamps are not on a uniform grid (beyond rounding of the stamps).
+
+    The message states the jitter measured: the largest deviation from the grid
+    ``t[0] + i dt`` and where it is. :meth:`explain` words the remedy (resampling on
+    request) for another interface (the command line's ``--resample``).
+
+    Attributes
+    ----------
+    path : Path
+        The file.
+    dt : float
+        The sample time of the grid (s): given, or inferred from the first and last stamps.
+    max_deviation : float
+        Largest ``|t[i] - (t[0] + i dt)|`` (s).
+    max_index : int
+        Sample where it occurs.
+    spacing : float
+        Interval of the grid resampling would use (s): ``dt`` when given, else the median
+        interval of the stamps.
+
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        column: str,
+        t: np.ndarray,
+        dt: float,
+        spacing: float,
+        spacing_given: bool,
+    ) -> None:
+        deviation = np.abs(t - (t[0] + np.arange(t.shape[0]) * dt))
+        self.path = path
+        self.column = column
+        self.start = float(t[0])
+        self.dt = dt
+        self.spacing = spacing
+        self.spacing_given = spacing_given
+        self.first_index = int(np.flatnonzero(deviation > _GRID_TOLERANCE * dt)[0])
+        self.first_time = float(t[self.first_index])
+        self.max_index = int(np.argmax(deviation))
+        self.max_time = float(t[self.max_index])
+        self.max_deviation = float(deviation[self.max_index])
+        super().__init__(self.explain("pass resample=True"))
+
+    def explain(self, remedy: str) -> str:
+        """The message, with ``remedy`` as the way to ask for resampling."""
+        index = self.first_index
+        grid = (
+            f"dt={self.spacing!r}"
+            if self.spacing_given
+            else f"the median sample interval ({self.spacing:.6g} s)"
+        )
+        return (
+            f"{self.path}: t is not uniformly sampled at dt={self.dt!r}, first deviation at "
+            f"index {index} (t[{index}]={self.first_time!r}, expected "
+            f"{self.start + index * self.dt!r}): the time stamps of column {self.column!r} "
+            f"deviate from the uniform grid t[0] + i*dt by up to "
+            f"{1e3 * self.max_deviation:.3g} ms (sample {self.max_index}, "
+            f"t={self.max_time!r}), more than the {1e3 * _GRID_TOLERANCE * self.dt:.3g} ms "
+            f"(1 % of dt) that rounding of the stamps explains: the samples were not taken at "
+            f"a fixed rate; {remedy} to interpolate every signal linearly onto a uniform grid "
+            f"at {grid} from the first time stamp"
+        )
 
 
 # ------------------------------------------------------------------------- validation
@@ -194,9 +358,15 @@ def _frozen_vector(
 
 
 def _first_time_deviation(t: FloatArray, dt: float) -> int | None:
-    """Index of the first sample of ``t`` off the grid ``t[0] + i dt``, or None."""
+    """Index of the first sample of ``t`` off the grid ``t[0] + i dt``, or None.
+
+    The tolerance, ``1e-9 * max(1, |t|)``, forgives the rounding of ``t[0] + i dt`` in
+    floating point; it is capped at ``_GRID_TOLERANCE * dt`` (1 % of a sample) so that
+    large clock times (``t`` ~ 1.7e9 s) do not let a jittery time axis through.
+    """
     expected = t[0] + np.arange(t.shape[0]) * dt
-    off = np.abs(t - expected) > 1e-9 * np.maximum(1.0, np.abs(t))
+    tolerance = np.minimum(1e-9 * np.maximum(1.0, np.abs(t)), _GRID_TOLERANCE * dt)
+    off = np.abs(t - expected) > tolerance
     return int(np.flatnonzero(off)[0]) if off.any() else None
 
 
@@ -322,8 +492,9 @@ class Recording:
     ----------
     signals : Mapping[str, array_like]
         Signal name -> samples, each 1-D of the same length. Must contain ``t`` (s),
-        strictly uniform with spacing ``dt`` (tolerance ``1e-9 * max(1, |t|)``). Other
-        names: the standard ones in :data:`SIGNAL_NAMES` and extra identifier-like names
+        strictly uniform with spacing ``dt`` (tolerance ``1e-9 * max(1, |t|)``, at most
+        ``0.01 dt``). Other names: the standard ones in :data:`SIGNAL_NAMES` and extra
+        identifier-like names
         (letters, digits, underscores, starting with a letter; not ``dt``, ``metadata``,
         ``recording_format`` or ``param__...``). ``t``, ``ft``, ``fd`` and ``n`` must be
         finite; ``y``, ``e``, ``u`` and extra signals may hold NaN for dropped samples.
@@ -681,8 +852,18 @@ class Recording:
         dt: float | None = None,
         time_column: str | None = None,
         format: str | None = None,
+        *,
+        time_unit: str | None = None,
+        resample: bool = False,
+        require: tuple[str, ...] | list[str] = (),
     ) -> Recording:
         """Read a recording from a ``.npz``, ``.csv`` or ``.mat`` file and validate it.
+
+        Files from elsewhere (not written by :meth:`save`) are read as the module
+        docstring describes: aliases, a ``#``-commented CSV header, a dropped empty
+        trailing column, time stamps within 1 % of ``dt`` of the uniform grid read as the
+        grid. Their columns that no signal or parameter reads are listed in the metadata
+        under ``"ignored_columns"``.
 
         Parameters
         ----------
@@ -701,6 +882,24 @@ class Recording:
             Name of the time column, shorthand for ``columns={"t": ...}``.
         format : {"npz", "csv", "mat"}, optional
             File format, overriding the suffix.
+        time_unit : {"s", "ms"}, optional
+            Unit of the file's time column and of its ``dt`` entry (``dt=`` is always in
+            seconds); ``"ms"`` divides them by 1000. Not for files written by :meth:`save`
+            (seconds). By default seconds, and a time column whose inferred step lies in
+            1-100 (10-1000 Hz in milliseconds) is refused with a hint to give the unit:
+            nothing is rescaled on a guess.
+        resample : bool, optional
+            If the time stamps are off the uniform grid by more than rounding explains
+            (1 % of ``dt``), interpolate every signal and parameter trace linearly onto a
+            uniform grid from the first stamp to the last, spaced by ``dt`` when given
+            (argument or file entry), else by the median interval of the stamps; nothing
+            else is changed (the times are not shifted). The metadata record it under
+            ``"resampled"`` (``from_jitter_ms``: the largest deviation measured, ``dt``,
+            ``samples_in_file``, ``method``). Samples next to a NaN become NaN. Without
+            ``resample`` such a file is refused; a uniform file is read as it is.
+        require : sequence of str, optional
+            Standard signals (:data:`SIGNAL_NAMES`) the file must provide; a missing one
+            raises :class:`MissingColumnError` listing the file's columns.
 
         Returns
         -------
@@ -710,13 +909,20 @@ class Recording:
         ------
         FileNotFoundError
             If ``path`` does not exist.
+        MissingColumnError
+            If a signal of ``require`` has no column (a ``ValueError`` and a ``KeyError``).
+        NonUniformTimeError
+            If the time stamps are off the uniform grid and ``resample`` is False (a
+            ``ValueError``).
         ValueError
             Naming the file and the problem: unknown suffix, unreadable file, missing
             column, columns of different lengths, no time and no ``dt``, non-uniform
-            time, infinite values, or any other check of :class:`Recording`.
+            time, a time step that looks like milliseconds, infinite values, or any other
+            check of :class:`Recording`.
 
         """
-        return _load(Path(path), columns, dt, time_column, format)
+        options = _LoadOptions.checked(time_unit, resample, require)
+        return _load(Path(path), columns, dt, time_column, format, options)
 
 
 # ------------------------------------------------------------------------------ files
@@ -739,9 +945,22 @@ def load_recording(
     dt: float | None = None,
     time_column: str | None = None,
     format: str | None = None,
+    *,
+    time_unit: str | None = None,
+    resample: bool = False,
+    require: tuple[str, ...] | list[str] = (),
 ) -> Recording:
     """Read a recording from ``path``; see :meth:`Recording.load`."""
-    return Recording.load(path, columns=columns, dt=dt, time_column=time_column, format=format)
+    return Recording.load(
+        path,
+        columns=columns,
+        dt=dt,
+        time_column=time_column,
+        format=format,
+        time_unit=time_unit,
+        resample=resample,
+        require=require,
+    )
 
 
 def _file_format(path: Path, format: str | None) -> str:
@@ -815,11 +1034,40 @@ def _write_mat(recording: Recording, path: Path) -> None:
 
 @dataclass
 class _FileTable:
-    """What a reader found: data column names in file order, a fetcher, header items."""
+    """What a reader found: data column names in file order, a fetcher, header items.
+
+    ``sources`` gives, for names that are not columns of their own, the column they are
+    another name of (a struct field's plain name -> ``struct.field``) or None (a whole
+    matrix, whose columns are offered as ``name:1``, ...): what "ignored columns" counts.
+    """
 
     names: list[str]
     fetch: Callable[[str], np.ndarray]
     header: dict[str, Any]
+    sources: dict[str, str | None] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class _LoadOptions:
+    """The keyword-only choices of :meth:`Recording.load`, checked."""
+
+    time_unit: str | None = None
+    resample: bool = False
+    require: tuple[str, ...] = ()
+
+    @classmethod
+    def checked(cls, time_unit: Any, resample: Any, require: Any) -> _LoadOptions:
+        if time_unit is not None:
+            check_choice("time_unit", time_unit, TIME_UNITS)
+        if not isinstance(resample, (bool, np.bool_)):
+            raise TypeError(f"resample must be True or False, got {_describe(resample)}")
+        if isinstance(require, str) or not isinstance(require, (tuple, list)):
+            raise TypeError(
+                f"require must be a list or tuple of signal names, got {_describe(require)}"
+            )
+        for name in require:
+            check_choice("each name in require", name, SIGNAL_NAMES)
+        return cls(time_unit, bool(resample), tuple(require))
 
 
 def _load(
@@ -828,7 +1076,10 @@ def _load(
     dt: float | None,
     time_column: str | None,
     format: str | None,
+    options: _LoadOptions | None = None,
 ) -> Recording:
+    if options is None:
+        options = _LoadOptions()
     explicit = _check_columns(columns, time_column)
     if dt is not None:
         dt = check_positive("dt", dt)
@@ -843,10 +1094,10 @@ def _load(
         if not isinstance(archive, np.lib.npyio.NpzFile):
             raise ValueError(f"{path} holds a single array, not named entries (.npz archive)")
         with archive:
-            return _assemble(path, _npz_table(path, archive), explicit, dt)
+            return _assemble(path, _npz_table(path, archive), explicit, dt, options)
     if kind == "csv":
-        return _assemble(path, _read_csv(path), explicit, dt)
-    return _assemble(path, _read_mat(path), explicit, dt)
+        return _assemble(path, _read_csv(path), explicit, dt, options)
+    return _assemble(path, _read_mat(path), explicit, dt, options)
 
 
 def _check_columns(columns: Mapping[str, str] | None, time_column: str | None) -> dict[str, str]:
@@ -924,17 +1175,26 @@ def _read_mat(path: Path) -> _FileTable:
     except (OSError, ValueError, TypeError, scipy.io.matlab.MatReadError) as error:
         raise ValueError(f"{path} is not a readable .mat file: {error}") from error
     contents: dict[str, np.ndarray] = {}
+    sources: dict[str, str | None] = {}
     for name, value in variables.items():
         if name.startswith("__") or not isinstance(value, np.ndarray):
             continue
-        contents.update(_mat_columns(name, value))
+        columns, aliases = _mat_columns(name, value)
+        contents.update(columns)  # a later variable takes a name over, as before
+        for key in columns:
+            if key in aliases:
+                sources[key] = aliases[key]
+            else:
+                sources.pop(key, None)
     names = list(contents)
     header = _split_header(names, contents.__getitem__)
-    return _FileTable(names, contents.__getitem__, header)
+    return _FileTable(names, contents.__getitem__, header, sources)
 
 
-def _mat_columns(name: str, value: np.ndarray) -> dict[str, np.ndarray]:
-    """The columns a MATLAB variable offers.
+def _mat_columns(
+    name: str, value: np.ndarray
+) -> tuple[dict[str, np.ndarray], dict[str, str | None]]:
+    """The columns a MATLAB variable offers, and which of them are other names.
 
     A vector is one column under its name. A matrix of several columns (a lab's
     ``data = [t u e]``) offers each column as ``name:1``, ``name:2``, ... (MATLAB's
@@ -942,28 +1202,39 @@ def _mat_columns(name: str, value: np.ndarray) -> dict[str, np.ndarray]:
     (``trial.u``, ``trial.t``) offers each field under the field's own name and as
     ``struct.field`` (where two have the same plain name, the first found keeps it),
     recursively for vectors and matrices inside.
+
+    The second mapping names the column each other name stands for (a plain field name
+    -> ``struct.field``), or None for a whole matrix (its columns are the columns).
     """
     if value.dtype.names is not None:
         if value.size != 1:
-            return {}  # struct arrays hold several trials: not one recording
+            return {}, {}  # struct arrays hold several trials: not one recording
         record = value.reshape(-1)[0]
         out: dict[str, np.ndarray] = {}
-        for field in value.dtype.names:
-            item = record[field]
+        aliases: dict[str, str | None] = {}
+        for field_name in value.dtype.names:
+            item = record[field_name]
             item = np.asarray(item)
             if item.dtype == object and item.size == 1:
                 item = np.asarray(item.reshape(-1)[0])
-            for key, column in _mat_columns(field, item).items():
-                out[f"{name}.{key}"] = column
-                out.setdefault(key, column)
-        return out
+            inner, inner_aliases = _mat_columns(field_name, item)
+            for key, column in inner.items():
+                qualified = f"{name}.{key}"
+                out[qualified] = column
+                if key in inner_aliases:
+                    source = inner_aliases[key]
+                    aliases[qualified] = None if source is None else f"{name}.{source}"
+                if key not in out:
+                    out[key] = column
+                    aliases[key] = aliases.get(qualified, qualified)
+        return out, aliases
     if value.dtype.kind in "iuf" and value.ndim == 2 and min(value.shape) > 1:
         rows = value if value.shape[0] >= value.shape[1] else value.T
         # the whole matrix stays under its name, so a name that is also a signal's says so
         columns = {name: value}
         columns.update({f"{name}:{j + 1}": rows[:, j] for j in range(rows.shape[1])})
-        return columns
-    return {name: value}
+        return columns, {name: None}
+    return {name: value}, {}
 
 
 def _parse_float(path: Path, number: int, column: str, token: str) -> float:
@@ -979,13 +1250,24 @@ def _parse_float(path: Path, number: int, column: str, token: str) -> float:
 
 
 def _read_csv(path: Path) -> _FileTable:
+    """Read a CSV file: ``# key: value`` header items, a header row, rows of numbers.
+
+    Comment lines start with ``#``; those naming ``recording_format``, ``dt`` or
+    ``metadata`` are header items, the others are skipped, except that the last one before
+    the first row of numbers names the columns when no header row precedes that row
+    (``# t,target,stick``). The separator is the first of ``,``, ``;``, tab found in the
+    header. An empty field is a dropped sample (NaN). One empty field more than the
+    header names, at the end of a line (a trailing separator), is dropped, and so is an
+    unnamed last header column that holds no value in any row.
+    """
     try:
-        lines = path.read_text(encoding="utf-8").splitlines()
+        lines = path.read_text(encoding="utf-8-sig").splitlines()  # -sig: drop a BOM
     except UnicodeDecodeError as error:
         raise ValueError(f"{path} is not a UTF-8 text file: {error}") from error
     header: dict[str, Any] = {}
     names: list[str] | None = None
     delimiter = ","
+    comment: tuple[int, str] | None = None  # last plain comment line before the header
     numbers_: list[int] = []
     data: list[str] = []
     for number, line in enumerate(lines, start=1):
@@ -996,14 +1278,26 @@ def _read_csv(path: Path) -> _FileTable:
             key, colon, value = stripped[1:].partition(":")
             if colon and key.strip() in _RESERVED_NAMES:
                 header[key.strip()] = value.strip()
+            elif names is None:
+                comment = (number, stripped.lstrip("#").strip())
             continue
-        if names is None:
-            delimiter = next((d for d in (",", ";", "\t") if d in stripped), ",")
-            names = [name.strip() for name in next(csv.reader([stripped], delimiter=delimiter))]
-            _check_csv_header(path, number, names)
-        else:
+        if names is not None:
             numbers_.append(number)
             data.append(line)
+            continue
+        delimiter = _csv_delimiter(stripped)
+        names = _csv_fields(stripped, delimiter)
+        header_line = number
+        if comment is not None and _all_numbers(names):
+            commented = _csv_fields(comment[1], _csv_delimiter(comment[1]))
+            if _width(commented) == _width(names) and not _all_numbers(commented):
+                # "# t,target,stick" above the first row: the header, commented out
+                delimiter = _csv_delimiter(comment[1])
+                names = commented
+                header_line = comment[0]
+                numbers_.append(number)
+                data.append(line)
+        _check_csv_header(path, header_line, names)
     if names is None:
         raise ValueError(f"{path} has no header row naming its columns")
     if "dt" in header:
@@ -1013,12 +1307,24 @@ def _read_csv(path: Path) -> _FileTable:
             raise ValueError(
                 f"{path}: cannot read the '# dt:' header {header['dt']!r} as a number"
             ) from None
+    unnamed_last = len(names) > 1 and names[-1] == ""
+    if unnamed_last:
+        names = names[:-1]
     width = len(names)
     rows: list[list[float]] = []
     for number, row in zip(numbers_, csv.reader(data, delimiter=delimiter), strict=True):
-        if len(row) != width:
+        if len(row) == width + 1 and not row[-1].strip():
+            row = row[:-1]  # a trailing separator: an empty, unnamed last column
+        elif unnamed_last and len(row) == width + 1:
             raise ValueError(
-                f"{path} line {number} has {len(row)} fields but the header names {width} columns"
+                f"{path} line {number}: the last column has no name in the header but holds "
+                f"{row[-1].strip()!r} here; name it in the header row (only an unnamed "
+                "column that is empty in every row is dropped)"
+            )
+        if len(row) != width:
+            shown = width + 1 if unnamed_last else width
+            raise ValueError(
+                f"{path} line {number} has {len(row)} fields but the header names {shown} columns"
             )
         rows.append(
             [
@@ -1031,19 +1337,41 @@ def _read_csv(path: Path) -> _FileTable:
     return _FileTable(names, contents.__getitem__, header)
 
 
+def _csv_delimiter(line: str) -> str:
+    return next((d for d in (",", ";", "\t") if d in line), ",")
+
+
+def _csv_fields(line: str, delimiter: str) -> list[str]:
+    return [name.strip() for name in next(csv.reader([line], delimiter=delimiter))]
+
+
+def _width(fields: list[str]) -> int:
+    """Number of fields, an empty last one (a trailing separator) not counted."""
+    return len(fields) - 1 if len(fields) > 1 and fields[-1] == "" else len(fields)
+
+
+def _all_numbers(fields: list[str]) -> bool:
+    """Whether the fields are a row of data: numbers, or empty (dropped samples)."""
+    filled = [field_ for field_ in fields if field_]
+    try:
+        [float(field_) for field_ in filled]
+    except ValueError:
+        return False
+    return bool(filled)
+
+
 def _check_csv_header(path: Path, number: int, names: list[str]) -> None:
+    if _all_numbers(names):
+        raise ValueError(
+            f"{path} has no header row naming its columns (line {number} holds numbers)"
+        )
     seen: set[str] = set()
-    for name in names:
-        if not name:
+    for position, name in enumerate(names):
+        if not name and not (position == len(names) - 1 and position > 0):
             raise ValueError(f"{path} line {number}: the header row has an empty column name")
         if name in seen:
             raise ValueError(f"{path} line {number}: the header row names column {name!r} twice")
         seen.add(name)
-    try:
-        [float(name) for name in names]
-    except ValueError:
-        return
-    raise ValueError(f"{path} has no header row naming its columns (line {number} holds numbers)")
 
 
 def _parameter_name(column: str) -> str | None:
@@ -1086,12 +1414,8 @@ def _column_vector(path: Path, table: _FileTable, column: str, what: str) -> np.
     return raw
 
 
-def _infer_dt(path: Path, t: np.ndarray, column: str) -> float:
-    if t.shape[0] < 2:
-        raise ValueError(
-            f"{path}: cannot infer dt from the time column {column!r} with {t.shape[0]} "
-            "sample(s); pass dt="
-        )
+def _time_values(path: Path, t: np.ndarray, column: str) -> FloatArray:
+    """The time column as float64, refused unless finite."""
     finite = np.isfinite(t)
     if not finite.all():
         index = int(np.flatnonzero(~finite)[0])
@@ -1099,7 +1423,21 @@ def _infer_dt(path: Path, t: np.ndarray, column: str) -> float:
             f"{path}: the time column {column!r} must be finite, found {float(t[index])!r} "
             f"at index {index}"
         )
-    t = t.astype(np.float64)
+    return t.astype(np.float64)
+
+
+def _infer_dt(path: Path, t: FloatArray, column: str) -> float:
+    """Sample time from the first and last stamps of a finite time column.
+
+    The step between the end stamps, not the median interval: rounding of single stamps
+    averages out over the run, and a uniform grid through the end stamps is the one its
+    stamps deviate least from (the deviation is then measured against it).
+    """
+    if t.shape[0] < 2:
+        raise ValueError(
+            f"{path}: cannot infer dt from the time column {column!r} with {t.shape[0]} "
+            "sample(s); pass dt="
+        )
     step = float((t[-1] - t[0]) / (t.shape[0] - 1))
     if not step > 0.0:
         raise ValueError(
@@ -1112,8 +1450,90 @@ def _infer_dt(path: Path, t: np.ndarray, column: str) -> float:
     return rounded if _first_time_deviation(t, rounded) is None else step
 
 
+def _check_time_step(path: Path, column: str, dt: float) -> None:
+    """Refuse a time column whose step reads as milliseconds, when no unit was given."""
+    low, high = _MILLISECOND_STEPS
+    if low <= dt <= high:
+        raise ValueError(
+            f"{path}: the time column {column!r} steps by {dt:g} per sample; in seconds "
+            f"that is {1.0 / dt:.3g} Hz, far slower than manual-control data are sampled, "
+            f"and in milliseconds {1e3 / dt:.4g} Hz: it looks like milliseconds: pass "
+            "time_unit='ms' (or time_unit='s' if the file really is in seconds)"
+        )
+
+
+def _on_grid(
+    path: Path,
+    column: str,
+    t: FloatArray,
+    dt: float,
+    dt_given: bool,
+    resample: bool,
+) -> tuple[FloatArray, float, dict[str, Any] | None]:
+    """The time axis a recording gets from a file's time stamps ``t``.
+
+    Returns ``(t, dt, resampled)``: the stamps as they are when uniform to the
+    :class:`Recording` tolerance; the grid ``t[0] + i dt`` when they are within
+    ``_GRID_TOLERANCE * dt`` of it (rounding of the stamps); otherwise, with ``resample``,
+    a uniform grid at ``dt`` (given) or the median interval (inferred) over the stamps'
+    span, and what to record of it in the metadata. Otherwise raise
+    :class:`NonUniformTimeError`.
+    """
+    count = t.shape[0]
+    if _first_time_deviation(t, dt) is None:
+        return t, dt, None
+    grid = t[0] + np.arange(count) * dt
+    deviation = np.abs(t - grid)
+    if float(deviation.max()) <= _GRID_TOLERANCE * dt:
+        return grid, dt, None
+    steps = np.diff(t)
+    spacing = dt if dt_given else float(np.median(steps))
+    if not resample:
+        raise NonUniformTimeError(path, column, t, dt, spacing, dt_given)
+    back = np.flatnonzero(steps <= 0.0)
+    if back.size:
+        i = int(back[0])
+        raise ValueError(
+            f"{path}: cannot resample: the time column {column!r} must increase, but "
+            f"t[{i + 1}]={float(t[i + 1])!r} follows t[{i}]={float(t[i])!r}"
+        )
+    points = math.floor((t[-1] - t[0]) / spacing * (1.0 + 1e-12)) + 1
+    resampled = {
+        "from_jitter_ms": float(1e3 * deviation.max()),
+        "dt": spacing,
+        "samples_in_file": int(count),
+        "method": "linear interpolation",
+    }
+    return t[0] + np.arange(points) * spacing, spacing, resampled
+
+
+def _missing_column(
+    path: Path,
+    name: str,
+    literal: bool,
+    table: _FileTable,
+    ignored: list[str],
+) -> MissingColumnError:
+    looked_for = (name,) if literal else FILE_ALIASES[name]
+    return MissingColumnError(path, name, looked_for, tuple(table.names), tuple(ignored))
+
+
+def _ignored_columns(table: _FileTable, taken: set[str]) -> list[str]:
+    """The file's columns that no signal or parameter reads, each once, in file order."""
+    groups: dict[str, bool] = {}
+    for name in table.names:
+        source = table.sources.get(name, name)
+        if source is not None:
+            groups[source] = groups.get(source, False) or name in taken
+    return [source for source, read in groups.items() if not read]
+
+
 def _assemble(
-    path: Path, table: _FileTable, explicit: dict[str, str], dt: float | None
+    path: Path,
+    table: _FileTable,
+    explicit: dict[str, str],
+    dt: float | None,
+    options: _LoadOptions,
 ) -> Recording:
     tag = table.header.get("recording_format")
     if tag is not None and tag != FORMAT_TAG:
@@ -1121,6 +1541,11 @@ def _assemble(
             f"{path} is tagged recording_format={tag!r}; this version reads {FORMAT_TAG!r}"
         )
     literal = tag is not None  # written by Recording.save: names are ours, no aliases
+    if literal and options.time_unit not in (None, "s"):
+        raise ValueError(
+            f"{path} was written by Recording.save, which stores time in seconds; a time "
+            f"unit of {options.time_unit!r} is for files from elsewhere"
+        )
     metadata: Any = {}
     if "metadata" in table.header:
         try:
@@ -1160,6 +1585,12 @@ def _assemble(
             parameter_columns[parameter] = column
         elif literal and parameter is None and column not in signal_columns:
             signal_columns[column] = column
+    ignored = _ignored_columns(
+        table, set(signal_columns.values()) | set(parameter_columns.values())
+    )
+    for name in options.require:
+        if name not in signal_columns and not (name == "t" and dt is not None):
+            raise _missing_column(path, name, literal, table, ignored)
 
     signals = {
         name: _column_vector(path, table, column, f"signal {name!r}")
@@ -1182,8 +1613,11 @@ def _assemble(
                 f"{reference!r} has length {first.shape[0]}"
             )
 
-    if dt is None:
-        dt = table.header.get("dt")
+    per_second = _PER_SECOND[options.time_unit or "s"]
+    if dt is None and "dt" in table.header:
+        dt = table.header["dt"] / per_second  # the file's entry, in the file's time unit
+    if ignored and not literal:
+        metadata["ignored_columns"] = ignored
     if "t" not in signals:
         if dt is None:
             raise ValueError(
@@ -1191,8 +1625,29 @@ def _assemble(
                 "dt; pass dt= to build the time axis, or name the time column with time_column="
             )
         signals = {"t": np.arange(first.shape[0]) * dt, **signals}
-    elif dt is None:
-        dt = _infer_dt(path, signals["t"], signal_columns["t"])
+    else:
+        column = signal_columns["t"]
+        stamps = _time_values(path, signals["t"], column)
+        if per_second != 1.0:
+            stamps = stamps / per_second
+        dt_given = dt is not None
+        if dt is None:
+            dt = _infer_dt(path, stamps, column)
+            if options.time_unit is None and not literal:
+                _check_time_step(path, column, dt)
+        t, dt, resampled = _on_grid(path, column, stamps, dt, dt_given, options.resample)
+        if resampled is None:
+            signals = {**signals, "t": t}
+        else:
+            signals = {
+                name: t if name == "t" else np.interp(t, stamps, values.astype(np.float64))
+                for name, values in signals.items()
+            }
+            parameters = {
+                name: np.interp(t, stamps, values.astype(np.float64))
+                for name, values in parameters.items()
+            }
+            metadata["resampled"] = resampled
 
     try:
         return Recording(signals, dt, parameters, metadata)

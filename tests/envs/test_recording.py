@@ -636,11 +636,13 @@ def test_mat_from_matlab_with_column_and_row_vectors(tmp_path):
         },
     )
     rec = Recording.load(tmp_path / "trial.mat")
-    assert rec.signal_names == ("t", "ft", "y", "u")  # fs, subject, info, freqs ignored
+    assert rec.signal_names == ("t", "ft", "y", "u")
     assert rec.dt == 0.01
     np.testing.assert_array_equal(rec.y, np.cos(t))
     np.testing.assert_array_equal(rec.u, np.arange(n, dtype=float))
-    assert rec.parameter_names == () and dict(rec.metadata) == {}
+    # fs, subject, the struct's field and freqs are not read, and are listed once each
+    assert rec.parameter_names == ()
+    assert dict(rec.metadata) == {"ignored_columns": ("fs", "subject", "info.date", "freqs")}
 
 
 def test_mat_structs_and_matrices_from_a_lab(tmp_path):
@@ -881,7 +883,7 @@ def test_matlab_v73_file_gets_a_clear_message(tmp_path):
 
 def test_non_numeric_or_matrix_columns(tmp_path):
     path = tmp_path / "odd.mat"
-    scipy.io.savemat(path, {"t": np.arange(4.0), "u": np.zeros((4, 2)), "who": "S03"})
+    scipy.io.savemat(path, {"t": np.arange(4) * 0.01, "u": np.zeros((4, 2)), "who": "S03"})
     with pytest.raises(
         ValueError,
         match=re.escape(
