@@ -1,7 +1,8 @@
 """The ``manualcontrol`` command.
 
 Subcommands: ``simulate`` (a pilot in a tracking task -> a recording), ``identify``
-(a recording or an experiment file -> parameter traces and plots), ``bench`` (a suite
+(a recording or an experiment file -> parameter traces and plots), ``describe`` (a
+compensatory trial -> its describing function, crossover and a fitted model), ``bench`` (a suite
 -> results table and report), ``suites`` (list them), ``train`` (an RL surrogate
 operator) and ``evaluate`` (a trained agent -> report). ``manualcontrol COMMAND
 --help`` explains every option.
@@ -232,26 +233,59 @@ def _simulate_run(args: argparse.Namespace, pilot: Any) -> Any:
 
 
 def _load_trial(args: argparse.Namespace) -> Any:
-    """The recording named on the command line, time in seconds, error signal formed."""
-    from manualcontrol.envs.recording import Recording
+    """The recording named on the command line, time in seconds, error signal formed.
+
+    The file must give the control signal u. Its columns that no signal reads are listed
+    on one line of stdout, so that a column left out by an unmatched name shows; the
+    library's errors for a missing column, jittery time stamps or a time step that looks
+    like milliseconds are worded with the options that fix them (``--column``,
+    ``--resample``, ``--time-unit``, ``--dt``).
+    """
+    from manualcontrol.envs.recording import MissingColumnError, NonUniformTimeError, Recording
 
     columns = _assignments(args.column, "--column")
     for name, value in columns.items():
         if not isinstance(value, str):
             columns[name] = str(value)  # a numeric column name such as 2
-    recording = Recording.load(args.recording, columns=columns or None, dt=args.dt)
-    if args.time_unit == "ms":
-        recording = Recording(
-            {**{n: recording[n] for n in recording.signal_names}, "t": recording.t / 1000.0},
-            recording.dt / 1000.0,
-            dict(recording.parameters),
-            dict(recording.metadata),
+    try:
+        recording = Recording.load(
+            args.recording,
+            columns=columns or None,
+            dt=args.dt,
+            time_unit=args.time_unit,
+            resample=args.resample,
+            require=("u",),
         )
-    elif recording.dt >= 1.0:
+    except MissingColumnError as error:
+        raise UsageError(error.explain(f"--column {error.name}=COLUMN")) from None
+    except NonUniformTimeError as error:
+        raise UsageError(error.explain("pass --resample")) from None
+    if recording.dt >= 1.0:
+        if args.time_unit == "ms":
+            hint = "--time-unit ms divides the file's time column by 1000; --dt is in seconds"
+        elif 1.0 <= recording.dt <= 100.0:
+            hint = (
+                "the time column looks like milliseconds: pass --time-unit ms; if there is "
+                "no time column, pass --dt SECONDS"
+            )
+        else:
+            hint = (
+                "if the time column is in milliseconds, pass --time-unit ms; if there is no "
+                "time column, pass --dt SECONDS"
+            )
         raise UsageError(
             f"{args.recording}: the sample time is {recording.dt:g} s; manual-control data "
-            "are sampled at tens of Hz or faster. If the time column is in milliseconds, "
-            "pass --time-unit ms; if there is no time column, pass --dt SECONDS"
+            f"are sampled at tens of Hz or faster: {hint}"
+        )
+    ignored = recording.metadata.get("ignored_columns")
+    if ignored:
+        print(f"ignored columns: {', '.join(ignored)}")
+    resampled = recording.metadata.get("resampled")
+    if resampled:
+        print(
+            f"resampled: {resampled['samples_in_file']} time stamps, off a uniform grid by up "
+            f"to {resampled['from_jitter_ms']:.3g} ms, interpolated linearly onto "
+            f"{len(recording)} samples at dt = {resampled['dt']:.6g} s"
         )
     if "e" not in recording and "ft" in recording and "y" in recording:
         recording = recording.with_error_signal()
@@ -286,7 +320,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from manualcontrol.bench.report import plot_estimation
     from manualcontrol.bench.runner import make_estimator
     from manualcontrol.envs._files import atomic_write
-    from manualcontrol.estimators.metrics import innovation_whiteness, resimulate, vaf
+    from manualcontrol.estimators.fit_check import check_fit
+    from manualcontrol.estimators.metrics import resimulate
     from manualcontrol.estimators.pilot_filter import EVIDENCE, GenericValuesWarning
 
     _check_output("--out", args.out, folder=True)
@@ -319,30 +354,26 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         if "target ahead of the samples is unknown" in str(error):
             raise UsageError(_PREVIEW_HINT) from None
         raise
-    finite = np.isfinite(recording.u) & np.isfinite(result.prediction)
-    one_step = vaf(recording.u[finite], result.prediction[finite]) if finite.any() else math.nan
-    if not finite.any():  # an output-error fit has no one-step prediction: score the samples of u
-        finite = np.isfinite(recording.u)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a diverged fit may overflow its resimulation
         try:
             model_output = resimulate(result, recording, **target)
-            resimulated = vaf(recording.u[finite], model_output[finite])
         except (ValueError, FloatingPointError):
-            model_output, resimulated = None, math.nan
-    r_1, outside = innovation_whiteness(result.innovation, result.innovation_variance)
+            model_output = None
+    describing, note = _trial_describing_function(recording, args, result)
+    check = check_fit(
+        recording, result, model_output=model_output, describing=describing, frequency_note=note
+    )
+    one_step, resimulated = check.one_step_vaf, check.resimulated_vaf
+    r_1, outside = check.innovation_lag1, check.innovation_outside
     final = {name: round(float(value), 5) for name, value in result.final().items()}
     health = result.health
     stability = _identified_loop(recording, result, args)
     summary = {
+        "estimator": result.estimator,
         "final": final,
         "estimated": list(result.estimated),
-        "fit": {
-            "vaf_one_step_percent": _rounded(one_step),
-            "vaf_resimulated_percent": _rounded(resimulated),
-            "innovation_lag1_autocorrelation": _rounded(r_1),
-            "innovation_lags_outside_95_percent": _rounded(outside),
-        },
+        "fit": check.to_dict(),
         "closed_loop": stability,
         "health": health.to_dict(),
     }
@@ -373,10 +404,12 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         print(f"fit: resimulated VAF {resimulated:.1f} % (no one-step prediction: offline fit)")
     else:
         print(
-            f"fit: one-step VAF {one_step:.1f} %, resimulated VAF {resimulated:.1f} %; "
-            f"innovation lag-1 autocorrelation {r_1:.2f}, {100 * outside:.0f} % of lags 1-50 "
-            "outside the white-noise band (white innovations give about 5 %)"
+            f"fit: one-step VAF {one_step:.1f} % (from t = {check.scored_from:.2f} s, when the "
+            f"filter had settled), resimulated VAF {resimulated:.1f} %; innovation lag-1 "
+            f"autocorrelation {r_1:.2f}, {100 * outside:.0f} % of lags 1-50 outside the "
+            "white-noise band (white innovations give about 5 %)"
         )
+    _print_frequency_check(check)
     if chosen is not None:
         errors = ", ".join(
             f"x{scale:g} {error:.4f}"
@@ -408,6 +441,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         if restarts["ended"]:
             print(f"restarts ended early: {restarts['ended']}")
     print(f"wrote {path}, {out / 'summary.json'}, {figure}")
+    for warning in check.warnings:
+        print(f"manualcontrol identify: warning: {warning}", file=sys.stderr)
     code = EXIT_OK
     if health.diverged:
         print(
@@ -430,8 +465,205 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return code
 
 
+def _cmd_describe(args: argparse.Namespace) -> int:
+    from manualcontrol.bench.report import plot_describing_function
+    from manualcontrol.envs._files import atomic_write
+    from manualcontrol.estimators.frequency import describing_function, fit_describing_function
+
+    _check_output("--out", args.out, folder=True)
+    recording = _load_trial(args)
+    source = _trial_forcing(args)
+    element = _trial_element(recording, args)
+    fixed = _assignments(args.fix, "--fix")
+    for name, value in fixed.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise UsageError(f"--fix {name}= needs a number, got {value!r}")
+    try:
+        describing = describing_function(
+            recording,
+            source.get("forcing"),
+            period=source.get("period"),
+            element=element,
+            disturbance_at=args.disturbance_at,
+        )
+    except ValueError as error:
+        text = str(error).replace(
+            "give the forcing (forcing=) or its period (period=, seconds)",
+            "give --forcing PRESET or --period SECONDS",
+        )
+        text = text.replace("disturbance_at", "--disturbance-at")
+        raise UsageError(text) from None
+    try:
+        fit = fit_describing_function(describing, args.model, fixed=fixed or None)
+    except ValueError as error:
+        raise UsageError(f"--model {args.model}: {error}") from None
+    counts = {name: describing.source.count(name) for name in ("target", "disturbance")}
+    sets = ", ".join(f"{name} {count}" for name, count in counts.items() if count)
+    start, end = describing.window
+    plural = "s" if describing.periods > 1 else ""
+    print(
+        f"describing function at {describing.frequencies.size} forcing frequencies ({sets}) "
+        f"over {describing.periods} period{plural} of {describing.period:g} s "
+        f"(t = {start:.2f} to {end:.2f} s); remnant: {100 * describing.remnant_share:.0f} % "
+        "of u's variance off the forcing frequencies"
+    )
+    print("  omega [rad/s]  |H_p| [dB]  phase [deg]  SNR(u)  SNR(remnant injected)  forcing")
+    for w, g, ph, snr, injected, kind in zip(
+        describing.frequencies,
+        describing.gain_db,
+        describing.phase_deg,
+        describing.snr,
+        describing.snr_injected,
+        describing.source,
+        strict=True,
+    ):
+        print(f"  {w:13.3f}  {g:10.2f}  {ph:11.1f}  {snr:6.1f}  {injected:21.1f}  {kind}")
+    element_text = "given" if describing.element_given else "measured from y, u and fd"
+    if math.isfinite(describing.crossover_frequency):
+        print(
+            f"open loop (element {element_text}): crossover {describing.crossover_frequency:.2f} "
+            f"rad/s, phase margin {describing.phase_margin:.0f} deg"
+        )
+    else:
+        print(
+            f"open loop (element {element_text}): |H_p H_c| does not cross 1 inside the forcing "
+            "band; no crossover"
+        )
+    values = ", ".join(
+        f"{name} {fit.values[name]:.3g}"
+        + (f" +- {fit.standard_deviations[name]:.2g}" if name in fit.fitted else " (held)")
+        for name in fit.values
+    )
+    print(f"fitted {fit.model} model: {values}")
+    loop = ""
+    if math.isfinite(fit.crossover_frequency):
+        loop = (
+            f"; its loop crosses over at {fit.crossover_frequency:.2f} rad/s with "
+            f"{fit.phase_margin:.0f} deg phase margin"
+        )
+    print(
+        f"  misses the measured points by {fit.gain_error_db:.1f} dB and "
+        f"{fit.phase_error_deg:.0f} deg (mean absolute){loop}"
+    )
+    warnings_found = []
+    if fit.at_bounds:
+        warnings_found.append(
+            f"the fit ended on a bound for {', '.join(fit.at_bounds)} (human ranges: "
+            "tau_v 0.05-0.6 s, omega_nms 4-30 rad/s, zeta_nms 0.05-1.2): the model does not "
+            "describe these data there; try holding a parameter (--fix) or another --model"
+        )
+    gap_gain, gap_phase = describing.element_error()
+    if math.isfinite(gap_gain) and (gap_gain > 1.0 or gap_phase > 10.0):
+        warnings_found.append(
+            f"the element given differs from the one measured in the file by {gap_gain:.1f} dB "
+            f"and {gap_phase:.0f} deg (mean absolute): check --element and --disturbance-at "
+            f"(now {describing.disturbance_at})"
+        )
+    strong = int(np.sum(describing.snr_injected >= 10.0))
+    if strong < len(fit.fitted) + 1:
+        warnings_found.append(
+            f"only {strong} forcing frequencies have a signal-to-noise ratio of 10 or more: "
+            "the remnant swamps the rest, so the fit is loose; more periods would help"
+        )
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = {
+        "describing_function": describing.to_dict(),
+        "fit": fit.to_dict(),
+        "warnings": warnings_found,
+    }
+    atomic_write(out / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
+    figure = plot_describing_function(
+        describing, out / "bode.png", models={f"fitted {fit.model}": fit.values}, model=fit.model
+    )
+    print(f"wrote {out / 'summary.json'}, {figure}")
+    for warning in warnings_found:
+        print(f"manualcontrol describe: warning: {warning}", file=sys.stderr)
+    return EXIT_OK
+
+
 def _rounded(value: float) -> float | None:
     return round(float(value), 4) if math.isfinite(value) else None
+
+
+def _trial_element(recording: Any, args: argparse.Namespace) -> Any:
+    """The controlled element: ``--element``, else the recording's own, else None."""
+    from manualcontrol.envs.elements import make_element, parse_element
+
+    if args.element is not None:
+        try:
+            return parse_element(args.element)
+        except ValueError as error:
+            raise UsageError(f"--element: {error}") from None
+    known = recording.metadata.get("controlled_element")
+    return make_element(known) if known is not None else None
+
+
+def _trial_forcing(args: argparse.Namespace) -> dict[str, Any]:
+    """The forcing lines' source: ``--forcing`` (a preset) or ``--period``."""
+    if args.forcing is not None and args.period is not None:
+        raise UsageError("give --forcing or --period, not both")
+    if args.forcing is not None:
+        from manualcontrol.envs.signals import forcing_preset
+
+        return {"forcing": forcing_preset(args.forcing, args.realisation)}
+    if args.period is not None:
+        return {"period": args.period}
+    return {}
+
+
+def _trial_describing_function(
+    recording: Any, args: argparse.Namespace, result: Any = None
+) -> tuple[Any, str]:
+    """The trial's describing function for the cross-check, or None and why not."""
+    from manualcontrol.estimators.frequency import describing_function
+
+    source = _trial_forcing(args)
+    if not source and args.target_period is not None:
+        source = {"period": args.target_period}
+    if not source and recording.metadata.get("forcing") is None:
+        return None, (
+            "not checked: the forcing frequencies are unknown (give --forcing PRESET or "
+            "--period SECONDS, the forcing signals being in the file)"
+        )
+    settings = result.settings.get("settings", result.settings) if result is not None else {}
+    if isinstance(settings, Mapping) and settings.get("model") not in (None, "precision"):
+        return None, f"not checked: the {settings.get('model')} model's response is not U/E"
+    try:
+        describing = describing_function(
+            recording,
+            source.get("forcing"),
+            period=source.get("period"),
+            element=_trial_element(recording, args),
+            disturbance_at=args.disturbance_at,
+        )
+    except ValueError as error:
+        return None, f"not checked: {error}"
+    return describing, ""
+
+
+def _print_frequency_check(check: Any) -> None:
+    frequency = check.frequency
+    if frequency is None:
+        print(f"frequency domain: {check.frequency_note}")
+        return
+    line = (
+        f"frequency domain: the identified model (second-half medians) misses the measured "
+        f"describing function by {frequency['gain_error_db']:.1f} dB and "
+        f"{frequency['phase_error_deg']:.0f} deg (the model fitted to it: "
+        f"{frequency['best_gain_error_db']:.1f} dB, {frequency['best_phase_error_deg']:.0f} deg)"
+    )
+    if frequency["measured_crossover_frequency"] is not None:
+        line += (
+            f"; crossover {frequency['measured_crossover_frequency']:.2f} rad/s, phase margin "
+            f"{frequency['measured_phase_margin']:.0f} deg measured"
+        )
+        if frequency["crossover_frequency"] is not None:
+            line += (
+                f", {frequency['crossover_frequency']:.2f} rad/s and "
+                f"{frequency['phase_margin']:.0f} deg identified"
+            )
+    print(line)
 
 
 def _held_by_rule(result: Any) -> dict[str, float]:
@@ -468,9 +700,9 @@ def _identified_loop(recording: Any, result: Any, args: argparse.Namespace) -> d
     from manualcontrol.pilots.stability import UnstableLoopError, check_stable
 
     settings = dict(result.settings.get("settings", result.settings))
-    element = recording.metadata.get("controlled_element") or settings.get("ce")
+    element = _trial_element(recording, args) or settings.get("ce")
     if element is None:
-        return {"stable": None, "message": "no controlled element known (--set ce=...)"}
+        return {"stable": None, "message": "no controlled element known (--element ...)"}
     try:
         import warnings
 
@@ -608,6 +840,63 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def _add_trial_options(p: argparse.ArgumentParser) -> None:
+    """What reading a lab's trial file takes: columns, time, the element and the forcing."""
+    p.add_argument(
+        "--column",
+        action="append",
+        metavar="SIGNAL=COLUMN",
+        help="map a file column to a signal, e.g. u=stick; repeatable",
+    )
+    p.add_argument(
+        "--dt",
+        type=_positive_float,
+        default=None,
+        help="sample time (s) when the file has no time column",
+    )
+    p.add_argument(
+        "--time-unit",
+        choices=("s", "ms"),
+        default="s",
+        help="unit of the file's time column (default s); --dt is always in seconds",
+    )
+    p.add_argument(
+        "--resample",
+        action="store_true",
+        help="if the file's time stamps are off a uniform grid by more than 1 %% of a "
+        "sample (a logging clock's jitter), interpolate every signal linearly onto a "
+        "uniform grid at the median sample interval (--dt when given) instead of refusing",
+    )
+    p.add_argument(
+        "--forcing",
+        default=None,
+        help="forcing preset the trial was run with: its frequencies (the describing "
+        "function) and the target ahead a preview fit reads",
+    )
+    p.add_argument("--realisation", type=int, default=0, help="realisation of --forcing")
+    p.add_argument(
+        "--period",
+        type=_positive_float,
+        default=None,
+        help="period (s) of the forcing, when no --forcing preset describes it: the forcing "
+        "frequencies are then read off the file's target and disturbance columns",
+    )
+    p.add_argument(
+        "--element",
+        default=None,
+        help="the controlled element of the experiment: a preset (SI, DI, gain, ...) or a "
+        "transfer function in s such as 1/s, 2.5/s^2, '1/(s(s+1))', '(s+2)/(s^2+0.5s+4)' "
+        "(default: the recording's own, if it names one)",
+    )
+    p.add_argument(
+        "--disturbance-at",
+        choices=("output", "input"),
+        default=None,
+        help="where the disturbance column entered the loop: added to the element's output "
+        "(default, unless the recording says) or to its input",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``manualcontrol`` command."""
     parser = argparse.ArgumentParser(
@@ -701,30 +990,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="estimator setting, e.g. ce=DI, anticipation_time=0.9, r2=4, "
         'estimated=["K_p","K_v"]; repeatable',
     )
-    p.add_argument(
-        "--column",
-        action="append",
-        metavar="SIGNAL=COLUMN",
-        help="map a file column to a signal, e.g. u=stick; repeatable",
-    )
-    p.add_argument(
-        "--dt",
-        type=_positive_float,
-        default=None,
-        help="sample time (s) when the file has no time column",
-    )
-    p.add_argument(
-        "--time-unit",
-        choices=("s", "ms"),
-        default="s",
-        help="unit of the file's time column (default s)",
-    )
-    p.add_argument(
-        "--forcing",
-        default=None,
-        help="forcing preset the trial was run with: the target ahead a preview fit reads",
-    )
-    p.add_argument("--realisation", type=int, default=0, help="realisation of --forcing")
+    _add_trial_options(p)
     p.add_argument(
         "--target-period",
         type=_positive_float,
@@ -739,6 +1005,30 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", type=Path, default=Path("results/identify"), help="output folder")
     p.set_defaults(run=_cmd_identify)
+
+    p = commands.add_parser(
+        "describe",
+        help="measure the pilot's describing function at the forcing frequencies of a "
+        "compensatory trial: crossover, phase margin and a fitted pilot model",
+    )
+    p.add_argument(
+        "recording", type=Path, help="a Recording or an experiment file (.npz, .csv, .mat)"
+    )
+    _add_trial_options(p)
+    p.add_argument(
+        "--model",
+        default="precision",
+        help="compensatory pilot model fitted to the describing function (default precision; "
+        "gain-delay)",
+    )
+    p.add_argument(
+        "--fix",
+        action="append",
+        metavar="NAME=VALUE",
+        help="hold a model parameter at a value in the fit, e.g. K_v=0; repeatable",
+    )
+    p.add_argument("--out", type=Path, default=Path("results/describe"), help="output folder")
+    p.set_defaults(run=_cmd_describe, target_period=None)
 
     p = commands.add_parser("bench", help="run a benchmark suite, write results and a report")
     p.add_argument("suite", help="built-in suite name (see `manualcontrol suites`) or a .toml file")

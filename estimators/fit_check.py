@@ -97,9 +97,13 @@ def _rounded(value: float) -> float | None:
 def second_half_values(result: EstimationResult) -> dict[str, float]:
     """Median of every parameter's estimate over the second half of the run."""
     half = len(result) // 2
-    return {
-        name: float(np.nanmedian(result.mean_of(name)[half:])) for name in result.parameter_names
-    }
+    return {name: _median(result.mean_of(name)[half:]) for name in result.parameter_names}
+
+
+def _median(values: FloatArray) -> float:
+    """Median of the finite values; NaN when there are none (a diverged filter)."""
+    finite = values[np.isfinite(values)]
+    return float(np.median(finite)) if finite.size else math.nan
 
 
 def settled_index(variance: FloatArray) -> int:
@@ -111,7 +115,7 @@ def settled_index(variance: FloatArray) -> int:
     finite = np.isfinite(variance)
     if not finite.any():
         return 0
-    level = np.nanmedian(variance[len(variance) // 2 :])
+    level = _median(variance[len(variance) // 2 :])
     settled = np.flatnonzero(finite & (variance <= SETTLED_FACTOR * level))
     return int(settled[0]) if settled.size else 0
 
@@ -208,6 +212,8 @@ def _frequency_check(
             "response is not U/E"
         )
     values = second_half_values(result)
+    if not all(math.isfinite(v) for v in values.values()):
+        return None, "not checked: the estimate has no finite values over the second half"
     gain_error, phase_error = response_error(describing, model, values)
     crossover, margin = model_crossover(model, values, describing)
     try:  # every parameter free (but what the family holds by design): the floor

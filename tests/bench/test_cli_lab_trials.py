@@ -1,0 +1,132 @@
+"""A lab's raw trial file through `manualcontrol describe` and `manualcontrol identify`.
+
+The trial is generated here: a human-like precision pilot (K_p 3 on 1/s, delay 0.28 s,
+remnant) at 60 Hz, the disturbance entering at the element's input, written with a lab's
+own column names and a '#'-led header, as a laboratory's logger writes it.
+"""
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from manualcontrol.bench.cli import EXIT_OK, EXIT_USAGE, main
+from manualcontrol.envs.elements import parse_element
+from manualcontrol.envs.signals import ForcingPair, Multisine, forcing_preset
+from manualcontrol.pilots import Pilot, simulate
+
+LAB_COLUMNS = ["--column", "u=stick", "--column", "y=output", "--column", "ft=target"]
+LAB_COLUMNS += ["--column", "fd=disturbance"]
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def trial(tmp_path_factory):
+    fd = forcing_preset("vanderel-bw4").disturbance
+    through = 1.0 / (1j * fd.frequencies)  # the element 1/s: fd at its input, seen at y
+    at_output = Multisine(
+        fd.frequencies,
+        fd.amplitudes * np.abs(through),
+        fd.phases + np.angle(through),
+        fd.measurement_time,
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # K_p 3: above thesis Table I, where humans put it
+        pilot = Pilot(
+            "precision",
+            dict(K_p=3.0, K_v=0.0, tau_v=0.28, omega_nms=11.0, zeta_nms=0.6),
+            remnant="vertregt2020-SI",
+        )
+        recording = simulate(
+            pilot, parse_element("1/s"), ForcingPair(None, at_output), dt=1 / 60, seed=4
+        )
+    t = recording.t
+    table = np.column_stack([t, np.zeros_like(t), fd(t), recording.u, recording.y, t * 0])
+    path = tmp_path_factory.mktemp("lab") / "trial.csv"
+    np.savetxt(
+        path,
+        table,
+        delimiter=",",
+        fmt="%.6f",
+        header="time,target,disturbance,stick,output,trigger",
+    )
+    return path
+
+
+def test_describe_prints_crossover_and_the_fitted_model(trial, tmp_path, capsys):
+    out_dir = tmp_path / "d"
+    code, out, err = run(
+        capsys, "describe", str(trial), *LAB_COLUMNS, "--element", "1/s",
+        "--disturbance-at", "input", "--period", "120", "--out", str(out_dir),
+    )  # fmt: skip
+    assert code == EXIT_OK, err
+    assert "ignored columns: trigger" in out
+    assert "describing function at 10 forcing frequencies (disturbance 10) over 1 period" in out
+    assert "open loop (element given): crossover" in out
+    assert "fitted precision model: K_p" in out and "K_v 0 (held)" in out
+    summary = json.loads((out_dir / "summary.json").read_text())
+    crossover = summary["describing_function"]["crossover_frequency"]
+    assert 2.0 < crossover < 4.5  # a human's crossover on 1/s
+    assert summary["fit"]["values"]["K_p"] == pytest.approx(3.0, rel=0.25)
+    assert (out_dir / "bode.png").stat().st_size > 10_000
+    # the wrong entry point shows as an element that does not match the file
+    code, _, err = run(
+        capsys, "describe", str(trial), *LAB_COLUMNS, "--element", "1/s",
+        "--period", "120", "--out", str(tmp_path / "wrong"),
+    )  # fmt: skip
+    assert code == EXIT_OK
+    assert "the element given differs from the one measured" in err
+    assert "--disturbance-at (now output)" in err
+
+
+def test_identify_cross_checks_in_the_frequency_domain(trial, tmp_path, capsys):
+    out_dir = tmp_path / "i"
+    code, out, err = run(
+        capsys, "identify", str(trial), *LAB_COLUMNS, "--element", "1/s",
+        "--disturbance-at", "input", "--period", "120", "--out", str(out_dir),
+    )  # fmt: skip
+    assert "frequency domain: the identified model (second-half medians) misses" in out
+    assert "crossover" in out and "measured" in out and "identified" in out
+    assert "one-step VAF" in out and "when the filter had settled" in out
+    summary = json.loads((out_dir / "summary.json").read_text())
+    check = summary["fit"]["frequency_check"]
+    assert check["gain_error_db"] is not None and check["best_gain_error_db"] is not None
+    assert summary["estimator"] == "dekf"
+    assert summary["closed_loop"]["stable"] is True  # the element given, not Table I's 1.5/s
+    for warning in summary["fit"]["warnings"]:
+        assert f"manualcontrol identify: warning: {warning}" in err
+    assert code == EXIT_OK
+
+
+def test_identify_without_forcing_says_why_there_is_no_check(trial, tmp_path, capsys):
+    code, out, _ = run(capsys, "identify", str(trial), *LAB_COLUMNS, "--out", str(tmp_path / "n"))
+    assert code == EXIT_OK
+    assert (
+        "frequency domain: not checked: the forcing frequencies are unknown (give --forcing" in out
+    )
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--element", "1/(s"], "--element: element '1/(s' cannot be read"),
+        (["--element", "1/s", "--period", "50"], "does not repeat over the period given"),
+        (["--element", "1/s"], "give --forcing PRESET or --period SECONDS"),
+        (["--period", "120", "--forcing", "vanderel-bw4"], "give --forcing or --period, not both"),
+        (["--period", "120", "--fix", "K_d=1"], "fixed names ['K_d']"),
+        (["--period", "120", "--fix", "K_v=lots"], "--fix K_v= needs a number, got 'lots'"),
+        (["--period", "120", "--model", "preview"], "--model preview: the preview model"),
+    ],
+)
+def test_describe_bad_inputs(trial, tmp_path, capsys, extra, message):
+    out_dir = tmp_path / "bad"
+    code, _, err = run(capsys, "describe", str(trial), *LAB_COLUMNS, *extra, "--out", str(out_dir))
+    assert code == EXIT_USAGE
+    assert message in err
+    assert not (out_dir / "summary.json").exists()
