@@ -348,6 +348,9 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         # identify says so itself, with the values (below)
         warnings.simplefilter("ignore", GenericValuesWarning)
         estimator = make_estimator(spec)
+        if _takes_the_element(estimator, settings, args):
+            # the experiment's element sets the limits and the rules by element type
+            estimator = make_estimator({**spec, "element": args.element})
     try:
         result = estimator.estimate(recording, **target)
     except ValueError as error:
@@ -584,6 +587,22 @@ def _cmd_describe(args: argparse.Namespace) -> int:
 
 def _rounded(value: float) -> float | None:
     return round(float(value), 4) if math.isfinite(value) else None
+
+
+def _takes_the_element(estimator: Any, settings: Mapping[str, Any], args: Any) -> bool:
+    """Whether ``--element`` goes to the estimator.
+
+    To one whose settings take an element, given neither ``ce`` (a thesis element type)
+    nor an element by ``--set``.
+    """
+    import dataclasses
+
+    if args.element is None or "ce" in settings or "element" in settings:
+        return False
+    own = getattr(estimator, "settings", None)
+    return dataclasses.is_dataclass(own) and any(
+        item.name == "element" for item in dataclasses.fields(own)
+    )
 
 
 def _trial_element(recording: Any, args: argparse.Namespace) -> Any:

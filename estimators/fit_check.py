@@ -10,7 +10,9 @@ one-step and resimulated VAF, what an independent measurement says:
   frequencies (:mod:`~manualcontrol.estimators.frequency`): mean absolute gain gap
   (dB) and phase gap (degrees), and the identified loop's crossover and phase margin;
 * the innovations' whiteness (a model that explains the data leaves white ones);
-* signals that barely move (nothing to identify).
+* signals that barely move (nothing to identify);
+* parameters that sit at a limit of the filter's projection for more than
+  :data:`PINNED_SHARE` of the run: the value there is the limit's, not the pilot's.
 
 The one-step VAF leaves out the filter's start-up: the samples before its innovation
 variance first comes within a factor :data:`SETTLED_FACTOR` of its median over the
@@ -42,7 +44,14 @@ from manualcontrol.estimators.metrics import innovation_whiteness, vaf
 from manualcontrol.estimators.protocol import EstimationResult
 from manualcontrol.pilots.models import make_model
 
-__all__ = ["SETTLED_FACTOR", "FitCheck", "check_fit", "second_half_values"]
+__all__ = [
+    "PINNED_SHARE",
+    "SETTLED_FACTOR",
+    "FitCheck",
+    "check_fit",
+    "second_half_values",
+    "time_at_limits",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -55,6 +64,9 @@ SETTLED_FACTOR = 2.0
 WHITENESS_LIMIT = 0.2
 #: A signal whose standard deviation is below this share of the forcing's barely moves.
 BARELY_MOVES = 0.01
+#: Share of the run a parameter may spend at a limit before it is reported: a filter
+#: touches a limit in passing; one that stays there has been stopped by it.
+PINNED_SHARE = 0.05
 
 
 @dataclass(frozen=True)
@@ -74,6 +86,7 @@ class FitCheck:
     innovation_outside: float
     frequency: dict[str, Any] | None
     frequency_note: str
+    at_limits: dict[str, dict[str, float]] = field(default_factory=dict)
     warnings: tuple[str, ...] = field(default=())
 
     def to_dict(self) -> dict[str, Any]:
@@ -86,6 +99,7 @@ class FitCheck:
             "innovation_lags_outside_95_percent": _rounded(self.innovation_outside),
             "frequency_check": self.frequency,
             "frequency_note": self.frequency_note,
+            "at_limits": self.at_limits,
             "warnings": list(self.warnings),
         }
 
@@ -154,6 +168,16 @@ def check_fit(
             "in u unexplained; read the parameters with care and check the "
             "frequency-domain gap"
         )
+    at_limits = time_at_limits(result)
+    for name, where in at_limits.items():
+        side = "lower" if where["side"] == "lower" else "upper"
+        warnings.append(
+            f"{name} sits at its {side} limit {where['limit']:g} for "
+            f"{100 * where['share']:.0f} % of the run: there it reports the limit, not the "
+            f"pilot; widen it (--set limits='{{\"{name}\": [low, high]}}'), give the "
+            "experiment's element (--element) if the limits are a thesis's, or hold the "
+            "parameter at a known value"
+        )
     frequency = None
     if describing is not None:
         frequency, note = _frequency_check(result, describing)
@@ -169,8 +193,37 @@ def check_fit(
         innovation_outside=outside,
         frequency=frequency,
         frequency_note=frequency_note,
+        at_limits=at_limits,
         warnings=tuple(warnings),
     )
+
+
+def time_at_limits(result: EstimationResult) -> dict[str, dict[str, Any]]:
+    """Estimated parameters at a limit for more than :data:`PINNED_SHARE` of the run.
+
+    ``{name: {"limit": value, "side": "lower"|"upper", "share": fraction}}`` from the
+    limits the filter resolved (``result.settings["resolved"]["limits"]``); a sample is
+    at a limit within 1e-6 of the limits' span.
+    """
+    resolved = result.settings.get("resolved")
+    limits = resolved.get("limits", {}) if isinstance(resolved, Mapping) else {}
+    found: dict[str, dict[str, Any]] = {}
+    for name, pair in limits.items():
+        if name not in result.parameter_names:
+            continue
+        low, high = (float(v) for v in pair)
+        values = result.mean_of(name)
+        values = values[np.isfinite(values)]
+        if not values.size:
+            continue
+        tolerance = 1e-6 * (high - low) if math.isfinite(high - low) else 1e-9
+        for side, limit in (("lower", low), ("upper", high)):
+            if not math.isfinite(limit):
+                continue
+            share = float(np.mean(np.abs(values - limit) <= tolerance))
+            if share > PINNED_SHARE:
+                found[name] = {"limit": limit, "side": side, "share": round(share, 4)}
+    return found
 
 
 def _movement_warnings(recording: Recording) -> list[str]:

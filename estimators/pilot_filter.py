@@ -122,10 +122,13 @@ from manualcontrol.pilots.models import MODEL_NAMES, make_model
 
 __all__ = [
     "CE_TYPES",
+    "CROSSOVER_RANGE",
     "DI_FAR_BREAK",
     "EVIDENCE",
     "GENERIC_INITIAL",
+    "HUMAN_RANGES",
     "INITIAL_VARIANCE_MODES",
+    "LIMIT_CHOICES",
     "MAX_DELAY_ORDER",
     "NOISE_INPUTS",
     "PRESETS",
@@ -136,8 +139,10 @@ __all__ = [
     "PilotFilter",
     "PilotFilterSettings",
     "ResolvedSettings",
+    "element_type",
     "held_by_design",
     "held_without_values",
+    "human_limits",
     "resolve_settings",
 ]
 
@@ -190,6 +195,18 @@ TABLE_I: Mapping[str, Mapping[str, tuple[float, float]]] = MappingProxyType(
 )
 #: Distance of the ``tau_f*`` limits from 0 and from ``tau_a`` (Table I: 0.1 s).
 TAU_F_MARGIN = 0.1
+#: Limits choices: the thesis's Table I for ``ce``, limits from the experiment's element
+#: and human ranges (:func:`human_limits`), or none.
+LIMIT_CHOICES: tuple[str, ...] = ("table-I", "human", "none")
+#: Ranges human tracking experiments report for the visual delay, the neuromuscular
+#: frequency and damping, whatever the element (the ``"human"`` limits): wider than
+#: thesis Table I, which was set for its two simulated pilots.
+HUMAN_RANGES: Mapping[str, tuple[float, float]] = MappingProxyType(
+    {"tau_v": (0.05, 0.6), "omega_nms": (4.0, 30.0), "zeta_nms": (0.05, 1.2)}
+)
+#: Where humans put the crossover frequency (rad/s): the ``"human"`` gain limits let the
+#: identified loop cross over anywhere in it, whatever the element's gain and order.
+CROSSOVER_RANGE: tuple[float, float] = (0.5, 8.0)
 #: Initial far-view break frequency (rad/s) on the double integrator: the thesis's DI
 #: benchmark started there (Part II Table 6.3, estimation 8.1); the preview model's
 #: nominal 3.3 rad/s is the single integrator's, where the target is hardly filtered
@@ -256,9 +273,15 @@ class PilotFilterSettings:
         other single-channel structures (``"gain-delay"``, ``"schiess-roland"``) work
         with nominal initial values and their human ranges as limits.
     ce : {"SI", "DI"} or None
-        Controlled-element type: Table I limits and the SI rule (``K_v``,
+        Thesis controlled-element type: Table I limits and the SI rule (``K_v``,
         ``omega_f`` held constant). None for other dynamics (e.g. Popovici's
         ``4/(s(s+3))``): limits are the union of both columns.
+    element : str, Mapping or None
+        The experiment's controlled element (a preset, a transfer function in ``s`` as
+        :func:`~manualcontrol.envs.elements.parse_element` reads it, or an element's
+        dict): the limits then come from it and from human ranges (``"human"``,
+        :func:`human_limits`), and its type (``K/s``: ``"SI"``, ``K/s^2``: ``"DI"``)
+        sets ``ce``'s rules. Give ``ce`` or ``element``, not two that disagree.
     anticipation_time : float or None
         ``tau_a`` (s), required for the preview model: the target is anticipated by
         ``tau_a`` and ``tau_f`` must stay below it (thesis Sec. III-B). ``0`` fits the
@@ -271,9 +294,11 @@ class PilotFilterSettings:
     initial : Mapping[str, float]
         Initial values (model units; ``tau_f`` as preview time); missing ones follow
         the generic rules (module docstring).
-    limits : "table-I", "none" or Mapping[str, (low, high)]
-        Estimate-projection limits: Table I for ``ce`` (default), none at all, or the
-        Table I defaults with these entries replaced (``(-inf, inf)`` removes one).
+    limits : "table-I", "human", "none", Mapping[str, (low, high)] or None
+        Estimate-projection limits: Table I for ``ce``, limits from ``element`` and human
+        ranges (:func:`human_limits`), none at all, or the defaults with these entries
+        replaced (``(-inf, inf)`` removes one). None (default): ``"human"`` where an
+        ``element`` is given, else ``"table-I"``.
     preset : str
         Initial covariances and process noise: one of :data:`PRESETS`.
     q2, r2 : float
@@ -325,10 +350,11 @@ class PilotFilterSettings:
 
     model: str = "precision"
     ce: str | None = None
+    element: Any = None
     anticipation_time: float | None = None
     estimated: tuple[str, ...] | None = None
     initial: Mapping[str, float] = field(default_factory=dict)
-    limits: str | Mapping[str, tuple[float, float]] = "table-I"
+    limits: str | Mapping[str, tuple[float, float]] | None = None
     preset: str = "popovici2017"
     q2: float = 0.4
     r2: float | None = None
@@ -365,6 +391,16 @@ class PilotFilterSettings:
 
         if self.ce is not None:
             check_choice("ce", self.ce, CE_TYPES)
+        if self.element is not None:
+            object.__setattr__(self, "element", _element_setting(self.element))
+            kind = element_type(self.element)
+            if self.ce is not None and self.ce != kind:
+                raise ValueError(
+                    f"ce={self.ce!r} (a thesis element type, Table I limits) disagrees with "
+                    f"element={self.element!r}, whose type is {kind!r}: give the "
+                    "experiment's element alone"
+                )
+            object.__setattr__(self, "ce", kind)
         preview = "ft_far" in model.perceptions
         if preview:
             if self.anticipation_time is None:
@@ -415,8 +451,13 @@ class PilotFilterSettings:
                 f"(tau_f* = tau_a - tau_f > 0, thesis eq. 26), got {initial['tau_f']!r}"
             )
         if isinstance(self.limits, str):
-            check_choice("limits", self.limits, ("table-I", "none"))
-        else:
+            check_choice("limits", self.limits, LIMIT_CHOICES)
+            if self.limits == "human" and self.element is None:
+                raise ValueError(
+                    "limits='human' derives the gain limits from the controlled element: "
+                    "give element= (e.g. '1/s')"
+                )
+        elif self.limits is not None:
             limits = _frozen_mapping("limits", self.limits, _limit_pair)
             check_names("limits", limits)
             if preview and "tau_f" in limits and limits["tau_f"][1] >= self.anticipation_time:
@@ -470,6 +511,17 @@ class PilotFilterSettings:
             if value is not None:
                 object.__setattr__(self, which, check_positive(which, value))
         object.__setattr__(self, "restarts", check_int("restarts", self.restarts, minimum=0))
+
+    @property
+    def limits_choice(self) -> str:
+        """The named limits in use.
+
+        The given name, else ``"human"`` with an element, else ``"table-I"`` (a mapping
+        of limits replaces entries of that default).
+        """
+        if isinstance(self.limits, str):
+            return self.limits
+        return "human" if self.element is not None else "table-I"
 
     @property
     def pursuit(self) -> bool:
@@ -648,11 +700,70 @@ class ResolvedSettings:
         }
 
 
+def _plant(element: Any) -> Any:
+    """The element a setting names (text through ``parse_element``)."""
+    from manualcontrol.envs.elements import make_element, parse_element
+
+    return parse_element(element) if isinstance(element, str) else make_element(element)
+
+
+def _element_setting(element: Any) -> Any:
+    """``element`` checked and in a JSON-able form (text as given, else a dict)."""
+    from manualcontrol.envs.elements import ControlledElement
+
+    plant = _plant(element)
+    if plant.is_time_varying:
+        raise ValueError(f"element must be constant for the limits it sets, got {plant.describe()}")
+    if isinstance(element, str):
+        return element
+    return plant.to_dict() if isinstance(element, ControlledElement) else dict(element)
+
+
+def human_limits(element: Any, model: str) -> dict[str, tuple[float, float]]:
+    """Limits from the experiment's controlled element and from human ranges.
+
+    Gains: ``K_p`` between the smallest and the largest ``1/|H_c(j w)|`` over
+    :data:`CROSSOVER_RANGE`, the gains at which a proportional pilot crosses over
+    anywhere humans do; ``K_v`` (lead, ``K_p T_L``) from 0 to the largest
+    ``1/(w |H_c(j w)|)``, at which a lead pilot does. So a plant of gain 1 allows the
+    gains humans use on it, which thesis Table I (set for ``1.5/s`` and ``5/s^2``)
+    does not. Delay and neuromuscular limits: :data:`HUMAN_RANGES`. The structure's
+    other parameters (far view, near view) keep their human ranges.
+    """
+    plant = _plant(element)
+    omega = np.geomspace(*CROSSOVER_RANGE, 200)
+    magnitude = np.abs(plant.frequency_response(omega))
+    proportional = 1.0 / magnitude
+    lead = 1.0 / (omega * magnitude)
+    limits = {spec.name: spec.human for spec in make_model(model).parameters}
+    limits.update(HUMAN_RANGES)
+    limits["K_p"] = (float(proportional.min()), float(proportional.max()))
+    limits["K_v"] = (0.0, float(lead.max()))
+    return limits
+
+
+def element_type(element: Any) -> str | None:
+    """The family's element type: ``"SI"`` for ``K/s``, ``"DI"`` for ``K/s^2``, else None.
+
+    The type sets the rules by element (the module docstring).
+    """
+    from manualcontrol.envs.elements import DoubleIntegrator, Integrator
+
+    plant = _plant(element)
+    if isinstance(plant, Integrator):
+        return "SI"
+    if isinstance(plant, DoubleIntegrator):
+        return "DI"
+    return None
+
+
 def _default_limits(
     settings: PilotFilterSettings, names: tuple[str, ...]
 ) -> dict[str, tuple[float, float]]:
     model = make_model(settings.model)
-    if settings.ce is not None:
+    if settings.limits_choice == "human":
+        table = human_limits(settings.element, settings.model)
+    elif settings.ce is not None:
         table = dict(TABLE_I[settings.ce])
     else:
         table = {spec.name: spec.human for spec in model.parameters}

@@ -437,7 +437,7 @@ BAD_SETTINGS = [
         {"model": "precision", "limits": {"K_p": (2.0, 1.0)}},
         "limits['K_p'] must satisfy low < high, got (2.0, 1.0)",
     ),
-    ({"model": "precision", "limits": "table"}, "limits must be one of 'table-I', 'none'"),
+    ({"model": "precision", "limits": "table"}, "limits must be one of 'table-I', 'human', 'none'"),
     ({"model": "pid"}, "model must be one of 'precision', 'preview'"),
     ({"model": "precision", "ce": "TI"}, "ce must be one of 'SI', 'DI', got 'TI'"),
     ({"model": "precision", "preset": "paper"}, "preset must be one of 'popovici2017'"),
