@@ -1,4 +1,4 @@
-"""DEKF speed against the plain-numpy oracle, and the accuracy tables of issue 5.
+"""DEKF speed against the plain-numpy oracle, and its accuracy tables.
 
 Speed (one core: numba's loop is single-threaded, BLAS is pinned to one thread):
 median of 5 runs after one warm-up (numba compiles on first use; its cache makes later

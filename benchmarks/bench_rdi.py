@@ -1,4 +1,4 @@
-"""RDI speed at 60 Hz with interpolation and smoothing, beside the DEKF (issue 13).
+"""RDI speed at 60 Hz with interpolation and smoothing, beside the DEKF.
 
 One core (numba's loops are single-threaded; BLAS pinned to one thread), median of 5 runs
 after a warm-up (numba compiles on first use and caches), side by side in one process:

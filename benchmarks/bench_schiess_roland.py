@@ -1,4 +1,4 @@
-"""Schiess-Roland joint EKF speed beside the DEKF, in the same run (issue 12).
+"""Schiess-Roland joint EKF speed beside the DEKF, in the same run.
 
 One core (numba's loop is single-threaded, BLAS pinned to one thread); median of 7
 runs after a warm-up (numba compiles on first use; its cache makes later processes

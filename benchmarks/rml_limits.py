@@ -21,7 +21,7 @@ batch (from the batch's ``score_from``) for:
 Run, for example:
   .venv/bin/python benchmarks/rml_limits.py remnant-robustness popovici-tv-30 --change 46
 
-A diagnostic for the notes of issue 15, not a tuning tool: nothing here is an option of
+A diagnostic of the RML's limits, not a tuning tool: nothing here is an option of
 the estimator.
 """
 

@@ -1,6 +1,6 @@
 """Recursive maximum likelihood over a Kalman filter bank: identification that survives remnant.
 
-Why the family's filters lose their way with remnant (issue 15)
+Why the family's filters lose their way with remnant
 -------------------------------------------------------------
 The DEKF and the joint and dual UKF treat the remnant as white noise on ``u`` and on
 the chain input. Remnant injected in the loop reaches the measured output ``y``, so
@@ -87,7 +87,7 @@ free) ``K_f`` NRMSE 0.349 and ``omega_f`` 0.387 with ``"all"``, 0.248 and 0.316 
 ``"remnant-path"``; on the single integrator the two agree within 0.04. Learning ``R``
 as a noise parameter instead lets it collapse (one-step VAF 100 %, ``K_p`` +180 %).
 
-What ``R``'s level does with remnant, and what it leaves (measured for issue 15;
+What ``R``'s level does with remnant, and what it leaves (measured when the RML was built;
 ``manualcontrol bench`` on copies of the suites' batches with ``r2`` set, mean relative
 bias, smoothed): ``R`` also decides how the gains and the remnant share the stick's slow
 power. On the double integrator ``K_p``'s bias falls as ``r2`` rises, and the ``r2``
@@ -657,7 +657,7 @@ register(
         name="rml",
         summary="recursive maximum likelihood over a bank of Kalman filters: exact delays, "
         "a remnant shaping filter whose intensity is learned (survives remnant)",
-        reference="issue 15; Ljung & Söderström 1983; Levison et al. 1969",
+        reference="Ljung & Söderström 1983; Levison et al. 1969",
         build=lambda settings: RML(RMLSettings.from_dict(dict(settings))),
         pilot_model=True,
     )

@@ -18,7 +18,7 @@ parameters: maximum likelihood for white output noise, and, with remnant, the us
 output-error estimate, biased where the remnant reaches the perceptions (closed loop;
 e.g. ``K_p`` about +13 % on Popovici's late pilot, ``K_p = 0.6``, with 30 % remnant).
 
-Why it is kept beside the random-walk filters (issue 15): a random walk must stay free
+Why it is kept beside the random-walk filters: a random walk must stay free
 to follow a change at any moment, so on a stationary stretch the remnant moves it as
 much as a real change would; two numbers a parameter and two shared ones do not. Popovici's
 time-varying pilot (``manualcontrol bench remnant-robustness``, batches

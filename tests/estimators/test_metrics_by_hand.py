@@ -1,4 +1,4 @@
-"""Every metric against an answer computed by hand (issue 15, "Metrics first").
+"""Every metric against an answer computed by hand (written before the metrics were relied on).
 
 The resimulations use the pure gain and delay pilot ``u(t) = K_p e(t - tau_v)``: with
 the delay a whole number of samples and perceptions held over each sample, the

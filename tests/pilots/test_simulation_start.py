@@ -1,4 +1,4 @@
-"""Simulation options of issue 12: a start time, a start state, measurement noise, q.
+"""Simulation options: a start time, a start state, measurement noise, q.
 
 The run from Schiess & Roland's Table I state is checked against an independent
 method-of-steps integration of their retarded equations 7-12 (``solve_ivp``, the

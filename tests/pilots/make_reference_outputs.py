@@ -1,11 +1,11 @@
-"""Write ``data/before_issue16.npz``: simulation outputs of the code before issue 16.
+"""Write ``data/reference_outputs_dd5f117.npz``: simulation outputs of the code at commit dd5f117.
 
-Issue 16 replaced scipy's per-matrix ``expm`` (and ``np.unique`` over the parameter
+The speed work after it replaced scipy's per-matrix ``expm`` (and ``np.unique`` over the parameter
 table) by a compiled exponential, which changes results at rounding level only.
-``test_speed_paths.py`` pins today's outputs to these numbers. They were written by
+``test_reference_outputs.py`` pins today's outputs to these numbers. They were written by
 running this script against commit dd5f117 (the last commit before the change):
 
-    PYTHONPATH=<checkout of dd5f117 mapped as manualcontrol> python make_issue16_reference.py
+    PYTHONPATH=<checkout of dd5f117 mapped as manualcontrol> python make_reference_outputs.py
 
 Run it against today's code only to look at the differences, never to overwrite.
 """
