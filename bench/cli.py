@@ -287,6 +287,10 @@ def _load_trial(args: argparse.Namespace) -> Any:
             f"to {resampled['from_jitter_ms']:.3g} ms, interpolated linearly onto "
             f"{len(recording)} samples at dt = {resampled['dt']:.6g} s"
         )
+    if "e" not in recording and "ft" not in recording and "y" in recording:
+        # a disturbance-only compensatory trial: labs often log no target, which is zero
+        print("no target or error column: the target is taken as zero (e = -y)")
+        recording = recording.with_signals(ft=np.zeros(len(recording)))
     if "e" not in recording and "ft" in recording and "y" in recording:
         recording = recording.with_error_signal()
     return recording

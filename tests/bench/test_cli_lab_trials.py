@@ -130,3 +130,19 @@ def test_describe_bad_inputs(trial, tmp_path, capsys, extra, message):
     assert code == EXIT_USAGE
     assert message in err
     assert not (out_dir / "summary.json").exists()
+
+
+def test_a_trial_without_a_target_column_is_read_as_target_zero(trial, tmp_path, capsys):
+    table = np.loadtxt(trial, delimiter=",")
+    bare = tmp_path / "bare.csv"
+    # time, joystick, cursor, dist: a lab's own names, no target logged
+    np.savetxt(bare, table[:, [0, 3, 4, 2]], delimiter=",", header="time,joystick,cursor,dist")
+    code, out, err = run(
+        capsys, "describe", str(bare), "--column", "u=joystick", "--column", "y=cursor",
+        "--column", "fd=dist", "--element", "1/s", "--disturbance-at", "input",
+        "--period", "120", "--out", str(tmp_path / "d"),
+    )  # fmt: skip
+    assert code == EXIT_OK, err
+    assert "no target or error column: the target is taken as zero (e = -y)" in out
+    summary = json.loads((tmp_path / "d" / "summary.json").read_text())
+    assert 2.0 < summary["describing_function"]["crossover_frequency"] < 4.5
