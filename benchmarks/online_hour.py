@@ -1,6 +1,6 @@
 """One hour online with remnant: do the estimates stay put, and does health say when not?
 
-Issue 15: a cybernetic pilot with 20 % remnant flies an environment for an hour at
+A cybernetic pilot with 20 % remnant flies an environment for an hour at
 100 Hz while an :class:`~manualcontrol.estimators.observer.EstimatorObserver` runs an
 online estimator (causal start, initial values about 20 % off the truth). Reported per
 estimator and parameter: the fraction of the samples the estimate sat at a limit (the

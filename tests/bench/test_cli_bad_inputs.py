@@ -1,4 +1,4 @@
-"""Issue 17: every user mistake exits 2 with one line, no traceback, nothing left behind."""
+"""Every user mistake exits 2 with one line, no traceback, nothing left behind."""
 
 import json
 

@@ -1,4 +1,4 @@
-"""Issue 17: what the envs accept and refuse, and the conventions users rely on."""
+"""What the envs accept and refuse, and the conventions users rely on."""
 
 import os
 import re

@@ -1,4 +1,4 @@
-"""Issue 17: typical pilots per element, and diverging loops detected, not simulated to 1e36."""
+"""Typical pilots per element, and diverging loops detected, not simulated to 1e36."""
 
 import re
 import warnings
