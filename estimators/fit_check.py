@@ -49,6 +49,7 @@ __all__ = [
     "SETTLED_FACTOR",
     "FitCheck",
     "check_fit",
+    "limit_shares",
     "second_half_values",
     "time_at_limits",
 ]
@@ -198,16 +199,15 @@ def check_fit(
     )
 
 
-def time_at_limits(result: EstimationResult) -> dict[str, dict[str, Any]]:
-    """Estimated parameters at a limit for more than :data:`PINNED_SHARE` of the run.
+def limit_shares(result: EstimationResult) -> dict[str, tuple[float, str, float]]:
+    """Share of the run each limited parameter spends at a limit: ``(share, side, limit)``.
 
-    ``{name: {"limit": value, "side": "lower"|"upper", "share": fraction}}`` from the
-    limits the filter resolved (``result.settings["resolved"]["limits"]``); a sample is
-    at a limit within 1e-6 of the limits' span.
+    From the limits the filter resolved (``result.settings["resolved"]["limits"]``); a
+    sample is at a limit within 1e-6 of the limits' span; the side with the larger share.
     """
     resolved = result.settings.get("resolved")
     limits = resolved.get("limits", {}) if isinstance(resolved, Mapping) else {}
-    found: dict[str, dict[str, Any]] = {}
+    shares: dict[str, tuple[float, str, float]] = {}
     for name, pair in limits.items():
         if name not in result.parameter_names:
             continue
@@ -217,13 +217,27 @@ def time_at_limits(result: EstimationResult) -> dict[str, dict[str, Any]]:
         if not values.size:
             continue
         tolerance = 1e-6 * (high - low) if math.isfinite(high - low) else 1e-9
+        best = (0.0, "lower", low)
         for side, limit in (("lower", low), ("upper", high)):
-            if not math.isfinite(limit):
-                continue
-            share = float(np.mean(np.abs(values - limit) <= tolerance))
-            if share > PINNED_SHARE:
-                found[name] = {"limit": limit, "side": side, "share": round(share, 4)}
-    return found
+            if math.isfinite(limit):
+                share = float(np.mean(np.abs(values - limit) <= tolerance))
+                if share > best[0]:
+                    best = (share, side, limit)
+        shares[name] = best
+    return shares
+
+
+def time_at_limits(result: EstimationResult) -> dict[str, dict[str, Any]]:
+    """Estimated parameters at a limit for more than :data:`PINNED_SHARE` of the run.
+
+    ``{name: {"limit": value, "side": "lower"|"upper", "share": fraction}}``, from
+    :func:`limit_shares`.
+    """
+    return {
+        name: {"limit": limit, "side": side, "share": round(share, 4)}
+        for name, (share, side, limit) in limit_shares(result).items()
+        if share > PINNED_SHARE
+    }
 
 
 def _movement_warnings(recording: Recording) -> list[str]:
