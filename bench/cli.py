@@ -214,8 +214,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _simulate_run(args: argparse.Namespace, pilot: Any) -> Any:
+    from manualcontrol.envs._validation import check_choice
+    from manualcontrol.envs.tasks import DISTURBANCE_POINTS
     from manualcontrol.pilots import simulate
 
+    # checked here so the message names the flag, not simulate()'s keyword
+    disturbance_at = check_choice("--disturbance-at", args.disturbance_at, DISTURBANCE_POINTS)
     return simulate(
         pilot,
         args.element,
@@ -229,6 +233,7 @@ def _simulate_run(args: argparse.Namespace, pilot: Any) -> Any:
         seed=args.seed,
         loop=args.loop,
         on_unstable="warn" if args.allow_unstable else "raise",
+        disturbance_at=disturbance_at,
     )
 
 
@@ -962,9 +967,19 @@ def build_parser() -> argparse.ArgumentParser:
         help="Padé order of the pilot delay (default exact)",
     )
     p.add_argument(
-        "--element", default="SI", help="controlled element preset (SI, DI, popovici2017, ...)"
+        "--element",
+        default="SI",
+        help="controlled element: a preset (SI, DI, popovici2017, ...) or a transfer function "
+        "in s such as 1/s, 2.5/s^2, '1/(s(s+1))', 'num=[1]; den=[1, 1, 0]'",
     )
     p.add_argument("--forcing", default="vanderel-bw4", help="forcing preset")
+    p.add_argument(
+        "--disturbance-at",
+        default="output",
+        metavar="{output,input}",
+        help="where the forcing's disturbance enters: added to the element's output "
+        "(default) or to its input, driving the element (a force on the stick, a gust)",
+    )
     p.add_argument("--realisation", type=int, default=0, help="forcing realisation index")
     p.add_argument(
         "--task", default=None, help="compensatory, pursuit or preview (default: the model's)"

@@ -102,6 +102,7 @@ def simulate_scenario(scenario: Scenario) -> Recording:
         start_time=scenario.start_time,
         initial_state=scenario.initial_state,
         measurement_noise=scenario.measurement_noise,
+        disturbance_at=scenario.disturbance_at,
     )
 
 

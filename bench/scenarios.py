@@ -34,7 +34,9 @@ Schema of a suite file::
     name = "preview-SI"
     task = "preview"           # compensatory | pursuit | preview | lane-keeping
                                # (lane keeping reads the keys as bench.driving says)
-    element = "SI"             # preset name or a table {kind = ..., ...}
+    element = "SI"             # preset name, transfer function ("1/(s(s+1))") or a
+                               # table {kind = ..., ...}
+    disturbance_at = "output"  # or "input": where the forcing's fd enters the element
     forcing = "vanderel-bw4"   # forcing preset
     realisations = [0, 1, 2]   # forcing realisations (crossed)
     remnant_seeds = [0]        # remnant seeds (crossed; one run when no remnant)
@@ -99,6 +101,7 @@ from manualcontrol.envs._validation import (
 from manualcontrol.envs.elements import make_element
 from manualcontrol.envs.recording import MEASURED_SIGNALS
 from manualcontrol.envs.signals import FORCING_PRESETS, preset_realisation_count
+from manualcontrol.envs.tasks import DISTURBANCE_POINTS
 from manualcontrol.pilots import Pilot
 from manualcontrol.pilots.simulation import INITIAL_STATE_SIGNALS, LOOPS, TASKS
 
@@ -134,6 +137,7 @@ _BATCH_KEYS = {
     "start_time",
     "measurement_noise",
     "initial_state",
+    "disturbance_at",
 }
 #: The task of open-loop batches: a system driven by the forcing, no pilot and no loop.
 OPEN_LOOP = "open-loop"
@@ -149,6 +153,7 @@ _OPTIONAL_FIELDS = {
     "start_time": 0.0,
     "measurement_noise": None,
     "initial_state": None,
+    "disturbance_at": "output",
 }
 _PILOT_KEYS = {"model", "parameters", "remnant", "delay_order", "near_view"}
 
@@ -182,6 +187,7 @@ class Scenario:
     start_time: float = 0.0
     measurement_noise: Mapping[str, float] | None = None
     initial_state: Mapping[str, Any] | None = None
+    disturbance_at: str = "output"
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able description (the optional fields only where set)."""
@@ -597,12 +603,19 @@ def _checked_pilot(where: str, merged: Mapping[str, Any]) -> tuple[dict[str, Any
 
 
 def _check_extras(merged: Mapping[str, Any], open_loop: bool) -> dict[str, Any]:
-    """The keys of postview, loss-of-control and open-loop batches, checked."""
+    """The keys of postview, loss-of-control, disturbance-point and open-loop batches, checked."""
     from manualcontrol.envs.schedules import Schedule
 
     extra: dict[str, Any] = {}
     if open_loop:
-        for key in ("element", "pilot", "gap", "loss_of_control", "available_preview"):
+        for key in (
+            "element",
+            "pilot",
+            "gap",
+            "loss_of_control",
+            "available_preview",
+            "disturbance_at",
+        ):
             if key in merged:
                 raise ValueError(f"{key} does not apply to an open-loop batch (it has a system)")
         from manualcontrol.pilots.open_loop import ARMAXSystem
@@ -625,6 +638,10 @@ def _check_extras(merged: Mapping[str, Any], open_loop: bool) -> dict[str, Any]:
         extra["gap"] = gap
     if "loss_of_control" in merged:
         extra["loss_of_control"] = check_positive("loss_of_control", merged["loss_of_control"])
+    if "disturbance_at" in merged:
+        extra["disturbance_at"] = check_choice(
+            "disturbance_at", merged["disturbance_at"], DISTURBANCE_POINTS
+        )
     return extra
 
 

@@ -354,17 +354,35 @@ ELEMENT_PRESETS: tuple[str, ...] = tuple(_presets())
 
 
 def make_element(spec: str | ControlledElement | Mapping[str, Any]) -> ControlledElement:
-    """Return a controlled element from a preset name, an element, or a saved dict.
+    """Return a controlled element from a name or written transfer function, or a dict.
 
-    Preset names: see :data:`ELEMENT_PRESETS`. Dicts are those of
-    :meth:`ControlledElement.to_dict`, or ``{"kind": "critical_task", "start": ...,
-    "rate": ...}`` for :func:`critical_task` with its two settings.
+    An element is returned as it is. Preset names: see :data:`ELEMENT_PRESETS`. Any
+    other string is read by :func:`parse_element` (``"1/s"``, ``"1/(s(s+1))"``,
+    ``"num=[1]; den=[1, 1, 0]"``), so every place that takes an element by name (suite
+    files, env keywords, the command line) takes a lab's written transfer function
+    too. Dicts are those of :meth:`ControlledElement.to_dict`, or ``{"kind":
+    "critical_task", "start": ..., "rate": ...}`` for :func:`critical_task` with its
+    two settings.
+
+    A string that is neither raises ``ValueError`` listing the presets, then why it
+    cannot be read as a transfer function and how to write one.
     """
     if isinstance(spec, ControlledElement):
         return spec
     if isinstance(spec, str):
-        check_choice("controlled element", spec, ELEMENT_PRESETS)
-        return _presets()[spec]
+        if spec in ELEMENT_PRESETS:
+            return _presets()[spec]
+        try:
+            return parse_element(spec)
+        except ValueError as error:
+            listed = ", ".join(repr(name) for name in ELEMENT_PRESETS)
+            # the presets are listed here already; an empty text has nothing to read
+            reason = str(error).split("; allowed: ")[0] if spec.strip() else "it is empty"
+            raise ValueError(
+                f"controlled element must be one of {listed}, got {spec!r}; read as a "
+                f"transfer function in s, {reason}; write one as '1/s', '2.5/s^2', "
+                "'1/(s(s+1))', '(s+2)/(s^2+0.5s+4)' or 'num=[1]; den=[1, 1, 0]'"
+            ) from None
     if isinstance(spec, Mapping):
         data = dict(spec)
         if data.get("kind") == CRITICAL_TASK_KIND:

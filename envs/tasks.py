@@ -12,6 +12,7 @@ the simulation of the same run stay one problem:
 * :func:`available_preview_for` -- the preview a task shows (1 s by default in the
   preview task, none otherwise) and :func:`check_preview_time` for a point read in it;
 * :func:`sample_counts` -- run-in and total samples;
+* :data:`DISTURBANCE_POINTS` -- where the disturbance ``fd`` enters the loop;
 * :func:`task_metadata` -- what a recording of the run says about how it was made.
 """
 
@@ -29,6 +30,7 @@ from manualcontrol.envs.signals import ForcingPair, forcing_preset
 __all__ = [
     "DEFAULT_AVAILABLE_PREVIEW",
     "DEFAULT_MEASUREMENT_TIME",
+    "DISTURBANCE_POINTS",
     "TASKS",
     "available_preview_for",
     "check_preview_time",
@@ -44,6 +46,11 @@ TASKS: tuple[str, ...] = ("compensatory", "pursuit", "preview", "postview")
 DEFAULT_AVAILABLE_PREVIEW = 1.0
 #: Measurement time (s) of a forcing that has no period of its own.
 DEFAULT_MEASUREMENT_TIME = 120.0
+#: Where the disturbance forcing function ``fd`` enters the loop: added to the
+#: controlled element's output (``y = H_c u + fd``, the default) or to its input
+#: (``y = H_c (u + fd)``: a force on the stick, a gust on the vehicle), where the
+#: element's own dynamics shape it.
+DISTURBANCE_POINTS: tuple[str, ...] = ("output", "input")
 
 
 def resolve_forcing(forcing: str | ForcingPair, realisation: int = 0) -> ForcingPair:
@@ -100,14 +107,21 @@ def task_metadata(
     available_preview: float,
     run_in: float,
     measurement_time: float,
+    disturbance_at: str = "output",
 ) -> dict[str, Any]:
-    """The description every recording of a tracking run carries."""
+    """The description every recording of a tracking run carries.
+
+    ``disturbance_at`` (one of :data:`DISTURBANCE_POINTS`) is always written, so a
+    reader of the recording (the describing function, an estimator) knows which loop
+    the recorded ``fd`` entered without guessing the default.
+    """
     return {
         "task": task,
         "controlled_element": element.to_dict(),
         "forcing": forcing.to_dict(),
         "forcing_name": forcing.name,
         "realisation": forcing.realisation,
+        "disturbance_at": check_choice("disturbance_at", disturbance_at, DISTURBANCE_POINTS),
         "available_preview": available_preview,
         "run_in": run_in,
         "measurement_time": measurement_time,

@@ -1,8 +1,10 @@
 """Gymnasium environments for compensatory, pursuit and preview tracking tasks.
 
 A participant (or an agent) moves a stick ``u``; the controlled element (CE) turns it
-into the output ``y``, to which a disturbance ``fd`` is added; the task is to keep
-``y`` on the target ``ft``. The display type decides what is seen:
+into the output ``y``; a disturbance ``fd`` is added to that output or, with
+``disturbance_at="input"``, to the stick before the element (a force on the stick, a
+gust); the task is to keep ``y`` on the target ``ft``. The display type decides what is
+seen:
 
 ==============  ======================================================================
 task            observation (float64)
@@ -19,12 +21,17 @@ appended (compensatory ``e'``; pursuit ``ft', y'``; preview ``ft'(t), y'``), wit
 first observation.
 
 Stepping: the stick is held over each sample (zero-order hold) and the element is
-advanced by its exact discretisation, ``x[k+1] = Phi_k x[k] + Gamma_k u[k]``; ``y[k] =
-C_k x[k] + fd[k]`` (an element with direct feedthrough, such as a pure gain, shows
-``D u[k-1]``: the stick reaches the display one frame later). This is the sampled loop
-of :func:`manualcontrol.pilots.simulate` (``loop="sampled"``), so a cybernetic pilot
-acting through :meth:`~manualcontrol.pilots.Pilot.act` reproduces that simulation.
-Time is ``t = (k - n_run_in) dt``: zero at the start of the measurement.
+advanced by its exact discretisation. With the disturbance at the element's output
+(``disturbance_at="output"``, default), ``x[k+1] = Phi_k x[k] + Gamma_k u[k]`` and
+``y[k] = C_k x[k] + fd[k]``; at its input (``"input"``), the element is driven by the
+sum, ``x[k+1] = Phi_k x[k] + Gamma_k (u[k] + fd[k])`` and ``y[k] = C_k x[k]`` (exact for
+a time-varying element too: no pre-filtered disturbance). An element with direct
+feedthrough, such as a pure gain, shows ``D`` times its previous input (``D u[k-1]``,
+or ``D (u[k-1] + fd[k-1])``): the stick reaches the display one frame later. This is
+the sampled loop of :func:`manualcontrol.pilots.simulate` (``loop="sampled"``, the same
+``disturbance_at``), so a cybernetic pilot acting through
+:meth:`~manualcontrol.pilots.Pilot.act` reproduces that simulation. Time is ``t = (k -
+n_run_in) dt``: zero at the start of the measurement.
 
 Action: ``Box(-action_bound, action_bound, (1,), float64)``; actions outside are
 clipped and counted in ``info["clipped_actions"]``; non-finite actions raise.
@@ -44,7 +51,8 @@ element such as the critical tracking task: 10 forcing standard deviations).
 ``info`` after each step: ``t, ft, fd, y, e`` of the new observation, the applied
 stick ``u``, ``clipped_actions`` so far, and ``element``: the CE parameters at that
 step. :meth:`TrackingEnv.recording` returns the episode as a
-:class:`~manualcontrol.envs.recording.Recording`.
+:class:`~manualcontrol.envs.recording.Recording` (``fd`` as injected; its metadata say
+where, ``"disturbance_at"``).
 
 Rendering (``render_mode``): ``"rgb_array"`` returns the participant's display as a
 ``(400, 600, 3)`` uint8 frame; ``"human"`` shows it in a pygame window. Compensatory:
@@ -79,6 +87,7 @@ from manualcontrol.envs.elements import ControlledElement, UnstableFirstOrder, m
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair, forcing_preset, preset_realisation_count
 from manualcontrol.envs.tasks import (
+    DISTURBANCE_POINTS,
     available_preview_for,
     measurement_time_for,
     resolve_forcing,
@@ -115,7 +124,9 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
     ----------
     controlled_element
         Preset name (``"SI"`` 1.5/s, ``"DI"`` 5/s^2, ``"popovici2017"``,
-        ``"popovici2017-tv"``, ``"critical-task"``, ...), a
+        ``"popovici2017-tv"``, ``"critical-task"``, ...), a transfer function in ``s``
+        written as text (``"1/s"``, ``"1/(s(s+1))"``, ``"num=[1]; den=[1, 1, 0]"``: see
+        :func:`~manualcontrol.envs.elements.parse_element`), a
         :class:`~manualcontrol.envs.elements.ControlledElement` (parameters may be
         schedules), or its saved dict.
     forcing
@@ -143,6 +154,10 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         Optional observation extras, off by default.
     loss_of_control
         ``|e|`` beyond which the episode terminates, or None for the default.
+    disturbance_at
+        Where ``fd`` enters: ``"output"`` (default, added to the element's output) or
+        ``"input"`` (added to the stick, driving the element); see Stepping in the
+        module docstring.
     render_mode
         None, ``"rgb_array"`` or ``"human"``.
 
@@ -168,6 +183,7 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         include_rates: bool = False,
         include_previous_action: bool = False,
         loss_of_control: float | None = None,
+        disturbance_at: str = "output",
         render_mode: str | None = None,
     ) -> None:
         if not self.task:
@@ -199,6 +215,8 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         self.loss_of_control = (
             None if loss_of_control is None else check_positive("loss_of_control", loss_of_control)
         )
+        self.disturbance_at = check_choice("disturbance_at", disturbance_at, DISTURBANCE_POINTS)
+        self._disturbance_at_input = disturbance_at == "input"
         if render_mode is not None:
             check_choice("render_mode", render_mode, self.metadata["render_modes"])
         self.render_mode = render_mode
@@ -323,7 +341,8 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         self._e = np.zeros(n + 1)
         self._previous_u = 0.0
         self._clipped = 0
-        y = float(fd[0])
+        # at rest: only a disturbance at the output shows before the first step
+        y = 0.0 if self._disturbance_at_input else float(fd[0])
         self._y[0] = y
         self._e[0] = float(ft[0]) - y
         observation = self._observe(0)
@@ -350,6 +369,8 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
             self._clipped += 1
         self._u[k] = u
         x = self._x
+        # what drives the element: the stick, plus the disturbance where it enters there
+        drive = u + float(self._fd[k]) if self._disturbance_at_input else u
         if self._constant_info is not None:
             # plain float loops: for the few states of an element, generator sums cost
             # three times as much (the same additions, in the same order)
@@ -358,21 +379,22 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
                 acc = 0.0
                 for p, v in zip(row, x, strict=True):
                     acc += p * v
-                advanced.append(acc + g * u)
+                advanced.append(acc + g * drive)
             x = advanced
             acc = 0.0
             for c, v in zip(self._c_row, x, strict=True):
                 acc += c * v
-            y = acc + self._d_value * u
+            y = acc + self._d_value * drive
         else:
             i = k if self._phi.ndim == 3 else 0
-            x = (self._phi[i] @ np.asarray(x) + self._gamma[i] * u).tolist()
+            x = (self._phi[i] @ np.asarray(x) + self._gamma[i] * drive).tolist()
             j = k + 1
-            y = float(self._c[j] @ np.asarray(x)) + float(self._d[j]) * u
+            y = float(self._c[j] @ np.asarray(x)) + float(self._d[j]) * drive
         self._x = x
         k += 1
         self._k = k
-        y += float(self._fd[k])
+        if not self._disturbance_at_input:
+            y += float(self._fd[k])
         e = float(self._ft[k]) - y
         self._y[k] = y
         self._e[k] = e
@@ -474,6 +496,7 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
                     self.available_preview,
                     self.run_in,
                     self.measurement_time,
+                    self.disturbance_at,
                 ),
                 "dt": self.dt,
                 "clipped_actions": self._clipped,

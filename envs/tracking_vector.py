@@ -10,7 +10,8 @@ autoreset: the step after an episode ends resets that copy, ignores its action a
 returns its first observation with zero reward.
 
 ``info`` holds arrays over the copies: ``t, ft, fd, y, e, u`` after the step and
-``clipped`` (whether the action was clipped).
+``clipped`` (whether the action was clipped). The disturbance enters where the single
+environment's ``disturbance_at`` says (the element's output or its input).
 Rendering is not offered (render single environments).
 """
 
@@ -103,6 +104,7 @@ class TrackingVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
         self._inverse_variance = 1.0 / np.asarray(variances)
         self._time = template._time
         self._time_varying = template.element.is_time_varying
+        self._disturbance_at_input = template.disturbance_at == "input"
         self._phi = template._phi
         self._gamma = template._gamma
         self._c = template._c
@@ -127,7 +129,7 @@ class TrackingVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
         order = self._c.shape[-1]
         self._x = np.zeros((n, order))
         self._k = np.zeros(n, dtype=np.int64)
-        self._y = self._fd[self._realisation, 0].copy()
+        self._y = self._start_output(self._realisation)
         self._e = self._ft[self._realisation, 0] - self._y
         self._previous = {
             "e": self._e.copy(),
@@ -138,6 +140,12 @@ class TrackingVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
         self._done = np.zeros(n, dtype=bool)
         self._clipped = np.zeros(n, dtype=bool)
         return self._observe(), self._infos()
+
+    def _start_output(self, rows: NDArray[np.int64]) -> FloatArray:
+        """``y`` at rest for copies on these forcing rows (as the single environment)."""
+        if self._disturbance_at_input:
+            return np.zeros(len(rows))
+        return self._fd[rows, 0].copy()
 
     def _pick_realisation(self, i: int, requested: int | None) -> int:
         template = self.template
@@ -170,17 +178,19 @@ class TrackingVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
         u = np.clip(u, -bound, bound)
         # copies that ended last step are stepped harmlessly (clamped), then reset below
         k = np.minimum(self._k, self.episode_steps - 1)
+        rows = self._realisation
+        # what drives the element: the stick, plus the disturbance where it enters there
+        drive = u + self._fd[rows, k] if self._disturbance_at_input else u
         if self._time_varying:
             phi = self._phi[k]
-            x = np.einsum("nij,nj->ni", phi, self._x) + self._gamma[k] * u[:, None]
-            y_next = np.einsum("ni,ni->n", self._c[k + 1], x) + self._d[k + 1] * u
+            x = np.einsum("nij,nj->ni", phi, self._x) + self._gamma[k] * drive[:, None]
+            y_next = np.einsum("ni,ni->n", self._c[k + 1], x) + self._d[k + 1] * drive
         else:
-            x = self._x @ self._phi.T + u[:, None] * self._gamma
-            y_next = x @ self._c + self._d * u
+            x = self._x @ self._phi.T + drive[:, None] * self._gamma
+            y_next = x @ self._c + self._d * drive
         k = k + 1
         self._previous = {"e": self._e, "ft": self._ft[self._realisation, k - 1], "y": self._y}
-        rows = self._realisation
-        y = y_next + self._fd[rows, k]
+        y = y_next if self._disturbance_at_input else y_next + self._fd[rows, k]
         e = self._ft[rows, k] - y
         variance = self._inverse_variance[rows]
         kind = template.reward_kind
@@ -204,7 +214,7 @@ class TrackingVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
             row = self._realisation[done]
             self._x[done] = 0.0
             self._k[done] = 0
-            self._y[done] = self._fd[row, 0]
+            self._y[done] = self._start_output(row)
             self._e[done] = self._ft[row, 0] - self._y[done]
             self._u[done] = 0.0
             for name in self._previous:

@@ -146,6 +146,7 @@ def _check_episode_growth(
             on_unstable=on_unstable,
             loss_of_control=loss_of_control,
             keep_run_in=True,
+            disturbance_at=setup.disturbance_at,
             **postview,
         )
     except ValueError as error:
@@ -186,6 +187,7 @@ class PilotController:
             dt=base.dt,
             run_in=base.run_in,
             measurement_time=base.measurement_time,
+            disturbance_at=getattr(base, "disturbance_at", "output"),
             **postview,
         )
         rng, _ = _as_generator(seed)
@@ -211,6 +213,7 @@ class PilotController:
                     measurement_time=base.measurement_time,
                     seed=replay,
                     loop="sampled",
+                    disturbance_at=setup.disturbance_at,
                     **postview,
                 )
                 remnant = remnant.with_gain(calibration.metadata["remnant"]["K_r"])

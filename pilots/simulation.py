@@ -31,6 +31,15 @@ Gamma_k u[k]``):
 
 Time runs from ``-run_in`` to the measurement time; the run-in is simulated and cut,
 so recordings start at ``t = 0`` and parameter schedules are written in that time.
+
+Disturbance
+-----------
+The disturbance ``fd`` is a junction of the block diagram, not a pre-filtered signal:
+with ``disturbance_at="output"`` (default) it is added to the element's output, ``y =
+H_c u + fd``; with ``"input"`` to its input, ``y = H_c (u + fd)`` (a force on the
+stick, a gust), so the element's state is driven by ``u + fd`` and the run is as exact
+for a time-varying element as for a constant one. The recording's ``fd`` is the
+disturbance as injected, and its metadata say where (``"disturbance_at"``).
 """
 
 from __future__ import annotations
@@ -80,6 +89,7 @@ from manualcontrol.envs.recording import MEASURED_SIGNALS, Recording
 from manualcontrol.envs.schedules import Schedule, as_schedule
 from manualcontrol.envs.signals import ForcingPair
 from manualcontrol.envs.tasks import (
+    DISTURBANCE_POINTS,
     TASKS,
     available_preview_for,
     check_preview_time,
@@ -151,6 +161,7 @@ class SimulationSetup:
     gap: Schedule | None = None
     postview: float = DEFAULT_POSTVIEW
     start_time: float = 0.0
+    disturbance_at: str = "output"
 
     @classmethod
     def create(
@@ -168,11 +179,13 @@ class SimulationSetup:
         gap: float | Schedule | None = None,
         postview: float | None = None,
         start_time: float = 0.0,
+        disturbance_at: str = "output",
     ) -> SimulationSetup:
         """Resolve names to objects and check that they fit together.
 
         ``gap`` and ``postview`` (s) belong to the postview task
-        (:mod:`manualcontrol.envs.postview`; defaults 0.4 and 1 s).
+        (:mod:`manualcontrol.envs.postview`; defaults 0.4 and 1 s); ``disturbance_at``
+        is one of :data:`~manualcontrol.envs.tasks.DISTURBANCE_POINTS`.
         """
         if not isinstance(pilot, Pilot):
             raise TypeError(f"pilot must be a Pilot, got {pilot!r}")
@@ -210,6 +223,7 @@ class SimulationSetup:
         measurement_time = measurement_time_for(forcing, measurement_time)
         check_duration("measurement_time", measurement_time, dt)
         start_time = check_real("start_time", start_time)
+        disturbance_at = check_choice("disturbance_at", disturbance_at, DISTURBANCE_POINTS)
         setup = cls(
             pilot,
             element,
@@ -222,6 +236,7 @@ class SimulationSetup:
             gap,
             postview,
             start_time,
+            disturbance_at,
         )
         if gap is not None:
             check_gap(gap, setup.time, postview)
@@ -305,6 +320,7 @@ class SimulationSetup:
             self.available_preview,
             self.run_in,
             self.measurement_time,
+            self.disturbance_at,
         )
         postview = (
             {"gap": self.gap.to_dict(), "postview": self.postview} if self.gap is not None else {}
@@ -400,8 +416,15 @@ class _Loop:
 _LOOP_OUTPUTS = ("u", "y", "e", "n")
 
 
-def _element_sums() -> dict[str, dict[str, float]]:
-    return {"y": {"x_ce": 1.0, "fd": 1.0}, "e": {"ft": 1.0, "y": -1.0}}
+def _element_sums(disturbance_at: str) -> dict[str, dict[str, float]]:
+    """The junctions around the element block ``u_ce -> x_ce``, and the error.
+
+    The disturbance joins the element's input (``u_ce = u + fd``, ``y = x_ce``) or its
+    output (``u_ce = u``, ``y = x_ce + fd``); ``e = ft - y`` either way.
+    """
+    if disturbance_at == "input":
+        return {"u_ce": {"u": 1.0, "fd": 1.0}, "y": {"x_ce": 1.0}, "e": {"ft": 1.0, "y": -1.0}}
+    return {"u_ce": {"u": 1.0}, "y": {"x_ce": 1.0, "fd": 1.0}, "e": {"ft": 1.0, "y": -1.0}}
 
 
 def _continuous_loop(
@@ -413,10 +436,14 @@ def _continuous_loop(
     model = setup.pilot.model
     pilot = _pilot_diagram(setup.pilot, values, remnant, {p: p for p in model.perceptions})
     return interconnect(
-        [*pilot.blocks, Block(element_model, ("u",), ("x_ce",)), *_remnant_block(remnant)],
+        [*pilot.blocks, Block(element_model, ("u_ce",), ("x_ce",)), *_remnant_block(remnant)],
         inputs=_loop_inputs(model, remnant),
         outputs=_LOOP_OUTPUTS,
-        sums={**pilot.sums, **_element_sums(), **({} if remnant is not None else {"n": {}})},
+        sums={
+            **pilot.sums,
+            **_element_sums(setup.disturbance_at),
+            **({} if remnant is not None else {"n": {}}),
+        },
         delays=pilot.delays,
     )
 
@@ -430,8 +457,9 @@ def _loop_inputs(model: PilotModel, remnant: Remnant | None) -> tuple[str, ...]:
 def closed_loop(setup: SimulationSetup, t: float = 0.0) -> Interconnection:
     """The continuous closed loop at time ``t`` as one state-space model.
 
-    Inputs ``ft, fd, noise`` (when the pilot has a remnant; unit white noise into the
-    remnant filter with its gain ``K_r``) and the pilot's forcing perceptions
+    Inputs ``ft, fd`` (``fd`` at the element's output or input, as
+    ``setup.disturbance_at`` says), ``noise`` (when the pilot has a remnant; unit white
+    noise into the remnant filter with its gain ``K_r``) and the pilot's forcing perceptions
     (``ft_far``, ...); outputs ``u, y, e, n``. With the pilot's exact delay the model
     has a delay channel (see :class:`~manualcontrol.envs.dynamics.Interconnection`);
     with a Padé delay it is an ordinary linear model, e.g. for frequency responses.
@@ -531,14 +559,14 @@ def _assemble(
         _display_one_frame_later(
             element_exact.phi, element_exact.gamma, element_model.C, element_model.D
         ),
-        ("u",),
+        ("u_ce",),
         ("x_ce",),
     )
     joined = interconnect(
         [pilot_block, element_block],
         inputs=inputs,
         outputs=_LOOP_OUTPUTS,
-        sums=_element_sums(),
+        sums=_element_sums(setup.disturbance_at),
         delays=pilot_delays,
     )
     # The ramp (first-order hold) acts only on the pilot's delayed inputs.
@@ -569,8 +597,9 @@ def _display_one_frame_later(
 
     An element with direct feedthrough (a pure gain) shows ``D u[k-1]`` at sample ``k``
     in :mod:`manualcontrol.envs.tracking` (the stick reaches the display one frame
-    later), so the sampled loop keeps the previous stick as an extra state with output
-    ``D``. Elements without feedthrough are returned as they are.
+    later), so the sampled loop keeps the element's previous input (the stick, plus
+    ``fd`` when the disturbance enters there) as an extra state with output ``D``.
+    Elements without feedthrough are returned as they are.
     """
     if not np.any(D):
         return StateSpace(phi, gamma, C, D)
@@ -897,6 +926,7 @@ def simulate(
     start_time: float = 0.0,
     initial_state: Mapping[str, Sequence[float]] | None = None,
     measurement_noise: Mapping[str, float] | None = None,
+    disturbance_at: str = "output",
 ) -> Recording:
     """Simulate a closed-loop tracking run and return its :class:`Recording`.
 
@@ -958,6 +988,11 @@ def simulate(
         or ``u`` after the run (measurement noise: the pilot saw the clean signals;
         Schiess & Roland: 0.00092 V^2 on stick and plant output). Drawn from the same
         generator after the remnant noise, so a seed's remnant is unchanged.
+    disturbance_at
+        Where ``fd`` enters the loop: ``"output"`` (default, ``y = H_c u + fd``) or
+        ``"input"`` (``y = H_c (u + fd)``, e.g. a force on the stick or a gust), see
+        the module docstring. The recording's ``fd`` is the disturbance as injected
+        and ``metadata["disturbance_at"]`` says where.
 
     The recording holds ``t, ft, fd, y, e, u, n`` (plus ``ft_far``, the previewed
     target the pilot used, in preview tasks, and ``u_n`` and ``y_n``, the parts of ``u``
@@ -984,6 +1019,7 @@ def simulate(
         gap=gap,
         postview=postview,
         start_time=start_time,
+        disturbance_at=disturbance_at,
     )
     check_choice("loop", loop, LOOPS)
     if loss_of_control is not None:

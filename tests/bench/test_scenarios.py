@@ -247,6 +247,34 @@ def test_the_small_suite_itself_loads(tmp_path):
     assert suite.scenarios()[0].build_pilot().parameters["K_p"](0.0) == 1.3
 
 
+def test_a_written_element_and_the_disturbance_point(tmp_path):
+    plain = load_suite(write(tmp_path, SMALL)).scenarios()[0]
+    lab = SMALL.replace('element = "SI"', 'element = "1.5/s"\ndisturbance_at = "input"')
+    scenario = load_suite(write(tmp_path, lab)).scenarios()[0]
+    assert scenario.element == "1.5/s" and scenario.disturbance_at == "input"
+    assert scenario.to_dict()["disturbance_at"] == "input" and scenario.key != plain.key
+    # the default is left out of the description, so existing scenarios keep their keys
+    assert plain.disturbance_at == "output" and "disturbance_at" not in plain.to_dict()
+    output = SMALL.replace('element = "SI"', 'element = "SI"\ndisturbance_at = "output"')
+    assert load_suite(write(tmp_path, output)).scenarios()[0].key == plain.key
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (
+            'disturbance_at = "inlet"',
+            "batch 1 (one): disturbance_at must be one of 'output', 'input', got 'inlet'",
+        ),
+        ("disturbance_at = 1", "batch 1 (one): disturbance_at must be one of 'output', 'input'"),
+    ],
+)
+def test_a_bad_disturbance_point_names_the_batch_and_key(tmp_path, change, message):
+    text = SMALL.replace('element = "SI"', f'element = "SI"\n{change}')
+    with pytest.raises(SuiteError, match=re.escape(message)):
+        load_suite(write(tmp_path, text))
+
+
 def test_suite_pilots_are_built_by_pilot_from_dict(monkeypatch):
     from manualcontrol.bench import scenarios
     from manualcontrol.pilots import Pilot

@@ -199,3 +199,18 @@ def test_a_general_written_element_matches_scipy():
 def test_unreadable_elements_say_what_is_allowed(text, message):
     with pytest.raises(ValueError, match=re.escape(message)):
         parse_element(text)
+
+
+def test_make_element_reads_written_transfer_functions():
+    # every place that takes an element by name takes a written one through make_element
+    for text in ("1/(s(s+1))", "1/s", "num=[1]; den=[1, 1, 0]"):
+        assert make_element(text) == parse_element(text)
+    listed = ", ".join(map(repr, ELEMENT_PRESETS))
+    message = (
+        f"controlled element must be one of {listed}, got '1/(s'; read as a transfer "
+        "function in s, element '1/(s' cannot be read (the expression ends too early); "
+        "write one as '1/s', '2.5/s^2', '1/(s(s+1))', '(s+2)/(s^2+0.5s+4)' or "
+        "'num=[1]; den=[1, 1, 0]'"
+    )
+    with pytest.raises(ValueError, match=re.escape(message)):
+        make_element("1/(s")
