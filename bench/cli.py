@@ -497,6 +497,7 @@ def _cmd_describe(args: argparse.Namespace) -> int:
             period=source.get("period"),
             element=element,
             disturbance_at=args.disturbance_at,
+            task=args.task,
         )
     except ValueError as error:
         text = str(error).replace(
@@ -505,14 +506,21 @@ def _cmd_describe(args: argparse.Namespace) -> int:
         )
         text = text.replace("disturbance_at", "--disturbance-at")
         raise UsageError(text) from None
+    model = args.model or ("precision" if describing.task == "compensatory" else "preview")
     try:
-        fit = fit_describing_function(describing, args.model, fixed=fixed or None)
+        fit = fit_describing_function(describing, model, fixed=fixed or None)
     except ValueError as error:
-        raise UsageError(f"--model {args.model}: {error}") from None
+        raise UsageError(f"--model {model}: {error}") from None
     counts = {name: describing.source.count(name) for name in ("target", "disturbance")}
     sets = ", ".join(f"{name} {count}" for name, count in counts.items() if count)
     start, end = describing.window
     plural = "s" if describing.periods > 1 else ""
+    if describing.task != "compensatory":
+        print(
+            f"{describing.task} display: the table holds the disturbance's lines (U/E there is "
+            "the pilot's response to y); the model is fitted to every line's U from the "
+            "target and y"
+        )
     print(
         f"describing function at {describing.frequencies.size} forcing frequencies ({sets}) "
         f"over {describing.periods} period{plural} of {describing.period:g} s "
@@ -571,7 +579,11 @@ def _cmd_describe(args: argparse.Namespace) -> int:
             f"and {gap_phase:.0f} deg (mean absolute): check --element and --disturbance-at "
             f"(now {describing.disturbance_at})"
         )
-    strong = int(np.sum(describing.snr_injected >= 10.0))
+    strong = int(
+        np.sum(describing.snr_injected >= 10.0)
+        if describing.task == "compensatory"
+        else np.sum(describing.lines.snr >= 10.0)
+    )
     if strong < len(fit.fitted) + 1:
         warnings_found.append(
             f"only {strong} forcing frequencies have a signal-to-noise ratio of 10 or more: "
@@ -655,8 +667,16 @@ def _trial_describing_function(
             "--period SECONDS, the forcing signals being in the file)"
         )
     settings = result.settings.get("settings", result.settings) if result is not None else {}
-    if isinstance(settings, Mapping) and settings.get("model") not in (None, "precision"):
-        return None, f"not checked: the {settings.get('model')} model's response is not U/E"
+    model = settings.get("model") if isinstance(settings, Mapping) else None
+    if model not in ("precision", "preview"):
+        return (
+            None,
+            f"not checked: the {model or result.estimator} model has no describing function",
+        )
+    # the display the fitted model belongs to, where the recording does not say
+    task = "compensatory"
+    if model == "preview":
+        task = "pursuit" if settings.get("anticipation_time") == 0.0 else "preview"
     try:
         describing = describing_function(
             recording,
@@ -664,6 +684,7 @@ def _trial_describing_function(
             period=source.get("period"),
             element=_trial_element(recording, args),
             disturbance_at=args.disturbance_at,
+            task=recording.metadata.get("task", task),
         )
     except ValueError as error:
         return None, f"not checked: {error}"
@@ -1054,10 +1075,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_trial_options(p)
     p.add_argument(
+        "--task",
+        choices=("compensatory", "pursuit", "preview"),
+        default=None,
+        help="the display (default: the recording's, else compensatory); on a pursuit or "
+        "preview display the pilot sees the target and y, and the table shows the "
+        "disturbance's lines, where the target is still",
+    )
+    p.add_argument(
         "--model",
-        default="precision",
-        help="compensatory pilot model fitted to the describing function (default precision; "
-        "gain-delay)",
+        default=None,
+        help="pilot model fitted to the describing function: precision (default on a "
+        "compensatory display), preview (pursuit and preview), gain-delay",
     )
     p.add_argument(
         "--fix",

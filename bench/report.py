@@ -312,9 +312,11 @@ def plot_describing_function(
     Measured points (filled where u's signal-to-noise ratio is at least 10, open below,
     error bars one standard deviation between periods when there are several) and, for
     each entry of ``models`` (a label and the ``model`` structure's parameter values),
-    the model's exact response on a fine grid, e.g. the frequency-domain fit beside a
-    time-domain estimate's second-half values.
+    the model's exact response on a fine grid (the error channel, or minus the output
+    channel of a two-channel model: what the measured ``U/E`` is), e.g. the
+    frequency-domain fit beside a time-domain estimate's second-half values.
     """
+    from manualcontrol.estimators.frequency import loop_response
     from manualcontrol.pilots.models import make_model
 
     fig, axes = _subplots(2, 1, figsize=(7.5, 6.5), sharex=True)
@@ -344,7 +346,7 @@ def plot_describing_function(
     for (label, values), colour in zip(
         (models or {}).items(), ("tab:red", "tab:blue", "tab:green", "tab:orange"), strict=False
     ):
-        response = structure.frequency_response(values, grid, "e")
+        response = loop_response(structure, values, grid)
         axes[0].plot(grid, 20.0 * np.log10(np.abs(response)), color=colour, lw=1.2, label=label)
         unwrapped = np.degrees(np.unwrap(np.angle(response)))
         # start on the same branch as the measured phase at the lowest frequency

@@ -43,12 +43,15 @@ from manualcontrol.pilots.models import PilotModel, make_model
 
 __all__ = [
     "DISTURBANCE_POINTS",
+    "TWO_CHANNEL_TASKS",
     "DescribingFunction",
+    "ForcingLines",
     "FrequencyResponse",
     "ModelFit",
     "describing_function",
     "fit_describing_function",
     "forcing_frequency_response",
+    "loop_response",
     "model_crossover",
     "response_error",
 ]
@@ -141,6 +144,28 @@ _LINE_POWER_FLOOR = 1e-6
 _PERIOD_SAMPLE_TOLERANCE = 1e-3
 
 
+#: Displays on which the pilot sees the target and the output separately.
+TWO_CHANNEL_TASKS: tuple[str, ...] = ("pursuit", "preview")
+
+
+@dataclass(frozen=True)
+class ForcingLines:
+    """Fourier coefficients of the recorded signals at every forcing line of a stretch.
+
+    ``coefficients`` maps ``u``, ``e`` and, where recorded, ``y``, ``fd`` and ``ft`` to
+    their coefficients at ``frequencies`` (rad/s, ascending; ``source`` says target or
+    disturbance); ``snr`` is u's signal-to-noise ratio at each line (as
+    :attr:`DescribingFunction.snr`). A model with any number of perception channels is
+    fitted to these: its predicted ``U`` from the perceptions' coefficients against the
+    measured ``U``.
+    """
+
+    frequencies: FloatArray
+    source: tuple[str, ...]
+    coefficients: Mapping[str, NDArray[np.complex128]]
+    snr: FloatArray
+
+
 @dataclass(frozen=True)
 class DescribingFunction:
     """The pilot's describing function measured at the forcing frequencies of one run.
@@ -191,6 +216,10 @@ class DescribingFunction:
         Where the disturbance entered; whether ``element`` came from the user.
     element_transfer_function
         ``(num, den)`` of the given element (descending powers of ``s``), else None.
+    task, lines
+        The display (see ``task`` of :func:`describing_function`) and the Fourier
+        coefficients at every forcing line (:class:`ForcingLines`), what a model is fitted
+        to.
 
     """
 
@@ -213,6 +242,8 @@ class DescribingFunction:
     disturbance_at: str
     element_given: bool
     element_transfer_function: tuple[FloatArray, FloatArray] | None = None
+    task: str = "compensatory"
+    lines: ForcingLines | None = None
 
     @property
     def gain_db(self) -> FloatArray:
@@ -342,6 +373,7 @@ def describing_function(
     element: str | ControlledElement | Mapping[str, Any] | None = None,
     disturbance_at: str | None = None,
     neighbours: int = 2,
+    task: str | None = None,
 ) -> DescribingFunction:
     """Measure the pilot's describing function at the forcing frequencies of a run.
 
@@ -369,6 +401,13 @@ def describing_function(
     neighbours
         Non-forcing bins each side of a forcing line whose mean u power is the remnant's
         in the signal-to-noise ratio.
+    task
+        ``"compensatory"`` (the pilot sees the error: ``U/E`` at every line),
+        ``"pursuit"`` or ``"preview"`` (the pilot sees the target and ``y``, two
+        channels: the arrays hold the disturbance lines, where the target is still and
+        ``U/E`` is the pilot's response to ``y``, the loop that crosses over; every line's
+        coefficients, the target's too, are in ``lines`` for a two-channel fit); defaults
+        to ``recording.metadata["task"]``, else compensatory.
 
     The stretch is the last whole number of periods of the run. Raises ``ValueError``
     naming what is missing or inconsistent.
@@ -376,13 +415,9 @@ def describing_function(
     if not isinstance(recording, Recording):
         raise TypeError(f"recording must be a Recording, got {type(recording).__name__}")
     neighbours = check_int("neighbours", neighbours, minimum=1)
-    task = recording.metadata.get("task", "compensatory")
-    if task != "compensatory":
-        raise ValueError(
-            f"the recording is of a {task} task: U/E is the pilot's describing function in a "
-            "compensatory task only (a pursuit or preview pilot responds to the target and "
-            "to y through two channels)"
-        )
+    if task is None:
+        task = recording.metadata.get("task", "compensatory")
+    check_choice("task", task, ("compensatory", *TWO_CHANNEL_TASKS))
     if forcing is None and period is None and recording.metadata.get("forcing") is not None:
         forcing = ForcingPair.from_dict(recording.metadata["forcing"])
     if period is not None:
@@ -423,7 +458,7 @@ def describing_function(
     if lines is None:
         lines = _recorded_lines(recording, per_period, first, count)
     stretch = slice(first, first + count * per_period)
-    names = ["e", "u"] + [n for n in ("y", "fd") if n in recording]
+    names = ["e", "u"] + [n for n in ("y", "fd", "ft") if n in recording]
     signals = {}
     for name in names:
         values = recording[name][stretch]
@@ -440,6 +475,22 @@ def describing_function(
     source = tuple(s for _, s in lines)
     frequencies = 2.0 * np.pi * harmonics / period
     whole = {name: np.fft.rfft(values) for name, values in signals.items()}
+    every_bin = harmonics * count
+    all_lines = ForcingLines(
+        frequencies=frequencies,
+        source=source,
+        coefficients={name: values[every_bin] for name, values in whole.items()},
+        snr=_signal_to_noise(np.abs(whole["u"]) ** 2, every_bin, neighbours),
+    )
+    if task in TWO_CHANNEL_TASKS:
+        shown = np.array([kind == "disturbance" for kind in source])
+        if not shown.any():
+            raise ValueError(
+                f"a {task} task's describing function is read at the disturbance's lines, "
+                "where the target is still, and this forcing has no disturbance"
+            )
+        harmonics, frequencies = harmonics[shown], frequencies[shown]
+        source = tuple(kind for kind, keep in zip(source, shown, strict=True) if keep)
     bins = harmonics * count
     spectra = {name: values[bins] for name, values in whole.items()}
     pilot = spectra["u"] / spectra["e"]
@@ -492,6 +543,8 @@ def describing_function(
         disturbance_at=disturbance_at,
         element_given=element is not None,
         element_transfer_function=transfer_function,
+        task=task,
+        lines=all_lines,
     )
 
 
@@ -575,24 +628,38 @@ def _measured_element(
 # ----------------------------------------------------------------------- model fit
 
 #: Bounds of the describing-function fit: the ranges human tracking experiments report
-#: (delays 0.05-0.6 s, neuromuscular frequency 4-30 rad/s, damping 0.05-1.2), and gains
-#: of any size, which the plant decides. A fit that ends on a bound says the model does
-#: not describe these data there (reported in ``ModelFit.at_bounds``).
+#: (delays 0.05-0.6 s, neuromuscular frequency 4-30 rad/s, damping 0.05-1.2; preview
+#: times up to 2 s, the far view's break and gain within a factor 10 of what van der El
+#: measured), and gains of any size, which the plant decides. A fit that ends on a bound
+#: says the model does not describe these data there (``ModelFit.at_bounds``).
 FIT_BOUNDS: dict[str, tuple[float, float]] = {
     "K_p": (1e-6, math.inf),
     "K_v": (0.0, math.inf),
     "tau_v": (0.05, 0.6),
     "omega_nms": (4.0, 30.0),
     "zeta_nms": (0.05, 1.2),
+    "K_f": (0.1, 10.0),
+    "omega_f": (0.1, 30.0),
+    "tau_f": (0.0, 2.0),
 }
 #: Starting values tried for the fitted parameters (every combination; ``K_p`` is then
 #: solved for the mean gain of each start): the delays, neuromuscular modes and leads
-#: humans show, so the multistart covers the basins the phase wrap makes.
+#: humans show, so the multistart covers the basins the phase wrap makes. The two-channel
+#: models, with three more parameters, take a coarser grid of the same span.
 FIT_STARTS: dict[str, tuple[float, ...]] = {
     "tau_v": (0.12, 0.2, 0.3, 0.45),
     "omega_nms": (7.0, 12.0, 20.0),
     "zeta_nms": (0.2, 0.6),
     "T_L": (0.0, 0.5),
+}
+TWO_CHANNEL_STARTS: dict[str, tuple[float, ...]] = {
+    "tau_v": (0.15, 0.3),
+    "omega_nms": (8.0, 15.0),
+    "zeta_nms": (0.4,),
+    "T_L": (0.0,),
+    "K_f": (1.0,),
+    "omega_f": (1.0, 5.0),
+    "tau_f": (0.3, 0.8),
 }
 
 
@@ -602,10 +669,12 @@ class ModelFit:
 
     ``values`` holds every model parameter (fixed ones as given), ``standard_deviations``
     the fitted ones' (from the weighted residuals' Jacobian), ``response`` the model's
-    ``H_p`` at the forcing frequencies, ``gain_error_db``/``phase_error_deg`` its mean
-    absolute gap to the measured points, ``crossover_frequency``/``phase_margin`` the
-    model's open loop with the element (on a fine grid), ``at_bounds`` the fitted
-    parameters that ended on a bound of :data:`FIT_BOUNDS`.
+    counterpart of :attr:`DescribingFunction.pilot` (``U/E``: the error channel, or
+    minus the output channel of a two-channel model), ``gain_error_db`` and
+    ``phase_error_deg`` the mean absolute gap of the model's predicted ``U`` to the
+    measured one over the lines fitted, ``crossover_frequency`` and ``phase_margin`` the
+    model's loop with the element (on a fine grid), ``at_bounds`` the fitted parameters
+    that ended on a bound of :data:`FIT_BOUNDS`.
     """
 
     model: str
@@ -638,45 +707,101 @@ class ModelFit:
 
 
 def fit_weights(snr: FloatArray) -> FloatArray:
-    """Weight of each forcing frequency in a fit: ``SNR / (1 + SNR)`` of ``snr_injected``.
+    """Weight of each forcing frequency in a fit: ``SNR / (1 + SNR)``.
 
     The share of the line's power that is the forcing's: near 1 where the remnant is
     small, falling as it grows. Not the inverse variance (``~ SNR``), which would let the
     two or three lines of highest SNR decide the whole fit of a model that is only an
-    approximation of a human.
+    approximation of a human. One-channel fits weigh by ``snr_injected``, two-channel
+    fits by u's ``snr`` (the injected remnant needs the pilot's response to both
+    perceptions, which is what is being fitted).
     """
     snr = np.asarray(snr, dtype=np.float64)
     return 1.0 - 1.0 / (1.0 + snr)
 
 
+class _FitTarget:
+    """What a model is fitted to: the predicted-over-measured ``U`` at the lines fitted."""
+
+    def __init__(self, describing: DescribingFunction, model: str | PilotModel) -> None:
+        structure = make_model(model)
+        self.structure = structure
+        if structure.perceptions == ("e",):
+            if describing.task != "compensatory":
+                raise ValueError(
+                    f"the {structure.name} model responds to the error alone, and this is a "
+                    f"{describing.task} task's describing function (the pilot sees the "
+                    "target and y): fit the preview model"
+                )
+            self.omega = describing.frequencies
+            self.weights = fit_weights(describing.snr_injected)
+            measured = describing.pilot
+
+            def ratio(values: Mapping[str, float]) -> NDArray[np.complex128]:
+                return structure.frequency_response(values, self.omega, "e") / measured
+
+        elif structure.perceptions == ("ft_far", "y"):
+            lines = describing.lines
+            if describing.task not in TWO_CHANNEL_TASKS or lines is None:
+                raise ValueError(
+                    f"the {structure.name} model reads the target and y: fit it to a pursuit "
+                    "or preview task's describing function (task='pursuit' or 'preview')"
+                )
+            if "ft" not in lines.coefficients or "y" not in lines.coefficients:
+                raise ValueError("a two-channel fit needs the recorded target ft and output y")
+            self.omega = lines.frequencies
+            self.weights = fit_weights(lines.snr)
+            ft, y, u = (lines.coefficients[name] for name in ("ft", "y", "u"))
+
+            def ratio(values: Mapping[str, float]) -> NDArray[np.complex128]:
+                ahead = np.exp(1j * self.omega * values["tau_f"])  # the far view's preview
+                target = structure.frequency_response(values, self.omega, "ft_far") * ahead
+                feedback = structure.frequency_response(values, self.omega, "y")
+                return (target * ft + feedback * y) / u
+
+        else:
+            raise ValueError(
+                f"the {structure.name} model's perceptions ({', '.join(structure.perceptions)}) "
+                "cannot be fitted to a describing function (error alone, or target and y)"
+            )
+        self.ratio = ratio
+
+    def errors(self, values: Mapping[str, float], weighted: bool) -> tuple[float, float]:
+        """Mean absolute gain (dB) and phase (degrees) gaps of the predicted ``U``."""
+        ratio = self.ratio(values)
+        weights = self.weights if weighted else np.ones(ratio.shape)
+        weights = weights / weights.sum()
+        return (
+            float(weights @ np.abs(20.0 * np.log10(np.abs(ratio)))),
+            float(weights @ np.abs(np.degrees(np.angle(ratio)))),
+        )
+
+
+def loop_response(
+    structure: PilotModel, values: Mapping[str, float], omega: FloatArray
+) -> NDArray[np.complex128]:
+    """The pilot's part of the loop that crosses over.
+
+    ``U/E`` of the error channel, or minus the response to ``y`` of a two-channel model
+    (``u`` to ``y`` closes the loop).
+    """
+    if structure.perceptions == ("e",):
+        return structure.frequency_response(values, omega, "e")
+    return -structure.frequency_response(values, omega, "y")
+
+
 def response_error(
     describing: DescribingFunction, model: str | PilotModel, values: Mapping[str, float]
 ) -> tuple[float, float]:
-    """Gap of a compensatory model's ``H_p`` to the measured one: (dB, degrees).
+    """Gap of a model's predicted ``U`` to the measured one: (dB, degrees).
 
-    Mean absolute gain and phase gaps over the forcing frequencies, each line weighted
-    by :func:`fit_weights` (its share of forcing power), so lines the remnant swamps,
-    on which even the true pilot misses the measurement, count little.
+    Mean absolute gain and phase gaps over the lines a fit of that model reads (the
+    error's ``U/E`` for a one-channel model, every line's ``U`` from the target and ``y``
+    for a two-channel one), each weighted by :func:`fit_weights` (its share of forcing
+    power), so lines the remnant swamps, on which even the true pilot misses the
+    measurement, count little.
     """
-    structure = _compensatory_model(model)
-    response = structure.frequency_response(values, describing.frequencies, "e")
-    ratio = response / describing.pilot
-    weights = fit_weights(describing.snr_injected)
-    weights = weights / weights.sum()
-    return (
-        float(weights @ np.abs(20.0 * np.log10(np.abs(ratio)))),
-        float(weights @ np.abs(np.degrees(np.angle(ratio)))),
-    )
-
-
-def _compensatory_model(model: str | PilotModel) -> PilotModel:
-    structure = make_model(model)
-    if structure.perceptions != ("e",):
-        raise ValueError(
-            f"the {structure.name} model does not respond to the error alone "
-            f"(perceptions {', '.join(structure.perceptions)}): its response is not U/E"
-        )
-    return structure
+    return _FitTarget(describing, model).errors(values, weighted=True)
 
 
 def fit_describing_function(
@@ -685,23 +810,28 @@ def fit_describing_function(
     *,
     fixed: Mapping[str, float] | None = None,
 ) -> ModelFit:
-    """Fit a compensatory pilot model's exact frequency response to a describing function.
+    """Fit a pilot model's exact frequency response to a describing function.
 
-    Minimises ``sum_k w_k |ln(H_model(j w_k) / H_p(j w_k))|^2`` (the complex logarithm:
-    gain ratio and phase gap on one footing) with ``w_k`` from :func:`fit_weights`, by
-    bounded least squares (:data:`FIT_BOUNDS`) from every start of :data:`FIT_STARTS`,
-    ``K_p`` of each start solved for the mean log gain. ``fixed`` holds parameters at
-    given values (e.g. ``{"K_v": 0.0}`` for a pilot without lead); by default ``K_v`` is
-    held at 0 where the element is a single integrator ``K/s``, on which humans need no
-    lead and the time-domain filters hold it at 0 too (a free lead there trades off
-    against the neuromuscular lag along a ridge that remnant moves the fit along).
+    Minimises ``sum_k w_k |ln(U_model,k / U_k)|^2`` (the complex logarithm: gain ratio
+    and phase gap on one footing; for a one-channel model ``U_model/U`` is ``H_model /
+    H_p``) with ``w_k`` from :func:`fit_weights`, by bounded least squares
+    (:data:`FIT_BOUNDS`) from every start of :data:`FIT_STARTS` (two-channel models:
+    :data:`TWO_CHANNEL_STARTS`), ``K_p`` of each start solved for the mean log gain.
+    ``fixed`` holds parameters at given values (e.g. ``{"K_v": 0.0}``); by default
+    ``K_v`` is held at 0 where the element is a single integrator ``K/s``, on which
+    humans need no lead and the time-domain filters hold it at 0 too (a free lead there
+    trades off against the neuromuscular lag along a ridge that remnant moves the fit
+    along), and a pursuit task's ``tau_f`` at 0 (nothing is shown ahead).
     """
     import scipy.optimize
 
-    structure = _compensatory_model(model)
+    target = _FitTarget(describing, model)
+    structure = target.structure
     names = structure.parameter_names
     if fixed is None:
         fixed = {"K_v": 0.0} if _single_integrator(describing) and "K_v" in names else {}
+        if describing.task == "pursuit" and "tau_f" in names:
+            fixed = {**fixed, "tau_f": 0.0}
     fixed = dict(fixed)
     unknown = sorted(set(fixed) - set(names))
     if unknown:
@@ -712,14 +842,11 @@ def fit_describing_function(
     fitted = tuple(n for n in names if n not in fixed)
     if not fitted:
         raise ValueError("every parameter is fixed: nothing to fit")
-    if describing.frequencies.size < len(fitted):
+    if target.omega.size < len(fitted):
         raise ValueError(
-            f"{describing.frequencies.size} forcing frequencies cannot determine "
-            f"{len(fitted)} parameters"
+            f"{target.omega.size} forcing frequencies cannot determine {len(fitted)} parameters"
         )
-    omega = describing.frequencies
-    measured = describing.pilot
-    weights = np.sqrt(fit_weights(describing.snr_injected))
+    weights = np.sqrt(target.weights)
     nominal = structure.nominal()
     bounds = [FIT_BOUNDS.get(n, (-math.inf, math.inf)) for n in fitted]
     lower = np.array([b[0] for b in bounds])
@@ -729,12 +856,11 @@ def fit_describing_function(
         return {**nominal, **fixed, **dict(zip(fitted, map(float, x), strict=True))}
 
     def residuals(x: FloatArray) -> FloatArray:
-        response = structure.frequency_response(values_of(x), omega, "e")
-        log_ratio = np.log(response / measured)
+        log_ratio = np.log(target.ratio(values_of(x)))
         return np.concatenate([weights * log_ratio.real, weights * _wrap(log_ratio.imag)])
 
     best = None
-    for start in _starts(structure, fitted, fixed, nominal, omega, measured):
+    for start in _starts(target, fitted, fixed, nominal):
         x0 = np.clip([start[n] for n in fitted], lower, upper)
         x0 = np.where(x0 == lower, lower + 1e-6 * np.maximum(1.0, np.abs(lower)), x0)
         with np.errstate(all="ignore"):
@@ -746,20 +872,23 @@ def fit_describing_function(
     if best is None:
         raise ValueError("the fit found no finite solution from any start")
     values = values_of(best.x)
-    deviations = _standard_deviations(best, fitted, omega.size)
-    response = structure.frequency_response(values, omega, "e")
-    gain_error, phase_error = _mean_errors(measured, response)
+    gain_error, phase_error = target.errors(values, weighted=False)
     crossover, margin = model_crossover(structure, values, describing)
     span = upper - lower
-    near = np.abs(best.x - lower) <= 1e-4 * np.where(np.isfinite(span), span, np.abs(best.x))
-    near |= np.abs(best.x - upper) <= 1e-4 * np.where(np.isfinite(span), span, np.abs(best.x))
-    at_bounds = tuple(n for n, hit in zip(fitted, near, strict=True) if hit and n != "K_v")
+    scale = np.where(np.isfinite(span), span, np.abs(best.x))
+    near = (np.abs(best.x - lower) <= 1e-4 * scale) | (np.abs(best.x - upper) <= 1e-4 * scale)
+    # K_v at 0 and tau_f at 0 are the lead-free and preview-free pilots, not a bound hit
+    at_bounds = tuple(
+        n
+        for n, hit, x in zip(fitted, near, best.x, strict=True)
+        if hit and not (n in ("K_v", "tau_f") and x <= 1e-4 * max(scale[fitted.index(n)], 1.0))
+    )
     return ModelFit(
         model=structure.name,
         values=values,
-        standard_deviations=deviations,
+        standard_deviations=_standard_deviations(best, fitted, target.omega.size),
         fitted=fitted,
-        response=response,
+        response=loop_response(structure, values, describing.frequencies),
         gain_error_db=gain_error,
         phase_error_deg=phase_error,
         crossover_frequency=crossover,
@@ -782,16 +911,15 @@ def _wrap(phase: FloatArray) -> FloatArray:
 
 
 def _starts(
-    structure: PilotModel,
+    target: _FitTarget,
     fitted: Sequence[str],
     fixed: Mapping[str, float],
     nominal: Mapping[str, float],
-    omega: FloatArray,
-    measured: NDArray[np.complex128],
 ) -> list[dict[str, float]]:
+    table = FIT_STARTS if target.structure.perceptions == ("e",) else TWO_CHANNEL_STARTS
     grid = [
-        (name, FIT_STARTS[name])
-        for name in ("tau_v", "omega_nms", "zeta_nms", "T_L")
+        (name, options)
+        for name, options in table.items()
         if (name in fitted) or (name == "T_L" and "K_v" in fitted)
     ]
     starts = []
@@ -802,8 +930,8 @@ def _starts(
             start["K_p"] = 1.0
             if "K_v" in fitted:
                 start["K_v"] = lead
-            unit = structure.frequency_response(start, omega, "e")
-            start["K_p"] = float(np.exp(np.mean(np.log(np.abs(measured) / np.abs(unit)))))
+            # K_p scales every channel (all pass the equalisation): solve it for the gain
+            start["K_p"] = float(np.exp(-np.mean(np.log(np.abs(target.ratio(start))))))
             if "K_v" in fitted:
                 start["K_v"] = lead * start["K_p"]
         starts.append(start)
@@ -827,7 +955,7 @@ def _standard_deviations(result: Any, fitted: Sequence[str], count: int) -> dict
 def model_crossover(
     structure: PilotModel, values: Mapping[str, float], describing: DescribingFunction
 ) -> tuple[float, float]:
-    """Crossover and phase margin of the model's open loop with the element, fine grid.
+    """Crossover and phase margin of the model's loop with the element, fine grid.
 
     The element's response between forcing frequencies needs its transfer function:
     with only a measured element the model's loop is read at the forcing frequencies.
@@ -836,8 +964,8 @@ def model_crossover(
         num, den = describing.element_transfer_function
         grid = np.geomspace(describing.frequencies[0] / 3.0, describing.frequencies[-1] * 3.0, 2000)
         element = np.polyval(num, 1j * grid) / np.polyval(den, 1j * grid)
-        return _crossover(grid, structure.frequency_response(values, grid, "e") * element)
-    loop = structure.frequency_response(values, describing.frequencies, "e") * describing.element
+        return _crossover(grid, loop_response(structure, values, grid) * element)
+    loop = loop_response(structure, values, describing.frequencies) * describing.element
     if not np.all(np.isfinite(loop)):
         return math.nan, math.nan
     return _crossover(describing.frequencies, loop)

@@ -146,3 +146,22 @@ def test_a_trial_without_a_target_column_is_read_as_target_zero(trial, tmp_path,
     assert "no target or error column: the target is taken as zero (e = -y)" in out
     summary = json.loads((tmp_path / "d" / "summary.json").read_text())
     assert 2.0 < summary["describing_function"]["crossover_frequency"] < 4.5
+
+
+def test_describe_and_identify_a_pursuit_trial(tmp_path, capsys):
+    values = dict(K_f=1.0, omega_f=3.3, tau_f=0.0, K_p=1.3, K_v=0.0, tau_v=0.26)
+    values.update(omega_nms=10.5, zeta_nms=0.35)
+    run_file = tmp_path / "pursuit.npz"
+    simulate(Pilot("preview", values), "SI", "vanderel-bw4", task="pursuit", seed=3).save(run_file)
+    code, out, err = run(capsys, "describe", str(run_file), "--out", str(tmp_path / "d"))
+    assert code == EXIT_OK, err
+    assert "pursuit display: the table holds the disturbance's lines" in out
+    assert "fitted preview model:" in out and "tau_f 0 (held)" in out
+    fit = json.loads((tmp_path / "d" / "summary.json").read_text())["fit"]
+    assert fit["values"]["tau_v"] == pytest.approx(0.26, abs=0.02)
+    code, out, err = run(
+        capsys, "identify", str(run_file), "--model", "preview", "--set", "anticipation_time=0",
+        "--estimator", "rml", "--out", str(tmp_path / "i"),
+    )  # fmt: skip
+    assert code == EXIT_OK, err
+    assert "frequency domain: the identified model (second-half medians) misses" in out

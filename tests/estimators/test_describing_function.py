@@ -215,7 +215,7 @@ def test_bad_inputs_are_named(clean_run):
         describing_function(plain, period=50.0)
     with pytest.raises(ValueError, match="shorter than one forcing period"):
         describing_function(clean_run.slice_time(0.0, 60.0))
-    with pytest.raises(ValueError, match="perceptions ft_far, y"):
+    with pytest.raises(ValueError, match="the preview model reads the target and y"):
         fit_describing_function(describing_function(clean_run), "preview")
     with pytest.raises(ValueError, match=r"fixed names \['K_d'\]"):
         fit_describing_function(describing_function(clean_run), fixed={"K_d": 1.0})
@@ -226,3 +226,32 @@ def _without_forcing(run):
     return type(run)(
         {n: run[n] for n in run.signal_names} | {"t": run.t}, run.dt, dict(run.parameters), metadata
     )
+
+
+PREVIEW_PILOT = dict(
+    K_f=1.0, omega_f=3.3, K_p=1.3, K_v=0.0, tau_v=0.26, omega_nms=10.5, zeta_nms=0.35
+)
+
+
+@pytest.mark.parametrize(("task", "tau_f"), [("pursuit", 0.0), ("preview", 0.6)])
+def test_two_channel_fit_recovers_a_pursuit_and_a_preview_pilot(task, tau_f):
+    # the pilot sees the target and y: U = H_ft e^{j w tau_f} Ft + H_y Y at every line;
+    # noise-free the fit is exact to the loop's one-sample hold, with remnant (35 %) the
+    # mid-band parameters hold to a few per cent
+    values = {**PREVIEW_PILOT, "tau_f": tau_f}
+    preview = None if task == "pursuit" else 1.0
+    for remnant, tolerance in ((None, 0.03), ("vertregt2020-SI", 0.1)):
+        pilot = Pilot("preview", values, remnant=remnant)
+        run = simulate(pilot, "SI", "vanderel-bw4", task=task, seed=3, available_preview=preview)
+        measured = describing_function(run)
+        assert measured.task == task and set(measured.source) == {"disturbance"}
+        assert set(measured.lines.source) == {"target", "disturbance"}
+        fit = fit_describing_function(measured, "preview")
+        assert fit.values["tau_f"] == pytest.approx(tau_f, abs=0.05)
+        assert ("tau_f" in fit.fitted) == (task == "preview")  # nothing ahead to pursue
+        for name in ("K_p", "tau_v", "omega_nms", "K_f", "omega_f"):
+            assert fit.values[name] == pytest.approx(values[name], rel=tolerance), name
+        # the disturbance loop crosses over where the measured one does
+        assert fit.crossover_frequency == pytest.approx(measured.crossover_frequency, rel=0.1)
+    with pytest.raises(ValueError, match="responds to the error alone"):
+        fit_describing_function(measured, "precision")
