@@ -118,7 +118,12 @@ from manualcontrol.estimators.protocol import (
     ParameterValues,
     sample_floats,
 )
-from manualcontrol.pilots.models import MODEL_NAMES, make_model
+from manualcontrol.pilots.models import (
+    CROSSOVER_RANGE,
+    MODEL_NAMES,
+    element_gain_ranges,
+    make_model,
+)
 
 __all__ = [
     "CE_TYPES",
@@ -204,9 +209,6 @@ LIMIT_CHOICES: tuple[str, ...] = ("table-I", "human", "none")
 HUMAN_RANGES: Mapping[str, tuple[float, float]] = MappingProxyType(
     {"tau_v": (0.05, 0.6), "omega_nms": (4.0, 30.0), "zeta_nms": (0.05, 1.2)}
 )
-#: Where humans put the crossover frequency (rad/s): the ``"human"`` gain limits let the
-#: identified loop cross over anywhere in it, whatever the element's gain and order.
-CROSSOVER_RANGE: tuple[float, float] = (0.5, 8.0)
 #: Initial far-view break frequency (rad/s) on the double integrator: the thesis's DI
 #: benchmark started there (Part II Table 6.3, estimation 8.1); the preview model's
 #: nominal 3.3 rad/s is the single integrator's, where the target is hardly filtered
@@ -722,23 +724,17 @@ def _element_setting(element: Any) -> Any:
 def human_limits(element: Any, model: str) -> dict[str, tuple[float, float]]:
     """Limits from the experiment's controlled element and from human ranges.
 
-    Gains: ``K_p`` between the smallest and the largest ``1/|H_c(j w)|`` over
-    :data:`CROSSOVER_RANGE`, the gains at which a proportional pilot crosses over
-    anywhere humans do; ``K_v`` (lead, ``K_p T_L``) from 0 to the largest
-    ``1/(w |H_c(j w)|)``, at which a lead pilot does. So a plant of gain 1 allows the
-    gains humans use on it, which thesis Table I (set for ``1.5/s`` and ``5/s^2``)
-    does not. Delay and neuromuscular limits: :data:`HUMAN_RANGES`. The structure's
-    other parameters (far view, near view) keep their human ranges.
+    Gains: the ones that put the crossover anywhere humans do
+    (:func:`~manualcontrol.pilots.models.element_gain_ranges`: ``K_p`` between the
+    smallest and the largest ``1/|H_c(j w)|`` over 0.5-8 rad/s, ``K_v`` from 0 to the
+    largest ``1/(w |H_c(j w)|)``), so a plant of gain 1 allows the gains humans use on
+    it, which thesis Table I (set for ``1.5/s`` and ``5/s^2``) does not. Delay and
+    neuromuscular limits: :data:`HUMAN_RANGES`. The structure's other parameters (far
+    view, near view) keep their human ranges.
     """
-    plant = _plant(element)
-    omega = np.geomspace(*CROSSOVER_RANGE, 200)
-    magnitude = np.abs(plant.frequency_response(omega))
-    proportional = 1.0 / magnitude
-    lead = 1.0 / (omega * magnitude)
     limits = {spec.name: spec.human for spec in make_model(model).parameters}
     limits.update(HUMAN_RANGES)
-    limits["K_p"] = (float(proportional.min()), float(proportional.max()))
-    limits["K_v"] = (0.0, float(lead.max()))
+    limits.update(element_gain_ranges(_plant(element)))
     return limits
 
 

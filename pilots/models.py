@@ -22,7 +22,7 @@ import abc
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -31,6 +31,8 @@ from manualcontrol.envs._validation import check_choice
 from manualcontrol.envs.dynamics import pade, poly_multiply
 
 __all__ = [
+    "CROSSOVER_RANGE",
+    "ELEMENT_SCALED",
     "MODEL_NAMES",
     "Branch",
     "Channel",
@@ -41,6 +43,7 @@ __all__ = [
     "PrecisionModel",
     "PreviewModel",
     "SchiessRolandModel",
+    "element_gain_ranges",
     "make_model",
 ]
 
@@ -181,6 +184,38 @@ class PilotModel(abc.ABC):
 
 
 # ------------------------------------------------------------------- shared specs
+
+#: Where humans put the crossover frequency (rad/s, McRuer's crossover model and the
+#: tracking experiments since): the gains humans use on an element are those that put
+#: the loop's crossover in this range.
+CROSSOVER_RANGE: tuple[float, float] = (0.5, 8.0)
+#: Parameters whose human values depend on the element's gain and order (``K_p`` on a
+#: plant of gain 1 is three times ``K_p`` on 3/s): their ranges come from the element
+#: (:func:`element_gain_ranges`), not from one experiment's table.
+ELEMENT_SCALED: tuple[str, ...] = ("K_p", "K_v")
+
+
+def element_gain_ranges(element: Any, t: float = 0.0) -> dict[str, tuple[float, float]]:
+    """The pilot gains that put the crossover anywhere in :data:`CROSSOVER_RANGE`.
+
+    ``K_p`` between the smallest and the largest ``1/|H_c(j w)|`` over the range (a
+    proportional pilot crossing over there); ``K_v`` (lead, ``K_p T_L``) from 0 to the
+    largest ``1/(w |H_c(j w)|)`` (a lead pilot crossing over there). ``element`` is a
+    controlled element (or anything :func:`~manualcontrol.envs.elements.make_element`
+    reads), taken at time ``t``.
+    """
+    from manualcontrol.envs.elements import make_element
+
+    plant = make_element(element)
+    omega = np.geomspace(*CROSSOVER_RANGE, 200)
+    magnitude = np.abs(plant.frequency_response(omega, t))
+    proportional = 1.0 / magnitude
+    lead = 1.0 / (omega * magnitude)
+    return {
+        "K_p": (float(proportional.min()), float(proportional.max())),
+        "K_v": (0.0, float(lead.max())),
+    }
+
 
 _K_P = ParameterSpec("K_p", 1.5, (0.05, 2.5), (-math.inf, math.inf), "-", "visual position gain")
 _K_V = ParameterSpec("K_v", 0.5, (0.0, 1.5), (-math.inf, math.inf), "s", "visual rate gain K_p T_L")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -13,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from manualcontrol.envs._validation import check_int
 from manualcontrol.envs.schedules import Schedule, as_schedule
-from manualcontrol.pilots.models import PilotModel, make_model
+from manualcontrol.pilots.models import ELEMENT_SCALED, PilotModel, make_model
 from manualcontrol.pilots.remnant import Remnant, make_remnant
 
 __all__ = ["HumanLimitWarning", "Pilot"]
@@ -82,7 +84,9 @@ class Pilot:
     Values outside a parameter's valid range (e.g. a negative delay or neuromuscular
     frequency) raise ``ValueError``; values outside the human range warn with
     :class:`HumanLimitWarning`. Constant values are checked here, schedules wherever
-    they are evaluated (:meth:`parameter_traces`).
+    they are evaluated (:meth:`parameter_traces`). The gains ``K_p`` and ``K_v``, whose
+    human values depend on the element, are checked where the element is known (the
+    simulation's setup: :func:`~manualcontrol.pilots.models.element_gain_ranges`).
 
     """
 
@@ -128,6 +132,9 @@ class Pilot:
 
     def _check(self, name: str, values: FloatArray) -> None:
         spec = self.model.spec(name)
+        if name in ELEMENT_SCALED:
+            # the gains humans use depend on the element, which the simulation checks
+            spec = dataclasses.replace(spec, human=(-math.inf, math.inf))
         check_parameter_values("pilot", name, spec, values, positive=spec.positive)
 
     @property

@@ -98,8 +98,13 @@ from manualcontrol.envs.tasks import (
     sample_counts,
     task_metadata,
 )
-from manualcontrol.pilots.models import PilotModel, make_model
-from manualcontrol.pilots.pilot import Pilot
+from manualcontrol.pilots.models import (
+    CROSSOVER_RANGE,
+    PilotModel,
+    element_gain_ranges,
+    make_model,
+)
+from manualcontrol.pilots.pilot import HumanLimitWarning, Pilot
 from manualcontrol.pilots.remnant import Remnant
 from manualcontrol.pilots.stability import UnstableLoopWarning, check_growth, check_stable
 
@@ -262,9 +267,27 @@ class SimulationSetup:
         """Target samples visible ahead of the cursor, the current one included."""
         return round(self.available_preview / self.dt) + 1
 
+    def _check_gains(self, traces: Mapping[str, FloatArray]) -> None:
+        """Warn where ``K_p`` or ``K_v`` leave the gains humans use on this element."""
+        ranges = element_gain_ranges(self.element, float(self.time[0]))
+        for name, (low, high) in ranges.items():
+            if name not in traces:
+                continue
+            values = traces[name]
+            if np.any(values < low) or np.any(values > high):
+                extreme = float(values.min() if np.any(values < low) else values.max())
+                warnings.warn(
+                    f"pilot parameter {name} = {extreme:g} is outside the gains humans use on "
+                    f"the element {self.element.describe()}: [{low:.3g}, {high:.3g}], a "
+                    f"crossover between {CROSSOVER_RANGE[0]:g} and {CROSSOVER_RANGE[1]:g} rad/s",
+                    HumanLimitWarning,
+                    stacklevel=4,
+                )
+
     def parameter_traces(self) -> dict[str, FloatArray]:
         """Pilot parameters at every simulated sample, with the task's constraints checked."""
         traces = self.pilot.parameter_traces(self.time)
+        self._check_gains(traces)
         for name in ("tau_f", "tau_n"):
             if name in traces:
                 check_preview_time(name, traces[name], self.available_preview, self.task)
