@@ -15,7 +15,10 @@ The six steps (thesis Part I eqs. 11-25, Popovici et al. 2017 eqs. 6-15):
 2. state prediction by one Euler step ``x^- = x^+ + f(x^+, in_{k-1}, theta^-) dt``
    (eq. 13, Popovici eq. 8) and ``P_s^- = Phi_s P_s^+ Phi_s^T + Gamma Q_s Gamma^T``
    (eq. 14) with ``Phi_s = I + F dt``, the Jacobian of that Euler step, and
-   ``Gamma = I dt`` (or ``I``, ``cfg[CFG_GAMMA2]`` holds its square);
+   ``Gamma = I dt`` (or ``I``, ``cfg[CFG_GAMMA2]`` holds its square); a sample longer
+   than the papers' 0.01 s is predicted in ``m = cfg[CFG_SUBSTEPS]`` Euler substeps of
+   ``h = dt/m`` (:func:`~manualcontrol.estimators._pilot_core.euler_substeps`: two at
+   50 and 60 Hz), ``Phi_s`` their product and eq. 49's recursion run through each;
 3. state correction with innovation ``r = u - g(x^-, theta^-)`` (eqs. 15-19, Joseph form);
 4. state limitation by estimate projection (eq. 20);
 5. parameter correction with the total derivative ``G_p^tot`` (eqs. 21-24, 47-50);
@@ -50,6 +53,8 @@ from manualcontrol.estimators._pilot_core import (
     CFG_GAMMA2,
     CFG_JITTER,
     CFG_MAX_COV,
+    CFG_SUBSTEPS,
+    PAPERS_DT,
     SC_FROZEN,
     SC_K,
     inputs_in_use,
@@ -232,18 +237,36 @@ def dekf_step(model, config, belief, monitor, report, scratch, inputs_k, u_k, e_
         # ---- 1. parameter prediction (eq. 12)
         for t in range(n_t):
             Pp[t, t] += config.q_theta[t] * gamma2
-        # ---- 2. state prediction (eqs. 13-14) at x^+_{k-1}, in_{k-1}, theta^-_k
-        model_f(x, prev_in, model, f, F, dfdp, True)
-        # total-derivative recursion, eq. 49: dx^-_k = df/dtheta (dt) + Phi dx^+_{k-1}
-        _apply_phi(F, config.is_dense, n_c, dt, dx, dxm)
-        scale = dt if cfg[CFG_DIMENSIONAL] > 0.0 else 1.0
-        for i in range(n_c):
-            for t in range(n_t):
-                dxm[i, t] += dfdp[i, theta_index[t]] * scale
-        for i in range(n_c):
-            x[i] += f[i] * dt
-        _apply_phi(F, config.is_dense, n_c, dt, P, scratch.M)
-        _apply_phi_transpose(F, config.is_dense, n_c, dt, scratch.M, P)
+        # ---- 2. state prediction (eqs. 13-14) at x^+_{k-1}, in_{k-1}, theta^-_k: Euler
+        # substeps of h = dt / m (one at 100 Hz), Phi_s their product
+        m = max(1, int(cfg[CFG_SUBSTEPS]))
+        h = dt / m
+        # eq. 49's weight of df/dtheta per substep: h (dimensional), h / 0.01 s (printed:
+        # 1 a sample at the papers' 100 Hz, the same weight per second at every rate)
+        scale = h if cfg[CFG_DIMENSIONAL] > 0.0 else h / PAPERS_DT
+        store_phi = out.Phi.shape[0] > 0
+        if store_phi:
+            _store_phi(out, row, F, config.is_dense, n_c, h, 0)
+        for j in range(m):
+            model_f(x, prev_in, model, f, F, dfdp, True)
+            # total-derivative recursion, eq. 49: dx^-_k = df/dtheta (dt) + Phi dx^+_{k-1}
+            if j > 0:
+                for i in range(n_s):
+                    for t in range(n_t):
+                        dx[i, t] = dxm[i, t]
+            _apply_phi(F, config.is_dense, n_c, h, dx, dxm)
+            for i in range(n_c):
+                for t in range(n_t):
+                    dxm[i, t] += dfdp[i, theta_index[t]] * scale
+            for i in range(n_c):
+                x[i] += f[i] * h
+            _apply_phi(F, config.is_dense, n_c, h, P, scratch.M)
+            _apply_phi_transpose(F, config.is_dense, n_c, h, scratch.M, P)
+            if store_phi:
+                _apply_phi(F, config.is_dense, n_c, h, out.Phi[row], scratch.M)
+                for a in range(n_s):
+                    for b in range(n_s):
+                        out.Phi[row, a, b] = scratch.M[a, b]
         for i in range(n_s):
             P[i, i] += config.q_state[i] * gamma2
         P[int(cfg[CFG_ERROR_STATE]), int(cfg[CFG_ERROR_STATE])] += q_error * gamma2
@@ -252,9 +275,9 @@ def dekf_step(model, config, belief, monitor, report, scratch, inputs_k, u_k, e_
         for i in range(n_s):
             for t in range(n_t):
                 dxm[i, t] = dx[i, t]
+        _store_phi(out, row, F, config.is_dense, n_c, dt, k)
     store_belief(row, x, P, out.x_prior, out.P_prior)
     store_belief(row, th, Pp, out.th_prior, out.Pp_prior)
-    _store_phi(out, row, F, config.is_dense, n_c, dt, k)
 
     # ---- output equation at x^-_k, theta^-_k
     prediction = model_g(x, in_use, model, dgdx, dgdp, True)

@@ -71,6 +71,7 @@ from manualcontrol.estimators._pilot_core import (
     CFG_FLOOR,
     CFG_GAMMA2,
     CFG_MAX_COV,
+    PAPERS_DT,
     SC_E,
     SC_FROZEN,
     SC_K,
@@ -142,7 +143,9 @@ INJECT_OUTPUT = 1
 #: ``cfg`` (the pilot filters' configuration vector); ``slot`` (n_t,): what each
 #: parameter is (model-order index or a ``SLOT_*`` code); ``lo``, ``hi`` (n_t,): its
 #: limits (internal values); ``q`` (n_t,): its random-walk variance (before
-#: ``Gamma^2``); ``step``: ``h``; ``substeps``: Euler substeps a sample; ``inject``:
+#: ``Gamma^2``); ``step``: ``h``; ``substeps``: Euler substeps a sample at this sample
+#: time (the setting's are per 0.01 s, see
+#: :func:`~manualcontrol.estimators._pilot_core.euler_substeps`); ``inject``:
 #: ``INJECT_*``; ``has_remnant``; ``remnant`` (2,): the log relative intensity and the
 #: log break frequency used when they are not estimated; ``estimated`` (n_p,) per model
 #: parameter; ``noise_first``: samples at the start during which only the noise
@@ -556,6 +559,9 @@ def bank_step(model, config, lines, belief, monitor, report, s, inputs_k, u_k, e
     if ok:
         if config.remnant_weight[0] > 0.0 and config.has_remnant:
             R += _remnant_weight(config, s.points[0], p)
+        # R is a sample's variance at 100 Hz, a white noise's density at any rate
+        # (rml.py, "Sample rates"): the remnant state's noise is exact
+        R *= PAPERS_DT / cfg[CFG_DT]
         for i in range(s.points.shape[0]):
             _member_step(model, config, lines, belief, s, i, k, u_k, R, q_error, dropped, k > 0)
         if not dropped and anchored:

@@ -1,9 +1,12 @@
 """Compiled cores of the unscented filters on pilot internal models: joint and dual.
 
 Both run on the same internal model as the DEKF (Euler step of the canonical states,
-``x^- = x^+ + f(x^+, in_{k-1}, p) dt``; output ``u = g(x^-, in_k, p)``), the same noise
-rules and the same report (:mod:`~manualcontrol.estimators._pilot_core`); the
-unscented transform replaces the Jacobians and the total derivative.
+``x^- = x^+ + f(x^+, in_{k-1}, p) dt``, in ``cfg[CFG_SUBSTEPS]`` substeps where a sample
+is longer than the papers' 0.01 s,
+:func:`~manualcontrol.estimators._pilot_core.euler_substeps`; output
+``u = g(x^-, in_k, p)``), the same noise rules and the same report
+(:mod:`~manualcontrol.estimators._pilot_core`); the unscented transform replaces the
+Jacobians and the total derivative.
 
 Joint UKF
     One filter on the augmented state ``z = [theta; gains; x]``: the parameters of the
@@ -61,6 +64,7 @@ from manualcontrol.estimators._pilot_core import (
     CFG_JITTER,
     CFG_MAX_COV,
     CFG_SPREAD,
+    CFG_SUBSTEPS,
     SC_FROZEN,
     SC_K,
     inputs_in_use,
@@ -161,6 +165,8 @@ def _propagate(model, config, s, X, Y, count, prev_in, dt, first, offset):
     """
     n_c = s.f.shape[0]
     point_p = s.point_p
+    m = max(1, int(config.cfg[CFG_SUBSTEPS]))
+    h = dt / m
     for i in range(count):
         if _point_parameters(config, X, i, first, config.n_moving, point_p) or i == 0:
             evaluate_coefficients(point_p, model)
@@ -169,9 +175,12 @@ def _propagate(model, config, s, X, Y, count, prev_in, dt, first, offset):
             Y[i, j] = X[i, j]
         for c in range(n_c):
             s.dgdx[c] = X[i, offset + c]
-        model_f(s.dgdx, prev_in, model, s.f, s.F, s.dfdp, False)
+        for _ in range(m):
+            model_f(s.dgdx, prev_in, model, s.f, s.F, s.dfdp, False)
+            for c in range(n_c):
+                s.dgdx[c] += s.f[c] * h
         for c in range(n_c):
-            Y[i, offset + c] = X[i, offset + c] + s.f[c] * dt
+            Y[i, offset + c] = s.dgdx[c]
 
 
 @numba.njit(cache=True, _nrt=False)
@@ -341,7 +350,9 @@ def _predict_sensitivity(model, config, theta, s, s_post, prev_in, dt, offset):
     """
     n_t = theta.th.shape[0]
     n_c = s.f.shape[0]
-    h = SENSITIVITY_STEP
+    step = SENSITIVITY_STEP
+    m = max(1, int(config.cfg[CFG_SUBSTEPS]))
+    h = dt / m
     D, M, E = theta.D, theta.M, theta.E
     for j in range(n_t):
         # D^+ E_j into M (as scratch), then difference the step
@@ -355,21 +366,22 @@ def _predict_sensitivity(model, config, theta, s, s_post, prev_in, dt, offset):
             s.z_prev[i] = M[i, j]
         for sign in (1.0, -1.0):
             for i in range(D.shape[0]):
-                theta.point_s[i] = s_post[i] + sign * h * s.z_prev[i]
+                theta.point_s[i] = s_post[i] + sign * step * s.z_prev[i]
             for t in range(n_t):
-                theta.point_p[theta.config.slot[t]] = theta.th[t] + sign * h * E[t, j]
+                theta.point_p[theta.config.slot[t]] = theta.th[t] + sign * step * E[t, j]
             evaluate_coefficients(theta.point_p, model)
             for c in range(n_c):
                 theta.point_x[c] = theta.point_s[offset + c]
-            model_f(theta.point_x, prev_in, model, s.f, s.F, s.dfdp, False)
+            for _ in range(m):
+                model_f(theta.point_x, prev_in, model, s.f, s.F, s.dfdp, False)
+                for c in range(n_c):
+                    theta.point_x[c] += s.f[c] * h
             for i in range(D.shape[0]):
-                value = theta.point_s[i]
-                if i >= offset:
-                    value += s.f[i - offset] * dt
+                value = theta.point_s[i] if i < offset else theta.point_x[i - offset]
                 if sign > 0.0:
                     M[i, j] = value
                 else:
-                    M[i, j] = (M[i, j] - value) / (2.0 * h)
+                    M[i, j] = (M[i, j] - value) / (2.0 * step)
 
 
 @numba.njit(cache=True, _nrt=False)

@@ -40,6 +40,18 @@ Choices where the papers leave room (see also the module docstring of the core)
 * inputs of the prediction are those of the previous sample (Popovici eq. 8's
   ``e_{k-1}``, thesis eq. 49's ``f_{t,a,k-1}, y_{k-1}``; thesis eq. 13 prints
   ``f_{t,k+N_s}``, taken as that misprint).
+* sample rates: the papers ran at 100 Hz, and two of their choices are steps of that
+  rate. The Euler prediction (eq. 8) errs in proportion to its step (the neuromuscular
+  damping comes out about ``omega_nms h / 2`` high), so a sample longer than 0.01 s is
+  predicted in Euler substeps of at most 0.01 s
+  (:func:`~manualcontrol.estimators._pilot_core.euler_substeps`: two at 50 and 60 Hz;
+  faster rates step once a sample, and err less); eq. 49 as printed keeps its 100-Hz
+  weight (:data:`TOTAL_DERIVATIVES`). The noise needs nothing: ``R`` is a sample's
+  variance and ``Gamma Q Gamma^T = Q dt^2``, so the filters' time constants, about
+  ``sqrt(R/Q)`` seconds, are the same at every rate (the reported standard deviations
+  are not: every sample counts as new information, so they shrink as the rate rises).
+  ``tests/estimators/test_sample_rates.py`` identifies one pilot at 50, 60, 100, 120
+  and 1000 Hz.
 """
 
 from __future__ import annotations
@@ -51,6 +63,7 @@ import numpy as np
 
 from manualcontrol.envs._validation import check_choice, check_positive
 from manualcontrol.estimators import _dekf_core as core
+from manualcontrol.estimators._pilot_core import euler_substeps
 from manualcontrol.estimators.filters.kalman import kalman_work
 from manualcontrol.estimators.pilot_filter import (
     CE_TYPES,
@@ -83,8 +96,10 @@ __all__ = [
 #: ``"printed"``: ``dx^-_k/dtheta = df/dtheta + Phi_s dx^+_{k-1}/dtheta`` as printed
 #: (thesis eq. 49, Part III App. F). ``"dimensional"``: ``df/dtheta dt + Phi_s ...``,
 #: the exact derivative of the Euler step (Part II eq. 5.5), dimensionally consistent.
-#: The printed form weighs the direct parameter sensitivity by ``1/dt`` (x100 at
-#: 100 Hz). The default is "printed": it is what the papers ran (the errata reverted
+#: The printed form weighs the direct parameter sensitivity by ``1/dt`` at the papers'
+#: 100 Hz (x100); at any other rate it keeps that weight, ``1/(0.01 s)``, so that it
+#: means the same per second (as printed, a 1-kHz run would weigh it x1000 and a 60-Hz
+#: run x60). The default is "printed": it is what the papers ran (the errata reverted
 #: to it), and with realistic remnant (30 % of the control power) it keeps the
 #: parameters within reach where the dimensional form runs them to their limits (the
 #: time-varying compensatory case falls below 50 % one-step VAF). Without remnant the
@@ -162,6 +177,7 @@ class DEKF(PilotFilter):
         n_in = len(internal.input_names)
         cfg = common.cfg
         cfg[core.CFG_DIMENSIONAL] = 1.0 if settings.total_derivative == "dimensional" else 0.0
+        cfg[core.CFG_SUBSTEPS] = euler_substeps(cfg[core.CFG_DT])
         gain_index = np.array([names.index(n) for n in resolved.gains], dtype=np.int64)
         theta_index = np.array([names.index(n) for n in resolved.theta], dtype=np.int64)
         x = np.zeros(n_s)

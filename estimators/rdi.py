@@ -44,6 +44,20 @@ Choices where the paper leaves room or contradicts itself
   from the *posterior* ``P`` (the paper's stored ``P_n = (I - K H) P_{n-1} + Q`` is the
   next prior; the smoother adds ``Q`` itself). ``smooth=True`` (a setting, because the
   paper used it in some experiments and not others) returns the smoothed result.
+* Sample rates: nothing is rescaled with the rate, and what that means differs by
+  quantity. The delay ``d`` is in seconds, read at any fractional position of the
+  undecimated input (there is no delay grid), and ``delay_limits`` are seconds. The
+  ARMAX model is discrete by construction: its coefficients act on shifts of one
+  identification step ``lambda dt``, so the same pilot has other ``a_i`` and ``b_m``
+  at another rate (a pole at ``-p`` rad/s is ``a_1 = exp(-p lambda dt)``) and only the
+  gain-delay model (``n_a = n_b = 0``, ``b_0`` a gain) means the same at every rate;
+  runs at two rates compare with equal ``lambda dt`` (the paper's 60 Hz with
+  ``lambda = 4`` is 120 Hz with 8) or through their frequency responses. ``Q_c`` and
+  ``P0_c`` are per identification step. ``Q_d`` (squared steps, so ``Q_d (lambda
+  dt)^2`` s^2 a step) keeps the delay's tracking time, about ``sqrt(R/Q_d)`` over the
+  slope term of ``H``, the same at every ``lambda dt`` (``R`` is a sample's variance),
+  as the pilot filters' ``Gamma = I dt`` does; ``P0_d``'s start does not (one step is
+  17 ms at 60 Hz, 1 ms at 1 kHz). The defaults are the paper's, at 60 Hz.
 * The RDI is causal: the prediction at sample ``k`` reads only samples up to ``k``. Near
   the newest sample (delays under two samples) the input is read with the one-sided
   cubic through the last four samples, so a zero delay still has a slope to learn

@@ -55,11 +55,11 @@ et al.), ``remnant_injection`` (``"input"``: at the perception, ``"output"``: at
 stick), ``remnant_variance`` (the remnant's initial variance as a fraction of the error
 variance over the first window), ``learn_intensity`` (True), ``learn_break`` (False),
 ``intensity_P0``/``intensity_Q`` (the log intensity's initial variance and random-walk
-variance per second squared, as the parameters' ``Q``), ``step`` (the bank's spread in
+variance, a ``Q`` like the parameters', see "Sample rates" below), ``step`` (the bank's spread in
 standard deviations), ``spread_limit`` (0.1: no member lies further from the mean, in
 any parameter, than this fraction of the parameter's limit span; where the spread would,
 it is reduced along that direction, so the differences stay local derivatives and the
-members inside the limits; 0: no limit), ``substeps`` (Euler substeps per sample),
+members inside the limits; 0: no limit), ``substeps`` (Euler substeps per 0.01 s, below),
 ``noise_first`` (seconds at the start during which only the noise parameters learn),
 ``r2_remnant`` (the part of ``R`` that follows the remnant: 5 where the remnant drifts,
 on the double integrator, else 0; below), and the drift rule's ``drift_gain`` (15; 0 =
@@ -195,6 +195,27 @@ no restart: every figure equal. Choosing the smaller cost without the test inste
 changed 29 of 33 entries there, 20 for the worse. Cost: a second filter pass and a
 smoothing, about twice the time.
 
+Sample rates: the settings were chosen at 100 Hz (the papers' rate,
+:data:`~manualcontrol.estimators._pilot_core.PAPERS_DT`) and keep their meaning per
+second at any other. The remnant state's transition and process noise are exact (a
+continuous intensity), so ``R`` and the random walks' ``Q`` are continuous-time too,
+anchored at 100 Hz: ``R`` (``r2 var(u)`` plus the remnant's part, or ``fixed_R``) is a
+sample's variance at 100 Hz and ``R (0.01 s) / dt`` at ``dt`` (a white noise of the same
+density), and a random walk's variance a sample, ``Q dt^2`` at 100 Hz (the family's
+``Gamma = I dt``, :mod:`~manualcontrol.estimators.pilot_filter`), is ``Q (0.01 s) dt``
+at ``dt`` (``noise_input="identity"``: ``Q`` a sample at any rate). Were ``R`` a
+sample's variance at every rate, a 1-kHz run would weigh the remnant state ten times as
+much against ``R`` as a 100-Hz run, and its estimates would follow the remnant. The
+parameters' information, and so their standard deviations, are then the same per
+second at every rate. ``substeps`` are Euler substeps per 0.01 s: a sample of ``dt``
+takes ``ceil(substeps dt / 0.01 s)`` of them
+(:func:`~manualcontrol.estimators._pilot_core.euler_substeps`; 2 at 100 and 120 Hz, 4 at
+50 and 60 Hz, 1 at 1 kHz), so no substep is longer than at 100 Hz: the model's
+discretisation error grows with its step. The variance window, ``noise_first``, the
+delay lines and the drift rule's window are in seconds already.
+``tests/estimators/test_sample_rates.py`` holds the estimates at 50, 60, 120 and 1000 Hz
+to those at 100 Hz.
+
 Online and offline: :meth:`estimate` and :meth:`update` give the filtered estimates
 (each from the samples up to it); ``estimate(..., smooth=True)`` (or the registered
 ``"rml-smoothed"``) smooths the parameter track over the whole run as random walks
@@ -211,6 +232,7 @@ import numpy as np
 
 from manualcontrol.envs._validation import check_choice, check_int, check_positive
 from manualcontrol.estimators import _rml_core as core
+from manualcontrol.estimators._pilot_core import PAPERS_DT, euler_substeps
 from manualcontrol.estimators.filters.kalman import kalman_work
 from manualcontrol.estimators.internal_model import (
     ANTICIPATED_PARAMETER,
@@ -437,6 +459,10 @@ class RML(PilotFilter):
         internal = self._internal
         names = internal.parameter_names
         dt = float(common.cfg[0])
+        if settings.noise_input == "euler":
+            # a random walk's variance a sample: Q dt^2 at 100 Hz, Q (0.01 s) dt at dt
+            # (module docstring, "Sample rates"); R is scaled to match in the core
+            common.cfg[core.CFG_GAMMA2] = PAPERS_DT * dt
         has_remnant = settings.remnant != "none"
         omega = settings.break_frequency
         causal = resolved.var_e0 is None
@@ -483,7 +509,7 @@ class RML(PilotFilter):
             hi=np.array(hi, dtype=np.float64),
             q=np.array(q, dtype=np.float64),
             step=settings.step,
-            substeps=settings.substeps,
+            substeps=euler_substeps(dt, settings.substeps),
             inject=inject,
             has_remnant=has_remnant,
             remnant=np.array([log_intensity, math.log(omega)]),

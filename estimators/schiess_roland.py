@@ -73,6 +73,14 @@ Choices where the paper leaves room, or errs
   added to that sample's prior (A2) before its correction.
 * ``theta`` is kept in ``[0, max_delay]`` by estimate projection (the history covers
   ``max_delay``); the paper sets no limits, others may be given.
+* Sample rates: the step is integrated exactly and the delay, ``max_delay`` and
+  ``pinned_time`` are seconds, but two of the paper's numbers are per sample and are
+  not rescaled (the suite runs at 100 Hz). ``process_noise`` ``q`` is the variance of
+  each held sample of the remnant's white input, as the simulation's ``noise_variance``
+  (:mod:`manualcontrol.pilots.remnant`): a continuous intensity ``q dt``, so the same
+  ``q`` at 60 Hz is a remnant 100/60 times as strong as at 100 Hz (carry a value from
+  ``dt_1`` to ``dt_2`` as ``q dt_1 / dt_2``); ``noise_form="paper"`` adds ``q`` a
+  sample. ``adaptive_window`` counts samples: 20 is 0.2 s at 100 Hz, 0.33 s at 60 Hz.
 """
 
 from __future__ import annotations

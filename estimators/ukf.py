@@ -27,6 +27,12 @@ marginal dynamics are exactly random walks, so the marginal smoother is the righ
 recursion for them; it leaves out what the future states say about the parameters
 through their cross-covariance, which the filtered marginals already carry forward.
 
+Sample rates: as the DEKF's (its docstring), a sample longer than the papers' 0.01 s is
+predicted in Euler substeps of at most 0.01 s
+(:func:`~manualcontrol.estimators._pilot_core.euler_substeps`), every sigma point and
+the dual filter's differenced sensitivity through the same substeps; the noise rules
+keep the filters' time constants in seconds by themselves.
+
 Settings beyond the shared ones: ``sigma_points`` (``"cubature"``, the default: the
 third-degree rule of Zhao et al. 2019 Alg. 1, weights ``1/(2N)``, no centre point, all
 weights positive so every covariance stays positive semidefinite; or ``"merwe"``, the
@@ -113,9 +119,11 @@ def _weights(settings: UKFSettings, n: int) -> Any:
 
 
 def _sigma_config(common: CommonArrays, weights: Any) -> np.ndarray:
+    """The configuration vector of one unscented filter: spread, points, Euler substeps."""
     cfg = common.cfg.copy()
     cfg[pilot_core.CFG_SPREAD] = weights.spread
     cfg[pilot_core.CFG_COUNT] = weights.count
+    cfg[pilot_core.CFG_SUBSTEPS] = pilot_core.euler_substeps(cfg[pilot_core.CFG_DT])
     return cfg
 
 
