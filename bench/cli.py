@@ -418,7 +418,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         print(
             f"fit: one-step VAF {one_step:.1f} % (from t = {check.scored_from:.2f} s, when the "
             f"filter had settled), resimulated VAF {resimulated:.1f} %; innovation lag-1 "
-            f"autocorrelation {r_1:.2f}, {100 * outside:.0f} % of lags 1-50 outside the "
+            f"autocorrelation {r_1:.2f}, {100 * outside:.0f} % of lags up to 0.5 s outside the "
             "white-noise band (white innovations give about 5 %)"
         )
     _print_frequency_check(check)

@@ -734,7 +734,14 @@ def human_limits(element: Any, model: str) -> dict[str, tuple[float, float]]:
     """
     limits = {spec.name: spec.human for spec in make_model(model).parameters}
     limits.update(HUMAN_RANGES)
-    limits.update(element_gain_ranges(_plant(element)))
+    gains = element_gain_ranges(_plant(element))
+    if not gains:
+        raise ValueError(
+            f"element {element!r} passes nothing at some frequency between "
+            f"{CROSSOVER_RANGE[0]:g} and {CROSSOVER_RANGE[1]:g} rad/s: no gain puts the "
+            "crossover there; give limits= explicitly"
+        )
+    limits.update(gains)
     return limits
 
 
