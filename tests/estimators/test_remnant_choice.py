@@ -1,0 +1,66 @@
+"""RML's remnant_injection="choose": the pass the describing function agrees with.
+
+A human's remnant may enter at the perception or at the stick; the likelihood cannot
+tell (a perception remnant bends the modelled delay and neuromuscular system to shape
+its spectrum), the forcing frequencies can: there the remnant averages out.
+"""
+
+import re
+import warnings
+
+import numpy as np
+import pytest
+
+from manualcontrol.estimators import RML
+from manualcontrol.estimators.fit_check import second_half_values
+from manualcontrol.pilots import Pilot, make_model, simulate
+from manualcontrol.pilots.remnant import ZaalRemnant
+
+TRUTH = dict(K_p=2.2, K_v=0.0, tau_v=0.3, omega_nms=10.0, zeta_nms=0.7)
+
+
+@pytest.fixture(scope="module")
+def stick_remnant_run():
+    # a resonant remnant at the stick, two forcing periods
+    pilot = Pilot("precision", TRUTH, remnant=ZaalRemnant(injection="output", P_r=0.3))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return simulate(pilot, "1/s", "vanderel-bw4", seed=2, measurement_time=240.0, run_in=30.0)
+
+
+def _gap_to_truth(result, omega):
+    model = make_model("precision")
+    ratio = model.frequency_response(second_half_values(result), omega, "e") / (
+        model.frequency_response(TRUTH, omega, "e")
+    )
+    return (
+        np.mean(np.abs(20 * np.log10(np.abs(ratio)))) / 2
+        + np.mean(np.abs(np.degrees(np.angle(ratio)))) / 10
+    )
+
+
+def test_the_pass_nearer_the_describing_function_is_kept(stick_remnant_run):
+    run = stick_remnant_run
+    chosen = RML(model="precision", element="1/s", remnant_injection="choose").estimate(run)
+    record = chosen.settings["remnant_injection"]
+    gains, phases = record["gain_error_db"], record["phase_error_deg"]
+    scores = {p: gains[p] / 2.0 + phases[p] / 10.0 for p in ("input", "output")}
+    assert record["chosen"] == min(scores, key=scores.get) == "output"
+    passes = {
+        p: RML(model="precision", element="1/s", remnant_injection=p).estimate(run)
+        for p in ("input", "output")
+    }
+    np.testing.assert_array_equal(chosen.mean, passes["output"].mean)  # the pass itself
+    # and it is the one nearer the true pilot
+    omega = np.geomspace(0.3, 15.0, 30)
+    assert _gap_to_truth(passes["output"], omega) < _gap_to_truth(passes["input"], omega)
+    assert chosen.settings["settings"]["remnant_injection"] == "choose"
+
+
+def test_choose_is_offline_and_needs_the_forcing(stick_remnant_run):
+    estimator = RML(model="precision", element="1/s", remnant_injection="choose")
+    with pytest.raises(ValueError, match=re.escape("offline only (estimate)")):
+        estimator.reset(0.01, var_u0=1.0, var_e0=1.0)
+    bare = stick_remnant_run.with_metadata(forcing=None)
+    with pytest.raises(ValueError, match="remnant_injection='choose' needs the describing"):
+        estimator.estimate(bare)
