@@ -52,8 +52,9 @@ Settings (beyond the shared ones of
 break frequency van der El et al. measured for the element type, thesis Sec. IV-D: 10
 rad/s for ``ce="SI"``, 0.01 rad/s for ``"DI"``, otherwise Levison's 3 rad/s of Popovici
 et al.), ``remnant_injection`` (``"input"``: at the perception, ``"output"``: at the
-stick), ``remnant_variance`` (the remnant's initial variance as a fraction of the error
-variance over the first window), ``learn_intensity`` (True), ``learn_break`` (False),
+stick, ``"choose"``: offline, both, the pass the describing function agrees with kept,
+:meth:`RML.estimate`), ``remnant_variance`` (the remnant's initial variance as a fraction
+of the error variance over the first window), ``learn_intensity`` (True), ``learn_break`` (False),
 ``intensity_P0``/``intensity_Q`` (the log intensity's initial variance and random-walk
 variance, a ``Q`` like the parameters', see "Sample rates" below), ``step`` (the bank's spread in
 standard deviations), ``spread_limit`` (0.1: no member lies further from the mean, in
@@ -463,9 +464,9 @@ class RML(PilotFilter):
         mark, 2 dB and 10 deg). Why not the likelihood: where the remnant comes from is
         what the time domain cannot tell apart from the pilot's own dynamics. A
         perception remnant passes through the modelled delay and neuromuscular system,
-        which then bend to shape its spectrum; on the human-like suite's pilot with a
-        resonant remnant at the stick the likelihood preferred the perception model in
-        every run while it biased ``tau_v`` by +26 %. At the forcing frequencies the
+        which then bend to shape its spectrum (the human-like suite's pilot with a
+        resonant remnant at the stick: the likelihood prefers the perception model while
+        it biases ``tau_v``; ``benchmarks/remnant_choice.py``). At the forcing frequencies the
         remnant averages out, so the describing function judges the pilot alone. The
         forcing comes from ``forcing=`` or the recording's metadata; the choice and both
         gaps are in ``result.settings["remnant_injection"]``.
