@@ -311,6 +311,8 @@ def _target_source(args: argparse.Namespace) -> dict[str, Any]:
         return {"forcing": forcing_preset(args.forcing, args.realisation)}
     if args.target_period is not None:
         return {"target_period": args.target_period}
+    if getattr(args, "period", None) is not None:  # the forcing repeats: so does the target
+        return {"target_period": args.period}
     return {}
 
 
@@ -398,6 +400,9 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     restarts = result.settings.get("restarts")
     if restarts is not None:  # a filter with restarts: which pass the likelihood kept
         summary["restarts"] = restarts
+    injection = result.settings.get("remnant_injection")
+    if isinstance(injection, Mapping):  # the RML's "choose": which remnant model was kept
+        summary["remnant_injection"] = injection
     assumed = _held_by_rule(result)
     if assumed:  # held at values no one measured
         summary["held_at_generic_values"] = assumed
@@ -452,6 +457,17 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         )
         if restarts["ended"]:
             print(f"restarts ended early: {restarts['ended']}")
+    if isinstance(injection, Mapping):
+        where = {"input": "perception", "output": "stick"}
+        gaps = ", ".join(
+            f"at the {where[p]} {injection['gain_error_db'][p]:.1f} dB, "
+            f"{injection['phase_error_deg'][p]:.0f} deg"
+            for p in ("input", "output")
+        )
+        print(
+            f"remnant model: at the {where[injection['chosen']]}, the pass nearer the "
+            f"describing function ({gaps})"
+        )
     print(f"wrote {path}, {out / 'summary.json'}, {figure}")
     for warning in check.warnings:
         print(f"manualcontrol identify: warning: {warning}", file=sys.stderr)

@@ -469,7 +469,8 @@ class RML(PilotFilter):
         it biases ``tau_v``; ``benchmarks/remnant_choice.py``). At the forcing frequencies the
         remnant averages out, so the describing function judges the pilot alone. The
         forcing comes from ``forcing=`` or the recording's metadata; the choice and both
-        gaps are in ``result.settings["remnant_injection"]``.
+        gaps are in ``result.settings["remnant_injection"]`` (``target_period=``, where no
+        forcing is known, is the forcing's period).
         """
         if self._settings.remnant_injection != CHOOSE_INJECTION:
             return super().estimate(recording, **options)
@@ -488,9 +489,11 @@ class RML(PilotFilter):
         if "ft_far" in make_model(settings.model).perceptions:
             task = "pursuit" if settings.pursuit else "preview"
         try:
+            pair = forcing if forcing is not None and not callable(forcing) else None
             describing = describing_function(
                 recording,
-                forcing if forcing is not None and not callable(forcing) else None,
+                pair,
+                period=options.get("target_period") if pair is None else None,
                 element=settings.element,
                 task=recording.metadata.get("task", task),
             )

@@ -165,3 +165,17 @@ def test_describe_and_identify_a_pursuit_trial(tmp_path, capsys):
     )  # fmt: skip
     assert code == EXIT_OK, err
     assert "frequency domain: the identified model (second-half medians) misses" in out
+
+
+def test_identify_chooses_the_remnant_model_by_the_describing_function(trial, tmp_path, capsys):
+    out_dir = tmp_path / "c"
+    code, out, err = run(
+        capsys, "identify", str(trial), *LAB_COLUMNS, "--element", "1/s",
+        "--disturbance-at", "input", "--period", "120", "--estimator", "rml",
+        "--set", "remnant_injection=choose", "--out", str(out_dir),
+    )  # fmt: skip
+    assert code == EXIT_OK, err
+    assert "remnant model: at the " in out and "the pass nearer the describing function" in out
+    record = json.loads((out_dir / "summary.json").read_text())["remnant_injection"]
+    assert record["chosen"] in ("input", "output")
+    assert set(record["gain_error_db"]) == {"input", "output"}
