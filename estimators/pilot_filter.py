@@ -730,18 +730,13 @@ def human_limits(element: Any, model: str) -> dict[str, tuple[float, float]]:
     largest ``1/(w |H_c(j w)|)``), so a plant of gain 1 allows the gains humans use on
     it, which thesis Table I (set for ``1.5/s`` and ``5/s^2``) does not. Delay and
     neuromuscular limits: :data:`HUMAN_RANGES`. The structure's other parameters (far
-    view, near view) keep their human ranges.
+    view, near view), and the gains on an element that does not integrate, keep the
+    structure's human ranges.
     """
     limits = {spec.name: spec.human for spec in make_model(model).parameters}
     limits.update(HUMAN_RANGES)
-    gains = element_gain_ranges(_plant(element))
-    if not gains:
-        raise ValueError(
-            f"element {element!r} passes nothing at some frequency between "
-            f"{CROSSOVER_RANGE[0]:g} and {CROSSOVER_RANGE[1]:g} rad/s: no gain puts the "
-            "crossover there; give limits= explicitly"
-        )
-    limits.update(gains)
+    # an element that does not integrate gives no crossover range: the structure's own
+    limits.update(element_gain_ranges(_plant(element)))
     return limits
 
 

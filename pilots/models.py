@@ -202,12 +202,17 @@ def element_gain_ranges(element: Any, t: float = 0.0) -> dict[str, tuple[float, 
     proportional pilot crossing over there); ``K_v`` (lead, ``K_p T_L``) from 0 to the
     largest ``1/(w |H_c(j w)|)`` (a lead pilot crossing over there). ``element`` is a
     controlled element (or anything :func:`~manualcontrol.envs.elements.make_element`
-    reads), taken at time ``t``. Empty where the element passes nothing at some frequency
-    of the range (the critical task's element at zero instability): no crossover there.
+    reads), taken at time ``t``. Empty for an element that does not integrate (no pole at
+    the origin: a pure gain, a lag), where a proportional pilot's loop has no crossover to
+    place (humans equalise it with a lag instead), and where the element passes nothing
+    at some frequency of the range (the critical task's element at zero instability).
     """
     from manualcontrol.envs.elements import make_element
 
     plant = make_element(element)
+    _, den = (np.asarray(c, dtype=np.float64).reshape(-1) for c in plant.transfer_function(t))
+    if den[-1] != 0.0:
+        return {}
     omega = np.geomspace(*CROSSOVER_RANGE, 200)
     magnitude = np.abs(plant.frequency_response(omega, t))
     if not np.all(magnitude > 0.0):

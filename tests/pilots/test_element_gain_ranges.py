@@ -34,3 +34,12 @@ def test_a_gain_no_human_uses_on_the_element_is_flagged():
     with pytest.warns(HumanLimitWarning, match=re.escape(message)) as caught:
         simulate(pilot, "1/s", measurement_time=10.0, run_in=0.0)
     assert "[0.5, 8], a crossover between 0.5 and 8 rad/s" in str(caught[0].message)
+
+
+def test_an_element_that_does_not_integrate_gives_no_crossover_range():
+    # a proportional pilot on a pure gain has no crossover to place: humans use a lag
+    assert element_gain_ranges("gain") == {}
+    assert element_gain_ranges("1/(s+2)") == {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", HumanLimitWarning)
+        simulate(Pilot.typical("precision", "gain"), "gain", measurement_time=10.0, run_in=0.0)
