@@ -738,18 +738,21 @@ def _held_by_rule(result: Any) -> dict[str, float]:
     ``omega_f``, the pursuit form's ``tau_f = 0``) is no assumption about this pilot:
     left out.
     """
-    from manualcontrol.estimators.pilot_filter import held_without_values
+    from manualcontrol.estimators.pilot_filter import element_type, held_without_values
 
     resolved = result.settings.get("resolved")
     settings = result.settings.get("settings")
     if not isinstance(resolved, Mapping) or not isinstance(settings, Mapping):
         return {}
     values = resolved.get("initial", {})
+    kind = settings.get("ce")
+    if kind is None and settings.get("element") is not None:
+        kind = element_type(settings["element"])
     assumed = held_without_values(
         values,
         result.estimated,
         settings.get("initial") or {},
-        settings.get("ce"),
+        kind,
         settings.get("anticipation_time") == 0.0,
     )
     return {name: float(values[name]) for name in assumed}

@@ -395,14 +395,12 @@ class PilotFilterSettings:
             check_choice("ce", self.ce, CE_TYPES)
         if self.element is not None:
             object.__setattr__(self, "element", _element_setting(self.element))
-            kind = element_type(self.element)
-            if self.ce is not None and self.ce != kind:
+            if self.ce is not None:
                 raise ValueError(
-                    f"ce={self.ce!r} (a thesis element type, Table I limits) disagrees with "
-                    f"element={self.element!r}, whose type is {kind!r}: give the "
-                    "experiment's element alone"
+                    f"ce={self.ce!r} (a thesis element type, Table I limits) and "
+                    f"element={self.element!r} (the experiment's element, limits from it) "
+                    "both given: give the experiment's element alone"
                 )
-            object.__setattr__(self, "ce", kind)
         preview = "ft_far" in model.perceptions
         if preview:
             if self.anticipation_time is None:
@@ -515,6 +513,13 @@ class PilotFilterSettings:
         object.__setattr__(self, "restarts", check_int("restarts", self.restarts, minimum=0))
 
     @property
+    def ce_type(self) -> str | None:
+        """The element type the family's rules read: ``ce``, else the element's type."""
+        if self.ce is not None:
+            return self.ce
+        return element_type(self.element) if self.element is not None else None
+
+    @property
     def limits_choice(self) -> str:
         """The named limits in use.
 
@@ -535,7 +540,7 @@ class PilotFilterSettings:
         """``r^2`` in use: the given one, else the preset's."""
         if self.r2 is not None:
             return self.r2
-        return 4.0 if self.preset == "vertregt2020-remnant" and self.ce == "DI" else 0.7
+        return 4.0 if self.preset == "vertregt2020-remnant" and self.ce_type == "DI" else 0.7
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able form; :meth:`from_dict` inverts it (infinities as strings)."""
@@ -784,9 +789,9 @@ def resolve_settings(
     names = internal.parameter_names
     pursuit = settings.pursuit
     preview = ANTICIPATED_PARAMETER in names and "ft_far" in model.perceptions and not pursuit
-    si = settings.ce == "SI"
+    si = settings.ce_type == "SI"
     if settings.estimated is None:
-        held = held_by_design(settings.ce, pursuit)
+        held = held_by_design(settings.ce_type, pursuit)
         estimated = tuple(name for name in names if name not in held)
     else:
         estimated = settings.estimated
@@ -826,7 +831,7 @@ def resolve_settings(
             value = 0.5 * settings.anticipation_time
         elif name == "tau_f" and pursuit:
             value = 0.0
-        elif name == "omega_f" and settings.ce == "DI":
+        elif name == "omega_f" and settings.ce_type == "DI":
             value = DI_FAR_BREAK
         elif name in GENERIC_INITIAL and model.name in ("precision", "preview"):
             value = GENERIC_INITIAL[name]  # eqs. 29-31
@@ -1002,7 +1007,7 @@ class PilotFilter:
             self._internal.parameter_names,
             settings.estimated,
             settings.initial,
-            settings.ce,
+            settings.ce_type,
             settings.pursuit,
         )
         if assumed:

@@ -380,7 +380,7 @@ class RMLSettings(PilotFilterSettings):
         with the gains.
         """
         return (
-            self.ce == "DI"
+            self.ce_type == "DI"
             and self.remnant != "none"
             and self.remnant_injection == "input"
             and _REMNANT_GAIN in make_model(self.model).parameter_names
@@ -405,7 +405,7 @@ class RMLSettings(PilotFilterSettings):
         """The remnant filter's (initial) break frequency in use (rad/s)."""
         if self.remnant_break is not None:
             return self.remnant_break
-        return BREAK_FREQUENCY.get(self.ce, DEFAULT_BREAK)
+        return BREAK_FREQUENCY.get(self.ce_type, DEFAULT_BREAK)
 
 
 _MODELS: dict[tuple[str, bool], InternalModel] = {}

@@ -51,14 +51,16 @@ def test_gain_limits_of_a_general_element_cover_the_crossover_range():
 
 def test_the_element_sets_the_type_rules_and_the_limits():
     settings = PilotFilterSettings(model="precision", element="1/s")
-    assert settings.ce == "SI" and settings.limits_choice == "human"
+    assert settings.ce is None and settings.ce_type == "SI"
+    assert settings.limits_choice == "human"
     assert element_type("2/s^2") == "DI" and element_type("1/(s(s+1))") is None
     assert PilotFilterSettings(model="precision", ce="SI").limits_choice == "table-I"
     # the round trip keeps the element and its type
     again = PilotFilterSettings.from_dict(settings.to_dict())
-    assert again.element == "1/s" and again.ce == "SI"
-    resolved = DEKF(model="precision", element="1/s", initial={"K_p": 3.0})
-    assert resolved.settings.element == "1/s"
+    assert again.element == "1/s" and again.ce_type == "SI"
+    # another element gives another type: nothing of the first sticks
+    dekf = DEKF(model="precision", element="1/s", initial={"K_p": 3.0})
+    assert dekf.configure(element="1/s^2").settings.ce_type == "DI"
 
 
 @pytest.mark.parametrize(
@@ -66,7 +68,7 @@ def test_the_element_sets_the_type_rules_and_the_limits():
     [
         (
             {"ce": "DI", "element": "1/s"},
-            "ce='DI' (a thesis element type, Table I limits) disagrees",
+            "ce='DI' (a thesis element type, Table I limits) and element='1/s'",
         ),
         ({"limits": "human"}, "limits='human' derives the gain limits from the controlled element"),
         ({"element": "1/(s"}, "element '1/(s' cannot be read"),
