@@ -123,7 +123,8 @@ def _crossover(frequencies: FloatArray, open_loop: NDArray[np.complex128]) -> tu
             log_crossover = logw[i] + fraction * (logw[i + 1] - logw[i])
             phase_at = phase[i] + fraction * (phase[i + 1] - phase[i])
             margin = math.degrees(phase_at) + 180.0
-            # report the margin in (-180, 180]
+            # the margin in [-180, 180): a phase of -380 deg at crossover reads as +160,
+            # the same point of the Nyquist plane (which encirclement it is, no one line says)
             margin = (margin + 180.0) % 360.0 - 180.0
             return math.exp(log_crossover), margin
     return math.nan, math.nan
@@ -480,7 +481,9 @@ def describing_function(
         frequencies=frequencies,
         source=source,
         coefficients={name: values[every_bin] for name, values in whole.items()},
-        snr=_signal_to_noise(np.abs(whole["u"]) ** 2, every_bin, neighbours),
+        snr=_signal_to_noise(
+            np.abs(whole["u"]) ** 2, every_bin, set(every_bin.tolist()), neighbours
+        ),
     )
     if task in TWO_CHANNEL_TASKS:
         shown = np.array([kind == "disturbance" for kind in source])
@@ -494,8 +497,11 @@ def describing_function(
     bins = harmonics * count
     spectra = {name: values[bins] for name, values in whole.items()}
     pilot = spectra["u"] / spectra["e"]
-    snr = _signal_to_noise(np.abs(whole["u"]) ** 2, bins, neighbours)
-    snr_injected = _injected_signal_to_noise(whole["u"], whole["e"], pilot, bins, neighbours)
+    lines_at = set(every_bin.tolist())  # no line of either forcing counts as a neighbour
+    snr = _signal_to_noise(np.abs(whole["u"]) ** 2, bins, lines_at, neighbours)
+    snr_injected = _injected_signal_to_noise(
+        whole["u"], whole["e"], pilot, bins, lines_at, neighbours
+    )
     if count >= 2:
         gain_spread, phase_spread = _period_spread(signals, count, per_period, harmonics, pilot)
     else:  # one period: the spread the remnant implies, |N/U| split over gain and phase
@@ -503,7 +509,8 @@ def describing_function(
         gain_spread = 20.0 / math.log(10.0) * relative
         phase_spread = np.degrees(np.minimum(relative, np.pi))
     u_power = np.abs(whole["u"][1:]) ** 2
-    remnant_share = 1.0 - float(np.abs(spectra["u"]) @ np.abs(spectra["u"]) / u_power.sum())
+    at_lines = np.abs(all_lines.coefficients["u"])
+    remnant_share = 1.0 - float(at_lines @ at_lines / u_power.sum())
     measured = _measured_element(spectra, disturbance_at)
     if element is None and recording.metadata.get("controlled_element") is not None:
         element = recording.metadata["controlled_element"]
@@ -570,9 +577,10 @@ def _period_spread(
     return gain, phase
 
 
-def _signal_to_noise(power: FloatArray, bins: NDArray[np.int64], neighbours: int) -> FloatArray:
-    """Power at each forcing bin over the mean power of its nearest non-forcing bins."""
-    forcing = set(bins.tolist())
+def _signal_to_noise(
+    power: FloatArray, bins: NDArray[np.int64], forcing: set[int], neighbours: int
+) -> FloatArray:
+    """Power at each of ``bins`` over the mean power of its nearest bins not in ``forcing``."""
     ratios = np.empty(bins.shape)
     for i, b in enumerate(bins):
         near = _neighbour_bins(b, forcing, power.size, neighbours)
@@ -586,10 +594,10 @@ def _injected_signal_to_noise(
     e: NDArray[np.complex128],
     pilot: NDArray[np.complex128],
     bins: NDArray[np.int64],
+    forcing: set[int],
     neighbours: int,
 ) -> FloatArray:
     """Power of u at each forcing bin over the injected remnant's ``|U - H_p E|^2`` nearby."""
-    forcing = set(bins.tolist())
     ratios = np.empty(bins.shape)
     for i, b in enumerate(bins):
         near = _neighbour_bins(b, forcing, u.size, neighbours)
@@ -817,8 +825,8 @@ def fit_describing_function(
     H_p``) with ``w_k`` from :func:`fit_weights`, by bounded least squares
     (:data:`FIT_BOUNDS`) from every start of :data:`FIT_STARTS` (two-channel models:
     :data:`TWO_CHANNEL_STARTS`), ``K_p`` of each start solved for the mean log gain.
-    ``fixed`` holds parameters at given values (e.g. ``{"K_v": 0.0}``); by default
-    ``K_v`` is held at 0 where the element is a single integrator ``K/s``, on which
+    ``fixed`` holds parameters at given values (e.g. ``{"zeta_nms": 0.5}``), beside what
+    is held by rule: ``K_v`` is held at 0 where the element is a single integrator ``K/s``, on which
     humans need no lead and the time-domain filters hold it at 0 too (a free lead there
     trades off against the neuromuscular lag along a ridge that remnant moves the fit
     along), and a pursuit task's ``tau_f`` at 0 (nothing is shown ahead).
@@ -828,11 +836,10 @@ def fit_describing_function(
     target = _FitTarget(describing, model)
     structure = target.structure
     names = structure.parameter_names
-    if fixed is None:
-        fixed = {"K_v": 0.0} if _single_integrator(describing) and "K_v" in names else {}
-        if describing.task == "pursuit" and "tau_f" in names:
-            fixed = {**fixed, "tau_f": 0.0}
-    fixed = dict(fixed)
+    held = {"K_v": 0.0} if _single_integrator(describing) and "K_v" in names else {}
+    if describing.task == "pursuit" and "tau_f" in names:
+        held["tau_f"] = 0.0
+    fixed = {**held, **(fixed or {})}  # what the user holds adds to (or sets) the rules
     unknown = sorted(set(fixed) - set(names))
     if unknown:
         raise ValueError(

@@ -93,6 +93,9 @@ def test_fit_recovers_the_noise_free_pilot(clean_run):
     assert fit.crossover_frequency == pytest.approx(
         describing_function(clean_run).crossover_frequency, rel=0.05
     )
+    # a parameter the user holds adds to the rule's holds
+    held = fit_describing_function(describing_function(clean_run), fixed={"zeta_nms": 0.5})
+    assert held.fitted == ("K_p", "tau_v", "omega_nms")
 
 
 def test_injected_snr_predicts_the_error_under_remnant(remnant_runs):
@@ -245,6 +248,9 @@ def test_two_channel_fit_recovers_a_pursuit_and_a_preview_pilot(task, tau_f):
         run = simulate(pilot, "SI", "vanderel-bw4", task=task, seed=3, available_preview=preview)
         measured = describing_function(run)
         assert measured.task == task and set(measured.source) == {"disturbance"}
+        if remnant is None:  # the target's lines are forcing, not remnant, nor neighbours
+            assert measured.remnant_share == pytest.approx(0.0, abs=1e-9)
+            assert np.all(measured.snr > 1e6) and np.all(measured.lines.snr > 1e6)
         assert set(measured.lines.source) == {"target", "disturbance"}
         fit = fit_describing_function(measured, "preview")
         assert fit.values["tau_f"] == pytest.approx(tau_f, abs=0.05)
