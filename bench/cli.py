@@ -337,7 +337,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 
     _check_output("--out", args.out, folder=True)
     recording = _load_trial(args)
-    target = _target_source(args)
+    _trial_forcing(args)  # --forcing and --period together: said before any work
+    _trial_element(recording, args)  # an unreadable --element: said in its own words
     settings = _assignments(args.set, "--set")
     from manualcontrol.estimators.registry import ESTIMATORS
 
@@ -346,8 +347,9 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             f"--estimator must be one of {', '.join(ESTIMATORS)} (`manualcontrol estimators`), "
             f"got {args.estimator!r}"
         )
+    pilot_model = ESTIMATORS[args.estimator].pilot_model
     spec = {"name": args.estimator, **settings}
-    if ESTIMATORS[args.estimator].pilot_model:
+    if pilot_model:
         spec.setdefault("model", args.model or "precision")
     elif args.model is not None:
         raise UsageError(
@@ -355,18 +357,33 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             f"{', '.join(n for n, e in ESTIMATORS.items() if e.pilot_model)}; the "
             f"{args.estimator} estimator has its own model (set its settings with --set)"
         )
+    # where the target ahead (and the RML's describing function) come from: the pilot-model
+    # members read them; the others have their own models and take no such option
+    target = _target_source(args) if pilot_model else {}
     with warnings.catch_warnings():
         # identify says so itself, with the values (below)
         warnings.simplefilter("ignore", GenericValuesWarning)
-        estimator = make_estimator(spec)
-        if _takes_the_element(estimator, settings, args):
+        estimator = None
+        if args.element is not None and "ce" not in settings and "element" not in settings:
             # the experiment's element sets the limits and the rules by element type
-            estimator = make_estimator({**spec, "element": args.element})
+            try:
+                estimator = make_estimator({**spec, "element": args.element})
+            except (TypeError, ValueError) as error:
+                if "'element'" not in str(error):  # a member without an element setting
+                    raise
+        if estimator is None:
+            estimator = make_estimator(spec)
     try:
         result = estimator.estimate(recording, **target)
     except ValueError as error:
         if "target ahead of the samples is unknown" in str(error):
             raise UsageError(_PREVIEW_HINT) from None
+        if "remnant_injection='choose' needs" in str(error):
+            raise UsageError(
+                "--set remnant_injection=choose compares the fits with the describing "
+                "function at the forcing frequencies: give --forcing PRESET or --period "
+                "SECONDS (the forcing signals being in the file)"
+            ) from None
         raise
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a diverged fit may overflow its resimulation
@@ -523,6 +540,17 @@ def _cmd_describe(args: argparse.Namespace) -> int:
         text = text.replace("disturbance_at", "--disturbance-at")
         raise UsageError(text) from None
     model = args.model or ("precision" if describing.task == "compensatory" else "preview")
+    from manualcontrol.pilots.models import MODEL_NAMES, make_model
+
+    if model not in MODEL_NAMES:
+        raise UsageError(f"--model must be one of {', '.join(MODEL_NAMES)}, got {model!r}")
+    names = make_model(model).parameter_names
+    for name in fixed:
+        if name not in names:
+            raise UsageError(
+                f"--fix {name}=: the {model} model has no parameter {name!r} (its parameters: "
+                f"{', '.join(names)})"
+            )
     try:
         fit = fit_describing_function(describing, model, fixed=fixed or None)
     except ValueError as error:
@@ -626,22 +654,6 @@ def _rounded(value: float) -> float | None:
     return round(float(value), 4) if math.isfinite(value) else None
 
 
-def _takes_the_element(estimator: Any, settings: Mapping[str, Any], args: Any) -> bool:
-    """Whether ``--element`` goes to the estimator.
-
-    To one whose settings take an element, given neither ``ce`` (a thesis element type)
-    nor an element by ``--set``.
-    """
-    import dataclasses
-
-    if args.element is None or "ce" in settings or "element" in settings:
-        return False
-    own = getattr(estimator, "settings", None)
-    return dataclasses.is_dataclass(own) and any(
-        item.name == "element" for item in dataclasses.fields(own)
-    )
-
-
 def _trial_element(recording: Any, args: argparse.Namespace) -> Any:
     """The controlled element: ``--element``, else the recording's own, else None."""
     from manualcontrol.envs.elements import make_element, parse_element
@@ -669,7 +681,7 @@ def _trial_forcing(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _trial_describing_function(
-    recording: Any, args: argparse.Namespace, result: Any = None
+    recording: Any, args: argparse.Namespace, result: Any
 ) -> tuple[Any, str]:
     """The trial's describing function for the cross-check, or None and why not."""
     from manualcontrol.estimators.frequency import describing_function
@@ -682,16 +694,15 @@ def _trial_describing_function(
             "not checked: the forcing frequencies are unknown (give --forcing PRESET or "
             "--period SECONDS, the forcing signals being in the file)"
         )
-    settings = result.settings.get("settings", result.settings) if result is not None else {}
-    model = settings.get("model") if isinstance(settings, Mapping) else None
-    if model not in ("precision", "preview"):
-        return (
-            None,
-            f"not checked: the {model or result.estimator} model has no describing function",
-        )
+    from manualcontrol.estimators.metrics import pilot_model_of
+
+    model = pilot_model_of(result)
+    if model is None:
+        return None, f"not checked: the {result.estimator} model is not a pilot model structure"
     # the display the fitted model belongs to, where the recording does not say
     task = "compensatory"
-    if model == "preview":
+    if model.perceptions != ("e",):
+        settings = result.settings.get("settings", result.settings)
         task = "pursuit" if settings.get("anticipation_time") == 0.0 else "preview"
     try:
         describing = describing_function(
@@ -712,11 +723,15 @@ def _print_frequency_check(check: Any) -> None:
     if frequency is None:
         print(f"frequency domain: {check.frequency_note}")
         return
+    best = (
+        f"{frequency['best_gain_error_db']:.1f} dB, {frequency['best_phase_error_deg']:.0f} deg"
+        if frequency["best_gain_error_db"] is not None
+        else "n/a: too few forcing lines for its parameters"
+    )
     line = (
         f"frequency domain: the identified model (second-half medians) misses the measured "
         f"describing function by {frequency['gain_error_db']:.1f} dB and "
-        f"{frequency['phase_error_deg']:.0f} deg (the model fitted to it: "
-        f"{frequency['best_gain_error_db']:.1f} dB, {frequency['best_phase_error_deg']:.0f} deg)"
+        f"{frequency['phase_error_deg']:.0f} deg (the model fitted to it: {best})"
     )
     if frequency["measured_crossover_frequency"] is not None:
         line += (

@@ -40,9 +40,8 @@ from manualcontrol.estimators.frequency import (
     model_crossover,
     response_error,
 )
-from manualcontrol.estimators.metrics import innovation_whiteness, vaf
+from manualcontrol.estimators.metrics import innovation_whiteness, pilot_model_of, vaf
 from manualcontrol.estimators.protocol import EstimationResult
-from manualcontrol.pilots.models import make_model
 
 __all__ = [
     "PINNED_SHARE",
@@ -274,11 +273,9 @@ def _frequency_check(
     result: EstimationResult, describing: DescribingFunction
 ) -> tuple[dict[str, Any] | None, str]:
     """The identified model (second-half medians) against the measured describing function."""
-    settings = result.settings.get("settings", result.settings)
-    model_name = settings.get("model") if isinstance(settings, Mapping) else None
-    if model_name is None:
+    model = pilot_model_of(result)
+    if model is None:
         return None, f"not checked: the {result.estimator} model is not a pilot model structure"
-    model = make_model(model_name)
     values = second_half_values(result)
     if not all(math.isfinite(v) for v in values.values()):
         return None, "not checked: the estimate has no finite values over the second half"
@@ -322,10 +319,14 @@ def _frequency_warnings(frequency: Mapping[str, Any]) -> list[str]:
     far_phase = phase is not None and phase - best_phase > FAR_PHASE_DEG
     if not (far_gain or far_phase):
         return []
+    floor = (
+        f", where the same model fitted to it misses by {best_gain:.1f} dB and {best_phase:.0f} deg"
+        if frequency["best_gain_error_db"] is not None
+        else ""
+    )
     return [
         f"the identified model's frequency response misses the measured describing function "
-        f"by {gain:.1f} dB and {phase:.0f} deg, where the same model fitted to it misses by "
-        f"{best_gain:.1f} dB and {best_phase:.0f} deg (mean absolute at the forcing "
+        f"by {gain:.1f} dB and {phase:.0f} deg{floor} (mean absolute at the forcing "
         "frequencies, weighted by their share of forcing power): the time-domain parameters "
         "do not describe this pilot's response; compare `manualcontrol describe`"
     ]

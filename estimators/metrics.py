@@ -330,6 +330,20 @@ def _model_of(result: EstimationResult) -> PilotModel:
     return make_model(name)
 
 
+def pilot_model_of(result: EstimationResult) -> PilotModel | None:
+    """The pilot model structure ``result`` was identified with, or None.
+
+    None for a member whose model is its own (the RDI's ARMAX model) or a result that
+    names none.
+    """
+    if not _has_pilot_model(result):
+        return None
+    try:
+        return _model_of(result)
+    except ValueError:
+        return None
+
+
 def _has_pilot_model(result: EstimationResult) -> bool:
     """Whether ``result`` is resimulated with a pilot model (not its estimator's own)."""
     entry = ESTIMATORS.get(result.estimator)

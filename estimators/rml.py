@@ -499,7 +499,9 @@ class RML(PilotFilter):
             )
         except ValueError as error:
             raise ValueError(
-                f"remnant_injection='choose' needs the describing function of the run: {error}"
+                f"remnant_injection='choose' needs the describing function of the run "
+                f"({error}); pass forcing= (the run's ForcingPair) or target_period= (the "
+                "forcing's period, s)"
             ) from None
         passes, gaps = {}, {}
         for point in INJECTIONS:

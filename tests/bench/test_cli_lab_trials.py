@@ -119,7 +119,7 @@ def test_identify_without_forcing_says_why_there_is_no_check(trial, tmp_path, ca
         (["--element", "1/s", "--period", "50"], "does not repeat over the period given"),
         (["--element", "1/s"], "give --forcing PRESET or --period SECONDS"),
         (["--period", "120", "--forcing", "vanderel-bw4"], "give --forcing or --period, not both"),
-        (["--period", "120", "--fix", "K_d=1"], "fixed names ['K_d']"),
+        (["--period", "120", "--fix", "K_d=1"], "--fix K_d=: the precision model has no parameter"),
         (["--period", "120", "--fix", "K_v=lots"], "--fix K_v= needs a number, got 'lots'"),
         (["--period", "120", "--model", "preview"], "--model preview: the preview model"),
     ],
@@ -179,3 +179,52 @@ def test_identify_chooses_the_remnant_model_by_the_describing_function(trial, tm
     record = json.loads((out_dir / "summary.json").read_text())["remnant_injection"]
     assert record["chosen"] in ("input", "output")
     assert set(record["gain_error_db"]) == {"input", "output"}
+
+
+def test_identify_options_reach_only_the_members_that_read_them(trial, tmp_path, capsys):
+    # the delay identifier has its own model: --period feeds the cross-check only
+    code, out, err = run(
+        capsys, "identify", str(trial), *LAB_COLUMNS, "--estimator", "rdi", "--period", "120",
+        "--out", str(tmp_path / "r"),
+    )  # fmt: skip
+    assert code == EXIT_OK, err
+    assert "frequency domain: not checked: the rdi model is not a pilot model structure" in out
+    # limits from the element asked for by name: the element given on the command line
+    code, _, err = run(
+        capsys, "identify", str(trial), *LAB_COLUMNS, "--element", "1/s", "--period", "120",
+        "--set", "limits=human", "--out", str(tmp_path / "h"),
+    )  # fmt: skip
+    assert code == EXIT_OK, err
+    summary = json.loads((tmp_path / "h" / "summary.json").read_text())
+    assert summary["fit"]["frequency_check"]["values"]["K_p"] > 2.5  # past Table I's limit
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--element", "bogus"], "--element: element 'bogus' cannot be read"),
+        (["--forcing", "vanderel-bw4", "--period", "120"], "give --forcing or --period, not both"),
+        (
+            ["--estimator", "rml", "--set", "remnant_injection=choose"],
+            "--set remnant_injection=choose compares the fits with the describing function",
+        ),
+    ],
+)
+def test_identify_bad_inputs_speak_the_command_line(trial, tmp_path, capsys, extra, message):
+    out_dir = tmp_path / "bad"
+    code, _, err = run(capsys, "identify", str(trial), *LAB_COLUMNS, *extra, "--out", str(out_dir))
+    assert code == EXIT_USAGE
+    assert message in err
+    assert not (out_dir / "summary.json").exists()
+
+
+def test_too_few_forcing_lines_leave_the_check_without_its_floor(tmp_path, capsys):
+    # three disturbance lines cannot fit four parameters: the check says so, no crash
+    full = forcing_preset("vanderel-bw4").disturbance
+    three = Multisine(full.frequencies[3:6], full.amplitudes[3:6], full.phases[3:6], 120.0)
+    pilot = Pilot("precision", dict(K_p=1.5, K_v=0.0, tau_v=0.25, omega_nms=12.0, zeta_nms=0.5))
+    path = tmp_path / "three.npz"
+    simulate(pilot, "SI", ForcingPair(None, three)).save(path)
+    code, out, err = run(capsys, "identify", str(path), "--out", str(tmp_path / "o"))
+    assert code == EXIT_OK, err
+    assert "(the model fitted to it: n/a: too few forcing lines for its parameters)" in out
