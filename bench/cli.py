@@ -477,8 +477,12 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     if isinstance(injection, Mapping):
         where = {"input": "perception", "output": "stick"}
         gaps = ", ".join(
-            f"at the {where[p]} {injection['gain_error_db'][p]:.1f} dB, "
-            f"{injection['phase_error_deg'][p]:.0f} deg"
+            f"at the {where[p]} "
+            + (
+                f"{injection['gain_error_db'][p]:.1f} dB, {injection['phase_error_deg'][p]:.0f} deg"
+                if injection["gain_error_db"][p] is not None
+                else "no finite estimate"
+            )
             for p in ("input", "output")
         )
         print(

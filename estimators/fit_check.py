@@ -9,7 +9,9 @@ one-step and resimulated VAF, what an independent measurement says:
   the second half of the run, against the describing function measured at the forcing
   frequencies (:mod:`~manualcontrol.estimators.frequency`): mean absolute gain gap
   (dB) and phase gap (degrees), and the identified loop's crossover and phase margin;
-* the innovations' whiteness (a model that explains the data leaves white ones);
+* the innovations' whiteness (a model that explains the data leaves white ones; warned
+  where no describing function vouches for the model, since a human's model rarely
+  leaves white ones);
 * signals that barely move (nothing to identify);
 * parameters that sit at a limit of the filter's projection for more than
   :data:`PINNED_SHARE` of the run: the value there is the limit's, not the pilot's.
@@ -165,13 +167,28 @@ def check_fit(
     lags = max(round(WHITENESS_SPAN / recording.dt), 1)
     r_1, outside = innovation_whiteness(result.innovation, result.innovation_variance, max_lag=lags)
     warnings = _movement_warnings(recording)
-    if math.isfinite(outside) and outside > WHITENESS_LIMIT:
+    frequency = None
+    frequency_warnings: list[str] = []
+    if describing is not None:
+        frequency, note = _frequency_check(result, describing)
+        if note:
+            frequency_note = note
+        if frequency is not None:
+            frequency_warnings = _frequency_warnings(frequency)
+    # coloured innovations are the rule for a model of a human (and for the RML, whose R
+    # is a weighting): a warning only where the describing function cannot vouch for the
+    # model, or does not; the figures are in the summary either way
+    if (
+        math.isfinite(outside)
+        and outside > WHITENESS_LIMIT
+        and (frequency is None or frequency_warnings)
+    ):
         warnings.append(
             f"the innovations are not white: {100 * outside:.0f} % of lags up to "
             f"{WHITENESS_SPAN:g} s lie outside "
             "the 95 % white-noise band (white: about 5 %), so the model leaves structure "
-            "in u unexplained; read the parameters with care and check the "
-            "frequency-domain gap"
+            "in u unexplained; read the parameters with care"
+            + ("" if frequency is not None else " (no describing function to check them by)")
         )
     at_limits = time_at_limits(result)
     for name, where in at_limits.items():
@@ -183,13 +200,7 @@ def check_fit(
             "experiment's element (--element) if the limits are a thesis's, or hold the "
             "parameter at a known value"
         )
-    frequency = None
-    if describing is not None:
-        frequency, note = _frequency_check(result, describing)
-        if note:
-            frequency_note = note
-        if frequency is not None:
-            warnings += _frequency_warnings(frequency)
+    warnings += frequency_warnings
     return FitCheck(
         one_step_vaf=one_step,
         scored_from=float(result.t[start]) if len(result) else math.nan,

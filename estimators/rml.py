@@ -515,10 +515,14 @@ class RML(PilotFilter):
             INJECTIONS, key=lambda p: gaps[p][0] / FAR_GAIN_DB + gaps[p][1] / FAR_PHASE_DEG
         )
         kept = passes[chosen]
-        record = {
+        record = {  # None for a pass without finite estimates (JSON has no infinity)
             "chosen": chosen,
-            "gain_error_db": {p: gaps[p][0] for p in INJECTIONS},
-            "phase_error_deg": {p: gaps[p][1] for p in INJECTIONS},
+            "gain_error_db": {
+                p: gaps[p][0] if math.isfinite(gaps[p][0]) else None for p in INJECTIONS
+            },
+            "phase_error_deg": {
+                p: gaps[p][1] if math.isfinite(gaps[p][1]) else None for p in INJECTIONS
+            },
         }
         return dataclasses.replace(
             kept,

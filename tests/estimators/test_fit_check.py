@@ -78,3 +78,12 @@ def test_no_describing_function_leaves_the_note(run):
     check = check_fit(run, result, frequency_note="not checked: no forcing known")
     assert check.frequency is None
     assert check.to_dict()["frequency_note"] == "not checked: no forcing known"
+
+
+def test_coloured_innovations_are_warned_only_where_nothing_vouches(run):
+    describing = describing_function(run)
+    vouched = check_fit(run, _held(HUMAN_SI).estimate(run), describing=describing)
+    alone = check_fit(run, _held(HUMAN_SI).estimate(run))
+    assert vouched.innovation_outside > 0.2 and alone.innovation_outside > 0.2
+    assert not any("not white" in w for w in vouched.warnings)  # the true pilot's model
+    assert any("no describing function to check them by" in w for w in alone.warnings)
