@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from manualcontrol.envs._validation import check_choice, check_int, check_positive
-from manualcontrol.envs.elements import ControlledElement, make_element, parse_element
+from manualcontrol.envs.elements import ControlledElement, make_element
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair, Multisine
 from manualcontrol.pilots.models import PilotModel, make_model
@@ -556,9 +556,7 @@ def describing_function(
 
 
 def _as_element(element: Any) -> ControlledElement:
-    if isinstance(element, str):
-        return parse_element(element)
-    return make_element(element)
+    return make_element(element)  # presets, written transfer functions, dicts
 
 
 def _period_spread(

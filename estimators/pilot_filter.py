@@ -708,10 +708,10 @@ class ResolvedSettings:
 
 
 def _plant(element: Any) -> Any:
-    """The element a setting names (text through ``parse_element``)."""
-    from manualcontrol.envs.elements import make_element, parse_element
+    """The element a setting names (a preset, a transfer function in ``s``, a dict)."""
+    from manualcontrol.envs.elements import make_element
 
-    return parse_element(element) if isinstance(element, str) else make_element(element)
+    return make_element(element)
 
 
 def _element_setting(element: Any) -> Any:
