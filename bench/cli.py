@@ -378,12 +378,14 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     except ValueError as error:
         if "target ahead of the samples is unknown" in str(error):
             raise UsageError(_PREVIEW_HINT) from None
-        if "remnant_injection='choose' needs" in str(error):
-            raise UsageError(
-                "--set remnant_injection=choose compares the fits with the describing "
-                "function at the forcing frequencies: give --forcing PRESET or --period "
-                "SECONDS (the forcing signals being in the file)"
-            ) from None
+        for setting in ("remnant_injection='choose'", "start='describing-function'"):
+            if f"{setting} needs the describing function" in str(error):
+                flag = setting.replace("'", "")
+                raise UsageError(
+                    f"--set {flag} reads the describing function at the forcing "
+                    "frequencies: give --forcing PRESET or --period SECONDS (the forcing "
+                    "signals being in the file)"
+                ) from None
         raise
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a diverged fit may overflow its resimulation

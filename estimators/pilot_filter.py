@@ -149,6 +149,7 @@ __all__ = [
     "held_without_values",
     "human_limits",
     "resolve_settings",
+    "run_describing_function",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -200,6 +201,12 @@ TABLE_I: Mapping[str, Mapping[str, tuple[float, float]]] = MappingProxyType(
 )
 #: Distance of the ``tau_f*`` limits from 0 and from ``tau_a`` (Table I: 0.1 s).
 TAU_F_MARGIN = 0.1
+#: Where the delay and neuromuscular parameters start (``start``): the generic rules, or
+#: the model fitted to the run's describing function (offline).
+STARTS: tuple[str, ...] = ("generic", "describing-function")
+#: The parameters a describing-function start sets: the ones the generic rules guess
+#: blind (the gains' rule reads the data already, Popovici eq. 27).
+DESCRIBED_START: tuple[str, ...] = ("tau_v", "omega_nms", "zeta_nms")
 #: Limits choices: the thesis's Table I for ``ce``, limits from the experiment's element
 #: and human ranges (:func:`human_limits`), or none.
 LIMIT_CHOICES: tuple[str, ...] = ("table-I", "human", "none")
@@ -347,6 +354,14 @@ class PilotFilterSettings:
         restarted pass replaces the one kept where its innovations are clearly more
         likely (the "Restarts" section of the module docstring). 0 (default): one
         pass, the papers' filter.
+    start : {"generic", "describing-function"}
+        Where the delay and the neuromuscular parameters start when ``initial`` does not
+        give them: the generic rules (Popovici eqs. 29-31), or (offline only,
+        :meth:`PilotFilter.estimate`) the precision or preview model fitted to the run's
+        describing function at the forcing frequencies
+        (:func:`~manualcontrol.estimators.frequency.fit_describing_function`), the
+        laboratory's own measurement of this pilot, clipped into the limits. A filter
+        started far from a human's delay can settle in another optimum for the whole run.
 
     """
 
@@ -376,6 +391,7 @@ class PilotFilterSettings:
     fixed_R: float | None = None
     fixed_Q_error: float | None = None
     restarts: int = 0
+    start: str = "generic"
 
     def __post_init__(self) -> None:
         check_choice("model", self.model, MODEL_NAMES)
@@ -511,6 +527,7 @@ class PilotFilterSettings:
             if value is not None:
                 object.__setattr__(self, which, check_positive(which, value))
         object.__setattr__(self, "restarts", check_int("restarts", self.restarts, minimum=0))
+        check_choice("start", self.start, STARTS)
 
     @property
     def ce_type(self) -> str | None:
@@ -743,6 +760,43 @@ def human_limits(element: Any, model: str) -> dict[str, tuple[float, float]]:
     # an element that does not integrate gives no crossover range: the structure's own
     limits.update(element_gain_ranges(_plant(element)))
     return limits
+
+
+def run_describing_function(
+    settings: PilotFilterSettings,
+    recording: Recording,
+    forcing: Any,
+    target_period: float | None,
+    what: str,
+) -> Any:
+    """The run's describing function for a filter's offline choices, on its model's display.
+
+    The choices: its start, the RML's remnant model. The forcing from ``forcing`` (a
+    ForcingPair), else ``recording.metadata``, else ``target_period`` (the forcing's
+    period, its lines read off the recorded signals).
+    ``what`` names the setting in the error when it cannot be measured.
+    """
+    from manualcontrol.envs.signals import ForcingPair
+    from manualcontrol.estimators.frequency import describing_function
+
+    task = "compensatory"
+    if "ft_far" in make_model(settings.model).perceptions:
+        task = "pursuit" if settings.pursuit else "preview"
+    pair = forcing if isinstance(forcing, ForcingPair) else None
+    try:
+        return describing_function(
+            recording,
+            pair,
+            period=target_period if pair is None else None,
+            element=settings.element,
+            task=recording.metadata.get("task", task),
+        )
+    except ValueError as error:
+        raise ValueError(
+            f"{what}={getattr(settings, what)!r} needs the describing function of the run "
+            f"({error}); pass forcing= (the run's ForcingPair) or target_period= (the "
+            "forcing's period, s)"
+        ) from None
 
 
 def element_type(element: Any) -> str | None:
@@ -1099,6 +1153,12 @@ class PilotFilter:
 
         """
         settings = self._settings
+        if settings.start != "generic":
+            raise ValueError(
+                f"start={settings.start!r} fits the whole run's describing function before "
+                "the filter starts: offline only (estimate); online give start='generic' "
+                "or the values (initial=)"
+            )
         dt = check_positive("dt", dt)
         t0 = check_real("t0", t0)
         n_window = round(settings.window / dt)
@@ -1355,6 +1415,14 @@ class PilotFilter:
         returns the one the likelihood keeps (module docstring, "Restarts"); this
         filter's own state afterwards is the first pass's.
         """
+        if self._settings.start == "describing-function":
+            return self._started_from_describing_function(
+                recording,
+                forcing=forcing,
+                target_period=target_period,
+                smoother_inputs=smoother_inputs,
+                smooth=smooth,
+            )
         signals = self.signals(recording, forcing=forcing, target_period=target_period)
         store = bool(smoother_inputs or smooth)
         restarts = self._settings.restarts
@@ -1366,6 +1434,37 @@ class PilotFilter:
 
             return smooth_result(result)
         return result
+
+    def _started_from_describing_function(
+        self, recording: Recording, **options: Any
+    ) -> EstimationResult:
+        """The run from the describing-function fit's delay and neuromuscular values."""
+        from manualcontrol.estimators.frequency import fit_describing_function
+
+        settings = self._settings
+        describing = run_describing_function(
+            settings, recording, options.get("forcing"), options.get("target_period"), "start"
+        )
+        fit = fit_describing_function(describing, settings.model)
+        names = self._internal.parameter_names
+        limits = {} if settings.limits == "none" else _default_limits(settings, names)
+        if isinstance(settings.limits, Mapping):
+            limits.update(settings.limits)
+        values = {}
+        for name in DESCRIBED_START:
+            if name in fit.values and name not in settings.initial:
+                low, high = limits.get(name, (-math.inf, math.inf))
+                values[name] = float(min(max(fit.values[name], low), high))
+        started = self.configure(start="generic", initial={**values, **settings.initial})
+        result = started.estimate(recording, **options)
+        return dataclasses.replace(
+            result,
+            settings={
+                **result.settings,
+                "settings": settings.to_dict(),
+                "start": {"describing_function": values},
+            },
+        )
 
     def _restarted(
         self,

@@ -245,6 +245,7 @@ from manualcontrol.estimators.pilot_filter import (
     PilotFilter,
     PilotFilterSettings,
     ResolvedSettings,
+    run_describing_function,
 )
 from manualcontrol.estimators.registry import EstimatorEntry, register
 from manualcontrol.pilots.models import make_model
@@ -481,28 +482,16 @@ class RML(PilotFilter):
             FAR_PHASE_DEG,
             second_half_values,
         )
-        from manualcontrol.estimators.frequency import describing_function, response_error
+        from manualcontrol.estimators.frequency import response_error
 
-        forcing = options.get("forcing")
         settings = self._settings
-        task = "compensatory"
-        if "ft_far" in make_model(settings.model).perceptions:
-            task = "pursuit" if settings.pursuit else "preview"
-        try:
-            pair = forcing if forcing is not None and not callable(forcing) else None
-            describing = describing_function(
-                recording,
-                pair,
-                period=options.get("target_period") if pair is None else None,
-                element=settings.element,
-                task=recording.metadata.get("task", task),
-            )
-        except ValueError as error:
-            raise ValueError(
-                f"remnant_injection='choose' needs the describing function of the run "
-                f"({error}); pass forcing= (the run's ForcingPair) or target_period= (the "
-                "forcing's period, s)"
-            ) from None
+        describing = run_describing_function(
+            settings,
+            recording,
+            options.get("forcing"),
+            options.get("target_period"),
+            "remnant_injection",
+        )
         passes, gaps = {}, {}
         for point in INJECTIONS:
             passes[point] = self.configure(remnant_injection=point).estimate(recording, **options)

@@ -205,8 +205,12 @@ def test_identify_options_reach_only_the_members_that_read_them(trial, tmp_path,
         (["--element", "bogus"], "--element: element 'bogus' cannot be read"),
         (["--forcing", "vanderel-bw4", "--period", "120"], "give --forcing or --period, not both"),
         (
+            ["--set", "start=describing-function"],
+            "--set start=describing-function reads the describing function at the forcing",
+        ),
+        (
             ["--estimator", "rml", "--set", "remnant_injection=choose"],
-            "--set remnant_injection=choose compares the fits with the describing function",
+            "--set remnant_injection=choose reads the describing function at the forcing",
         ),
     ],
 )
