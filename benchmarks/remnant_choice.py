@@ -1,8 +1,9 @@
-"""The RML with remnant_injection="choose" against its default on the human-like suite.
+"""The RML's offline choices against its defaults on the human-like suite.
 
-For every simulated run of ``human-like`` (the suite's own recordings), the RML online
-and smoothed, with the remnant at the perception (the default) and with
-``remnant_injection="choose"``: the share of runs whose identified frequency response
+For every simulated run of ``human-like`` (the suite's own recordings), the RML filtered
+and smoothed: with its defaults (the remnant at the perception, the generic start), with
+``start="describing-function"``, with ``remnant_injection="choose"``, and with both: the
+share of runs whose identified frequency response
 lies within 2 dB and 10 deg of the true pilot's at the forcing frequencies (the bench's
 ``frequency_gain_error_db`` / ``frequency_phase_error_deg``), and which point was
 chosen, per batch.
@@ -27,6 +28,7 @@ def main(quick):
     passed = Counter()
     runs = Counter()
     chosen = defaultdict(Counter)
+    at_limit = {}
     for scenario in suite.scenarios(quick=quick):
         if scenario.simulation_key in seen:
             continue
@@ -34,21 +36,29 @@ def main(quick):
         recording = simulate_scenario(scenario)
         for name in ("rml", "rml-smoothed"):
             for injection in ("input", "choose"):
-                spec = {**dict(scenario.estimator), "name": name, "remnant_injection": injection}
-                result = make_estimator(spec).estimate(recording)
-                row = score(scenario, recording, result)
-                ok = (
-                    row["frequency_gain_error_db"] <= 2.0
-                    and row["frequency_phase_error_deg"] <= 10.0
-                )
-                passed[(name, injection)] += ok
-                runs[(name, injection)] += 1
-                if injection == "choose" and name == "rml":
-                    chosen[scenario.batch][result.settings["remnant_injection"]["chosen"]] += 1
+                for start in ("generic", "describing-function"):
+                    spec = {**dict(scenario.estimator), "name": name}
+                    spec.update(remnant_injection=injection, start=start)
+                    result = make_estimator(spec).estimate(recording)
+                    row = score(scenario, recording, result)
+                    ok = (
+                        row["frequency_gain_error_db"] <= 2.0
+                        and row["frequency_phase_error_deg"] <= 10.0
+                    )
+                    passed[(name, injection, start)] += ok
+                    runs[(name, injection, start)] += 1
+                    key = (name, injection, start)
+                    share = (row["max_time_at_limit"], row["parameter_at_limit"])
+                    at_limit[key] = max(at_limit.get(key, (0.0, "")), share)
+                    if (name, injection, start) == ("rml", "choose", "describing-function"):
+                        kept = result.settings["remnant_injection"]["chosen"]
+                        chosen[scenario.batch][kept] += 1
     for key in sorted(runs):
         print(
-            f"{key[0]:13s} remnant_injection={key[1]:6s} within 2 dB and 10 deg: "
-            f"{passed[key]}/{runs[key]} ({100 * passed[key] / runs[key]:.0f} %)"
+            f"{key[0]:13s} remnant_injection={key[1]:6s} start={key[2]:19s} within 2 dB and "
+            f"10 deg: {passed[key]}/{runs[key]} ({100 * passed[key] / runs[key]:.0f} %); "
+            f"largest share of a run at a limit {100 * at_limit[key][0]:.1f} % "
+            f"({at_limit[key][1] or 'none'})"
         )
     for batch, counts in chosen.items():
         print(f"{batch:36s} chosen: {dict(counts)}")
