@@ -29,6 +29,7 @@ Schema of a suite file::
     measurement_noise = {u = 0.00092, y = 0.00092}   # variances added to recorded signals
     initial_state = {y = [-0.959, -5.64], u = [1.03, 40.5], n = [0.41, 2.55]}
                                # loop outputs and derivatives at the start (see simulate)
+    disturbance_at = "output"  # or "input", for every batch (a batch may say otherwise)
 
     [[batch]]
     name = "preview-SI"
@@ -142,7 +143,7 @@ _BATCH_KEYS = {
 #: The task of open-loop batches: a system driven by the forcing, no pilot and no loop.
 OPEN_LOOP = "open-loop"
 _DEFAULT_KEYS = {"dt", "run_in", "measurement_time", "loop", "available_preview", "score_from"}
-_DEFAULT_KEYS |= {"start_time", "measurement_noise", "initial_state"}
+_DEFAULT_KEYS |= {"start_time", "measurement_noise", "initial_state", "disturbance_at"}
 #: Scenario fields added after suites were first stored: left out of the scenario's
 #: description (and so of its key) at their defaults, so the keys of scenarios that do
 #: not use them stay what they were.

@@ -259,6 +259,12 @@ def test_a_written_element_and_the_disturbance_point(tmp_path):
     assert load_suite(write(tmp_path, output)).scenarios()[0].key == plain.key
 
 
+def test_the_disturbance_point_as_a_suite_default(tmp_path):
+    # a lab's whole experiment puts the disturbance at the input: said once
+    text = SMALL.replace("[[batch]]", '[defaults]\ndisturbance_at = "input"\n\n[[batch]]', 1)
+    assert load_suite(write(tmp_path, text)).scenarios()[0].disturbance_at == "input"
+
+
 @pytest.mark.parametrize(
     ("change", "message"),
     [
