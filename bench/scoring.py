@@ -48,6 +48,7 @@ from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair, Multisine
 from manualcontrol.estimators import metrics
 from manualcontrol.estimators.fit_check import limit_shares, second_half_values
+from manualcontrol.estimators.frequency import channel_responses
 
 __all__ = ["score"]
 
@@ -144,12 +145,10 @@ def _frequency_errors(recording: Recording, result: Any) -> dict[str, float]:
     if not all(math.isfinite(found[name]) for name in names):
         return nothing
     gains, phases = [], []
+    truths = channel_responses(model, true, omega)
+    estimates = channel_responses(model, found, omega)
     for channel in model.perceptions:
-        truth = model.frequency_response(true, omega, channel)
-        estimate = model.frequency_response(found, omega, channel)
-        if channel == "ft_far":  # the far view reads the target tau_f ahead
-            truth = truth * np.exp(1j * omega * true["tau_f"])
-            estimate = estimate * np.exp(1j * omega * found["tau_f"])
+        truth, estimate = truths[channel], estimates[channel]
         if not np.any(truth):
             continue
         ratio = estimate / truth

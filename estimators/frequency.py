@@ -48,6 +48,7 @@ __all__ = [
     "ForcingLines",
     "FrequencyResponse",
     "ModelFit",
+    "channel_responses",
     "describing_function",
     "fit_describing_function",
     "forcing_frequency_response",
@@ -760,10 +761,8 @@ class _FitTarget:
             ft, y, u = (lines.coefficients[name] for name in ("ft", "y", "u"))
 
             def ratio(values: Mapping[str, float]) -> NDArray[np.complex128]:
-                ahead = np.exp(1j * self.omega * values["tau_f"])  # the far view's preview
-                target = structure.frequency_response(values, self.omega, "ft_far") * ahead
-                feedback = structure.frequency_response(values, self.omega, "y")
-                return (target * ft + feedback * y) / u
+                responses = channel_responses(structure, values, self.omega)
+                return (responses["ft_far"] * ft + responses["y"] * y) / u
 
         else:
             raise ValueError(
@@ -781,6 +780,24 @@ class _FitTarget:
             float(weights @ np.abs(20.0 * np.log10(np.abs(ratio)))),
             float(weights @ np.abs(np.degrees(np.angle(ratio)))),
         )
+
+
+def channel_responses(
+    structure: PilotModel, values: Mapping[str, float], omega: FloatArray
+) -> dict[str, NDArray[np.complex128]]:
+    """The model's response to each perception, as the display shows it.
+
+    ``{perception: response}``; the far view's (``ft_far``, the target ``tau_f`` ahead)
+    times its preview ``exp(j w tau_f)``, so that it is the response to the recorded
+    target ``ft`` and a preview time's error counts.
+    """
+    responses = {}
+    for channel in structure.perceptions:
+        response = structure.frequency_response(values, omega, channel)
+        if channel == "ft_far":
+            response = response * np.exp(1j * omega * values["tau_f"])
+        responses[channel] = response
+    return responses
 
 
 def loop_response(
