@@ -10,6 +10,7 @@ from manualcontrol.pilots.models import (
     SchiessRolandModel,
     make_model,
 )
+from manualcontrol.pilots.ocm import OCMSolution, OptimalControlPilot, simulate_ocm, solve_ocm
 from manualcontrol.pilots.pilot import HumanLimitWarning, Pilot
 from manualcontrol.pilots.remnant import (
     INJECTION_POINTS,
@@ -37,6 +38,8 @@ __all__ = [
     "GainDelayModel",
     "HumanLimitWarning",
     "LevisonRemnant",
+    "OCMSolution",
+    "OptimalControlPilot",
     "ParameterSpec",
     "Pilot",
     "PilotModel",
@@ -54,5 +57,7 @@ __all__ = [
     "make_remnant",
     "remnant_power_ratio",
     "simulate",
+    "simulate_ocm",
+    "solve_ocm",
     "typical_parameters",
 ]
