@@ -3,8 +3,10 @@
 from manualcontrol.agents.wrappers import (
     WRAPPERS,
     ActionDelay,
+    EffortCost,
     MotorNoise,
     NeuromuscularFilter,
+    ObservationHistory,
     ObservationNoise,
     apply_wrappers,
 )
@@ -12,8 +14,10 @@ from manualcontrol.agents.wrappers import (
 __all__ = [
     "WRAPPERS",
     "ActionDelay",
+    "EffortCost",
     "MotorNoise",
     "NeuromuscularFilter",
+    "ObservationHistory",
     "ObservationNoise",
     "apply_wrappers",
 ]

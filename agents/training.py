@@ -13,6 +13,26 @@ output folder:
 ``checkpoints/``
     weights every ``checkpoint_every`` steps, when asked.
 
+The human's problem
+-------------------
+Besides the wrappers listed in ``wrappers`` (any of :data:`~manualcontrol.agents.wrappers.
+WRAPPERS`, their parameters numbers or schedules), three fields pose the optimal control
+model's problem directly, each off at its default: ``observation_noise_ratio`` (noise
+on the display scaled to each signal's variance, the OCM's -20 dB is 0.01),
+``effort_rate_weight`` (a cost on the stick's rate in the reward) and
+``history_length`` (the last observations side by side, a memory a feed-forward
+policy adapts with). :attr:`TrainingConfig.limitations` lists the whole stack.
+
+Evaluation
+----------
+A trained agent acts with its policy's mean action: stable-baselines3's exploration
+noise is a device of training, never a human's remnant. What varies from trial to
+trial is the wrappers' noise (observation and motor noise), drawn per episode from the
+environment's seed, so evaluating with different seeds gives different noise
+realisations. This noise stays on by default; ``TrainingConfig.deterministic=True``
+asks for noise-free evaluation runs (:func:`make_env` with ``noise=False``), the
+policy's deterministic response alone.
+
 Security: ``model.zip`` holds Python pickles; loading one runs code from whoever wrote
 it. :func:`load_agent` therefore reads only ``config.json`` and ``policy.pt`` (with
 ``torch.load(weights_only=True)``) unless you pass ``trust_pickle=True`` for files you
@@ -34,9 +54,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 import manualcontrol.envs  # noqa: F401  (registers the tracking ids)
-from manualcontrol.agents.wrappers import apply_wrappers
+from manualcontrol.agents.wrappers import NOISE_LEVELS, apply_wrappers, spec_to_json
 from manualcontrol.envs._files import atomic_write
-from manualcontrol.envs._validation import check_choice, check_int, reject_unknown
+from manualcontrol.envs._validation import (
+    check_bool,
+    check_choice,
+    check_int,
+    check_positive,
+    reject_unknown,
+)
+from manualcontrol.envs.schedules import Schedule
 
 __all__ = [
     "ALGORITHMS",
@@ -72,7 +99,8 @@ class TrainingConfig:
         ``realisation``, ``measurement_time``, ...; lane keeping: ``road``, ``steering``,
         ``measurement_time``, ...).
     wrappers
-        Human limitations, innermost first: ``({"kind": "action_delay", "delay": 0.2},)``.
+        Human limitations, innermost first: ``({"kind": "action_delay", "delay": 0.2},)``;
+        an argument may be a schedule (kept as its dict, ``{"kind": "ramp", ...}``).
     algorithm
         ``"ppo"`` or ``"sac"``.
     total_timesteps, n_envs, seed
@@ -81,6 +109,26 @@ class TrainingConfig:
         Passed to the stable-baselines3 algorithm and its policy.
     checkpoint_every
         Save the weights every so many steps (None: no checkpoints).
+    observation_noise_ratio
+        Observation noise on the display, as a noise-to-signal variance ratio of each
+        observed signal (:class:`~manualcontrol.agents.wrappers.ObservationNoise`,
+        innermost); 0 (default): none; the OCM's -20 dB is 0.01. A number or a schedule.
+    effort_rate_weight
+        Weight of the stick-rate cost in the reward, s^2
+        (:class:`~manualcontrol.agents.wrappers.EffortCost`); 0 (default): none. A
+        number or a schedule.
+    history_length
+        Observations the policy sees side by side, ``history_length * dt`` seconds
+        (:class:`~manualcontrol.agents.wrappers.ObservationHistory`, outermost);
+        1 (default): the current one only.
+    deterministic
+        Evaluate without the wrappers' noise (False, default: the noise stays on and
+        makes the trial-to-trial variability; see the module docstring).
+
+    Each limitation is given once: a field above that is on and a ``wrappers`` entry of
+    the same kind raise. Schedules are saved in ``config.json`` as their dicts
+    (:meth:`~manualcontrol.envs.schedules.Schedule.to_dict`); an older ``config.json``
+    without these fields loads with them off, as it was trained.
     """
 
     task: str = "compensatory"
@@ -93,6 +141,10 @@ class TrainingConfig:
     algorithm_kwargs: Mapping[str, Any] = field(default_factory=dict)
     policy_kwargs: Mapping[str, Any] = field(default_factory=dict)
     checkpoint_every: int | None = None
+    observation_noise_ratio: float | Schedule = 0.0
+    effort_rate_weight: float | Schedule = 0.0
+    history_length: int = 1
+    deterministic: bool = False
 
     def __post_init__(self) -> None:
         check_choice("task", self.task, tuple(TASK_IDS))
@@ -102,35 +154,138 @@ class TrainingConfig:
         check_int("seed", self.seed, minimum=0)
         if self.checkpoint_every is not None:
             check_int("checkpoint_every", self.checkpoint_every, minimum=1)
-        object.__setattr__(self, "wrappers", tuple(dict(spec) for spec in self.wrappers))
+        object.__setattr__(
+            self, "history_length", check_int("history_length", self.history_length, minimum=1)
+        )
+        object.__setattr__(self, "deterministic", check_bool("deterministic", self.deterministic))
+        for name in _SCHEDULED_FIELDS:
+            object.__setattr__(self, name, _field_schedule(name, getattr(self, name)))
         for name in ("env_kwargs", "algorithm_kwargs", "policy_kwargs"):
             object.__setattr__(self, name, dict(getattr(self, name)))
         try:
+            # the wrappers' specifications as config.json holds them (schedules as dicts)
+            wrappers = json.loads(json.dumps([spec_to_json(spec) for spec in self.wrappers]))
+            object.__setattr__(self, "wrappers", tuple(wrappers))
             self.to_dict()  # a JSON round trip
         except TypeError as error:
             raise TypeError(f"training configuration must be JSON-serialisable: {error}") from None
+        for name, kind in _SCHEDULED_FIELDS.items():
+            given = [spec for spec in self.wrappers if spec.get("kind") == kind]
+            if given and _is_on(getattr(self, name)):
+                raise ValueError(
+                    f"{name} and a wrappers entry of kind {kind!r} ({given[0]}) both set "
+                    f"{kind.replace('_', ' ')}: give it once"
+                )
+        if self.history_length > 1 and any(
+            spec.get("kind") == "observation_history" for spec in self.wrappers
+        ):
+            raise ValueError(
+                "history_length and a wrappers entry of kind 'observation_history' both set "
+                "the observation history: give it once"
+            )
         # fail now, not after hours: the environment and wrappers must build
         make_env(self).close()
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able dict (lists, dicts, numbers, strings)."""
+        """Plain JSON-able dict (lists, dicts, numbers, strings); schedules as their dicts."""
         data = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-        data["wrappers"] = [dict(spec) for spec in self.wrappers]
+        data["wrappers"] = [spec_to_json(spec) for spec in self.wrappers]
+        for name in _SCHEDULED_FIELDS:
+            value = data[name]
+            data[name] = value.to_dict() if isinstance(value, Schedule) else value
         return json.loads(json.dumps(data))
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> TrainingConfig:
-        """Inverse of :meth:`to_dict`; unknown keys raise."""
+        """Inverse of :meth:`to_dict`; unknown keys raise, missing ones take the defaults.
+
+        A ``config.json`` written before a field existed lacks it; its default
+        (a limitation off, evaluation with noise) is how that agent was trained.
+        """
         reject_unknown("TrainingConfig", data, [f.name for f in dataclasses.fields(cls)])
         data = dict(data)
         data["wrappers"] = tuple(data.get("wrappers", ()))
         return cls(**data)
 
+    @property
+    def limitations(self) -> tuple[dict[str, Any], ...]:
+        """Every wrapper :func:`make_env` applies, innermost first, as JSON-able specs.
 
-def make_env(config: TrainingConfig, **overrides: Any) -> gym.Env:
-    """The wrapped tracking environment of a configuration (``overrides`` update env_kwargs)."""
+        Observation noise (``observation_noise_ratio``) directly on the display, then
+        ``wrappers``, then the effort cost, then the observation history outermost (it
+        stacks everything the agent sees).
+        """
+        specs: list[dict[str, Any]] = []
+        if _is_on(self.observation_noise_ratio):
+            specs.append({"kind": "observation_noise", "ratio": self.observation_noise_ratio})
+        specs += [dict(spec) for spec in self.wrappers]
+        if _is_on(self.effort_rate_weight):
+            specs.append({"kind": "effort_cost", "rate_weight": self.effort_rate_weight})
+        if self.history_length > 1:
+            specs.append({"kind": "observation_history", "length": self.history_length})
+        return tuple(spec_to_json(spec) for spec in specs)
+
+    def without_limitations(self) -> TrainingConfig:
+        """The same task with no wrapper at all (for a reference pilot, say)."""
+        return dataclasses.replace(
+            self,
+            wrappers=(),
+            observation_noise_ratio=0.0,
+            effort_rate_weight=0.0,
+            history_length=1,
+        )
+
+
+#: The scheduled fields and the wrapper kind each one adds.
+_SCHEDULED_FIELDS: dict[str, str] = {
+    "observation_noise_ratio": "observation_noise",
+    "effort_rate_weight": "effort_cost",
+}
+
+
+def _field_schedule(name: str, value: Any) -> float | Schedule:
+    """A scheduled field as a float or a schedule (its dict read back), or a clear error."""
+    if isinstance(value, Schedule):
+        return value
+    if isinstance(value, Mapping):
+        try:
+            return Schedule.from_dict(value)
+        except (TypeError, ValueError) as error:
+            raise type(error)(f"{name}: {error}") from None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"{name} must be a real number or a schedule, got {value!r}")
+    return check_positive(name, value, allow_zero=True)
+
+
+def _is_on(value: float | Schedule) -> bool:
+    return isinstance(value, Schedule) or value != 0.0
+
+
+def _silenced(spec: Mapping[str, Any]) -> dict[str, Any]:
+    """A noise wrapper's specification with its noise level set to zero."""
+    spec = dict(spec)
+    levels = NOISE_LEVELS.get(spec.get("kind", ""), ())
+    for name in [name for name in levels if name in spec] or levels[:1]:
+        spec[name] = 0.0
+    return spec
+
+
+def make_env(config: TrainingConfig, *, noise: bool = True, **overrides: Any) -> gym.Env:
+    """The environment of a configuration, wrapped with all its limitations.
+
+    The wrappers are :attr:`TrainingConfig.limitations`; ``overrides`` update
+    ``env_kwargs``. ``noise=False`` sets every noise wrapper's level to zero: the noise-free runs of
+    ``deterministic`` evaluation (the wrappers stay, so the observation is the same).
+    """
     env = gym.make(TASK_IDS[config.task], **{**config.env_kwargs, **overrides})
-    return apply_wrappers(env, config.wrappers)
+    specs = config.limitations
+    if not noise:
+        specs = tuple(_silenced(spec) for spec in specs)
+    try:
+        return apply_wrappers(env, specs)
+    except Exception:
+        env.close()
+        raise
 
 
 def _algorithm_class(name: str) -> type:
@@ -145,7 +300,8 @@ class TrainedAgent:
 
     ``reset(seed, env=env)`` / ``act(observation)`` mirror
     :class:`~manualcontrol.pilots.Pilot`, so evaluation drives both the same way.
-    The policy is used deterministically (its mean action).
+    The policy always acts with its mean action; the variability of a human operator
+    comes from the wrappers' noise (see the module docstring).
     """
 
     config: TrainingConfig
@@ -157,7 +313,7 @@ class TrainedAgent:
         del seed, env
 
     def act(self, observation: FloatArray) -> FloatArray:
-        """Deterministic action for one observation, shape ``(1,)``."""
+        """The policy's mean action for one observation, shape ``(1,)``."""
         action, _ = self.policy.predict(
             np.asarray(observation, dtype=np.float32), deterministic=True
         )

@@ -1,33 +1,59 @@
 """Wrappers that give an agent the limitations of a human operator.
 
-Each wrapper acts on the stick (action) or the display (observation) of a
-:mod:`~manualcontrol.envs.tracking` environment, validates its arguments, and stacks
-with the others in any order. Each appends to the observation what the agent needs to
-keep the problem Markov, and documents it:
+They pose the human's problem of the optimal control model (Kleinman, Baron & Levison
+1970): a perception delay, a neuromuscular lag, observation and motor noise scaled to
+the variance of the signals they perturb, and a cost on the rate of control. Each
+wrapper acts on the stick (action), the display (observation) or the reward of a
+:mod:`~manualcontrol.envs.tracking` (or lane-keeping) environment, validates its
+arguments, and stacks with the others in any order:
 
-=====================  =====================================================  =====================
-wrapper                limitation                                             appended observation
-=====================  =====================================================  =====================
-:class:`ActionDelay`   perception/processing delay: the stick follows the     the ``ceil(delay/dt)``
-                       command ``delay`` seconds late (exact, fractional)      commands still queued
-                                                                              (optional)
-:class:`Neuromuscular  second-order arm/stick dynamics                        filter position and
-Filter`                ``omega^2/(s^2 + 2 zeta omega s + omega^2)``            rate
-:class:`MotorNoise`    remnant: Levison-filtered white noise on the stick     nothing (see class)
-                       at a requested power ratio
-:class:`Observation    noisy perception of the display                        nothing
-Noise`
-=====================  =====================================================  =====================
+=====================  ================================================  =====================
+wrapper                limitation                                        appended observation
+=====================  ================================================  =====================
+:class:`ActionDelay`   perception/processing delay: the stick follows    the latest
+                       the command ``delay`` seconds late (exact,        ``ceil(max delay/dt)``
+                       fractional)                                       commands (optional)
+:class:`Neuromuscular  second-order arm/stick dynamics                   stick position and
+Filter`                ``omega^2/(s^2 + 2 zeta omega s + omega^2)``      rate
+:class:`MotorNoise`    remnant: Levison-filtered white noise on the      nothing (see class)
+                       stick at a requested power ratio
+:class:`Observation    noisy perception of the display, scaled to each   nothing
+Noise`                 signal's variance (OCM, -20 dB) or absolute
+:class:`EffortCost`    reward ``-w (du/dt)^2 - r u^2`` of the applied    nothing
+                       stick (the OCM's cost on control rate)
+:class:`Observation    memory: the last ``length`` observations, so      ``length - 1`` earlier
+History`               that a feed-forward policy can adapt              observations
+=====================  ================================================  =====================
 
-Commands are held over each sample, so delaying them by a whole number of samples is
-exact; a fractional delay applies the mean of the delayed staircase over the sample
-(the linear interpolation of the queued commands), as the exact delays of
-:func:`~manualcontrol.pilots.simulate` do for held signals.
+Schedules
+---------
+Every limitation parameter (``delay``, ``omega_nms``, ``zeta_nms``, ``power_ratio``,
+``omega_r``, ``ratio``, ``std``, ``rate_weight``, ``stick_weight``) is a number or a
+schedule of :mod:`manualcontrol.envs.schedules` (a :class:`~manualcontrol.envs.schedules.
+Schedule`, or its saved dict as in a configuration file), the same objects a
+:class:`~manualcontrol.pilots.Pilot`'s parameters take. A schedule is a function of the
+environment's time ``t_k = times[k]`` (zero at the end of the run-in, negative during
+it; ``env.unwrapped.times``), where ``k`` counts the steps since ``reset()``: a reset
+restarts it. A parameter is held over each sample at its value at the sample's start,
+like the stick. Schedules are evaluated once, on the episode's whole time grid, when
+the wrapper is built, and every value is checked there: a value outside the allowed
+range raises ``ValueError`` naming the argument, the value, the time and the range.
+
+Noise
+-----
+The noise wrappers draw from a :class:`numpy.random.Generator` of their own, seeded at
+every ``reset()`` from the environment's generator (``env.np_random``), so
+``reset(seed=s)`` reproduces an episode's noise exactly, different seeds give
+independent realisations, and stacked noise wrappers draw independent streams. The
+policy never draws noise: a trained agent acts with its mean action, and its
+variability from trial to trial is the wrappers' noise.
 """
 
 from __future__ import annotations
 
 import math
+import numbers
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import gymnasium as gym
@@ -36,14 +62,22 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from manualcontrol.envs._validation import check_choice, check_positive, check_range
-from manualcontrol.envs.dynamics import discretize, tf_to_ccf
+from manualcontrol.envs._validation import (
+    check_choice,
+    check_int,
+    check_positive,
+    check_range,
+)
+from manualcontrol.envs.dynamics import discretize
+from manualcontrol.envs.schedules import Schedule
 
 __all__ = [
     "WRAPPERS",
     "ActionDelay",
+    "EffortCost",
     "MotorNoise",
     "NeuromuscularFilter",
+    "ObservationHistory",
     "ObservationNoise",
     "apply_wrappers",
 ]
@@ -135,6 +169,10 @@ def _dt(env: gym.Env) -> float:
     return float(dt)
 
 
+def _stick_bound(env: gym.Env) -> float:
+    return float(np.max(np.abs(env.action_space.high)))
+
+
 def _extend_box(space: spaces.Space, low: FloatArray, high: FloatArray) -> spaces.Box:
     if not isinstance(space, spaces.Box) or len(space.shape) != 1:
         raise TypeError(f"observation space must be a 1-D Box, got {space}")
@@ -150,41 +188,143 @@ def _command(action: Any, bound: float) -> float:
     return min(max(value, -bound), bound)
 
 
+def _as_schedule(name: str, value: Any) -> Schedule | None:
+    """``value`` as a schedule, or None for a plain number (checked by the caller)."""
+    if isinstance(value, Schedule):
+        return value
+    if isinstance(value, numbers.Real) and not isinstance(value, bool):
+        return None
+    if isinstance(value, Mapping):
+        try:
+            return Schedule.from_dict(value)
+        except (TypeError, ValueError) as error:
+            raise type(error)(f"{name}: {error}") from None
+    raise TypeError(
+        f"{name} must be a real number or a schedule (manualcontrol.envs.schedules), got {value!r}"
+    )
+
+
+class _Parameter:
+    """One limitation parameter: a number or a schedule, sampled on the episode's times.
+
+    ``given`` is what the wrapper reports (the number or the schedule), ``values`` a
+    list of one value (constant) or of one value per time of ``env.unwrapped.times``,
+    every one checked by ``check(name, value)`` (a range check returning the float).
+    """
+
+    __slots__ = ("given", "last", "values")
+
+    def __init__(
+        self, env: gym.Env, name: str, value: Any, check: Callable[[str, Any], float]
+    ) -> None:
+        schedule = _as_schedule(name, value)
+        if schedule is None:
+            self.given: float | Schedule = check(name, value)
+            self.values = [self.given]
+        elif schedule.is_constant:
+            self.given = schedule
+            self.values = [check(name, schedule(0.0))]
+        else:
+            times = getattr(env.unwrapped, "times", None)
+            if times is None:
+                raise TypeError(
+                    f"{type(env.unwrapped).__name__} has no time grid (times): {name} can "
+                    "follow a schedule only on a tracking or lane-keeping environment"
+                )
+            times = np.asarray(times, dtype=np.float64)
+            values = np.asarray(schedule(times), dtype=np.float64).reshape(times.shape)
+            # the checks are ranges: the extremes (or the first NaN) decide
+            for index in (int(np.argmin(values)), int(np.argmax(values))):
+                try:
+                    check(name, float(values[index]))
+                except ValueError as error:
+                    raise ValueError(
+                        f"{error} at t = {times[index]:g} s of the schedule {schedule.describe()}"
+                    ) from None
+            self.given = schedule
+            self.values = values.tolist()
+        self.last = len(self.values) - 1
+
+    @property
+    def varying(self) -> bool:
+        """True when the value changes over the episode's samples."""
+        return self.last > 0
+
+    def at(self, k: int) -> float:
+        """The value over sample ``k`` of the episode (held at the last past the end)."""
+        return self.values[k if k < self.last else self.last]
+
+
+def _range(
+    low: float | None, high: float | None = None, *, high_inclusive: bool = True
+) -> Callable[[str, Any], float]:
+    return lambda name, value: check_range(name, value, low, high, high_inclusive=high_inclusive)
+
+
+def _positive(allow_zero: bool = False) -> Callable[[str, Any], float]:
+    return lambda name, value: check_positive(name, value, allow_zero=allow_zero)
+
+
+def _given(parameter: _Parameter) -> float | dict[str, Any]:
+    """A parameter as a configuration stores it: the number or the schedule's dict."""
+    given = parameter.given
+    return given.to_dict() if isinstance(given, Schedule) else given
+
+
 class ActionDelay(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """The stick follows the agent's command ``delay`` seconds late.
 
-    With ``delay/dt = q + a`` (``q`` whole samples, ``0 <= a < 1``) the stick over
-    sample ``k`` is ``(1 - a) c[k-q] + a c[k-q-1]`` of the commands ``c``, exact for
-    held commands and whole-sample delays; commands before the episode are zero. The
-    observation gains the ``m = ceil(delay/dt)`` most recent commands (newest first),
-    which have not (fully) reached the stick yet: with them the task stays Markov.
+    With ``delay(t_k)/dt = q + a`` (``q`` whole samples, ``0 <= a < 1``) the stick over
+    sample ``k`` is ``(1 - a) c[k-q] + a c[k-q-1]`` of the commands ``c``: the commands,
+    joined linearly between samples, read at ``t_k - delay(t_k)``. For a constant delay
+    this is exact for held commands and whole-sample delays (and the mean of the
+    delayed staircase over the sample otherwise); commands before the episode are zero.
 
-    With ``observe_queue=False`` the queue is hidden: the task is then partially
-    observed, as for a human who cannot watch his own commands travel; an agent that
-    sees the queue can learn to predict through the delay (a Smith predictor) and
-    then identifies with a shorter effective delay.
+    A scheduled delay is read the same way at its current value, from a queue long
+    enough for the schedule's largest delay over the episode, so the stick is
+    ``c(t - delay(t))`` at every sample: while the delay changes more slowly than
+    1 s/s the commands reach the stick in order, none skipped or repeated (a rising
+    delay plays them back slower, a falling one faster, interpolated between samples);
+    a step in the delay jumps back (repeating commands) or ahead (passing over them)
+    by the step, as ``c(t - delay(t))`` does.
+
+    The observation gains the ``m = ceil(max delay/dt)`` most recent commands (newest
+    first), which have not (fully) reached the stick yet: with a constant delay the
+    task stays Markov. (With a scheduled delay the agent is not told the current
+    delay; :class:`ObservationHistory` lets it infer it.) With
+    ``observe_queue=False`` the queue is hidden: the task is then partially observed,
+    as for a human who cannot watch his own commands travel; an agent that sees the
+    queue can learn to predict through the delay (a Smith predictor) and then
+    identifies with a shorter effective delay.
+
+    ``info["command"]`` is the agent's command of the step, ``info["delay"]`` the
+    delay applied over it (s).
 
     Parameters
     ----------
     env
         A tracking environment (possibly wrapped).
     delay
-        Delay in seconds, ``0 <= delay <= 2``.
+        Delay in seconds, ``0 <= delay <= 2``: a number or a schedule.
     observe_queue
         Append the queued commands to the observation (default True: Markov).
     """
 
-    def __init__(self, env: gym.Env, delay: float, observe_queue: bool = True) -> None:
+    def __init__(self, env: gym.Env, delay: float | Schedule, observe_queue: bool = True) -> None:
         gym.utils.RecordConstructorArgs.__init__(self, delay=delay, observe_queue=observe_queue)
         gym.Wrapper.__init__(self, env)
-        self.delay = check_range("delay", delay, 0.0, 2.0)
+        parameter = _Parameter(env, "delay", delay, _range(0.0, 2.0))
+        self.delay = parameter.given
         self.observe_queue = bool(observe_queue)
         dt = _dt(env)
-        samples = self.delay / dt
-        self._whole = math.floor(samples + 1e-9)
-        self._fraction = max(samples - self._whole, 0.0)
-        self._queued = math.ceil(samples - 1e-9)
-        bound = float(np.max(np.abs(env.action_space.high)))
+        self._delays = parameter
+        samples = np.asarray(parameter.values) / dt
+        whole = np.floor(samples + 1e-9)
+        self._whole = whole.astype(np.int64).tolist()
+        self._fraction = np.maximum(samples - whole, 0.0).tolist()
+        self._last = parameter.last
+        self._queued = math.ceil(float(samples.max()) - 1e-9)
+        bound = _stick_bound(env)
         self._bound = bound
         shown = self._queued if self.observe_queue else 0
         self.observation_space = _extend_box(
@@ -192,6 +332,7 @@ class ActionDelay(gym.Wrapper, gym.utils.RecordConstructorArgs):
         )
         # newest first: history[0] is this step's command, history[q] came q samples ago
         self._history = np.zeros(self._queued + 1)
+        self._k = 0
 
     def _observe(self, observation: FloatArray) -> FloatArray:
         if not self.observe_queue:
@@ -201,61 +342,93 @@ class ActionDelay(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
         observation, info = self.env.reset(**kwargs)
         self._history = np.zeros(self._queued + 1)
+        self._k = 0
         return self._observe(observation), info
 
     def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
         history = self._history
         history[1:] = history[:-1]
         history[0] = _command(action, self._bound)
-        applied = (1.0 - self._fraction) * float(history[self._whole])
-        if self._fraction > 0.0:
-            applied += self._fraction * float(history[self._whole + 1])
+        k = self._k if self._k < self._last else self._last
+        self._k += 1
+        whole, fraction = self._whole[k], self._fraction[k]
+        applied = (1.0 - fraction) * float(history[whole])
+        if fraction > 0.0:
+            applied += fraction * float(history[whole + 1])
         observation, reward, terminated, truncated, info = self.env.step(np.array([applied]))
-        info = {**info, "command": float(history[0])}
+        info = {**info, "command": float(history[0]), "delay": self._delays.values[k]}
         return self._observe(observation), reward, terminated, truncated, info
 
 
 class NeuromuscularFilter(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """The stick moves through ``omega^2/(s^2 + 2 zeta omega s + omega^2)`` (thesis eq. 3).
 
-    The command is held over each sample and the filter stepped exactly (zero-order
-    hold). The stick applied over sample ``k`` is the filter output at its start,
-    ``C x[k]``: the arm cannot answer a command within the same sample. The filter
-    state (canonical coordinates, scaled to stick position and rate) is appended to
-    the observation.
+    In the stick's own coordinates, position ``p`` and rate ``v``::
+
+        p' = v,    v' = omega^2 (c - p) - 2 zeta omega v
+
+    with the command ``c`` and the parameters held over each sample (their values at
+    the sample's start) and the filter stepped exactly (zero-order hold). The stick
+    applied over sample ``k`` is the position at its start, ``p[k]``: the arm cannot
+    answer a command within the same sample. Because the state is the stick's
+    position and rate, a change of ``omega_nms`` or ``zeta_nms`` changes how the stick
+    moves on, never where it is. ``[p, v]`` is appended to the observation.
+
+    Parameters
+    ----------
+    env
+        A tracking environment (possibly wrapped).
+    omega_nms
+        Natural frequency (rad/s), ``> 0``: a number or a schedule.
+    zeta_nms
+        Damping ratio, ``> 0``: a number or a schedule.
     """
 
-    def __init__(self, env: gym.Env, omega_nms: float = 10.5, zeta_nms: float = 0.35) -> None:
+    def __init__(
+        self,
+        env: gym.Env,
+        omega_nms: float | Schedule = 10.5,
+        zeta_nms: float | Schedule = 0.35,
+    ) -> None:
         gym.utils.RecordConstructorArgs.__init__(self, omega_nms=omega_nms, zeta_nms=zeta_nms)
         gym.Wrapper.__init__(self, env)
-        self.omega_nms = check_positive("omega_nms", omega_nms)
-        self.zeta_nms = check_positive("zeta_nms", zeta_nms)
-        model = tf_to_ccf(
-            [self.omega_nms**2], [1.0, 2 * self.zeta_nms * self.omega_nms, self.omega_nms**2]
-        )
-        exact = discretize(model.A, model.B, _dt(env))
-        self._phi, self._gamma, self._c = exact.phi, exact.gamma[:, 0], model.C[0]
-        self._bound = float(np.max(np.abs(env.action_space.high)))
+        omega = _Parameter(env, "omega_nms", omega_nms, _positive())
+        zeta = _Parameter(env, "zeta_nms", zeta_nms, _positive())
+        self.omega_nms, self.zeta_nms = omega.given, zeta.given
+        size = max(len(omega.values), len(zeta.values))
+        w = np.broadcast_to(np.asarray(omega.values), (size,))
+        z = np.broadcast_to(np.asarray(zeta.values), (size,))
+        A = np.zeros((size, 2, 2))
+        A[:, 0, 1] = 1.0
+        A[:, 1, 0] = -(w**2)
+        A[:, 1, 1] = -2.0 * z * w
+        B = np.zeros((size, 2, 1))
+        B[:, 1, 0] = w**2
+        exact = discretize(A, B, _dt(env))  # equal consecutive samples: one exponential
+        self._phi, self._gamma = exact.phi, exact.gamma[..., 0]
+        self._last = size - 1
+        self._bound = _stick_bound(env)
         self.observation_space = _extend_box(
             env.observation_space, np.full(2, -np.inf), np.full(2, np.inf)
         )
         self._x = np.zeros(2)
+        self._k = 0
 
     def _observe(self, observation: FloatArray) -> FloatArray:
-        # position = C x; rate = C A x = omega^2 x_2 for this canonical form
-        position = float(self._c @ self._x)
-        rate = self.omega_nms**2 * float(self._x[1])
-        return np.concatenate([observation, [position, rate]])
+        return np.concatenate([observation, self._x])
 
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
         observation, info = self.env.reset(**kwargs)
         self._x = np.zeros(2)
+        self._k = 0
         return self._observe(observation), info
 
     def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
         command = _command(action, self._bound)
-        stick = float(self._c @ self._x)
-        self._x = self._phi @ self._x + self._gamma * command
+        k = self._k if self._k < self._last else self._last
+        self._k += 1
+        stick = float(self._x[0])
+        self._x = self._phi[k] @ self._x + self._gamma[k] * command
         observation, reward, terminated, truncated, info = self.env.step(np.array([stick]))
         return (
             self._observe(observation),
@@ -273,29 +446,51 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
     sample, scaled so that ``var(n) / (var(n) + var(command))`` is ``power_ratio``
     (thesis eq. 6 with the command as the noise-free part): ``g`` follows the
     variance of the commands over the last 5 s, as Popovici et al. track the control
-    variance (eq. 24), so the noise level adapts to how hard the agent steers. The
-    stick is ``command + n``. The noise state is not observed: like a human's
-    remnant it is a disturbance the agent does not command.
+    variance (eq. 24), so the noise level adapts to how hard the agent steers (the
+    OCM's motor noise, likewise, scales with the control variance). The stick is
+    ``command + n``. The noise state is not observed: like a human's remnant it is a
+    disturbance the agent does not command. ``info["remnant"]`` is ``n``.
+
+    Parameters
+    ----------
+    env
+        A tracking environment (possibly wrapped).
+    power_ratio
+        Noise share of the stick's power, ``0 <= power_ratio < 1`` (0.3: -3.7 dB of
+        noise to command; the OCM's -25 dB is 0.0032): a number or a schedule.
+    omega_r
+        Break frequency of the noise filter (rad/s), ``> 0``: a number or a schedule.
     """
 
     WINDOW = 5.0  # s, Popovici eq. 24
 
-    def __init__(self, env: gym.Env, power_ratio: float = 0.3, omega_r: float = 3.0) -> None:
+    def __init__(
+        self,
+        env: gym.Env,
+        power_ratio: float | Schedule = 0.3,
+        omega_r: float | Schedule = 3.0,
+    ) -> None:
         gym.utils.RecordConstructorArgs.__init__(self, power_ratio=power_ratio, omega_r=omega_r)
         gym.Wrapper.__init__(self, env)
-        self.power_ratio = check_range("power_ratio", power_ratio, 0.0, 1.0, high_inclusive=False)
-        self.omega_r = check_positive("omega_r", omega_r)
+        ratio = _Parameter(env, "power_ratio", power_ratio, _range(0.0, 1.0, high_inclusive=False))
+        omega = _Parameter(env, "omega_r", omega_r, _positive())
+        self.power_ratio, self.omega_r = ratio.given, omega.given
         dt = _dt(env)
-        self._phi = math.exp(-self.omega_r * dt)
-        self._gamma = (1.0 - self._phi) / self.omega_r
+        self._ratio = ratio
+        self._phi = [math.exp(-w * dt) for w in omega.values]
+        self._gamma = [(1.0 - p) / w for p, w in zip(self._phi, omega.values, strict=True)]
         # stationary variance of the unit-noise filter state: gamma^2 / (1 - phi^2)
-        self._unit_std = self._gamma / math.sqrt(1.0 - self._phi**2)
-        self._bound = float(np.max(np.abs(env.action_space.high)))
+        self._unit_std = [
+            g / math.sqrt(1.0 - p**2) for p, g in zip(self._phi, self._gamma, strict=True)
+        ]
+        self._last_filter = omega.last
+        self._bound = _stick_bound(env)
         # the last commands, oldest first once full (a ring of numbers, not a deque
         # converted to an array every step)
         self._window = np.zeros(max(round(self.WINDOW / dt), 2))
         self._filled = 0
         self._state = 0.0
+        self._k = 0
         self._rng = np.random.default_rng()
 
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
@@ -304,6 +499,7 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._rng = np.random.default_rng(int(self.env.unwrapped.np_random.integers(2**63)))
         self._state = 0.0
         self._filled = 0
+        self._k = 0
         return observation, info
 
     def _command_variance(self, command: float) -> float:
@@ -325,10 +521,15 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
         command = _command(action, self._bound)
         variance = self._command_variance(command)
-        ratio = self.power_ratio
-        scale = math.sqrt(ratio / (1.0 - ratio) * variance) / self._unit_std
+        k = self._k
+        self._k += 1
+        ratio = self._ratio.at(k)
+        j = k if k < self._last_filter else self._last_filter
+        scale = math.sqrt(ratio / (1.0 - ratio) * variance) / self._unit_std[j]
         noise = scale * self._state
-        self._state = self._phi * self._state + self._gamma * float(self._rng.standard_normal())
+        self._state = self._phi[j] * self._state + self._gamma[j] * float(
+            self._rng.standard_normal()
+        )
         observation, reward, terminated, truncated, info = self.env.step(
             np.array([command + noise])
         )
@@ -341,22 +542,287 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         )
 
 
-class ObservationNoise(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
-    """Gaussian perception noise of standard deviation ``std`` on every observed value."""
+class _WindowVariance:
+    """Population variance of each component over its last ``size`` values (np.var's).
 
-    def __init__(self, env: gym.Env, std: float) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, std=std)
-        gym.ObservationWrapper.__init__(self, env)
-        self.std = check_positive("std", std, allow_zero=True)
+    Running sums of the deviations from the episode's first value, added and removed
+    as values enter and leave the window, and summed afresh from the window whenever
+    it has turned over once, so rounding cannot drift: O(width) per value where np.var
+    of the window costs O(size x width).
+    """
+
+    def __init__(self, size: int, width: int) -> None:
+        self._buffer = np.zeros((size, width))
+        self._size = size
+        self.reset()
+
+    def reset(self) -> None:
+        self._count = 0
+        self._next = 0
+        self._origin: FloatArray | None = None
+        self._sum = np.zeros(self._buffer.shape[1])
+        self._squares = np.zeros(self._buffer.shape[1])
+
+    def push(self, values: FloatArray) -> FloatArray:
+        """Add one value per component; the variance of the window, this value included."""
+        if self._origin is None:
+            self._origin = values.copy()
+        deviation = values - self._origin
+        slot = self._next
+        if self._count == self._size:
+            leaving = self._buffer[slot]
+            self._sum -= leaving
+            self._squares -= leaving * leaving
+        else:
+            self._count += 1
+        self._buffer[slot] = deviation
+        self._sum += deviation
+        self._squares += deviation * deviation
+        self._next = (slot + 1) % self._size
+        if self._next == 0:
+            self._sum = self._buffer.sum(axis=0)
+            self._squares = (self._buffer * self._buffer).sum(axis=0)
+        mean = self._sum / self._count
+        return np.maximum(self._squares / self._count - mean * mean, 0.0)
+
+
+class ObservationNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Gaussian perception noise on every observed value, scaled to its variance.
+
+    ``ratio`` (default): the noise on each observed signal ``y_i`` has the standard
+    deviation ``sqrt(ratio var(y_i))``, ``var(y_i)`` its population variance over the
+    last 5 s (the samples observed so far early in an episode; no noise on the first
+    observation after ``reset()``). This is the OCM's observation noise, whose
+    intensity is proportional to the signal's variance, ``V_i = pi rho_i var(y_i)``
+    with the noise/signal ratio ``rho`` about 0.01 (-20 dB); here ``ratio`` is the
+    ratio of the per-sample variances. White noise of per-sample variance ``s^2``
+    spreads its power over the band up to ``pi/dt``, so the OCM's noise density
+    corresponds to ``ratio = pi rho / dt``; ``ratio = rho`` is ``dt/pi`` of it (a
+    milder noise at high frequency, the same share of the signal's variance).
+
+    ``std``: an absolute standard deviation, the same for every observed value (in
+    the units of the observation).
+
+    Give one of the two. The noise is drawn per sample and per value, independently;
+    it perturbs what this wrapper's inner environment shows, so put it innermost
+    (directly on the environment) to perturb the display only, not the agent's own
+    commands or limb state appended by other wrappers. ``info["observation_noise"]``
+    (an array) is the noise added to the observation of that step.
+
+    Parameters
+    ----------
+    env
+        An environment with a 1-D Box observation (possibly wrapped).
+    ratio
+        Noise-to-signal variance ratio, ``>= 0``; default 0.01 (-20 dB) when ``std``
+        is not given: a number or a schedule.
+    std
+        Absolute standard deviation, ``>= 0``: a number or a schedule.
+    """
+
+    WINDOW = 5.0  # s: the variance of each signal over its recent past, as MotorNoise's
+
+    def __init__(
+        self,
+        env: gym.Env,
+        *,
+        ratio: float | Schedule | None = None,
+        std: float | Schedule | None = None,
+    ) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, ratio=ratio, std=std)
+        gym.Wrapper.__init__(self, env)
+        if ratio is not None and std is not None:
+            raise ValueError(
+                f"give ObservationNoise a ratio (scaled to the signal) or a std (absolute), "
+                f"not both; got ratio={ratio!r} and std={std!r}"
+            )
+        if std is not None:
+            level = _Parameter(env, "std", std, _positive(allow_zero=True))
+            self.ratio, self.std = None, level.given
+        else:
+            level = _Parameter(env, "ratio", 0.01 if ratio is None else ratio, _positive(True))
+            self.ratio, self.std = level.given, None
+        self._level = level
+        space = env.observation_space
+        if not isinstance(space, spaces.Box) or len(space.shape) != 1:
+            raise TypeError(f"observation space must be a 1-D Box, got {space}")
+        self._variance = (
+            None
+            if std is not None
+            else _WindowVariance(max(round(self.WINDOW / _dt(env)), 2), space.shape[0])
+        )
+        self._noise = np.zeros(space.shape[0])
+        self._k = 0
         self._rng = np.random.default_rng()
+
+    def _perturb(self, observation: FloatArray) -> FloatArray:
+        level = self._level.at(self._k)
+        if self._variance is None:
+            scale: float | FloatArray = level
+        else:
+            scale = np.sqrt(level * self._variance.push(np.asarray(observation, np.float64)))
+        self._noise = scale * self._rng.standard_normal(observation.shape)
+        return observation + self._noise
 
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
         observation, info = self.env.reset(**kwargs)
         self._rng = np.random.default_rng(int(self.env.unwrapped.np_random.integers(2**63)))
-        return self.observation(observation), info
+        self._k = 0
+        if self._variance is not None:
+            self._variance.reset()
+        return self._perturb(observation), info
+
+    def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        self._k += 1
+        observation = self._perturb(observation)
+        return (
+            observation,
+            reward,
+            terminated,
+            truncated,
+            {
+                **info,
+                "observation_noise": self._noise,
+            },
+        )
+
+
+class EffortCost(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """An effort cost in the reward: the OCM's cost on the rate of control.
+
+    Each step's reward gains ``-(rate_weight udot^2 + stick_weight u^2)`` with the
+    stick applied to the environment over that step, in units of its bound
+    ``U = action_bound`` (dimensionless), ``u = u_k / U``, and its rate
+    ``udot = (u_k - u_{k-1}) / (U dt)`` (1/s; the stick is at rest, 0, before the
+    first step). ``rate_weight`` is thus in s^2, ``stick_weight`` dimensionless. The
+    applied stick is read from the environment's ``info`` (``"u"`` of the tracking
+    tasks, ``"action"`` of lane keeping), so the cost is on the stick that moves the
+    element, after any delay, neuromuscular filter or motor noise wrapped inside.
+
+    Relation to the OCM: the OCM pilot minimises ``J = E{q e^2 + g udot^2}``. A tracking
+    task's reward ``-e^2 / var(ft)`` plus this wrapper's ``-rate_weight udot^2`` is,
+    per step, ``-(q e^2 + g udot^2)`` in the stick's own units with ``q = 1/var(ft)``
+    and ``g = rate_weight / U^2``: the mean reward per step of a long episode is
+    ``-J``, and ``g/q = rate_weight var(ft) / U^2`` is the OCM's ratio of weights (the
+    larger, the slower the pilot's neuromuscular lag ``tau_n``). ``stick_weight`` adds
+    the OCM's optional cost on the control itself, ``r u^2``.
+
+    ``info["effort"]`` is the cost subtracted at that step (>= 0).
+
+    Parameters
+    ----------
+    env
+        A tracking or lane-keeping environment (possibly wrapped).
+    rate_weight
+        Weight ``w`` on the squared stick rate (s^2), ``>= 0``: a number or a schedule.
+    stick_weight
+        Weight ``r`` on the squared stick, ``>= 0``: a number or a schedule.
+    """
+
+    def __init__(
+        self,
+        env: gym.Env,
+        rate_weight: float | Schedule,
+        stick_weight: float | Schedule = 0.0,
+    ) -> None:
+        gym.utils.RecordConstructorArgs.__init__(
+            self, rate_weight=rate_weight, stick_weight=stick_weight
+        )
+        gym.Wrapper.__init__(self, env)
+        rate = _Parameter(env, "rate_weight", rate_weight, _positive(allow_zero=True))
+        stick = _Parameter(env, "stick_weight", stick_weight, _positive(allow_zero=True))
+        self.rate_weight, self.stick_weight = rate.given, stick.given
+        self._rate_weights, self._stick_weights = rate, stick
+        unwrapped = env.unwrapped
+        bound = getattr(unwrapped, "action_bound", None)
+        self._scale = 1.0 / float(_stick_bound(unwrapped) if bound is None else bound)
+        self._rate_scale = self._scale / _dt(env)
+        self._previous = 0.0
+        self._k = 0
+
+    @staticmethod
+    def _applied_stick(info: Mapping[str, Any]) -> float:
+        for key in ("u", "action"):
+            if key in info:
+                return float(info[key])
+        raise TypeError(
+            "EffortCost needs the applied stick in info['u'] (tracking) or info['action'] "
+            f"(lane keeping); the environment's info has {sorted(info)}"
+        )
+
+    def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
+        observation, info = self.env.reset(**kwargs)
+        self._previous = 0.0
+        self._k = 0
+        return observation, info
+
+    def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        stick = self._applied_stick(info)
+        k = self._k
+        self._k += 1
+        rate = (stick - self._previous) * self._rate_scale
+        position = stick * self._scale
+        self._previous = stick
+        effort = (
+            self._rate_weights.at(k) * rate * rate + self._stick_weights.at(k) * position * position
+        )
+        return (
+            observation,
+            float(reward) - effort,
+            terminated,
+            truncated,
+            {
+                **info,
+                "effort": effort,
+            },
+        )
+
+
+class ObservationHistory(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
+    """The last ``length`` observations side by side, newest first: a memory to adapt with.
+
+    A feed-forward policy (stable-baselines3's ``MlpPolicy``) sees a window of
+    ``(length - 1) dt`` seconds of its past observations instead of one sample, from
+    which it can infer what a single observation does not show (the current delay,
+    the element's changing dynamics, signal rates). The observation is the flat
+    ``[o_k, o_{k-1}, ..., o_{k-length+1}]`` of ``length`` times the inner size;
+    before the episode the first observation is repeated (the display was at rest).
+    ``length = 1`` changes nothing. (A recurrent policy would need sb3-contrib, which
+    this package does not depend on.)
+
+    Parameters
+    ----------
+    env
+        An environment with a 1-D Box observation (possibly wrapped).
+    length
+        Number of observations kept, ``>= 1``.
+    """
+
+    def __init__(self, env: gym.Env, length: int) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, length=length)
+        gym.ObservationWrapper.__init__(self, env)
+        self.length = check_int("length", length, minimum=1)
+        space = env.observation_space
+        if not isinstance(space, spaces.Box) or len(space.shape) != 1:
+            raise TypeError(f"observation space must be a 1-D Box, got {space}")
+        self._size = space.shape[0]
+        self.observation_space = spaces.Box(
+            np.tile(space.low, self.length), np.tile(space.high, self.length), dtype=np.float64
+        )
+        self._stack = np.zeros(self._size * self.length)
+
+    def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
+        observation, info = self.env.reset(**kwargs)
+        self._stack = np.tile(np.asarray(observation, dtype=np.float64), self.length)
+        return self._stack.copy(), info
 
     def observation(self, observation: FloatArray) -> FloatArray:  # noqa: D102
-        return observation + self.std * self._rng.standard_normal(observation.shape)
+        stack = self._stack
+        stack[self._size :] = stack[: -self._size].copy()
+        stack[: self._size] = observation
+        return stack.copy()
 
 
 #: Wrapper names for configurations: ``{"kind": name, **arguments}``.
@@ -365,13 +831,33 @@ WRAPPERS: dict[str, type[gym.Wrapper]] = {
     "neuromuscular": NeuromuscularFilter,
     "motor_noise": MotorNoise,
     "observation_noise": ObservationNoise,
+    "effort_cost": EffortCost,
+    "observation_history": ObservationHistory,
+}
+
+#: The noise level of each noise wrapper, the argument set to 0 for a noise-free run.
+NOISE_LEVELS: dict[str, tuple[str, ...]] = {
+    "motor_noise": ("power_ratio",),
+    "observation_noise": ("ratio", "std"),
 }
 
 
+def spec_to_json(spec: Mapping[str, Any]) -> dict[str, Any]:
+    """A wrapper specification with its schedules as their dicts (JSON-able)."""
+    return {
+        name: value.to_dict() if isinstance(value, Schedule) else value
+        for name, value in spec.items()
+    }
+
+
 def apply_wrappers(
-    env: gym.Env, wrappers: list[dict[str, Any]] | tuple[dict[str, Any], ...]
+    env: gym.Env, wrappers: list[Mapping[str, Any]] | tuple[Mapping[str, Any], ...]
 ) -> gym.Env:
-    """Wrap ``env`` with ``[{"kind": "action_delay", "delay": 0.2}, ...]``, innermost first."""
+    """Wrap ``env`` with ``[{"kind": "action_delay", "delay": 0.2}, ...]``, innermost first.
+
+    Arguments are numbers or schedules, a schedule also as its dict
+    (``{"kind": "ramp", "start": 0.2, ...}``, as :func:`spec_to_json` writes it).
+    """
     for spec in wrappers:
         spec = dict(spec)
         kind = check_choice("wrapper kind", spec.pop("kind", None), tuple(WRAPPERS))

@@ -1,0 +1,452 @@
+"""The optimal control model's limitations as wrappers: schedules, scaled noise, effort, memory.
+
+Each limitation is checked against an answer computed here by other means: the delayed
+commands by interpolation, the neuromuscular filter by integrating its ODE, the noise
+levels by their statistics over long runs, the effort cost by hand.
+"""
+
+import json
+import re
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import scipy.integrate
+from gymnasium.utils.env_checker import check_env
+
+import manualcontrol.envs  # noqa: F401
+from manualcontrol.agents.training import TrainingConfig, make_env
+from manualcontrol.agents.wrappers import (
+    ActionDelay,
+    EffortCost,
+    MotorNoise,
+    NeuromuscularFilter,
+    ObservationHistory,
+    ObservationNoise,
+    apply_wrappers,
+)
+from manualcontrol.envs.schedules import Ramp, Sigmoid, Sine, Step
+
+DT = 0.01
+
+
+def base(task="Compensatory", **kwargs):
+    options = {"run_in": 0.0, "measurement_time": 5.0, **kwargs}
+    return gym.make(f"ManualControl/{task}Tracking-v0", **options)
+
+
+def run(env, commands, seed=0):
+    """Step ``commands``; the reset observation, then each step's (observation, reward, info)."""
+    first, reset_info = env.reset(seed=seed)
+    steps = [env.step(np.array([command])) for command in commands]
+    observations = np.array([first] + [step[0] for step in steps])
+    rewards = np.array([step[1] for step in steps])
+    return observations, rewards, [reset_info] + [step[4] for step in steps]
+
+
+# ----------------------------------------------------------------------------- delay
+
+
+def test_ramp_delay_reads_the_commands_at_t_minus_tau():
+    # the run-in makes the env's time start at -1 s: the schedule runs on the env's clock
+    delay = Ramp(start=0.05, end=0.3, t_start=-0.5, t_end=2.0)
+    env = ActionDelay(base(run_in=1.0, measurement_time=3.0), delay)
+    n = 400
+    commands = np.random.default_rng(0).uniform(-1, 1, n)
+    _, _, infos = run(env, commands)
+    sticks = env.unwrapped.recording(include_run_in=True).u
+    times = env.unwrapped.times[:n]
+    assert times[0] == pytest.approx(-1.0)
+    # c(t - tau(t)) with the commands joined linearly between samples, zero before the start
+    expected = np.interp(np.arange(n) - delay(times) / DT, np.arange(n), commands, left=0.0)
+    np.testing.assert_allclose(sticks, expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose([info["delay"] for info in infos[1:]], delay(times), atol=1e-15)
+
+
+def test_rising_delay_keeps_a_queue_for_its_maximum():
+    env = ActionDelay(base(measurement_time=30.0), Ramp(0.2, 0.3, 0.0, 20.0))
+    assert env.observation_space.shape == (1 + 30,)  # ceil(0.3 / dt) queued commands
+    observations, _, _ = run(env, [0.1, 0.2, 0.3])
+    np.testing.assert_array_equal(observations[-1][1:4], [0.3, 0.2, 0.1])  # newest first
+    np.testing.assert_array_equal(observations[-1][4:], 0.0)
+
+
+def test_a_schedule_given_as_its_dict_acts_as_the_schedule():
+    commands = np.random.default_rng(1).uniform(-1, 1, 300)
+    delay = Sine(mean=0.2, amplitude=0.05, period=1.0)
+    as_object = ActionDelay(base(), delay)
+    as_dict = apply_wrappers(base(), [{"kind": "action_delay", "delay": delay.to_dict()}])
+    run(as_object, commands)
+    run(as_dict, commands)
+    np.testing.assert_array_equal(
+        as_object.unwrapped.recording().u, as_dict.unwrapped.recording().u
+    )
+
+
+# ----------------------------------------------------------------- neuromuscular filter
+
+
+def _filter_by_ode(commands, times, omega, zeta):
+    """The stick of p' = v, v' = w^2 (c - p) - 2 z w v, integrated sample by sample.
+
+    Command and parameters are held over each sample at their values at its start (the
+    wrapper's definition); the stick over sample k is the position at its start.
+    """
+    x = np.zeros(2)
+    sticks = []
+    for k, command in enumerate(commands):
+        sticks.append(x[0])
+        w, z = omega(times[k]), zeta(times[k])
+
+        def rhs(_, state, w=w, z=z, c=command):
+            return [state[1], w * w * (c - state[0]) - 2.0 * z * w * state[1]]
+
+        solution = scipy.integrate.solve_ivp(
+            rhs, (times[k], times[k] + DT), x, method="DOP853", rtol=1e-12, atol=1e-14
+        )
+        x = solution.y[:, -1]
+    return np.array(sticks)
+
+
+@pytest.mark.parametrize(
+    ("omega", "zeta"),
+    [
+        (Step(before=12.0, after=6.0, t_step=1.0), 0.35),  # omega_nms falls abruptly
+        (Sigmoid(start=14.0, end=7.0, t_mid=1.0, transition_time=1.0), Ramp(0.3, 0.6, 0, 2)),
+    ],
+)
+def test_scheduled_neuromuscular_filter_integrates_its_ode(omega, zeta):
+    n = 250
+    commands = np.random.default_rng(2).uniform(-1, 1, n)
+    env = NeuromuscularFilter(base(), omega, zeta)
+    run(env, commands)
+    sticks = env.unwrapped.recording().u
+    zeta_schedule = zeta if not isinstance(zeta, float) else (lambda t: zeta)
+    reference = _filter_by_ode(commands, env.unwrapped.times, omega, zeta_schedule)
+    # DOP853 at rtol 1e-12 per sample, 250 samples of a stable filter whose stick stays
+    # below ~1.5: the accumulated integration error is a few 1e-11
+    np.testing.assert_allclose(sticks, reference, rtol=0, atol=1e-9)
+
+
+def test_a_step_in_omega_nms_moves_the_stick_on_without_a_jump():
+    env = NeuromuscularFilter(base(), Step(12.0, 4.0, 1.0), 0.5)
+    run(env, np.ones(200))
+    sticks = env.unwrapped.recording().u
+    jumps = np.abs(np.diff(sticks))
+    assert jumps[99] < 2.0 * max(jumps[97], jumps[98])  # 1 s: only the dynamics change
+
+
+# ------------------------------------------------------------------------------ noise
+
+
+def _window_variance(values, size=500):
+    """np.var of the last ``size`` values up to each sample (the samples so far early on)."""
+    return np.array([np.var(values[max(0, k - size + 1) : k + 1]) for k in range(len(values))])
+
+
+def test_observation_noise_follows_a_doubling_ratio_of_the_signal_variance():
+    ratio = Step(before=0.01, after=0.02, t_step=60.0)  # -20 dB, then -17 dB
+    env = ObservationNoise(base(measurement_time=120.0), ratio=ratio)
+    n = 12000
+    commands = 0.5 * np.sin(np.arange(n) * DT * 1.3)
+    observations, _, infos = run(env, commands, seed=7)
+    clean = np.array([info["e"] for info in infos])
+    noise = np.array([0.0] + [info["observation_noise"][0] for info in infos[1:]])
+    np.testing.assert_array_equal(observations[:, 0], clean + noise)
+    assert observations[0, 0] == clean[0]  # nothing to scale to yet
+    # noise^2 / (ratio var) is chi-square(1) with mean 1: over 5500 samples its mean has a
+    # standard deviation sqrt(2/5500) = 1.9 %; 8 % is four of them
+    normalised = noise**2 / _window_variance(clean)[: n + 1].clip(1e-300)
+    t = env.unwrapped.times[: n + 1]
+    for low, high, value in ((5.0, 60.0, 0.01), (65.0, 120.0, 0.02)):
+        part = (t >= low) & (t < high)
+        assert np.mean(normalised[part]) == pytest.approx(value, rel=0.08), (low, value)
+
+
+def test_absolute_observation_noise_keeps_its_std():
+    env = ObservationNoise(base("Pursuit", measurement_time=60.0), std=Step(0.05, 0.1, 30.0))
+    observations, _, infos = run(env, np.zeros(6000), seed=3)
+    noise = observations[1:] - np.array([[info["ft"], info["y"]] for info in infos[1:]])
+    # 2 x 3000 Gaussian values per half: the sample std is within 1.3 % (1 sd); 5 % is ~4
+    assert np.std(noise[:2999]) == pytest.approx(0.05, rel=0.05)
+    assert np.std(noise[3000:]) == pytest.approx(0.1, rel=0.05)
+
+
+def test_motor_noise_follows_a_doubling_power_ratio():
+    ratio = Step(before=0.15, after=0.3, t_step=60.0)
+    env = MotorNoise(base(measurement_time=120.0), power_ratio=ratio, omega_r=30.0)
+    n = 12000
+    # a sine of 4 periods per 5-s variance window: the command variance is 0.5 throughout
+    commands = np.sin(2.0 * np.pi * np.arange(n) * DT / 1.25)
+    _, _, infos = run(env, commands, seed=4)
+    noise = np.array([info["remnant"] for info in infos[1:]])
+    t = env.unwrapped.times[:n]
+    for low, high, value in ((5.0, 60.0, 0.15), (65.0, 120.0, 0.3)):
+        part = (t >= low) & (t < high)
+        measured = np.var(noise[part]) / (np.var(noise[part]) + np.var(commands[part]))
+        # noise of 30 rad/s bandwidth over 55 s: its variance is known to about
+        # sqrt(2 / (55 * 30)) = 3.5 %, the ratio to less; 12 % is 3.5 of those
+        assert measured == pytest.approx(value, rel=0.12), (low, value)
+
+
+def test_scheduled_stack_is_reproducible_per_seed():
+    def episode(seed):
+        env = apply_wrappers(
+            base(measurement_time=3.0),
+            [
+                {"kind": "observation_noise", "ratio": Step(0.01, 0.02, 1.0)},
+                {"kind": "neuromuscular", "omega_nms": Ramp(12.0, 8.0, 0.0, 3.0)},
+                {"kind": "motor_noise", "power_ratio": Ramp(0.1, 0.2, 0.0, 3.0)},
+                {"kind": "action_delay", "delay": Ramp(0.2, 0.3, 0.0, 3.0)},
+                {"kind": "effort_cost", "rate_weight": 0.1},
+                {"kind": "observation_history", "length": 3},
+            ],
+        )
+        commands = np.sin(np.arange(300) * 0.05)
+        observations, rewards, _ = run(env, commands, seed=seed)
+        return observations, rewards
+
+    first, again, other = episode(11), episode(11), episode(12)
+    np.testing.assert_array_equal(first[0], again[0])
+    np.testing.assert_array_equal(first[1], again[1])
+    assert not np.array_equal(first[0], other[0])
+
+
+# ----------------------------------------------------------------------------- effort
+
+
+def test_effort_cost_is_the_normalised_stick_rate_and_stick_by_hand():
+    commands = np.random.default_rng(5).uniform(-3, 3, 200)
+    _, plain, _ = run(base(), commands)
+    rate_weight = Step(before=0.3, after=0.6, t_step=1.0)
+    _, rewards, infos = run(EffortCost(base(), rate_weight, stick_weight=0.05), commands)
+    bound = 10.0  # the tracking env's default action_bound
+    previous = np.concatenate([[0.0], commands[:-1]])
+    weights = np.where(np.arange(200) * DT >= 1.0, 0.6, 0.3)
+    effort = weights * ((commands - previous) / (bound * DT)) ** 2 + 0.05 * (commands / bound) ** 2
+    np.testing.assert_allclose(rewards, plain - effort, rtol=1e-13, atol=1e-13)
+    np.testing.assert_allclose([info["effort"] for info in infos[1:]], effort, rtol=1e-13)
+
+
+def test_effort_cost_weighs_the_stick_that_moves_the_element():
+    # outside a neuromuscular filter, the cost is on the filtered stick, not the command
+    env = EffortCost(NeuromuscularFilter(base(), 10.0, 0.7), rate_weight=1.0)
+    _, _, infos = run(env, np.ones(50))
+    sticks = env.unwrapped.recording().u
+    rates = np.diff(np.concatenate([[0.0], sticks])) / (10.0 * DT)
+    np.testing.assert_allclose([info["effort"] for info in infos[1:]], rates**2, rtol=1e-12)
+    assert infos[1]["effort"] == 0.0  # the arm has not moved over the first sample
+
+
+# ---------------------------------------------------------------------------- history
+
+
+def test_observation_history_stacks_the_latest_observations_newest_first():
+    env = ObservationHistory(ActionDelay(base(), 0.02), length=3)
+    assert env.observation_space.shape == (9,)
+    observations, _, infos = run(env, [0.1, 0.2, 0.3])
+    errors = [info["e"] for info in infos]
+    first = [errors[0], 0.0, 0.0]
+    np.testing.assert_array_equal(observations[0], first * 3)  # padded with the first
+    np.testing.assert_array_equal(
+        observations[3], [errors[3], 0.3, 0.2, errors[2], 0.2, 0.1, errors[1], 0.1, 0.0]
+    )
+
+
+def test_full_stack_with_schedules_passes_check_env():
+    env = apply_wrappers(
+        base("Preview", available_preview=0.3),
+        [
+            {"kind": "observation_noise", "ratio": 0.01},
+            {"kind": "neuromuscular", "omega_nms": Ramp(12.0, 8.0, 0.0, 5.0)},
+            {"kind": "action_delay", "delay": Ramp(0.2, 0.3, 0.0, 5.0)},
+            {"kind": "motor_noise", "power_ratio": 0.003},
+            {"kind": "effort_cost", "rate_weight": 0.1},
+            {"kind": "observation_history", "length": 2},
+        ],
+    )
+    assert env.observation_space.shape == (2 * (31 + 1 + 2 + 30),)
+    with warnings.catch_warnings():
+        warnings.filterwarnings(
+            "ignore", message=".*(normalized space|infinity|unwrapped version).*"
+        )
+        check_env(env, skip_render_check=True)
+
+
+# -------------------------------------------------------------------------- bad input
+
+
+@pytest.mark.parametrize(
+    ("build", "error", "message"),
+    [
+        (
+            lambda: ActionDelay(base(), Ramp(0.2, -0.1, 0.0, 4.0)),
+            ValueError,
+            "delay must lie in [0, 2], got -0.1 at t = 4 s of the schedule "
+            "ramp(0.2 -> -0.1 from 0 to 4 s)",
+        ),
+        (
+            lambda: NeuromuscularFilter(base(), omega_nms=Sine(5.0, 8.0, 4.0)),
+            ValueError,
+            "omega_nms must be > 0, got -3.0 at t = 3 s of the schedule sine(",
+        ),
+        (
+            lambda: MotorNoise(base(), power_ratio=Ramp(0.5, 1.0, 0.0, 2.0)),
+            ValueError,
+            "power_ratio must lie in [0, 1), got 1.0 at t = 2 s",
+        ),
+        (
+            lambda: ObservationNoise(base(), ratio=Step(0.01, -0.01, 1.0)),
+            ValueError,
+            "ratio must be >= 0, got -0.01 at t = 1 s",
+        ),
+        (
+            lambda: ObservationNoise(base(), ratio=0.01, std=0.1),
+            ValueError,
+            "give ObservationNoise a ratio (scaled to the signal) or a std (absolute), not both",
+        ),
+        (
+            lambda: ObservationNoise(base(), 0.05),
+            TypeError,
+            "takes 2 positional arguments but 3 were given",
+        ),
+        (
+            lambda: EffortCost(base(), rate_weight=-1.0),
+            ValueError,
+            "rate_weight must be >= 0, got -1.0",
+        ),
+        (
+            lambda: ActionDelay(base(), "0.2"),
+            TypeError,
+            "delay must be a real number or a schedule (manualcontrol.envs.schedules), got '0.2'",
+        ),
+        (
+            lambda: ActionDelay(base(), {"kind": "ramp", "start": 0.2}),
+            TypeError,
+            "delay: Ramp.from_dict is missing key(s) end, t_start, t_end",
+        ),
+        (
+            lambda: ObservationHistory(base(), length=0),
+            ValueError,
+            "length must be >= 1, got 0",
+        ),
+    ],
+)
+def test_bad_limitations_are_rejected(build, error, message):
+    with pytest.raises(error, match=re.escape(message)):
+        build()
+
+
+# ---------------------------------------------------------------------- configuration
+
+
+def scheduled_config():
+    return TrainingConfig(
+        env_kwargs={"measurement_time": 5.0},
+        wrappers=(
+            {"kind": "action_delay", "delay": Ramp(0.2, 0.3, 0.0, 20.0)},
+            {"kind": "neuromuscular", "omega_nms": Sigmoid(12.0, 8.0, 2.0, 2.0)},
+        ),
+        observation_noise_ratio=Step(0.01, 0.02, 2.5),
+        effort_rate_weight=0.1,
+        history_length=4,
+    )
+
+
+def test_configuration_round_trip_keeps_the_schedules():
+    config = scheduled_config()
+    data = json.loads(json.dumps(config.to_dict()))
+    assert data["observation_noise_ratio"] == {
+        "kind": "step",
+        "before": 0.01,
+        "after": 0.02,
+        "t_step": 2.5,
+    }
+    assert data["wrappers"][0]["delay"]["kind"] == "ramp"
+    again = TrainingConfig.from_dict(data)
+    assert again == config and again.to_dict() == data
+    assert again.observation_noise_ratio == Step(0.01, 0.02, 2.5)
+    assert [spec["kind"] for spec in again.limitations] == [
+        "observation_noise",
+        "action_delay",
+        "neuromuscular",
+        "effort_cost",
+        "observation_history",
+    ]
+    env = make_env(again)
+    # the queue holds the largest delay of the 5-s episode, 0.225 s: 23 commands
+    assert env.observation_space.shape == (4 * (1 + 23 + 2),)
+
+
+def test_an_older_config_loads_with_the_limitations_off():
+    old = {  # a config.json written before the OCM fields existed
+        "task": "compensatory",
+        "env_kwargs": {"measurement_time": 5.0},
+        "wrappers": [{"kind": "action_delay", "delay": 0.2}],
+        "algorithm": "sac",
+        "total_timesteps": 300,
+        "n_envs": 1,
+        "seed": 0,
+        "algorithm_kwargs": {},
+        "policy_kwargs": {},
+        "checkpoint_every": None,
+    }
+    config = TrainingConfig.from_dict(old)
+    assert config.limitations == ({"kind": "action_delay", "delay": 0.2},)
+    assert not config.deterministic
+    env = make_env(config)
+    reference = ActionDelay(base(), 0.2)
+    assert env.observation_space == reference.observation_space
+    commands = np.sin(np.arange(100) * 0.1)
+    np.testing.assert_array_equal(run(env, commands)[0], run(reference, commands)[0])
+
+
+def test_noise_free_environment_for_deterministic_evaluation():
+    config = TrainingConfig(
+        env_kwargs={"measurement_time": 5.0},
+        wrappers=({"kind": "motor_noise", "power_ratio": 0.3},),
+        observation_noise_ratio=0.01,
+        deterministic=True,
+    )
+    commands = np.sin(np.arange(200) * 0.05)
+    quiet, _, infos = run(make_env(config, noise=False), commands)
+    np.testing.assert_array_equal(quiet[:, 0], [info["e"] for info in infos])
+    assert all(info["remnant"] == 0.0 for info in infos[1:])
+    noisy, _, _ = run(make_env(config), commands)
+    assert not np.array_equal(noisy, quiet)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "message"),
+    [
+        (
+            {
+                "observation_noise_ratio": 0.01,
+                "wrappers": ({"kind": "observation_noise", "std": 0.1},),
+            },
+            ValueError,
+            "observation_noise_ratio and a wrappers entry of kind 'observation_noise'",
+        ),
+        (
+            {"observation_noise_ratio": -0.01},
+            ValueError,
+            "observation_noise_ratio must be >= 0, got -0.01",
+        ),
+        (
+            {"effort_rate_weight": "high"},
+            TypeError,
+            "effort_rate_weight must be a real number or a schedule, got 'high'",
+        ),
+        ({"history_length": 0}, ValueError, "history_length must be >= 1, got 0"),
+        ({"deterministic": "yes"}, TypeError, "deterministic must be True or False"),
+        (
+            {"wrappers": ({"kind": "action_delay", "delay": Ramp(0.2, 2.5, 0.0, 1.0)},)},
+            ValueError,
+            "delay must lie in [0, 2], got 2.5 at t = 1 s",
+        ),
+    ],
+)
+def test_bad_limitation_fields_fail_before_training(kwargs, error, message):
+    with pytest.raises(error, match=re.escape(message)):
+        TrainingConfig(env_kwargs={"measurement_time": 2.0}, **kwargs)
