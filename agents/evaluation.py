@@ -8,23 +8,37 @@ frequency and phase margin, and the identified parameters of the equivalent
 cybernetic pilot model, to hold against the limitations imposed (is the identified
 delay the imposed action delay?): by an offline output-error fit (exact delay,
 constant parameters) and by the DEKF (its estimates averaged over the measurement,
-after converging on the run-in).
+after converging on the run-in), and, on a compensatory task, the human-likeness
+figures of :func:`~manualcontrol.estimators.human_likeness.human_likeness` (crossover,
+phase margin, effective delay, pilot gain flatness or lead, remnant, RMS ratio) with
+its verdict.
+
+The run keeps the wrappers' noise (observation and motor noise: the agent's remnant)
+unless ``deterministic`` asks otherwise: a human is measured with their remnant, and
+the remnant fraction of a noise-free run is zero, which no human shows.
 """
 
 from __future__ import annotations
 
+import inspect
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
-from manualcontrol.agents.training import TrainedAgent, make_env
+from manualcontrol.agents.training import TASK_IDS, TrainedAgent, make_env
 from manualcontrol.envs._files import atomic_path, atomic_write
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators.frequency import FrequencyResponse, forcing_frequency_response
+from manualcontrol.estimators.human_likeness import (
+    HumanLikeness,
+    human_likeness,
+    plot_human_likeness,
+)
 from manualcontrol.estimators.offline import OfflineFit, fit_pilot
 from manualcontrol.pilots import Pilot
 
@@ -40,7 +54,12 @@ REFERENCE_PILOTS: dict[str, dict[str, float]] = {
 
 @dataclass(frozen=True)
 class Evaluation:
-    """What :func:`evaluate` measured for one run of the agent."""
+    """What :func:`evaluate` measured for one run of the agent.
+
+    ``human`` holds the human-likeness figures and verdict (None on a pursuit or
+    preview task, which they do not describe); ``noise`` whether the wrappers' noise was
+    on in the run.
+    """
 
     rms_error: float
     reference_rms_error: float | None
@@ -49,6 +68,8 @@ class Evaluation:
     dekf: Mapping[str, float]
     limitations: tuple[Mapping[str, Any], ...]
     recording: Recording
+    human: HumanLikeness | None = None
+    noise: bool = True
 
     def summary(self) -> dict[str, Any]:
         """Plain numbers for tables and JSON."""
@@ -66,6 +87,8 @@ class Evaluation:
             "identification_vaf": self.identified.vaf,
             "dekf": dict(self.dekf),
             "limitations": [dict(limit) for limit in self.limitations],
+            "noise": self.noise,
+            "human_likeness": None if self.human is None else self.human.to_dict(),
             "implausible": implausible(
                 self.identified.model,
                 {
@@ -117,6 +140,13 @@ def _run(actor: Any, env: Any, seed: int) -> Recording:
     return env.unwrapped.recording()
 
 
+def _make_env(agent: TrainedAgent, noise: bool, overrides: Mapping[str, Any]) -> Any:
+    """The agent's wrapped env, its noise on or off where ``make_env`` can say so."""
+    if "noise" in inspect.signature(make_env).parameters:
+        return make_env(agent.config, noise=noise, **overrides)
+    return make_env(agent.config, **overrides)  # an older make_env: its noise always on
+
+
 def evaluate(
     agent: TrainedAgent,
     *,
@@ -124,6 +154,7 @@ def evaluate(
     run_in: float = 10.0,
     env_overrides: Mapping[str, Any] | None = None,
     reference: Mapping[str, float] | None = None,
+    deterministic: bool | None = None,
 ) -> Evaluation:
     """Run the agent over one full forcing period and identify it.
 
@@ -132,15 +163,22 @@ def evaluate(
     seconds, with loss-of-control termination off so that a poor agent is still
     measured over the whole period. ``reference`` overrides the precision pilot of
     :data:`REFERENCE_PILOTS` (chosen by the element's name "SI"/"DI"; another element
-    needs one given).
+    needs one given), in the RMS comparison here and in the human-likeness ratio.
+    ``deterministic`` True runs without the wrappers' noise; None (default) follows the
+    agent's configuration (``TrainingConfig.deterministic``, where it has one), whose
+    default keeps the noise on.
     """
+    if deterministic is None:
+        deterministic = bool(getattr(agent.config, "deterministic", False))
+    if deterministic not in (True, False):
+        raise TypeError(f"deterministic must be True, False or None, got {deterministic!r}")
     overrides = {
         "measurement_time": None,
         "run_in": run_in,
         "loss_of_control": None,
         **dict(env_overrides or {}),
     }
-    env = make_env(agent.config, **overrides)
+    env = _make_env(agent, not deterministic, overrides)
     _run(agent, env, seed)
     whole = env.unwrapped.recording(include_run_in=True)
     recording = whole.slice_time(0.0)
@@ -159,13 +197,25 @@ def evaluate(
         else None
     )
     reference_rms = None
-    if values is not None and agent.config.task == "compensatory":
-        base = make_env(replace(agent.config, wrappers=()), **overrides)
-        reference_recording = _run(Pilot("precision", dict(values)), base, seed)
-        base.close()
-        reference_rms = float(np.sqrt(np.mean(reference_recording.e**2)))
+    human = None
+    if agent.config.task == "compensatory":
+        if values is not None:
+            # the bare task: no limitation wrappers between the pilot and the display
+            base = gym.make(TASK_IDS[agent.config.task], **{**agent.config.env_kwargs, **overrides})
+            reference_recording = _run(Pilot("precision", dict(values)), base, seed)
+            base.close()
+            reference_rms = float(np.sqrt(np.mean(reference_recording.e**2)))
+        human = human_likeness(recording, reference=reference)
     return Evaluation(
-        rms, reference_rms, response, identified, dekf, agent.config.wrappers, recording
+        rms,
+        reference_rms,
+        response,
+        identified,
+        dekf,
+        tuple(getattr(agent.config, "limitations", agent.config.wrappers)),
+        recording,
+        human,
+        not deterministic,
     )
 
 
@@ -183,8 +233,20 @@ def _dekf_identification(recording: Recording, model: str, config: Any) -> dict[
     return {name: float(np.mean(result.mean_of(name)[measured])) for name in result.estimated}
 
 
-def write_report(evaluation: Evaluation, folder: str | Path) -> Path:
-    """Write ``evaluation.md``, ``evaluation.json`` and ``open_loop.png`` into ``folder``."""
+def write_report(
+    evaluation: Evaluation,
+    folder: str | Path,
+    *,
+    models: Mapping[str, Callable[[Any], Any]] | None = None,
+) -> Path:
+    """Write ``evaluation.md``, ``evaluation.json`` and the plots into ``folder``.
+
+    ``open_loop.png`` (the target lines' open loop) and, on a compensatory task,
+    ``human_likeness.png`` (:func:`~manualcontrol.estimators.human_likeness.
+    plot_human_likeness`: measured ``Y_p`` and ``Y_p Y_c``, the crossover model, the
+    typical pilot, and each of ``models``: a label and a callable giving a pilot's
+    ``Y_p(j omega)`` at frequencies in rad/s, e.g. an OCM pilot's ``frequency_response``).
+    """
     import json
 
     import matplotlib
@@ -218,9 +280,13 @@ def write_report(evaluation: Evaluation, folder: str | Path) -> Path:
     with atomic_path(folder / "open_loop.png") as temporary:
         fig.savefig(temporary, dpi=110, format="png")
     plt.close(fig)
+    human = evaluation.human
+    if human is not None:
+        plot_human_likeness(human, folder / "human_likeness.png", models=models)
     lines = [
         "# Agent evaluation",
         "",
+        f"- wrappers' noise: {'on' if evaluation.noise else 'off (deterministic run)'}",
         f"- RMS tracking error: {summary['rms_error']:.4f}",
     ]
     if summary["reference_rms_error"] is not None:
@@ -253,5 +319,16 @@ def write_report(evaluation: Evaluation, folder: str | Path) -> Path:
         "![open loop](open_loop.png)",
         "",
     ]
+    if human is not None:
+        lines += [
+            "## Human-likeness",
+            "",
+            "```",
+            *human.lines(),
+            "```",
+            "",
+            "![human-likeness](human_likeness.png)",
+            "",
+        ]
     atomic_write(folder / "evaluation.md", lambda p: p.write_text("\n".join(lines)))
     return folder / "evaluation.md"

@@ -639,6 +639,21 @@ def _cmd_describe(args: argparse.Namespace) -> int:
             f"only {strong} forcing frequencies have a signal-to-noise ratio of 10 or more: "
             "the remnant swamps the rest, so the fit is loose; more periods would help"
         )
+    if describing.task == "compensatory" and describing.element_given:
+        from manualcontrol.estimators.human_likeness import human_likeness
+
+        try:
+            human = human_likeness(
+                recording,
+                element,
+                forcing=source.get("forcing"),
+                period=source.get("period"),
+                disturbance_at=args.disturbance_at,
+            )
+        except ValueError:
+            human = None  # a display the figures do not describe: the table above stands
+        if human is not None:
+            print(f"human-likeness: {human.verdict.text()}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     summary = {
@@ -888,10 +903,15 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if args.out is not None:
         _check_output("--out", args.out, folder=True)
     agent = load_agent(args.agent, trust_pickle=args.trust_pickle)
-    evaluation = evaluate(agent, seed=args.seed)
+    evaluation = evaluate(agent, seed=args.seed, deterministic=args.deterministic)
     path = write_report(evaluation, args.out or Path(args.agent) / "evaluation")
     summary = evaluation.summary()
-    print(f"RMS error {summary['rms_error']:.4f}; identified {summary['identified']}")
+    noise = "on" if evaluation.noise else "off (--deterministic)"
+    print(f"RMS error {summary['rms_error']:.4f} (wrappers' noise {noise})")
+    print(f"identified {summary['identified']}")
+    if evaluation.human is not None:
+        for line in evaluation.human.lines():
+            print(line)
     for flag in summary["implausible"]:
         print(
             f"manualcontrol evaluate: warning: implausible identification: {flag}", file=sys.stderr
@@ -1222,6 +1242,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--out", type=Path, default=None, help="report folder (default AGENT/evaluation)"
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the evaluation run")
+    p.add_argument(
+        "--deterministic",
+        action="store_const",
+        const=True,
+        default=None,
+        help="run without the wrappers' observation and motor noise (default: as the agent "
+        "was configured, noise on); a noise-free run has no remnant, which no human shows",
+    )
     p.add_argument(
         "--trust-pickle",
         action="store_true",

@@ -7,7 +7,7 @@ import re
 import numpy as np
 import pytest
 
-from manualcontrol.agents.evaluation import evaluate, write_report
+from manualcontrol.agents.evaluation import REFERENCE_PILOTS, evaluate, write_report
 from manualcontrol.agents.training import TrainingConfig, load_agent, make_env, train
 
 DELAY = ({"kind": "action_delay", "delay": 0.2},)
@@ -90,6 +90,50 @@ def test_evaluation_report(trained, tmp_path):
     assert (
         json.loads((tmp_path / "evaluation.json").read_text())["rms_error"] == summary["rms_error"]
     )
+    # measured as a human is: figures, verdict and the Bode plot beside open_loop.png
+    human = evaluation.human
+    assert evaluation.noise and summary["noise"]  # the wrappers' noise on by default
+    assert set(summary["human_likeness"]["figures"]) == {
+        "crossover_frequency",
+        "phase_margin",
+        "effective_delay",
+        "pilot_gain_flatness",
+        "lead",
+        "remnant_fraction",
+        "rms_ratio",
+    }
+    assert human.rms_error == pytest.approx(summary["rms_error"])
+    assert human.reference == pytest.approx(REFERENCE_PILOTS["SI"])
+    # the frequency-domain reference and the env's reference run agree (one period each)
+    assert human.reference_rms_error == pytest.approx(summary["reference_rms_error"], rel=0.02)
+    assert "## Human-likeness" in text and "verdict:" in text
+    assert (tmp_path / "human_likeness.png").read_bytes().startswith(b"\x89PNG")
+
+
+def test_evaluation_plots_further_models_and_runs_deterministically(trained, tmp_path):
+    _, agent, _, _ = trained
+    evaluation = evaluate(agent, run_in=2.0, deterministic=True)
+    assert not evaluation.noise
+    calls = []
+
+    def model(omega):
+        calls.append(omega)
+        return 1.3 * np.exp(-0.3j * omega)
+
+    write_report(evaluation, tmp_path, models={"a gain-delay pilot": model})
+    assert calls and (tmp_path / "human_likeness.png").is_file()
+
+
+def test_evaluate_command_prints_the_human_likeness(trained, tmp_path, capsys):
+    from manualcontrol.bench.cli import main
+
+    _, _, folder, _ = trained
+    assert main(["evaluate", str(folder), "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    for name in ("crossover_frequency", "phase_margin", "effective_delay", "remnant_fraction"):
+        assert name in out
+    assert "rms_ratio" in out and "verdict:" in out
+    assert (tmp_path / "human_likeness.png").is_file()
 
 
 def test_evaluation_covers_the_whole_period_despite_loss_of_control(trained):
@@ -132,3 +176,28 @@ def test_bad_configurations_fail_before_training(kwargs, error, message):
 def test_loading_a_folder_without_an_agent_fails(tmp_path):
     with pytest.raises(FileNotFoundError, match=re.escape("has no config.json")):
         load_agent(tmp_path)
+
+
+def test_an_agent_with_scheduled_limitations_and_a_history_trains_and_reloads(tmp_path):
+    from manualcontrol.envs.schedules import Ramp, Step
+
+    config = TrainingConfig(
+        env_kwargs={"measurement_time": 2.0},
+        wrappers=({"kind": "action_delay", "delay": Ramp(0.1, 0.15, 0.0, 2.0)},),
+        observation_noise_ratio=Step(0.01, 0.02, 1.0),
+        effort_rate_weight=0.05,
+        history_length=3,
+        algorithm="ppo",
+        total_timesteps=64,
+        algorithm_kwargs={"n_steps": 32, "batch_size": 32, "n_epochs": 1},
+    )
+    agent = train(config, tmp_path, report=None)
+    saved = json.loads((tmp_path / "config.json").read_text())
+    assert saved["observation_noise_ratio"]["kind"] == "step"
+    assert saved["wrappers"][0]["delay"]["kind"] == "ramp"
+    reloaded = load_agent(tmp_path)
+    assert reloaded.config == config
+    env = make_env(reloaded.config)
+    observation, _ = env.reset(seed=0)
+    assert observation.shape == (3 * (1 + 15),)  # history of [e, 15 queued commands]
+    np.testing.assert_array_equal(reloaded.act(observation), agent.act(observation))

@@ -1,0 +1,206 @@
+"""Human-likeness figures against the pilot model's own frequency response.
+
+The independent answers: the precision model's exact open loop (``model_crossover`` on a
+fine grid; the crossover model fitted to the model's exact response at the same lines),
+the remnant's known share of u (``u_n``, the part of u the remnant caused, and the
+calibrated ``P_r``), and a time-domain simulation of the reference pilot.
+"""
+
+import math
+import re
+import warnings
+
+import numpy as np
+import pytest
+
+from manualcontrol.envs.recording import Recording
+from manualcontrol.estimators.frequency import model_crossover
+from manualcontrol.estimators.human_likeness import (
+    FIGURES,
+    HUMAN_RANGES,
+    fit_crossover_model,
+    human_likeness,
+    plot_human_likeness,
+    reference_pilot,
+)
+from manualcontrol.pilots import HumanLimitWarning, LevisonRemnant, Pilot, make_model, simulate
+
+PRECISION = make_model("precision")
+REMNANT = LevisonRemnant(omega_r=3.0, injection="input", P_r=0.3)
+
+
+def _values(pilot):
+    return {name: float(schedule(0.0)) for name, schedule in pilot.parameters.items()}
+
+
+@pytest.fixture(scope="module")
+def runs():
+    out = {}
+    for element in ("SI", "DI"):
+        pilot = Pilot.typical("precision", element)
+        out[element, False] = (pilot, simulate(pilot, element, seed=1))
+        noisy = pilot.with_remnant(REMNANT)
+        out[element, True] = (noisy, simulate(noisy, element, seed=1))
+    return out
+
+
+def _analytic(pilot, describing):
+    """Crossover, margin (fine grid) and tau_e (same fit, the model's exact loop)."""
+    values = _values(pilot)
+    crossover, margin = model_crossover(PRECISION, values, describing)
+    loop = PRECISION.frequency_response(values, describing.frequencies, "e") * describing.element
+    fit = fit_crossover_model(describing.frequencies, loop, np.ones(loop.shape), crossover, margin)
+    return crossover, margin, fit.tau_e
+
+
+@pytest.mark.parametrize("element", ["SI", "DI"])
+def test_remnant_free_figures_match_the_model(runs, element):
+    pilot, recording = runs[element, False]
+    result = human_likeness(recording)
+    crossover, margin, tau_e = _analytic(pilot, result.describing)
+    # without remnant the lines hold the model's response up to the 10-ms sampling (a
+    # fraction of a degree); crossover and margin are read by interpolating between lines
+    # (lines at 1.94 and 1.99 rad/s around crossover: under 1 % in frequency, about a degree)
+    assert result.crossover_frequency == pytest.approx(crossover, rel=0.015)
+    assert result.phase_margin == pytest.approx(margin, abs=1.5)
+    assert result.effective_delay == pytest.approx(tau_e, abs=0.005)
+    assert abs(result.remnant_fraction) < 1e-3
+    # the reference is this very pilot: its steady state at the lines is the run's error
+    assert result.rms_ratio == pytest.approx(1.0, abs=0.01)
+    assert result.verdict.outside == ("remnant_fraction",)  # a noiseless pilot is no human
+
+
+def test_single_integrator_effective_delay_is_delay_plus_neuromuscular_lag(runs):
+    pilot, recording = runs["SI", False]
+    values = _values(pilot)
+    result = human_likeness(recording)
+    # phase of omega_nms^2/(s^2 + 2 zeta omega_nms s + omega_nms^2) is about -2 zeta w/omega_nms
+    # below omega_nms: an extra delay 2 zeta/omega_nms (0.067 s) on top of tau_v (0.26 s)
+    expected = values["tau_v"] + 2.0 * values["zeta_nms"] / values["omega_nms"]
+    assert result.effective_delay == pytest.approx(expected, abs=0.01)
+    fit = result.crossover_fit
+    assert fit.frequencies.min() >= result.crossover_frequency / 2.0
+    assert fit.frequencies.max() <= result.crossover_frequency * 2.0
+    assert fit.phase_error_deg < 1.0  # K/s with a gain pilot is the crossover model
+
+
+@pytest.mark.parametrize("element", ["SI", "DI"])
+def test_figures_with_remnant_stay_near_the_model(runs, element):
+    pilot, recording = runs[element, True]
+    result = human_likeness(recording)
+    crossover, margin, tau_e = _analytic(pilot, result.describing)
+    # 30 % remnant over one 120-s period: the lines near crossover carry an injected SNR of
+    # 15-150, i.e. 0.4-1.1 dB and 2-7 deg of scatter each (|N/U| ~ 1/sqrt(SNR)); interpolated
+    # between two such lines the crossover moves by up to ~12 %, the margin by ~6 deg
+    assert result.crossover_frequency == pytest.approx(crossover, rel=0.15)
+    assert result.phase_margin == pytest.approx(margin, abs=8.0)
+    assert result.effective_delay == pytest.approx(tau_e, abs=0.035)
+    assert result.verdict.human_like, result.verdict.text()
+
+
+@pytest.mark.parametrize("element", ["SI", "DI"])
+def test_remnant_fraction_is_the_remnants_share_of_u(runs, element):
+    _, recording = runs[element, True]
+    result = human_likeness(recording)
+    # off the lines u is remnant only: the share equals u_n's off-line power over u's
+    u, u_n = (np.fft.rfft(recording[name])[1:] for name in ("u", "u_n"))
+    lines = np.rint(result.describing.frequencies * recording.duration / (2 * np.pi)).astype(int)
+    off = np.ones(u.size, dtype=bool)
+    off[lines - 1] = False
+    assert result.remnant_fraction == pytest.approx(
+        np.sum(np.abs(u_n[off]) ** 2) / np.sum(np.abs(u) ** 2), abs=1e-3
+    )
+    # against the injected ratio: low by the remnant's own power at the 20 lines of 6000
+    # bins (its spectrum peaks at low frequency, where the lines are dense): 1-3 % of u
+    injected = recording.metadata["remnant_power_ratio"]
+    assert injected == pytest.approx(0.3)
+    assert injected - 0.03 < result.remnant_fraction < injected
+
+
+def test_reference_error_matches_a_time_domain_simulation(runs):
+    _, recording = runs["SI", True]
+    result = human_likeness(recording)
+    reference = simulate(Pilot("precision", result.reference), "SI", seed=0)
+    assert result.reference_rms_error == pytest.approx(
+        float(np.sqrt(np.mean(reference["e"] ** 2))), rel=0.01
+    )
+    assert result.reference == reference_pilot("SI")
+
+
+def test_superhuman_pilot_is_flagged_by_name():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", HumanLimitWarning)
+        pilot = Pilot.typical(
+            "precision", "SI", {"K_p": 4.0, "tau_v": 0.08, "omega_nms": 15.0, "zeta_nms": 0.5}
+        ).with_remnant(REMNANT)
+        recording = simulate(pilot, "SI", seed=0)
+    result = human_likeness(recording)
+    assert set(result.verdict.outside) == {"crossover_frequency", "effective_delay", "rms_ratio"}
+    assert result.crossover_frequency > HUMAN_RANGES["integrator"]["crossover_frequency"].high
+    assert "not human-like on integrator" in result.verdict.text()
+    assert "crossover_frequency" in result.verdict.text()
+
+
+def test_every_figure_is_reported_and_json_able(runs, tmp_path):
+    import json
+
+    _, recording = runs["DI", True]
+    result = human_likeness(recording)
+    summary = json.loads(json.dumps(result.to_dict()))
+    assert set(summary["figures"]) == set(FIGURES)
+    judged = [j.name for j in result.verdict.judgements]
+    assert "lead" in judged and "pilot_gain_flatness" not in judged  # K/s^2: lead judged
+    assert result.lead > 10.0  # T_L = 1.5 s: |Y_p| rises ~17 dB over the decade
+    text = "\n".join(result.lines())
+    assert "effective_delay" in text and "verdict: human-like" in text
+    extra = {"a lead-lag": lambda w: 0.3 * (1 + 1.5j * w) / (1 + 0.1j * w)}
+    path = plot_human_likeness(result, tmp_path / "bode.png", models=extra)
+    assert path.read_bytes().startswith(b"\x89PNG")
+
+
+def test_a_gain_element_has_no_reference_pilot():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", HumanLimitWarning)
+        recording = simulate(Pilot.typical("precision", "gain"), "gain", seed=0)
+    result = human_likeness(recording)
+    assert result.reference is None and math.isnan(result.rms_ratio)
+    assert "rms_ratio" in result.verdict.not_judged
+
+
+def test_unknown_element_names_the_argument(runs):
+    _, recording = runs["SI", False]
+    with pytest.raises(ValueError, match=re.escape("element 'TI' is not a controlled element")):
+        human_likeness(recording, element="TI")
+
+
+def test_missing_element_names_the_argument(runs):
+    _, recording = runs["SI", False]
+    bare = Recording(
+        signals={name: recording[name] for name in ("t", "ft", "fd", "y", "e", "u")},
+        dt=recording.dt,
+        metadata={"forcing": recording.metadata["forcing"]},
+    )
+    with pytest.raises(ValueError, match=re.escape("element is needed")):
+        human_likeness(bare)
+    assert human_likeness(bare, element="1.5/s").element_kind == "integrator"
+
+
+def test_recording_without_forcing_lines_names_what_is_missing(runs):
+    _, recording = runs["SI", False]
+    bare = Recording(
+        signals={name: recording[name] for name in ("t", "y", "e", "u")},
+        dt=recording.dt,
+        metadata={"controlled_element": "SI"},
+    )
+    with pytest.raises(
+        ValueError, match=re.escape("recording: the forcing frequencies are unknown")
+    ):
+        human_likeness(bare)
+    with pytest.raises(ValueError, match=re.escape("no forcing signal with power (ft or fd)")):
+        human_likeness(bare, period=120.0)
+
+
+def test_bad_reference_names_the_parameter(runs):
+    _, recording = runs["SI", False]
+    with pytest.raises(ValueError, match=re.escape("reference has parameter(s) ['K_x']")):
+        human_likeness(recording, reference={"K_x": 1.0})
