@@ -151,6 +151,23 @@ def _schedule(text: Any) -> Any:
         raise UsageError(f"bad {kind} schedule {text!r}: {error}") from None
 
 
+def _limitation(flag: str, text: str | None) -> Any:
+    """A human limitation's value from the command line: a number or ``KIND:ARGS``.
+
+    A schedule becomes its saved dict, the form the training configuration keeps.
+    """
+    if text is None:
+        return 0.0
+    try:
+        return float(text)
+    except ValueError:
+        pass
+    try:
+        return _schedule(text).to_dict()
+    except UsageError as error:
+        raise UsageError(f"{flag}: {error}") from None
+
+
 # ------------------------------------------------------------------- commands
 
 
@@ -867,30 +884,45 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from manualcontrol.agents.training import TrainingConfig, train
 
     _check_output("--out", args.out, folder=True)
+    delay = _limitation("--delay", args.delay)
+    motor_noise = _limitation("--motor-noise", args.motor_noise)
     wrappers = []
-    if args.delay:
+    if delay:
         wrappers.append(
-            {"kind": "action_delay", "delay": args.delay, "observe_queue": not args.hide_queue}
+            {"kind": "action_delay", "delay": delay, "observe_queue": not args.hide_queue}
         )
     elif args.hide_queue:
         raise UsageError("--hide-queue needs an action delay (--delay SECONDS)")
     if args.neuromuscular:
         omega, zeta = args.neuromuscular
         wrappers.append({"kind": "neuromuscular", "omega_nms": omega, "zeta_nms": zeta})
-    if args.motor_noise:
-        wrappers.append({"kind": "motor_noise", "power_ratio": args.motor_noise})
-    config = TrainingConfig(
-        task=args.task,
-        env_kwargs=_env_options(args.env, args.task),
-        wrappers=tuple(wrappers),
-        algorithm=args.algorithm,
-        total_timesteps=args.steps,
-        n_envs=args.envs,
-        seed=args.seed,
-        checkpoint_every=args.checkpoint_every,
-        algorithm_kwargs=_assignments(args.algorithm_option, "--algorithm-option"),
-        policy_kwargs={} if args.net_arch is None else {"net_arch": list(args.net_arch)},
-    )
+    if motor_noise:
+        wrappers.append({"kind": "motor_noise", "power_ratio": motor_noise})
+    fields = {
+        "observation_noise_ratio": ("--observation-noise", args.observation_noise),
+        "effort_rate_weight": ("--effort-rate-weight", args.effort_rate_weight),
+    }
+    try:
+        config = TrainingConfig(
+            task=args.task,
+            env_kwargs=_env_options(args.env, args.task),
+            wrappers=tuple(wrappers),
+            algorithm=args.algorithm,
+            total_timesteps=args.steps,
+            n_envs=args.envs,
+            seed=args.seed,
+            checkpoint_every=args.checkpoint_every,
+            algorithm_kwargs=_assignments(args.algorithm_option, "--algorithm-option"),
+            policy_kwargs={} if args.net_arch is None else {"net_arch": list(args.net_arch)},
+            history_length=args.history,
+            deterministic=args.deterministic_evaluation,
+            **{name: _limitation(flag, text) for name, (flag, text) in fields.items()},
+        )
+    except ValueError as error:
+        text = str(error)
+        for name, (flag, _) in {**fields, "history_length": ("--history", None)}.items():
+            text = text.replace(name, flag)
+        raise UsageError(text) from None
     agent = train(config, args.out, report=None if args.quiet else print)
     print(f"saved agent to {agent.path} (config.json, policy.pt, model.zip)")
     return EXIT_OK
@@ -1194,7 +1226,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="environment keyword, e.g. controlled_element=DI; repeatable",
     )
-    p.add_argument("--delay", type=float, default=0.0, help="action delay (s)")
+    p.add_argument(
+        "--delay",
+        default=None,
+        metavar="SECONDS",
+        help="action delay (s): a number or a schedule KIND:ARGS (ramp:0.2,0.3,10,30 rises "
+        "from 0.2 to 0.3 s between t = 10 and 30 s; sigmoid, sine, step as in simulate --param)",
+    )
     p.add_argument(
         "--hide-queue",
         action="store_true",
@@ -1211,7 +1249,39 @@ def build_parser() -> argparse.ArgumentParser:
         help="neuromuscular filter frequency (rad/s) and damping",
     )
     p.add_argument(
-        "--motor-noise", type=float, default=None, metavar="P_R", help="motor-noise power ratio"
+        "--motor-noise",
+        default=None,
+        metavar="P_R",
+        help="motor-noise power ratio (a number or a schedule KIND:ARGS)",
+    )
+    p.add_argument(
+        "--observation-noise",
+        default=None,
+        metavar="RATIO",
+        help="observation noise on the display: noise-to-signal variance ratio of each "
+        "observed signal (0.01 is the optimal control model's -20 dB; a number or a "
+        "schedule KIND:ARGS); default none",
+    )
+    p.add_argument(
+        "--effort-rate-weight",
+        default=None,
+        metavar="W",
+        help="effort cost on the stick rate: the reward loses W (du/dt / action_bound)^2, W "
+        "in s^2 (a number or a schedule KIND:ARGS); default none",
+    )
+    p.add_argument(
+        "--history",
+        type=int,
+        default=1,
+        metavar="N",
+        help="observations the policy sees side by side (N dt seconds of memory: a policy "
+        "that can adapt); default 1, the current one",
+    )
+    p.add_argument(
+        "--deterministic-evaluation",
+        action="store_true",
+        help="evaluate this agent without the wrappers' noise by default (by default the "
+        "noise stays on and makes the trial-to-trial variability)",
     )
     p.add_argument("--algorithm", default="sac", choices=("sac", "ppo"), help="RL algorithm")
     p.add_argument("--steps", type=int, default=100_000, help="environment steps")

@@ -172,6 +172,10 @@ def test_bench_with_failing_runs_exits_3(tmp_path, capsys, monkeypatch):
             ["train", "--algorithm", "ppo", "--algorithm-option", "n_step=64", "--out", "a"],
             "algorithm_kwargs {'n_step': 64} or policy_kwargs {} not accepted by PPO",
         ),
+        (["train", "--observation-noise", "-0.1", "--out", "a"], "--observation-noise"),
+        (["train", "--effort-rate-weight", "ramp:1", "--out", "a"], "--effort-rate-weight:"),
+        (["train", "--delay", "wobble:0.2", "--out", "a"], "--delay: a parameter value must"),
+        (["train", "--history", "0", "--out", "a"], "--history must be"),
     ],
 )
 def test_user_errors_exit_2_with_a_message_and_no_traceback(
@@ -199,6 +203,18 @@ def test_train_and_evaluate_commands(tmp_path, capsys):
     assert config["algorithm_kwargs"] == {"n_steps": 50, "batch_size": 25}
     assert config["policy_kwargs"] == {"net_arch": [8, 8]} and config["n_envs"] == 2
     assert config["wrappers"] == [{"kind": "action_delay", "delay": 0.1, "observe_queue": False}]
+    code, out, _ = run(
+        capsys,
+        "train", "--steps", "100", "--delay", "ramp:0.1,0.2,0,1", "--observation-noise", "0.01",
+        "--effort-rate-weight", "0.05", "--history", "3", "--algorithm", "ppo",
+        "--env", "measurement_time=2.0", "--algorithm-option", "n_steps=50",
+        "--algorithm-option", "batch_size=25", "--net-arch", "8", "--out", str(tmp_path / "b"),
+        "--quiet",
+    )  # fmt: skip
+    scheduled = json.loads((tmp_path / "b" / "config.json").read_text())
+    assert code == EXIT_OK and scheduled["wrappers"][0]["delay"]["kind"] == "ramp"
+    assert scheduled["observation_noise_ratio"] == 0.01
+    assert scheduled["effort_rate_weight"] == 0.05 and scheduled["history_length"] == 3
     code, out, _ = run(capsys, "evaluate", str(agent), "--out", str(tmp_path / "eval"))
     assert code == EXIT_OK and "RMS error" in out
     assert (tmp_path / "eval" / "evaluation.md").is_file()
