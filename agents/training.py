@@ -110,9 +110,10 @@ class TrainingConfig:
     checkpoint_every
         Save the weights every so many steps (None: no checkpoints).
     observation_noise_ratio
-        Observation noise on the display, as a noise-to-signal variance ratio of each
-        observed signal (:class:`~manualcontrol.agents.wrappers.ObservationNoise`,
-        innermost); 0 (default): none; the OCM's -20 dB is 0.01. A number or a schedule.
+        Observation noise on the display, as the OCM's noise-to-signal ratio ``rho`` of
+        each observed signal (noise intensity ``pi rho`` times its variance;
+        :class:`~manualcontrol.agents.wrappers.ObservationNoise`, innermost); 0
+        (default): none; the OCM's -20 dB is 0.01. A number or a schedule.
     effort_rate_weight
         Weight of the stick-rate cost in the reward, s^2
         (:class:`~manualcontrol.agents.wrappers.EffortCost`); 0 (default): none. A

@@ -589,16 +589,16 @@ class _WindowVariance:
 class ObservationNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Gaussian perception noise on every observed value, scaled to its variance.
 
-    ``ratio`` (default): the noise on each observed signal ``y_i`` has the standard
-    deviation ``sqrt(ratio var(y_i))``, ``var(y_i)`` its population variance over the
+    ``ratio`` (default): the OCM's noise-to-signal ratio ``rho`` (Kleinman, Baron &
+    Levison 1970): the noise on each observed signal ``y_i`` is white with the
+    intensity ``V_i = pi rho var(y_i)``, ``var(y_i)`` the population variance over the
     last 5 s (the samples observed so far early in an episode; no noise on the first
-    observation after ``reset()``). This is the OCM's observation noise, whose
-    intensity is proportional to the signal's variance, ``V_i = pi rho_i var(y_i)``
-    with the noise/signal ratio ``rho`` about 0.01 (-20 dB); here ``ratio`` is the
-    ratio of the per-sample variances. White noise of per-sample variance ``s^2``
-    spreads its power over the band up to ``pi/dt``, so the OCM's noise density
-    corresponds to ``ratio = pi rho / dt``; ``ratio = rho`` is ``dt/pi`` of it (a
-    milder noise at high frequency, the same share of the signal's variance).
+    observation after ``reset()``). Drawn per sample, white noise of intensity ``V``
+    has the variance ``V / dt``, so each sample's noise has the standard deviation
+    ``sqrt(pi rho var(y_i) / dt)``. Why the intensity and not the per-sample variance:
+    the noise's power in the tracking band, which is what degrades the pilot, is then
+    the same at every sample rate, as the OCM's noise is (``rho = 0.01``, -20 dB, is
+    a per-sample standard deviation of ``1.8 std(y_i)`` at 100 Hz, ``1.4`` at 60 Hz).
 
     ``std``: an absolute standard deviation, the same for every observed value (in
     the units of the observation).
@@ -614,8 +614,8 @@ class ObservationNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
     env
         An environment with a 1-D Box observation (possibly wrapped).
     ratio
-        Noise-to-signal variance ratio, ``>= 0``; default 0.01 (-20 dB) when ``std``
-        is not given: a number or a schedule.
+        The OCM's noise-to-signal ratio ``rho``, ``>= 0``; default 0.01 (-20 dB) when
+        ``std`` is not given: a number or a schedule.
     std
         Absolute standard deviation, ``>= 0``: a number or a schedule.
     """
@@ -652,6 +652,7 @@ class ObservationNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
             else _WindowVariance(max(round(self.WINDOW / _dt(env)), 2), space.shape[0])
         )
         self._noise = np.zeros(space.shape[0])
+        self._dt = _dt(env)
         self._k = 0
         self._rng = np.random.default_rng()
 
@@ -660,7 +661,8 @@ class ObservationNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self._variance is None:
             scale: float | FloatArray = level
         else:
-            scale = np.sqrt(level * self._variance.push(np.asarray(observation, np.float64)))
+            variance = self._variance.push(np.asarray(observation, np.float64))
+            scale = np.sqrt(math.pi * level * variance / self._dt)
         self._noise = scale * self._rng.standard_normal(observation.shape)
         return observation + self._noise
 

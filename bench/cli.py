@@ -1258,9 +1258,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--observation-noise",
         default=None,
         metavar="RATIO",
-        help="observation noise on the display: noise-to-signal variance ratio of each "
-        "observed signal (0.01 is the optimal control model's -20 dB; a number or a "
-        "schedule KIND:ARGS); default none",
+        help="observation noise on the display: the optimal control model's noise-to-signal "
+        "ratio of each observed signal (intensity pi RATIO times its variance; 0.01 is -20 dB; "
+        "a number or a schedule KIND:ARGS); default none",
     )
     p.add_argument(
         "--effort-rate-weight",

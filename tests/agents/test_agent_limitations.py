@@ -155,9 +155,10 @@ def test_observation_noise_follows_a_doubling_ratio_of_the_signal_variance():
     noise = np.array([0.0] + [info["observation_noise"][0] for info in infos[1:]])
     np.testing.assert_array_equal(observations[:, 0], clean + noise)
     assert observations[0, 0] == clean[0]  # nothing to scale to yet
-    # noise^2 / (ratio var) is chi-square(1) with mean 1: over 5500 samples its mean has a
-    # standard deviation sqrt(2/5500) = 1.9 %; 8 % is four of them
-    normalised = noise**2 / _window_variance(clean)[: n + 1].clip(1e-300)
+    # the OCM's intensity pi rho var per sample is the variance pi rho var / dt, so
+    # noise^2 dt / (pi var) has the mean rho; noise^2 / (its variance) is chi-square(1):
+    # over 5500 samples its mean has a standard deviation sqrt(2/5500) = 1.9 %; 8 % is four
+    normalised = noise**2 * DT / (np.pi * _window_variance(clean)[: n + 1].clip(1e-300))
     t = env.unwrapped.times[: n + 1]
     for low, high, value in ((5.0, 60.0, 0.01), (65.0, 120.0, 0.02)):
         part = (t >= low) & (t < high)
