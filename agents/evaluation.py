@@ -58,7 +58,7 @@ class Evaluation:
 
     ``human`` holds the human-likeness figures and verdict (None on a pursuit or
     preview task, which they do not describe); ``noise`` whether the wrappers' noise was
-    on in the run.
+    on in the run; ``config`` the agent's training configuration.
     """
 
     rms_error: float
@@ -70,6 +70,7 @@ class Evaluation:
     recording: Recording
     human: HumanLikeness | None = None
     noise: bool = True
+    config: Any = None
 
     def summary(self) -> dict[str, Any]:
         """Plain numbers for tables and JSON."""
@@ -216,6 +217,7 @@ def evaluate(
         recording,
         human,
         not deterministic,
+        agent.config,
     )
 
 
@@ -231,6 +233,38 @@ def _dekf_identification(recording: Recording, model: str, config: Any) -> dict[
     result = DEKF(**settings).estimate(recording)
     measured = np.asarray(recording.t) >= 0.0
     return {name: float(np.mean(result.mean_of(name)[measured])) for name in result.estimated}
+
+
+def optimal_control_reference(config: Any) -> Any:
+    """The OCM pilot on an agent's task, or None where it has none.
+
+    The optimal control model (:class:`~manualcontrol.pilots.OptimalControlPilot`) of the
+    agent's element and forcing, with the agent's action delay as its perceptual delay
+    where that delay is a constant (0.2 s otherwise) and the model's other values at
+    their defaults: the model-based answer to the problem the agent was trained on.
+    None on a task other than compensatory tracking or an element the OCM does not take
+    (time-varying).
+    """
+    from manualcontrol.pilots import OptimalControlPilot
+
+    if config.task != "compensatory":
+        return None
+    delay = 0.2
+    for spec in getattr(config, "limitations", config.wrappers):
+        if spec.get("kind") == "action_delay" and isinstance(spec.get("delay"), (int, float)):
+            delay = float(spec["delay"])
+    kwargs = config.env_kwargs
+    try:
+        pilot = OptimalControlPilot(
+            kwargs.get("controlled_element", "SI"),
+            kwargs.get("forcing", "vanderel-bw4"),
+            tau_v=delay,
+            disturbance_at=kwargs.get("disturbance_at", "output"),
+        )
+        pilot.solve()
+    except (ValueError, TypeError):
+        return None
+    return pilot
 
 
 def write_report(
@@ -282,6 +316,10 @@ def write_report(
     plt.close(fig)
     human = evaluation.human
     if human is not None:
+        if models is None:
+            config = evaluation.config
+            ocm = None if config is None else optimal_control_reference(config)
+            models = {} if ocm is None else {"optimal control model": ocm.frequency_response}
         plot_human_likeness(human, folder / "human_likeness.png", models=models)
     lines = [
         "# Agent evaluation",

@@ -944,6 +944,15 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if evaluation.human is not None:
         for line in evaluation.human.lines():
             print(line)
+        from manualcontrol.agents.evaluation import optimal_control_reference
+
+        ocm = optimal_control_reference(agent.config)
+        if ocm is not None:
+            omega_c, margin, tau_e = ocm.crossover()
+            print(
+                f"  optimal control model on this task (delay {ocm.tau_v:g} s): crossover "
+                f"{omega_c:.2f} rad/s, phase margin {margin:.0f} deg, tau_e {tau_e:.3f} s"
+            )
     for flag in summary["implausible"]:
         print(
             f"manualcontrol evaluate: warning: implausible identification: {flag}", file=sys.stderr

@@ -201,3 +201,22 @@ def test_an_agent_with_scheduled_limitations_and_a_history_trains_and_reloads(tm
     observation, _ = env.reset(seed=0)
     assert observation.shape == (3 * (1 + 15),)  # history of [e, 15 queued commands]
     np.testing.assert_array_equal(reloaded.act(observation), agent.act(observation))
+
+
+def test_the_optimal_control_reference_takes_the_agents_task_and_delay():
+    from manualcontrol.agents.evaluation import optimal_control_reference
+
+    config = TrainingConfig(
+        task="compensatory",
+        env_kwargs={"controlled_element": "DI", "forcing": "popovici2017"},
+        wrappers=({"kind": "action_delay", "delay": 0.25},),
+        algorithm="ppo",
+    )
+    ocm = optimal_control_reference(config)
+    assert ocm.tau_v == 0.25
+    # the model is the OCM of that element: on K/s^2 it leads (phase above the delay's)
+    omega = np.array([0.5, 1.0])
+    lead = np.angle(ocm.frequency_response(omega)) + omega * 0.25
+    assert np.all(lead > 0.0)
+    pursuit = TrainingConfig(task="pursuit", algorithm="ppo")
+    assert optimal_control_reference(pursuit) is None
