@@ -8,6 +8,7 @@ from manualcontrol.agents.wrappers import (
     NeuromuscularFilter,
     ObservationHistory,
     ObservationNoise,
+    ObservationScale,
     apply_wrappers,
 )
 
@@ -19,5 +20,6 @@ __all__ = [
     "NeuromuscularFilter",
     "ObservationHistory",
     "ObservationNoise",
+    "ObservationScale",
     "apply_wrappers",
 ]

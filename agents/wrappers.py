@@ -79,6 +79,7 @@ __all__ = [
     "NeuromuscularFilter",
     "ObservationHistory",
     "ObservationNoise",
+    "ObservationScale",
     "apply_wrappers",
 ]
 
@@ -827,6 +828,50 @@ class ObservationHistory(gym.ObservationWrapper, gym.utils.RecordConstructorArgs
         return stack.copy()
 
 
+class ObservationScale(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
+    """Each observed value divided by a fixed scale, so the policy sees numbers of order one.
+
+    A network learns slowly from inputs of order 0.01 (lane keeping's angles in radians)
+    beside others of order one. A fixed scale, unlike a running normalisation, is part
+    of the configuration: the trained agent sees the same numbers in evaluation and
+    after loading, with nothing else to save. Put it outermost but for the history.
+
+    Parameters
+    ----------
+    env
+        An environment with a 1-D Box observation (possibly wrapped).
+    scale
+        One positive number for every value, or one per value (a list as long as the
+        observation).
+    """
+
+    def __init__(self, env: gym.Env, scale: float | list[float]) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, scale=scale)
+        gym.ObservationWrapper.__init__(self, env)
+        space = env.observation_space
+        if not isinstance(space, spaces.Box) or len(space.shape) != 1:
+            raise TypeError(f"observation space must be a 1-D Box, got {space}")
+        values = (
+            np.broadcast_to(np.asarray(scale, dtype=np.float64), space.shape)
+            if np.ndim(scale) == 0
+            else np.asarray(scale, dtype=np.float64)
+        )
+        if values.shape != space.shape:
+            raise ValueError(
+                f"scale must be one number or {space.shape[0]} (one per observed value), "
+                f"got {len(values)}"
+            )
+        if not np.all(np.isfinite(values) & (values > 0.0)):
+            raise ValueError(f"scale must be finite and > 0, got {list(np.ravel(scale))}")
+        self._inverse = 1.0 / values
+        self.observation_space = spaces.Box(
+            space.low * self._inverse, space.high * self._inverse, dtype=np.float64
+        )
+
+    def observation(self, observation: FloatArray) -> FloatArray:  # noqa: D102
+        return np.asarray(observation, dtype=np.float64) * self._inverse
+
+
 #: Wrapper names for configurations: ``{"kind": name, **arguments}``.
 WRAPPERS: dict[str, type[gym.Wrapper]] = {
     "action_delay": ActionDelay,
@@ -835,6 +880,7 @@ WRAPPERS: dict[str, type[gym.Wrapper]] = {
     "observation_noise": ObservationNoise,
     "effort_cost": EffortCost,
     "observation_history": ObservationHistory,
+    "observation_scale": ObservationScale,
 }
 
 #: The noise level of each noise wrapper, the argument set to 0 for a noise-free run.

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import math
 import os
@@ -884,6 +885,11 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from manualcontrol.agents.training import TrainingConfig, train
 
     _check_output("--out", args.out, folder=True)
+    if args.recipe is not None:
+        config = _recipe_config(args)
+        agent = train(config, args.out, report=None if args.quiet else print)
+        print(f"saved agent to {agent.path} (config.json, policy.pt, model.zip)")
+        return EXIT_OK
     delay = _limitation("--delay", args.delay)
     motor_noise = _limitation("--motor-noise", args.motor_noise)
     wrappers = []
@@ -908,7 +914,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
             env_kwargs=_env_options(args.env, args.task),
             wrappers=tuple(wrappers),
             algorithm=args.algorithm,
-            total_timesteps=args.steps,
+            total_timesteps=100_000 if args.steps is None else args.steps,
             n_envs=args.envs,
             seed=args.seed,
             checkpoint_every=args.checkpoint_every,
@@ -926,6 +932,42 @@ def _cmd_train(args: argparse.Namespace) -> int:
     agent = train(config, args.out, report=None if args.quiet else print)
     print(f"saved agent to {agent.path} (config.json, policy.pt, model.zip)")
     return EXIT_OK
+
+
+#: train flags a recipe sets itself, with their unset values.
+_RECIPE_SETS = {
+    "--task": ("task", "compensatory"),
+    "--env": ("env", None),
+    "--delay": ("delay", None),
+    "--hide-queue": ("hide_queue", False),
+    "--neuromuscular": ("neuromuscular", None),
+    "--motor-noise": ("motor_noise", None),
+    "--observation-noise": ("observation_noise", None),
+    "--effort-rate-weight": ("effort_rate_weight", None),
+    "--history": ("history", 1),
+    "--deterministic-evaluation": ("deterministic_evaluation", False),
+    "--algorithm": ("algorithm", "sac"),
+    "--envs": ("envs", 1),
+    "--algorithm-option": ("algorithm_option", None),
+    "--net-arch": ("net_arch", None),
+}
+
+
+def _recipe_config(args: argparse.Namespace) -> Any:
+    from manualcontrol.agents.recipes import RECIPES, recipe
+
+    if args.recipe not in RECIPES:
+        raise UsageError(f"--recipe must be one of {', '.join(RECIPES)}, got {args.recipe!r}")
+    given = [flag for flag, (name, unset) in _RECIPE_SETS.items() if getattr(args, name) != unset]
+    if given:
+        raise UsageError(
+            f"--recipe {args.recipe} sets the training itself; drop {', '.join(given)} (a "
+            "recipe takes --seed, --steps and --checkpoint-every)"
+        )
+    config = recipe(args.recipe, seed=args.seed, total_timesteps=args.steps)
+    if args.checkpoint_every is not None:
+        config = dataclasses.replace(config, checkpoint_every=args.checkpoint_every)
+    return config
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
@@ -1227,6 +1269,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = commands.add_parser("train", help="train an RL surrogate operator (stable-baselines3)")
     p.add_argument(
+        "--recipe",
+        default=None,
+        metavar="NAME",
+        help="a measured training recipe (si, di, lag: compensatory tracking of 1/s, 1/s^2, "
+        "1/(s(s+1)) with a human's delay, neuromuscular system, motor noise and effort "
+        "cost; lane-angle: lane keeping); takes --seed, --steps and --checkpoint-every, "
+        "nothing else that sets the training",
+    )
+    p.add_argument(
         "--task", default="compensatory", help="compensatory, pursuit, preview or lane-keeping"
     )
     p.add_argument(
@@ -1293,7 +1344,12 @@ def build_parser() -> argparse.ArgumentParser:
         "noise stays on and makes the trial-to-trial variability)",
     )
     p.add_argument("--algorithm", default="sac", choices=("sac", "ppo"), help="RL algorithm")
-    p.add_argument("--steps", type=int, default=100_000, help="environment steps")
+    p.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help="environment steps (default 100000, or the recipe's)",
+    )
     p.add_argument("--envs", type=int, default=1, help="parallel environments")
     p.add_argument(
         "--algorithm-option",

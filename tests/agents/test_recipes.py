@@ -1,0 +1,72 @@
+"""Training recipes: the configurations `manualcontrol train --recipe` gives."""
+
+import json
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import manualcontrol.envs  # noqa: F401
+from manualcontrol.agents.recipes import RECIPES, recipe
+from manualcontrol.agents.training import make_env
+from manualcontrol.agents.wrappers import ObservationScale
+from manualcontrol.bench.cli import main
+
+
+@pytest.mark.parametrize("name", sorted(RECIPES))
+def test_every_recipe_builds_its_environment_with_the_human_limitations(name):
+    config = recipe(name, seed=3)
+    assert config.seed == 3 and config.algorithm == "ppo"
+    kinds = [spec["kind"] for spec in config.limitations]
+    # every recipe acts through a perceptual delay the agent cannot see
+    assert kinds[0] == "action_delay" or "action_delay" in kinds
+    delay = next(spec for spec in config.limitations if spec["kind"] == "action_delay")
+    assert delay["delay"] == 0.2 and delay["observe_queue"] is False
+    if config.task == "compensatory":
+        assert "effort_cost" in kinds and "motor_noise" in kinds
+    env = make_env(config)
+    observation, _ = env.reset(seed=0)
+    assert env.observation_space.contains(observation)
+    env.close()
+
+
+def test_a_recipe_takes_a_seed_and_a_length_and_rejects_unknown_names():
+    assert recipe("si", total_timesteps=1000).total_timesteps == 1000
+    with pytest.raises(ValueError, match="recipe must be one of"):
+        recipe("hover")
+
+
+def test_observation_scale_divides_each_value_and_checks_its_length():
+    env = gym.make("ManualControl/PursuitTracking-v0", measurement_time=1.0)
+    scaled = ObservationScale(env, [2.0, 4.0])
+    observation, _ = scaled.reset(seed=0)
+    raw, _ = env.reset(seed=0)
+    np.testing.assert_array_equal(observation, raw / np.array([2.0, 4.0]))
+    np.testing.assert_array_equal(
+        scaled.observation_space.high, env.observation_space.high / [2, 4]
+    )
+    with pytest.raises(ValueError, match=r"scale must be one number or 2 \(one per observed"):
+        ObservationScale(env, [1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match="scale must be finite and > 0"):
+        ObservationScale(env, 0.0)
+
+
+def test_the_train_command_refuses_flags_a_recipe_sets(tmp_path, capsys):
+    code = main(["train", "--recipe", "si", "--delay", "0.1", "--out", str(tmp_path / "a")])
+    err = capsys.readouterr().err
+    assert code == 2 and "--recipe si sets the training itself; drop --delay" in err
+    code = main(["train", "--recipe", "hover", "--out", str(tmp_path / "a")])
+    assert code == 2 and "--recipe must be one of si, di, lag" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists()
+
+
+def test_the_train_command_trains_a_recipe(tmp_path):
+    out = tmp_path / "agent"
+    code = main(
+        ["train", "--recipe", "lag", "--steps", "64", "--seed", "2", "--out", str(out), "--quiet"]
+    )
+    assert code == 0
+    config = json.loads((out / "config.json").read_text())
+    assert config["seed"] == 2 and config["total_timesteps"] == 64
+    assert config["env_kwargs"]["controlled_element"] == "1/(s(s+1))"
+    assert config["effort_rate_weight"] == RECIPES["lag"][1]["effort_rate_weight"]
