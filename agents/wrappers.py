@@ -321,10 +321,14 @@ class ActionDelay(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._delays = parameter
         samples = np.asarray(parameter.values) / dt
         whole = np.floor(samples + 1e-9)
+        # a delay within 1e-9 samples of a whole number is that number (0.3/0.01 is
+        # 29.999999999999996): no fraction of a sample beyond the queue
+        fraction = samples - whole
+        fraction[fraction < 1e-9] = 0.0
         self._whole = whole.astype(np.int64).tolist()
-        self._fraction = np.maximum(samples - whole, 0.0).tolist()
+        self._fraction = fraction.tolist()
         self._last = parameter.last
-        self._queued = math.ceil(float(samples.max()) - 1e-9)
+        self._queued = int(np.max(whole + (fraction > 0.0)))
         bound = _stick_bound(env)
         self._bound = bound
         shown = self._queued if self.observe_queue else 0

@@ -451,3 +451,18 @@ def test_noise_free_environment_for_deterministic_evaluation():
 def test_bad_limitation_fields_fail_before_training(kwargs, error, message):
     with pytest.raises(error, match=re.escape(message)):
         TrainingConfig(env_kwargs={"measurement_time": 2.0}, **kwargs)
+
+
+def test_a_delay_ramp_ending_on_a_whole_sample_stays_inside_its_queue():
+    # 0.2 -> 0.3 s at 100 Hz: values a hair above 30 samples once asked for a 31st
+    env = ActionDelay(
+        gym.make("ManualControl/CompensatoryTracking-v0", measurement_time=80.0, run_in=30.0),
+        Ramp(0.2, 0.3, 30.0, 50.0),
+        observe_queue=False,
+    )
+    env.reset(seed=0)
+    commands = np.sin(np.arange(11000) * 0.01)
+    for k, command in enumerate(commands):
+        _, _, _, _, info = env.step(np.array([command]))
+    assert k == 10999 and info["delay"] == pytest.approx(0.3)
+    assert info["u"] == pytest.approx(commands[-31], abs=1e-9)
