@@ -35,7 +35,7 @@ from typing import Any
 from manualcontrol.agents.training import TrainingConfig
 from manualcontrol.envs._validation import check_choice, check_int
 
-__all__ = ["RECIPES", "recipe"]
+__all__ = ["RECIPES", "optimal_control_effort_weight", "recipe"]
 
 _HUMAN_LIMITATIONS: tuple[Mapping[str, Any], ...] = (
     {"kind": "action_delay", "delay": 0.2, "observe_queue": False},
@@ -43,6 +43,29 @@ _HUMAN_LIMITATIONS: tuple[Mapping[str, Any], ...] = (
     {"kind": "motor_noise", "power_ratio": 0.3},
 )
 _PPO = {"n_steps": 512, "batch_size": 256}
+
+
+def optimal_control_effort_weight(
+    element: str, forcing: str, action_bound: float, tau_nms: float = 0.1
+) -> float:
+    """The effort weight that poses the optimal control model's trade-off in the reward.
+
+    The OCM pilot minimises ``J = E{e^2 + g udot^2}``, its control-rate weight ``g``
+    fixed by its neuromuscular lag ``tau_nms`` (0.1 s, Kleinman et al.'s value;
+    :func:`~manualcontrol.pilots.solve_ocm`). The tracking reward costs ``e^2/var(f)``
+    (the bounded reward to first order; ``f`` the target forcing, or the disturbance
+    without one) and :class:`~manualcontrol.agents.wrappers.EffortCost` costs
+    ``W (udot/U)^2``, so the same trade-off is ``W = g U^2 / var(f)``: the agent is
+    asked the OCM's question on its own element, and the weight follows the element
+    (a double integrator needs far more stick rate for the same error than 1/s).
+    """
+    from manualcontrol.envs.signals import forcing_preset
+    from manualcontrol.pilots import solve_ocm
+
+    pair = forcing_preset(forcing, 0)
+    signal = pair.target if pair.target is not None else pair.disturbance
+    g = solve_ocm(element, pair, tau_v=0.2, tau_nms=tau_nms).g
+    return float(g * action_bound**2 / signal.variance)
 
 
 def _tracking(element: str) -> dict[str, Any]:

@@ -460,7 +460,7 @@ def solve_ocm(
     forcing: str | ForcingPair,
     *,
     tau_v: float = 0.2,
-    tau_nms: float | None = DEFAULT_TAU_NMS,
+    tau_nms: float | None = None,
     g: float | None = None,
     rho_y: float = 0.01,
     rho_u: float = 0.003,
@@ -469,8 +469,8 @@ def solve_ocm(
 ) -> OCMSolution:
     """Solve the OCM for an element and a forcing (see the module docstring).
 
-    Give ``tau_nms`` (s) or ``g``, not both. ``forcing`` is a preset name (realisation 0)
-    or a :class:`~manualcontrol.envs.signals.ForcingPair`.
+    Give ``tau_nms`` (s) or ``g``, not both (neither: ``tau_nms`` 0.1 s). ``forcing`` is a
+    preset name (realisation 0) or a :class:`~manualcontrol.envs.signals.ForcingPair`.
     """
     settings = _Settings.create(tau_v, tau_nms, g, rho_y, rho_u, q_e, disturbance_at)
     return _solve(_element_argument(element), resolve_forcing(forcing), settings)

@@ -70,3 +70,18 @@ def test_the_train_command_trains_a_recipe(tmp_path):
     assert config["seed"] == 2 and config["total_timesteps"] == 64
     assert config["env_kwargs"]["controlled_element"] == "1/(s(s+1))"
     assert config["effort_rate_weight"] == RECIPES["lag"][1]["effort_rate_weight"]
+
+
+def test_the_optimal_control_effort_weight_poses_the_ocms_trade_off_in_reward_units():
+    from manualcontrol.agents.recipes import optimal_control_effort_weight
+    from manualcontrol.envs.signals import forcing_preset
+    from manualcontrol.pilots import solve_ocm
+
+    weight = optimal_control_effort_weight("1/s", "vanderel-bw4", 5.0)
+    target = forcing_preset("vanderel-bw4", 0).target
+    g = solve_ocm("1/s", "vanderel-bw4", tau_v=0.2, tau_nms=0.1).g
+    assert weight == pytest.approx(g * 25.0 / target.variance, rel=1e-12)
+    # the OCM's pilot with that g has the 0.1-s lag it was asked for
+    assert solve_ocm("1/s", "vanderel-bw4", g=g).tau_nms == pytest.approx(0.1, rel=1e-6)
+    # a double integrator needs more stick rate for the same error: a smaller weight
+    assert optimal_control_effort_weight("1/s^2", "vanderel-bw4", 5.0) < weight / 3
