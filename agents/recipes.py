@@ -13,18 +13,19 @@ give the agent the human's problem as the optimal control model poses it:
   it as a human does, not read its own pending commands);
 * the neuromuscular system of the precision model (``omega_nms`` 12 rad/s,
   ``zeta_nms`` 0.5) between command and stick;
-* motor noise (Levison-filtered, a share of the stick's power): the remnant, drawn by
-  the wrapper, so it stays on in evaluation and varies from trial to trial;
-* an effort cost on the stick's rate: without it the optimum is a high-gain loop at
-  the edge of stability (crossover 9 rad/s, 3 deg of phase margin), with it the
-  trade-off between error and effort that makes humans cross over at a few rad/s;
+* motor noise, Levison-filtered with the 10-rad/s break the thesis measured for
+  humans on 1/s, half the stick's power: the remnant, drawn by the wrapper, so it stays
+  on in evaluation and varies from trial to trial;
+* observation noise at the OCM's ``rho`` of 3e-5 (-45 dB; the OCM's -20 dB stops PPO
+  from learning a loop within the recipe's budget: no crossover at ``rho`` 1e-3);
+* an effort cost on the stick's rate with the OCM's own weight
+  (:func:`optimal_control_effort_weight`): without it the optimum is a high-gain loop
+  at the edge of stability (crossover 9 rad/s, 3 deg of phase margin);
 * the bounded reward with loss-of-control termination (a positive reward, so ending
-  an episode never pays while the policy is poor), random forcing realisations of 30 s.
+  an episode never pays while the policy is poor), random realisations of the
+  van der El et al. forcing (target and disturbance, 30-s episodes).
 
-PPO with eight environments and a 64-64 network. Lane-keeping recipes steer by angle or
-torque, with the action bound and reward scale set to the task's size (a wheel angle
-of tenths of a radian, an offset of a decimetre) and a discount whose horizon (a few
-seconds at 100 Hz) covers the road ahead.
+PPO with eight environments, a 64-64 network, 1.2 million steps.
 """
 
 from __future__ import annotations
@@ -35,13 +36,15 @@ from typing import Any
 from manualcontrol.agents.training import TrainingConfig
 from manualcontrol.envs._validation import check_choice, check_int
 
-__all__ = ["RECIPES", "optimal_control_effort_weight", "recipe"]
+__all__ = ["RECIPE_ELEMENTS", "optimal_control_effort_weight", "recipe"]
 
 _HUMAN_LIMITATIONS: tuple[Mapping[str, Any], ...] = (
     {"kind": "action_delay", "delay": 0.2, "observe_queue": False},
     {"kind": "neuromuscular", "omega_nms": 12.0, "zeta_nms": 0.5},
-    {"kind": "motor_noise", "power_ratio": 0.3},
+    {"kind": "motor_noise", "power_ratio": 0.5, "omega_r": 10.0},
 )
+_FORCING = "vanderel-bw4"
+_ACTION_BOUND = 5.0
 _PPO = {"n_steps": 512, "batch_size": 256}
 
 
@@ -73,59 +76,35 @@ def _tracking(element: str) -> dict[str, Any]:
         "task": "compensatory",
         "env_kwargs": {
             "controlled_element": element,
-            "forcing": "popovici2017",
+            "forcing": _FORCING,
             "realisation": None,
             "measurement_time": 30.0,
             "include_rates": True,
             "reward": "bounded",
             "loss_of_control": 7.5,
-            "action_bound": 5.0,
+            "action_bound": _ACTION_BOUND,
         },
         "wrappers": _HUMAN_LIMITATIONS,
-        "effort_rate_weight": 0.05,
+        "observation_noise_ratio": 3e-5,
+        "effort_rate_weight": optimal_control_effort_weight(element, _FORCING, _ACTION_BOUND),
         "algorithm": "ppo",
-        "total_timesteps": 600_000,
+        "total_timesteps": 1_200_000,
         "n_envs": 8,
         "algorithm_kwargs": _PPO,
         "policy_kwargs": {"net_arch": [64, 64]},
     }
 
 
-def _lane_keeping(steering: str, bound: float) -> dict[str, Any]:
-    return {
-        "task": "lane-keeping",
-        "env_kwargs": {
-            "road": "random",
-            "measurement_time": 30.0,
-            "steering": steering,
-            "action_bound": bound,
-            "reward": "bounded",
-            "reward_scale": 0.1,
-            "include_rates": True,
-        },
-        "wrappers": ({"kind": "action_delay", "delay": 0.2, "observe_queue": False},),
-        "algorithm": "ppo",
-        "total_timesteps": 600_000,
-        "n_envs": 8,
-        "algorithm_kwargs": {**_PPO, "gamma": 0.995},
-        "policy_kwargs": {"net_arch": [64, 64], "log_std_init": -2.5},
-    }
-
-
-#: Every recipe by name: what it trains, and the configuration's keywords.
-RECIPES: dict[str, tuple[str, dict[str, Any]]] = {
-    "si": ("compensatory tracking of 1/s", _tracking("1/s")),
-    "di": ("compensatory tracking of 1/s^2", _tracking("1/s^2")),
-    "lag": ("compensatory tracking of 1/(s(s+1))", _tracking("1/(s(s+1))")),
-    "lane-angle": ("lane keeping, steering by wheel angle", _lane_keeping("angle", 0.5)),
-}
+#: Every recipe by name: what it trains, and the configuration's keywords (built on
+#: first use: the effort weights solve the OCM).
+RECIPE_ELEMENTS: dict[str, str] = {"si": "1/s", "di": "1/s^2", "lag": "1/(s(s+1))"}
 
 
 def recipe(name: str, *, seed: int = 0, total_timesteps: int | None = None) -> TrainingConfig:
-    """The training configuration of recipe ``name`` (:data:`RECIPES`) with ``seed``."""
-    check_choice("recipe", name, tuple(RECIPES))
+    """The training configuration of recipe ``name`` (:data:`RECIPE_ELEMENTS`) with ``seed``."""
+    check_choice("recipe", name, tuple(RECIPE_ELEMENTS))
     check_int("seed", seed, minimum=0)
-    keywords = dict(RECIPES[name][1])
+    keywords = _tracking(RECIPE_ELEMENTS[name])
     if total_timesteps is not None:
         keywords["total_timesteps"] = check_int("total_timesteps", total_timesteps, minimum=1)
     return TrainingConfig(seed=seed, **keywords)

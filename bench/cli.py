@@ -954,10 +954,11 @@ _RECIPE_SETS = {
 
 
 def _recipe_config(args: argparse.Namespace) -> Any:
-    from manualcontrol.agents.recipes import RECIPES, recipe
+    from manualcontrol.agents.recipes import RECIPE_ELEMENTS, recipe
 
-    if args.recipe not in RECIPES:
-        raise UsageError(f"--recipe must be one of {', '.join(RECIPES)}, got {args.recipe!r}")
+    if args.recipe not in RECIPE_ELEMENTS:
+        names = ", ".join(RECIPE_ELEMENTS)
+        raise UsageError(f"--recipe must be one of {names}, got {args.recipe!r}")
     given = [flag for flag, (name, unset) in _RECIPE_SETS.items() if getattr(args, name) != unset]
     if given:
         raise UsageError(
@@ -1274,7 +1275,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME",
         help="a measured training recipe (si, di, lag: compensatory tracking of 1/s, 1/s^2, "
         "1/(s(s+1)) with a human's delay, neuromuscular system, motor noise and effort "
-        "cost; lane-angle: lane keeping); takes --seed, --steps and --checkpoint-every, "
+        "cost); takes --seed, --steps and --checkpoint-every, "
         "nothing else that sets the training",
     )
     p.add_argument(

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 import manualcontrol.envs  # noqa: F401
-from manualcontrol.agents.recipes import RECIPES, recipe
+from manualcontrol.agents.recipes import RECIPE_ELEMENTS, optimal_control_effort_weight, recipe
 from manualcontrol.agents.training import make_env
 from manualcontrol.agents.wrappers import ObservationScale
 from manualcontrol.bench.cli import main
 
 
-@pytest.mark.parametrize("name", sorted(RECIPES))
+@pytest.mark.parametrize("name", sorted(RECIPE_ELEMENTS))
 def test_every_recipe_builds_its_environment_with_the_human_limitations(name):
     config = recipe(name, seed=3)
     assert config.seed == 3 and config.algorithm == "ppo"
@@ -22,8 +22,7 @@ def test_every_recipe_builds_its_environment_with_the_human_limitations(name):
     assert kinds[0] == "action_delay" or "action_delay" in kinds
     delay = next(spec for spec in config.limitations if spec["kind"] == "action_delay")
     assert delay["delay"] == 0.2 and delay["observe_queue"] is False
-    if config.task == "compensatory":
-        assert "effort_cost" in kinds and "motor_noise" in kinds
+    assert "effort_cost" in kinds and "motor_noise" in kinds and "observation_noise" in kinds
     env = make_env(config)
     observation, _ = env.reset(seed=0)
     assert env.observation_space.contains(observation)
@@ -69,11 +68,11 @@ def test_the_train_command_trains_a_recipe(tmp_path):
     config = json.loads((out / "config.json").read_text())
     assert config["seed"] == 2 and config["total_timesteps"] == 64
     assert config["env_kwargs"]["controlled_element"] == "1/(s(s+1))"
-    assert config["effort_rate_weight"] == RECIPES["lag"][1]["effort_rate_weight"]
+    weight = optimal_control_effort_weight("1/(s(s+1))", "vanderel-bw4", 5.0)
+    assert config["effort_rate_weight"] == pytest.approx(weight, rel=1e-12)
 
 
 def test_the_optimal_control_effort_weight_poses_the_ocms_trade_off_in_reward_units():
-    from manualcontrol.agents.recipes import optimal_control_effort_weight
     from manualcontrol.envs.signals import forcing_preset
     from manualcontrol.pilots import solve_ocm
 
