@@ -964,7 +964,7 @@ class MultiUKF:
     that the slow member's innovations are as likely as the fast one's even during
     ramps (log-likelihood over a second in favour of the slow member throughout), so
     likelihood weights pick the slow member always and lose its lag (measured while
-    designing this rule; see the issue-14 note).
+    designing this rule).
 
     The result's ``states`` hold, besides the slow member's model states, each
     member's estimates (``slow.K_p``, ``fast.K_p``, ...) and the gates (``gate.K_p``);

@@ -101,7 +101,8 @@ def test_bad_input_raises():
 
 
 def _assert_equals_the_augmented_scipy_exponential(exact, A, B, dt):
-    # the pre-issue-16 path: one scipy expm of [[A, B, 0], [0, 0, I/dt], [0, 0, 0]] dt
+    # the earlier path, kept as the reference: one scipy expm of
+    # [[A, B, 0], [0, 0, I/dt], [0, 0, 0]] dt
     n, m = A.shape[-1], B.shape[-1]
     augmented = np.zeros((A.shape[0], n + 2 * m, n + 2 * m))
     augmented[:, :n, :n] = A * dt

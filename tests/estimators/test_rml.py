@@ -150,7 +150,7 @@ def test_with_remnant_it_learns_the_remnant_and_keeps_the_gains():
 
     The DEKF's K_p collapses (thesis Table IV: bias -0.64); the RML's does not, and the
     remnant intensity it learns is within a factor of two of the simulated one. (The
-    far-view K_f of this run is another matter: see the issue-15 note.)
+    far-view K_f of this run is not asserted here.)
     """
     pilot = Pilot(
         "preview",
