@@ -42,7 +42,7 @@ from manualcontrol.estimators.human_likeness import (
 from manualcontrol.estimators.offline import OfflineFit, fit_pilot
 from manualcontrol.pilots import Pilot
 
-__all__ = ["REFERENCE_PILOTS", "Evaluation", "evaluate", "write_report"]
+__all__ = ["REFERENCE_PILOTS", "Evaluation", "evaluate", "fly", "write_report"]
 
 #: Typical precision-model pilots (thesis Table 6.1: SI values of Sim 2 without
 #: preview, DI values of Sim 8), the reference an agent's tracking is compared with.
@@ -131,14 +131,15 @@ def implausible(model: str, values: dict[str, float]) -> list[str]:
     return flags
 
 
-def _run(actor: Any, env: Any, seed: int) -> Recording:
+def fly(actor: Any, env: Any, seed: int, *, include_run_in: bool = False) -> Recording:
+    """One episode of ``actor`` (an agent or any pilot with ``reset``/``act``) in ``env``."""
     observation, _ = env.reset(seed=seed)
     actor.reset(seed=seed, env=env)
     done = False
     while not done:
         observation, _, terminated, truncated, _ = env.step(actor.act(observation))
         done = terminated or truncated
-    return env.unwrapped.recording()
+    return env.unwrapped.recording(include_run_in=include_run_in)
 
 
 def _make_env(agent: TrainedAgent, noise: bool, overrides: Mapping[str, Any]) -> Any:
@@ -180,7 +181,7 @@ def evaluate(
         **dict(env_overrides or {}),
     }
     env = _make_env(agent, not deterministic, overrides)
-    _run(agent, env, seed)
+    fly(agent, env, seed)
     whole = env.unwrapped.recording(include_run_in=True)
     recording = whole.slice_time(0.0)
     env.close()
@@ -203,7 +204,7 @@ def evaluate(
         if values is not None:
             # the bare task: no limitation wrappers between the pilot and the display
             base = gym.make(TASK_IDS[agent.config.task], **{**agent.config.env_kwargs, **overrides})
-            reference_recording = _run(Pilot("precision", dict(values)), base, seed)
+            reference_recording = fly(Pilot("precision", dict(values)), base, seed)
             base.close()
             reference_rms = float(np.sqrt(np.mean(reference_recording.e**2)))
         human = human_likeness(recording, reference=reference)

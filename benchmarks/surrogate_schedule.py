@@ -21,6 +21,7 @@ import json
 
 import numpy as np
 
+from manualcontrol.agents.evaluation import fly
 from manualcontrol.agents.training import load_agent, make_env
 from manualcontrol.envs.schedules import Ramp
 from manualcontrol.estimators import RML
@@ -29,16 +30,6 @@ from manualcontrol.pilots import simulate
 
 RUN_IN = 30.0
 MEASUREMENT = 80.0
-
-
-def _run(agent, env, seed):
-    observation, _ = env.reset(seed=seed)
-    agent.reset(seed=seed, env=env)
-    done = False
-    while not done:
-        observation, _, terminated, truncated, _ = env.step(agent.act(observation))
-        done = terminated or truncated
-    return env.unwrapped.recording(include_run_in=True)
 
 
 def _change_scores(result, t_true, change, start):
@@ -80,7 +71,7 @@ def main() -> None:
             realisation=seed,
             loss_of_control=None,
         )
-        recording = _run(agent, env, seed)
+        recording = fly(agent, env, seed, include_run_in=True)
         env.close()
         t_grid = recording.t
         change = np.interp(t_grid, [start, start + args.over], [0.0, args.rise])
