@@ -1,13 +1,16 @@
 """Training recipes: surrogate operators that train in minutes on two cores.
 
-A recipe is a :class:`~manualcontrol.agents.training.TrainingConfig` for one task that
-this project has trained and measured (``benchmarks/train_recipes.py`` trains every
-recipe with several seeds and measures each agent's human-likeness; the figures are in
-``docs/surrogates.md``). ``manualcontrol train --recipe NAME`` and :func:`recipe` give
-it; ``seed`` and ``total_timesteps`` may be changed, everything else is the recipe.
+:func:`human_problem` is the :class:`~manualcontrol.agents.training.TrainingConfig` of
+compensatory tracking of any element posed as the human's problem; a recipe is such a
+configuration that this project has trained and measured and whose agents fly a loop:
+today ``"si"`` (``1/s``). ``benchmarks/train_recipes.py`` trains the problem on each
+element with several seeds and measures each agent's human-likeness; the figures,
+including those of the elements whose agents do not yet fly a loop (``1/s^2``,
+``1/(s(s+1))``), are in ``docs/surrogates.md``. ``manualcontrol train --recipe NAME`` and
+:func:`recipe` give a recipe; ``seed`` and ``total_timesteps`` may be changed,
+everything else is the recipe.
 
-Tracking recipes (``"si"``: ``1/s``, ``"di"``: ``1/s^2``, ``"lag"``: ``1/(s(s+1))``)
-give the agent the human's problem as the optimal control model poses it:
+The human's problem, as the optimal control model poses it:
 
 * a perceptual delay of 0.2 s whose queue the agent cannot see (it must act through
   it as a human does, not read its own pending commands);
@@ -36,7 +39,7 @@ from typing import Any
 from manualcontrol.agents.training import TrainingConfig
 from manualcontrol.envs._validation import check_choice, check_int
 
-__all__ = ["RECIPE_ELEMENTS", "optimal_control_effort_weight", "recipe"]
+__all__ = ["RECIPE_ELEMENTS", "human_problem", "optimal_control_effort_weight", "recipe"]
 
 _HUMAN_LIMITATIONS: tuple[Mapping[str, Any], ...] = (
     {"kind": "action_delay", "delay": 0.2, "observe_queue": False},
@@ -71,6 +74,15 @@ def optimal_control_effort_weight(
     return float(g * action_bound**2 / signal.variance)
 
 
+def human_problem(
+    element: str, *, seed: int = 0, total_timesteps: int = 1_200_000
+) -> TrainingConfig:
+    """Compensatory tracking of ``element`` posed as the human's problem (module docstring)."""
+    check_int("seed", seed, minimum=0)
+    check_int("total_timesteps", total_timesteps, minimum=1)
+    return TrainingConfig(seed=seed, **{**_tracking(element), "total_timesteps": total_timesteps})
+
+
 def _tracking(element: str) -> dict[str, Any]:
     return {
         "task": "compensatory",
@@ -95,16 +107,15 @@ def _tracking(element: str) -> dict[str, Any]:
     }
 
 
-#: Every recipe by name: what it trains, and the configuration's keywords (built on
-#: first use: the effort weights solve the OCM).
-RECIPE_ELEMENTS: dict[str, str] = {"si": "1/s", "di": "1/s^2", "lag": "1/(s(s+1))"}
+#: Every recipe by name: the element whose human problem it trains.
+RECIPE_ELEMENTS: dict[str, str] = {"si": "1/s"}
 
 
 def recipe(name: str, *, seed: int = 0, total_timesteps: int | None = None) -> TrainingConfig:
     """The training configuration of recipe ``name`` (:data:`RECIPE_ELEMENTS`) with ``seed``."""
     check_choice("recipe", name, tuple(RECIPE_ELEMENTS))
-    check_int("seed", seed, minimum=0)
-    keywords = _tracking(RECIPE_ELEMENTS[name])
-    if total_timesteps is not None:
-        keywords["total_timesteps"] = check_int("total_timesteps", total_timesteps, minimum=1)
-    return TrainingConfig(seed=seed, **keywords)
+    return human_problem(
+        RECIPE_ELEMENTS[name],
+        seed=seed,
+        total_timesteps=1_200_000 if total_timesteps is None else total_timesteps,
+    )

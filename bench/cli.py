@@ -1273,8 +1273,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--recipe",
         default=None,
         metavar="NAME",
-        help="a measured training recipe (si, di, lag: compensatory tracking of 1/s, 1/s^2, "
-        "1/(s(s+1)) with a human's delay, neuromuscular system, motor noise and effort "
+        help="a measured training recipe (si: compensatory tracking of 1/s with a human's "
+        "delay, neuromuscular system, motor and observation noise and effort "
         "cost); takes --seed, --steps and --checkpoint-every, "
         "nothing else that sets the training",
     )
