@@ -38,17 +38,18 @@ from manualcontrol.estimators.human_likeness import (
     HumanLikeness,
     human_likeness,
     plot_human_likeness,
+    reference_pilot,
 )
 from manualcontrol.estimators.offline import OfflineFit, fit_pilot
 from manualcontrol.pilots import Pilot
 
 __all__ = ["REFERENCE_PILOTS", "Evaluation", "evaluate", "fly", "write_report"]
 
-#: Typical precision-model pilots (thesis Table 6.1: SI values of Sim 2 without
-#: preview, DI values of Sim 8), the reference an agent's tracking is compared with.
+#: Typical precision-model pilots of the thesis's elements (Table 6.1: SI values of Sim 2
+#: without preview, DI values of Sim 8), as :func:`~manualcontrol.estimators.
+#: human_likeness.reference_pilot` gives them (every element: that function).
 REFERENCE_PILOTS: dict[str, dict[str, float]] = {
-    "SI": {"K_p": 1.3, "K_v": 0.0, "omega_nms": 10.5, "zeta_nms": 0.35, "tau_v": 0.26},
-    "DI": {"K_p": 0.24, "K_v": 0.36, "omega_nms": 8.0, "zeta_nms": 0.45, "tau_v": 0.3},
+    name: reference_pilot(name) for name in ("SI", "DI")
 }
 
 
@@ -163,9 +164,10 @@ def evaluate(
     The environment is the agent's own (configuration, wrappers), over the full
     measurement time of the forcing (for the frequency response) after ``run_in``
     seconds, with loss-of-control termination off so that a poor agent is still
-    measured over the whole period. ``reference`` overrides the precision pilot of
-    :data:`REFERENCE_PILOTS` (chosen by the element's name "SI"/"DI"; another element
-    needs one given), in the RMS comparison here and in the human-likeness ratio.
+    measured over the whole period. ``reference`` overrides the typical precision pilot
+    of the agent's element (:func:`~manualcontrol.estimators.human_likeness.
+    reference_pilot`; an element without one, e.g. a pure gain, needs one given), in the
+    RMS comparison here and in the human-likeness ratio.
     ``deterministic`` True runs without the wrappers' noise; None (default) follows the
     agent's configuration (``TrainingConfig.deterministic``, where it has one), whose
     default keeps the noise on.
@@ -191,13 +193,7 @@ def evaluate(
     identified = fit_pilot(recording, model)
     dekf = _dekf_identification(whole, model, agent.config)
     element = agent.config.env_kwargs.get("controlled_element", "SI")
-    values = (
-        reference
-        if reference is not None
-        else REFERENCE_PILOTS.get(element)
-        if isinstance(element, str)
-        else None
-    )
+    values = reference if reference is not None else reference_pilot(element)
     reference_rms = None
     human = None
     if agent.config.task == "compensatory":
