@@ -46,7 +46,6 @@ from manualcontrol.envs._files import atomic_write
 from manualcontrol.envs._validation import check_choice, check_int
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
-from manualcontrol.estimators.smoothed import SUFFIX
 from manualcontrol.estimators.smoothing import smooth
 
 __all__ = [
@@ -185,13 +184,14 @@ def run_scenarios(scenarios: Sequence[Scenario], out: Path | None = None) -> lis
 
 
 def _is_twin(spec: Mapping[str, Any]) -> bool:
-    name = spec["name"]
-    return name.endswith(SUFFIX) and name[: -len(SUFFIX)] in ESTIMATORS
+    """Whether ``spec`` names a smoothed twin (its filter's run, smoothed)."""
+    entry = ESTIMATORS.get(spec["name"])
+    return entry is not None and entry.twin == "smoothed"
 
 
 def _online(spec: Mapping[str, Any]) -> dict[str, Any]:
     """The spec of the online filter ``spec`` runs: a smoothed twin names its filter."""
-    return {**spec, "name": spec["name"][: -len(SUFFIX)]} if _is_twin(spec) else dict(spec)
+    return {**spec, "name": ESTIMATORS[spec["name"]].base} if _is_twin(spec) else dict(spec)
 
 
 def _filter_key(spec: Mapping[str, Any]) -> str:

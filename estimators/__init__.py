@@ -41,11 +41,6 @@ from manualcontrol.estimators.smoothing import smooth
 from manualcontrol.estimators.ukf import DualUKF, DualUKFSettings, JointUKF, UKFSettings
 from manualcontrol.estimators.zhao_ukf import MultiUKF, MultiUKFSettings, ZhaoUKF, ZhaoUKFSettings
 
-# after every member: the offline (smoothed, cross-validated) variants of the registered
-# estimators
-from manualcontrol.estimators import smoothed as _smoothed  # noqa: F401  isort: skip
-from manualcontrol.estimators import cross_validation as _cross_validation  # noqa: F401  isort: skip
-
 __all__ = [
     "DEKF",
     "ESTIMATORS",

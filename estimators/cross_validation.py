@@ -80,7 +80,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -93,7 +93,6 @@ from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair, Multisine
 from manualcontrol.estimators.metrics import resimulate
 from manualcontrol.estimators.protocol import EstimationResult
-from manualcontrol.estimators.registry import ESTIMATORS, EstimatorEntry, register
 from manualcontrol.estimators.smoothed import SmoothedEstimator
 
 if TYPE_CHECKING:
@@ -101,15 +100,13 @@ if TYPE_CHECKING:
 
 __all__ = [
     "DEFAULT_SCALES",
-    "SUFFIX",
+    "OPTION_KEYS",
     "CrossValidatedEstimator",
     "NoiseScaleChoice",
+    "build_cross_validated",
     "choose_noise_scale",
-    "register_cross_validated",
 ]
 
-#: Suffix of the cross-validated members' names.
-SUFFIX = "-cv"
 #: Multipliers of the filter's resolved ``Q`` tried by default.
 DEFAULT_SCALES: tuple[float, ...] = (0.3, 1.0, 3.0, 10.0)
 #: Band edges relative to the forcing's lowest and highest frequencies.
@@ -403,37 +400,20 @@ class CrossValidatedEstimator(SmoothedEstimator):
         return f"CrossValidatedEstimator({self.filter!r}, {options})"
 
 
-def register_cross_validated(name: str) -> EstimatorEntry:
-    """Register ``name + SUFFIX``: the registered filter ``name`` at a cross-validated ``Q``."""
-    base = ESTIMATORS.get(name)
-    if base is None or not (base.pilot_model and base.smoothable):
-        raise ValueError(f"{name!r} is not a smoothable filter on a pilot model")
+def build_cross_validated(
+    build: Callable[[Mapping[str, Any]], Any], settings: Mapping[str, Any]
+) -> CrossValidatedEstimator:
+    """A ``-cv`` twin built from a settings table.
 
-    def build(settings: Mapping[str, Any]) -> CrossValidatedEstimator:
-        unknown = [k for k in settings if k.startswith("cv_") and k not in OPTION_KEYS]
-        if unknown:
-            raise TypeError(
-                f"unknown cross-validation setting(s) {', '.join(map(repr, unknown))}; "
-                f"known: {', '.join(OPTION_KEYS)}"
-            )
-        rest = {k: v for k, v in settings.items() if k not in OPTION_KEYS}
-        options = {k[3:]: settings[k] for k in OPTION_KEYS if k in settings}
-        return CrossValidatedEstimator(base.build(rest), **options)
-
-    return register(
-        EstimatorEntry(
-            name=f"{name}{SUFFIX}",
-            summary=f"{name}, smoothed at the process-noise scale that predicts held-out "
-            "stretches best (offline; cross-validation in the forcing band)",
-            reference=base.reference,
-            build=build,
-            resimulate=base.resimulate,
-            pilot_model=True,
-            smoothable=False,
+    The ``cv_*`` keys (:data:`OPTION_KEYS`) are the cross-validation's options, the
+    rest the filter's (built by ``build``).
+    """
+    unknown = [k for k in settings if k.startswith("cv_") and k not in OPTION_KEYS]
+    if unknown:
+        raise TypeError(
+            f"unknown cross-validation setting(s) {', '.join(map(repr, unknown))}; "
+            f"known: {', '.join(OPTION_KEYS)}"
         )
-    )
-
-
-for _name in [n for n, entry in ESTIMATORS.items() if entry.pilot_model and entry.smoothable]:
-    if f"{_name}{SUFFIX}" not in ESTIMATORS:
-        register_cross_validated(_name)
+    rest = {k: v for k, v in settings.items() if k not in OPTION_KEYS}
+    options = {k[3:]: settings[k] for k in OPTION_KEYS if k in settings}
+    return CrossValidatedEstimator(build(rest), **options)

@@ -98,8 +98,8 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._display_keys = tuple(key for key in keys if key in ("e", "y", "ft"))
         self._anticipation = float(getattr(settings, "anticipation_time", None) or 0.0)
         self._estimated = self._estimated_names()
-        # the family's filters build these dicts from their output row directly
-        self._update_plain = getattr(estimator, "_update_plain", None)
+        # the family's members build these dicts from their output row directly
+        self._update_plain = getattr(estimator, "update_plain", None)
         if self.append_to_observation:
             low = np.full(len(self._estimated), -np.inf)
             box = env.observation_space

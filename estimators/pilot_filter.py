@@ -104,7 +104,6 @@ from manualcontrol.envs._validation import (
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _pilot_core as core
 from manualcontrol.estimators._recording_checks import check_estimable
-from manualcontrol.estimators._shell import health_summary
 from manualcontrol.estimators._targets import target_function
 from manualcontrol.estimators.internal_model import (
     ANTICIPATED_PARAMETER,
@@ -113,11 +112,10 @@ from manualcontrol.estimators.internal_model import (
 )
 from manualcontrol.estimators.protocol import (
     Estimate,
-    EstimateHealth,
     EstimationResult,
-    ParameterValues,
     sample_floats,
 )
+from manualcontrol.estimators.shell import FilterShell, health_summary
 from manualcontrol.pilots.models import (
     CROSSOVER_RANGE,
     MODEL_NAMES,
@@ -1032,30 +1030,26 @@ class CommonArrays:
     parameter_map: ParameterMap
 
 
-class PilotFilter:
-    """The estimator protocol around a compiled filter on a pilot internal model.
+class PilotFilter(FilterShell):
+    """The shell of the members on a pilot internal model (DEKF, RML, joint and dual UKF).
 
-    Subclasses set :attr:`name` and :attr:`settings_type` and implement ``_start``
-    (build their records from the resolved settings), ``_new_output`` (output records
-    for ``n`` rows, with smoother storage or without), ``_step``/``_run`` (call the
-    compiled kernels) and, for smoothing, ``_smoother_inputs``.
+    On top of :class:`~manualcontrol.estimators.shell.FilterShell`: the settings
+    resolution of the pilot models (limits, starting values, noise), the start from the
+    describing function and the restarts. Subclasses set :attr:`name` and
+    :attr:`settings_type` and implement ``_start`` (build their records from the
+    resolved settings), ``_new_output`` (output records for ``n`` rows, with smoother
+    storage or without), ``_step``/``_run`` (call the compiled kernels) and, for
+    smoothing, ``_smoother_inputs``.
     """
 
-    name: ClassVar[str] = ""
     settings_type: ClassVar[type[PilotFilterSettings]] = PilotFilterSettings
     #: The compiled one-sample kernel, ``kernel(*records, inputs, u, e, row, out)``
     #: (a ``staticmethod``: numba's dispatchers bind to instances like functions).
     _step_kernel: ClassVar[Any] = None
 
     def __init__(self, settings: PilotFilterSettings | None = None, **changes: Any) -> None:
-        kind = self.settings_type
-        if settings is None:
-            settings = kind(**changes)
-        elif not isinstance(settings, kind):
-            raise TypeError(f"settings must be {kind.__name__}, got {settings!r}")
-        elif changes:
-            settings = dataclasses.replace(settings, **changes)
-        self._settings = settings
+        super().__init__(settings, **changes)
+        settings = self._settings
         self._internal = internal_model(settings.model, settings.delay_order, settings.pursuit)
         assumed = held_without_values(
             self._internal.parameter_names,
@@ -1080,25 +1074,19 @@ class PilotFilter:
         self._columns = MappingProxyType(
             {name: j for j, name in enumerate(self._internal.parameter_names)}
         )
-        self._where = f"{type(self).__name__}.update sample"
         self._inputs = np.zeros(len(self._internal.input_names))
         self._u_at, self._e_at = keys.index("u"), keys.index("e")
         # update() calls the kernel itself only where _step is this class's own call
         self._direct = type(self)._step is PilotFilter._step
-        self._healths: dict[bytes, EstimateHealth] = {}
         self._common: CommonArrays | None = None
         self._resolved: ResolvedSettings | None = None
-        self._row: Any = None
-        self._t0 = 0.0
-        self._dt = 0.01
-        self._k = 0
 
     # ----------------------------------------------------------------- access
 
     @property
-    def settings(self) -> PilotFilterSettings:
-        """The frozen settings."""
-        return self._settings
+    def parameter_names(self) -> tuple[str, ...]:
+        """The internal model's parameters, in the results' column order."""
+        return self._internal.parameter_names
 
     @property
     def internal_model(self) -> InternalModel:
@@ -1112,21 +1100,8 @@ class PilotFilter:
             raise RuntimeError(f"the {type(self).__name__} has not been reset; call reset() first")
         return self._resolved
 
-    @property
-    def sample_keys(self) -> tuple[str, ...]:
-        """Keys :meth:`update` needs: the filter inputs, ``u`` and ``e``."""
-        return self._sample_keys
-
-    def configure(self, **changes: Any) -> PilotFilter:
-        """A new filter of this kind with some settings replaced."""
-        return type(self)(dataclasses.replace(self._settings, **changes))
-
-    def __reduce__(self) -> tuple[Any, ...]:
-        """Pickle (and deep copy) as a fresh filter with the same settings, without run state."""
-        return (type(self), (self._settings,))
-
-    def __repr__(self) -> str:
-        return f"{type(self).__name__}(model={self._settings.model!r}, ce={self._settings.ce!r})"
+    def _repr_fields(self) -> Mapping[str, Any]:
+        return {"model": self._settings.model, "ce": self._settings.ce}
 
     # ----------------------------------------------------------------- reset
 
@@ -1226,12 +1201,9 @@ class PilotFilter:
         )
         self._resolved = resolved
         self._start(resolved, self._common)
-        row = self._row = self._new_output(1, store=False)
+        self._begin(self._records, dt, t0, resolved.estimated)
+        row = self._row
         self._row_views = (row.mean[0], row.std[0], row.scalar[0], row.flag[0], row.pinned[0])
-        self._estimated = resolved.estimated
-        self._healths.clear()
-        self._entry = None
-        self._t0, self._dt, self._k = t0, dt, 0
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
         raise NotImplementedError
@@ -1241,21 +1213,6 @@ class PilotFilter:
 
     def _step(self, inputs: FloatArray, u: float, e: float, out: Any) -> None:
         self._call_step(self._step_kernel, (*self._records, inputs, u, e, 0, out))
-
-    def _call_step(self, kernel: Any, arguments: tuple) -> None:
-        """Call the compiled one-sample ``kernel``, bypassing numba's dispatcher after once.
-
-        The dispatcher types every argument on every call; for the records of a filter
-        (some forty arrays in namedtuples) that was 16 of the 22 us an ``update()``
-        cost. The records keep their types from one reset to the next sample, so the
-        overload found on the first call is called directly afterwards.
-        """
-        if self._entry is None:
-            kernel(*arguments)
-            types = tuple(kernel.typeof_pyval(argument) for argument in arguments)
-            self._entry = kernel.overloads[types].entry_point
-        else:
-            self._entry(*arguments)
 
     def _run(self, inputs: FloatArray, u: FloatArray, e: FloatArray, out: Any) -> None:
         raise NotImplementedError
@@ -1277,12 +1234,8 @@ class PilotFilter:
         """
         return self._estimate_of_row(self._consume(sample))
 
-    def _update_plain(self, sample: Mapping[str, float]) -> dict[str, Any]:
-        """:meth:`update` as the online observer reports it, without an :class:`Estimate`.
-
-        Plain dicts, lists and floats, new each call, built straight from the output
-        row (:class:`~manualcontrol.estimators.observer.EstimatorObserver` at 100 Hz).
-        """
+    def update_plain(self, sample: Mapping[str, float]) -> dict[str, Any]:
+        """:meth:`update` as plain data (see the shell's); from the row views set at reset."""
         t = self._consume(sample)
         mean, std, scalar, flag, pinned = self._row_views
         health = self._health_of_row(flag, pinned)
@@ -1300,8 +1253,7 @@ class PilotFilter:
 
     def _consume(self, sample: Mapping[str, float]) -> float:
         """Check one sample and step the filter on it; return its time."""
-        if self._common is None:
-            raise RuntimeError(f"the {type(self).__name__} has not been reset; call reset() first")
+        self._require_reset()
         values = sample_floats(self._where, sample, self._sample_keys, self._allowed_sample_keys)
         inputs = self._inputs
         for i in range(len(inputs)):
@@ -1317,39 +1269,6 @@ class PilotFilter:
         t = self._t0 + self._k * self._dt if t is None else float(t)
         self._k += 1
         return t
-
-    def _health_of_row(self, flag: NDArray[np.bool_], pinned: NDArray[np.bool_]) -> EstimateHealth:
-        """The (immutable, shared) health of the row's flags: one per combination."""
-        key = flag.tobytes() + pinned.tobytes()
-        health = self._healths.get(key)
-        if health is None:
-            finite, covariance_ok, dropped, diverged = flag.tolist()
-            names = self._internal.parameter_names
-            health = EstimateHealth(
-                finite=finite,
-                covariance_ok=covariance_ok,
-                pinned=tuple(n for n, at in zip(names, pinned.tolist(), strict=True) if at),
-                dropped=dropped,
-                diverged=diverged,
-            )
-            if len(self._healths) < 1024:
-                self._healths[key] = health
-        return health
-
-    def _estimate_of_row(self, t: float) -> Estimate:
-        """The :class:`Estimate` held in the one-row output the last step wrote."""
-        mean, std, scalar, flag, pinned = self._row_views
-        prediction, innovation, variance = scalar.tolist()
-        return Estimate.of_one_output(
-            t,
-            ParameterValues(self._columns, mean.copy()),
-            ParameterValues(self._columns, std.copy()),
-            self._estimated,
-            prediction,
-            innovation,
-            variance,
-            self._health_of_row(flag, pinned),
-        )
 
     # -------------------------------------------------------------- estimate
 
@@ -1591,25 +1510,11 @@ class PilotFilter:
 
     def _result(self, t: FloatArray, out: Any, store: bool) -> EstimationResult:
         state_names, states = self._state_traces(out)
-        return EstimationResult(
-            estimator=self.name,
-            t=t,
-            parameter_names=self._internal.parameter_names,
-            estimated=self.resolved.estimated,
-            mean=out.mean,
-            std=out.std,
-            outputs=("u",),
-            predictions=out.scalar[:, 0:1],
-            innovations=out.scalar[:, 1:2],
-            innovation_covariance=out.scalar[:, 2, None, None],
-            finite=out.flag[:, 0],
-            covariance_ok=out.flag[:, 1],
-            dropped=out.flag[:, 2],
-            diverged=out.flag[:, 3],
-            pinned=out.pinned,
+        return self._assemble(
+            t,
+            out,
+            store,
             settings={"settings": self._settings.to_dict(), "resolved": self.resolved.to_dict()},
-            health=self._health(t, out.flag, out.pinned),
             state_names=state_names,
             states=states,
-            smoother_inputs=self._smoother_inputs(out) if store else None,
         )

@@ -86,16 +86,13 @@ from manualcontrol.envs._validation import (
 )
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _rdi_core as core
-from manualcontrol.estimators._shell import REASONS
 from manualcontrol.estimators.filters.kalman import kalman_work
 from manualcontrol.estimators.protocol import (
-    Estimate,
-    EstimateHealth,
     EstimationResult,
     sample_values,
     summarise_health,
 )
-from manualcontrol.estimators.registry import EstimatorEntry, register
+from manualcontrol.estimators.shell import REASONS, FilterShell
 
 __all__ = ["RDI", "RDISettings", "ResolvedRDI", "parameter_symbols"]
 
@@ -331,7 +328,7 @@ class ResolvedRDI:
         return dict(self.numbers)
 
 
-class RDI:
+class RDI(FilterShell):
     """Recursive delay identifier (Boer & Kenyon 1998); see the module docstring.
 
     Parameters
@@ -355,52 +352,29 @@ class RDI:
     """
 
     name = "rdi"
+    settings_type = RDISettings
 
     def __init__(self, settings: RDISettings | None = None, **changes: Any) -> None:
-        if settings is None:
-            settings = RDISettings(**changes)
-        elif not isinstance(settings, RDISettings):
-            raise TypeError(f"settings must be an RDISettings, got {settings!r}")
-        elif changes:
-            settings = dataclasses.replace(settings, **changes)
-        self._settings = settings
-        self._records: Any = None
-        self._row: Any = None
-
-    @property
-    def settings(self) -> RDISettings:
-        """The frozen settings."""
-        return self._settings
+        super().__init__(settings, **changes)
+        # the input and the output signal
+        self._sample_keys = (self._settings.input, self._settings.output)
+        self.outputs = (self._settings.output,)
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
         """Reported parameter names, in ``theta`` order."""
         return self._settings.parameter_names
 
-    @property
-    def sample_keys(self) -> tuple[str, ...]:
-        """Keys :meth:`update` needs: the input and the output signal."""
-        return (self._settings.input, self._settings.output)
-
-    def configure(self, **changes: Any) -> RDI:
-        """A new RDI with some settings replaced."""
-        return RDI(dataclasses.replace(self._settings, **changes))
-
-    def __reduce__(self) -> tuple[Any, ...]:
-        """Pickle (and deep copy) as a fresh RDI with the same settings, without run state."""
-        return (type(self), (self._settings,))
-
-    def __repr__(self) -> str:
+    def _repr_fields(self) -> Mapping[str, Any]:
         s = self._settings
-        return f"RDI(n_a={s.n_a}, n_b={s.n_b}, decimation={s.decimation})"
+        return {"n_a": s.n_a, "n_b": s.n_b, "decimation": s.decimation}
 
     # ----------------------------------------------------------------- reset
 
     @property
     def resolved(self) -> ResolvedRDI:
         """The numbers of the last :meth:`reset` (as the pilot filters report theirs)."""
-        if self._records is None:
-            raise RuntimeError("the RDI has not been reset; call reset() first")
+        self._require_reset()
         names = dict(zip(self._settings.symbols, self.parameter_names, strict=True))
         return ResolvedRDI(
             estimated=self._reported_estimated(),
@@ -483,10 +457,8 @@ class RDI:
             gradient=np.zeros(n_p),
             flags=np.zeros(6, dtype=np.bool_),
         )
-        self._records = (config, belief, scratch)
         self._resolved = resolved
-        self._row = self._new_output(1, store=False)
-        self._t0, self._dt, self._k = t0, dt, 0
+        self._begin((config, belief, scratch), dt, t0, self._reported_estimated())
 
     def _new_output(self, n: int, store: bool) -> core.RDIOutput:
         n_p = len(self._settings.symbols)
@@ -504,44 +476,18 @@ class RDI:
             P_post=np.zeros((rows, n_s, n_s)),
         )
 
-    def _require_reset(self) -> None:
-        if self._records is None:
-            raise RuntimeError("the RDI has not been reset; call reset() first")
-
     # ---------------------------------------------------------------- update
 
-    def update(self, sample: Mapping[str, float]) -> Estimate:
-        """Consume one sample (the input and output signals, optionally ``t``).
+    def _step_sample(self, sample: Mapping[str, float]) -> None:
+        """Step on one sample of the input and output signals.
 
         NaN in either signal marks a dropped sample: no correction (the input's NaN
         also spoils the predictions that read it, which are then skipped too).
         """
-        self._require_reset()
-        keys = self.sample_keys
-        values = sample_values("RDI.update sample", sample, keys, (*keys, "t"))
-        out = self._row
-        core.rdi_step(*self._records, values[keys[0]], values[keys[1]], 0, out)
-        t = float(sample["t"]) if "t" in sample else self._t0 + self._k * self._dt
-        self._k += 1
-        names = self.parameter_names
-        estimated = self._reported_estimated()
-        flag = out.flag[0]
-        return Estimate(
-            t=t,
-            mean={n: float(out.mean[0, j]) for j, n in enumerate(names)},
-            std={n: float(out.std[0, j]) for j, n in enumerate(names)},
-            estimated=estimated,
-            prediction=float(out.scalar[0, 0]),
-            innovation=float(out.scalar[0, 1]),
-            innovation_variance=float(out.scalar[0, 2]),
-            health=EstimateHealth(
-                finite=bool(flag[0]),
-                covariance_ok=bool(flag[1]),
-                pinned=tuple(n for j, n in enumerate(names) if out.pinned[0, j]),
-                dropped=bool(flag[2]),
-                diverged=bool(flag[3]),
-            ),
-            outputs=(self._settings.output,),
+        keys = self._sample_keys
+        values = sample_values(self._where, sample, keys, (*keys, "t"))
+        self._call_step(
+            core.rdi_step, (*self._records, values[keys[0]], values[keys[1]], 0, self._row)
         )
 
     def _reported_estimated(self) -> tuple[str, ...]:
@@ -597,12 +543,7 @@ class RDI:
         out = self._new_output(len(recording), store=store)
         core.rdi_run(*self._records, r, y, out)
         self._k = len(recording)
-        result = self._result(np.asarray(recording.t), out, store)
-        if smooth:
-            from manualcontrol.estimators.smoothing import smooth as smooth_result
-
-            return smooth_result(result)
-        return result
+        return self._finish(self._result(np.asarray(recording.t), out, store), smooth)
 
     def _health(self, t: FloatArray, flag: NDArray[np.bool_], pinned: NDArray[np.bool_]) -> Any:
         sc = self._records[1].sc
@@ -624,25 +565,8 @@ class RDI:
         resolved = dict(self._resolved)
         resolved["identification_steps"] = steps
         resolved["held_fraction"] = float(sc[core.SC_HELD]) / steps if steps else 0.0
-        return EstimationResult(
-            estimator=self.name,
-            t=t,
-            parameter_names=self.parameter_names,
-            estimated=self._reported_estimated(),
-            mean=out.mean,
-            std=out.std,
-            outputs=(self._settings.output,),
-            predictions=out.scalar[:, 0:1],
-            innovations=out.scalar[:, 1:2],
-            innovation_covariance=out.scalar[:, 2, None, None],
-            finite=out.flag[:, 0],
-            covariance_ok=out.flag[:, 1],
-            dropped=out.flag[:, 2],
-            diverged=out.flag[:, 3],
-            pinned=out.pinned,
-            settings={"settings": self._settings.to_dict(), "resolved": resolved},
-            health=self._health(t, out.flag, out.pinned),
-            smoother_inputs=self._smoother_inputs(out) if store else None,
+        return self._assemble(
+            t, out, store, settings={"settings": self._settings.to_dict(), "resolved": resolved}
         )
 
     def _smoother_inputs(self, out: core.RDIOutput) -> Any:
@@ -699,19 +623,3 @@ def resimulate(result: EstimationResult, recording: Recording) -> FloatArray:
     return core.simulate_output(
         p, np.ascontiguousarray(held), recording.dt, settings.decimation, settings.n_a, settings.n_b
     )
-
-
-def _build(settings: Mapping[str, Any]) -> RDI:
-    return RDI(RDISettings.from_dict(dict(settings)))
-
-
-register(
-    EstimatorEntry(
-        name="rdi",
-        summary="recursive delay identifier: EKF over ARMAX coefficients and a fractional, "
-        "time-varying delay (bicubic interpolation, decimation, sign constraints, RTS)",
-        reference="Boer & Kenyon 1998",
-        build=_build,
-        resimulate=resimulate,
-    )
-)

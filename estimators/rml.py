@@ -247,7 +247,6 @@ from manualcontrol.estimators.pilot_filter import (
     ResolvedSettings,
     run_describing_function,
 )
-from manualcontrol.estimators.registry import EstimatorEntry, register
 from manualcontrol.pilots.models import make_model
 
 __all__ = ["BREAK_FREQUENCY", "RML", "RMLSettings"]
@@ -755,15 +754,3 @@ class RML(PilotFilter):
             lower=report.lo.copy(),
             upper=report.hi.copy(),
         )
-
-
-register(
-    EstimatorEntry(
-        name="rml",
-        summary="recursive maximum likelihood over a bank of Kalman filters: exact delays, "
-        "a remnant shaping filter whose intensity is learned (survives remnant)",
-        reference="Ljung & Söderström 1983; Levison et al. 1969",
-        build=lambda settings: RML(RMLSettings.from_dict(dict(settings))),
-        pilot_model=True,
-    )
-)

@@ -88,7 +88,6 @@ from manualcontrol.estimators.pilot_filter import (
     held_by_design,
 )
 from manualcontrol.estimators.protocol import EstimationResult, summarise_health
-from manualcontrol.estimators.registry import EstimatorEntry, register
 from manualcontrol.pilots.models import PilotModel, make_model
 from manualcontrol.pilots.simulation import isolated_pilot_output
 
@@ -767,21 +766,13 @@ class SigmoidFitEstimator:
     def __repr__(self) -> str:
         return f"SigmoidFitEstimator({self.settings!r})"
 
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any]) -> SigmoidFitEstimator:
+        """The fit from a suite file's settings table.
 
-def _build(settings: Mapping[str, Any]) -> SigmoidFitEstimator:
-    settings = {k: v for k, v in settings.items() if k != "name"}
-    reject_unknown("sigmoid-fit settings", settings, OWN_KEYS + FILTER_KEYS)
-    return SigmoidFitEstimator(**{k: v for k, v in settings.items() if k in OWN_KEYS})
-
-
-register(
-    EstimatorEntry(
-        name="sigmoid-fit",
-        summary="output-error fit of a pilot whose parameters change along one shared "
-        "sigmoid (offline; the scheduling-function approach)",
-        reference="Zaal 2016; thesis Part II eq. 4.2",
-        build=_build,
-        pilot_model=True,
-        smoothable=False,
-    )
-)
+        The filters' keys (:data:`FILTER_KEYS`) are accepted and ignored, so one table
+        of shared settings serves a batch of filters and the fit.
+        """
+        settings = {k: v for k, v in settings.items() if k != "name"}
+        reject_unknown("sigmoid-fit settings", settings, OWN_KEYS + FILTER_KEYS)
+        return cls(**{k: v for k, v in settings.items() if k in OWN_KEYS})

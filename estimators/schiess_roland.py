@@ -105,8 +105,8 @@ from manualcontrol.envs._validation import (
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _pilot_core as pilot_core
 from manualcontrol.estimators import _schiess_roland_core as core
-from manualcontrol.estimators._shell import health_summary, read_sample
-from manualcontrol.estimators.protocol import Estimate, EstimateHealth, EstimationResult
+from manualcontrol.estimators.protocol import EstimationResult
+from manualcontrol.estimators.shell import FilterShell, read_sample
 
 __all__ = [
     "ADAPTIVE_MODES",
@@ -548,7 +548,7 @@ def paper_initial_states(
     }
 
 
-class SchiessRoland:
+class SchiessRoland(FilterShell):
     """Joint EKF of Schiess & Roland (1975) with exact delay and adaptive noise.
 
     Parameters
@@ -573,42 +573,23 @@ class SchiessRoland:
     """
 
     name = "schiess-roland"
-    sample_keys: tuple[str, ...] = ("ft", "u", "y")
+    settings_type = SchiessRolandSettings
+    outputs = ("u", "y")
+    # the forcing D, the stick and the plant output
+    _sample_keys = ("ft", "u", "y")
 
     def __init__(self, settings: SchiessRolandSettings | None = None, **changes: Any) -> None:
-        if settings is None:
-            settings = SchiessRolandSettings(**changes)
-        elif not isinstance(settings, SchiessRolandSettings):
-            raise TypeError(f"settings must be SchiessRolandSettings, got {settings!r}")
-        elif changes:
-            settings = dataclasses.replace(settings, **changes)
-        self._settings = settings
-        self._records: tuple[Any, ...] | None = None
-        self._row: Any = None
-        self._dt = 0.01
-        self._t0 = 0.0
-        self._k = 0
+        super().__init__(settings, **changes)
         self._start: dict[str, Any] = {}
 
     @property
-    def settings(self) -> SchiessRolandSettings:
-        """The frozen settings."""
-        return self._settings
+    def parameter_names(self) -> tuple[str, ...]:
+        """The pilot's seven parameters (:data:`PARAMETER_NAMES`)."""
+        return PARAMETER_NAMES
 
-    def configure(self, **changes: Any) -> SchiessRoland:
-        """A new filter with some settings replaced."""
-        return type(self)(dataclasses.replace(self._settings, **changes))
-
-    def __reduce__(self) -> tuple[Any, ...]:
-        """Pickle (and deep copy) as a fresh filter with the same settings."""
-        return (type(self), (self._settings,))
-
-    def __repr__(self) -> str:
+    def _repr_fields(self) -> Mapping[str, Any]:
         s = self._settings
-        return (
-            f"SchiessRoland(process_noise={s.process_noise:g}, adaptive={s.adaptive!r}, "
-            f"passes={s.passes})"
-        )
+        return {"process_noise": s.process_noise, "adaptive": s.adaptive, "passes": s.passes}
 
     # ------------------------------------------------------------------ reset
 
@@ -740,9 +721,7 @@ class SchiessRoland:
             np.zeros(core.N_PARAMETERS, dtype=np.bool_),
         )
         report = pilot_core.PilotReport(lo, hi, np.zeros(core.N_PARAMETERS), np.ones(7))
-        self._records = (config, belief, watch, report, core.new_scratch())
-        self._row = self._new_output(1, store=False)
-        self._dt, self._t0, self._k = dt, t0, 0
+        self._begin((config, belief, watch, report, core.new_scratch()), dt, t0, estimated)
         self._start = {
             "initial_states": {name: float(x[i]) for i, name in enumerate(DYNAMIC_STATES)},
             "parameters": {n: float(x[core.N_DYNAMIC + j]) for j, n in enumerate(PARAMETER_NAMES)},
@@ -773,44 +752,15 @@ class SchiessRoland:
 
     # ----------------------------------------------------------------- update
 
-    def _require_reset(self) -> tuple[Any, ...]:
-        if self._records is None:
-            raise RuntimeError("the SchiessRoland filter has not been reset; call reset() first")
-        return self._records
+    def _step_sample(self, sample: Mapping[str, float]) -> None:
+        """Step on one sample: ``ft`` (the forcing ``D``), ``u`` (stick), ``y`` (plant output).
 
-    def update(self, sample: Mapping[str, float]) -> Estimate:
-        """Consume one sample: ``ft`` (the forcing ``D``), ``u`` (stick), ``y`` (plant output).
-
-        Optionally ``t``. NaN in ``u`` or ``y`` corrects with the other measurement
-        only; NaN in both, or in ``ft`` (held at its last value), drops the sample.
+        NaN in ``u`` or ``y`` corrects with the other measurement only; NaN in both, or
+        in ``ft`` (held at its last value), drops the sample.
         """
-        records = self._require_reset()
-        values = read_sample(sample, self.sample_keys, "SchiessRoland.update sample")
-        out = self._row
-        core.sr_step(*records, values["ft"], values["u"], values["y"], 0, out)
-        t = float(sample["t"]) if "t" in sample else self._t0 + self._k * self._dt
-        self._k += 1
-        mean, std, flag = out.mean[0], out.std[0], out.flag[0]
-        return Estimate(
-            t=t,
-            mean={n: float(mean[j]) for j, n in enumerate(PARAMETER_NAMES)},
-            std={n: float(std[j]) for j, n in enumerate(PARAMETER_NAMES)},
-            estimated=self._settings.estimated_names(),
-            prediction=float(out.predictions[0, 0]),
-            innovation=float(out.innovations[0, 0]),
-            innovation_variance=float(out.S[0, 0, 0]),
-            health=EstimateHealth(
-                finite=bool(flag[0]),
-                covariance_ok=bool(flag[1]),
-                pinned=tuple(n for j, n in enumerate(PARAMETER_NAMES) if out.pinned[0, j]),
-                dropped=bool(flag[2]),
-                diverged=bool(flag[3]),
-            ),
-            outputs=("u", "y"),
-            predictions=tuple(out.predictions[0]),
-            innovations=tuple(out.innovations[0]),
-            innovation_covariance=tuple(tuple(row) for row in out.S[0]),
-        )
+        values = read_sample(sample, self._sample_keys, self._where)
+        arguments = (*self._records, values["ft"], values["u"], values["y"], 0, self._row)
+        self._call_step(core.sr_step, arguments)
 
     # --------------------------------------------------------------- estimate
 
@@ -884,49 +834,22 @@ class SchiessRoland:
                 "parameter_covariance": None if settings.carry == "mean" else covariance.copy(),
             }
         self._k = n
-        t = np.asarray(recording.t)
-        result = EstimationResult(
-            estimator=self.name,
-            t=t,
-            parameter_names=PARAMETER_NAMES,
-            estimated=estimated,
-            mean=out.mean,
-            std=out.std,
-            outputs=("u", "y"),
-            predictions=out.predictions,
-            innovations=out.innovations,
-            innovation_covariance=out.S,
-            finite=out.flag[:, 0],
-            covariance_ok=out.flag[:, 1],
-            dropped=out.flag[:, 2],
-            diverged=out.flag[:, 3],
-            pinned=out.pinned,
+        result = self._assemble(
+            np.asarray(recording.t),
+            out,
+            store,
             settings={
                 "settings": settings.to_dict(),
                 "model": "schiess-roland",
                 "passes": starts,
             },
-            health=health_summary(
-                self._records[1].sc,
-                t,
-                dt,
-                out.flag,
-                out.pinned,
-                PARAMETER_NAMES,
-                settings.pinned_time,
-            ),
             state_names=STATE_NAMES,
             states=out.states,
             passes=len(pass_mean),
             pass_mean=np.array(pass_mean),
             pass_std=np.array(pass_std),
-            smoother_inputs=self._smoother_inputs(out) if store else None,
         )
-        if smooth:
-            from manualcontrol.estimators.smoothing import smooth as smooth_result
-
-            return smooth_result(result)
-        return result
+        return self._finish(result, smooth)
 
     def _smoother_inputs(self, out: Any) -> Any:
         from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs

@@ -61,7 +61,6 @@ from manualcontrol.estimators.pilot_filter import (
     PilotFilterSettings,
     ResolvedSettings,
 )
-from manualcontrol.estimators.registry import EstimatorEntry, register
 
 __all__ = ["DualUKF", "DualUKFSettings", "JointUKF", "UKFSettings"]
 
@@ -349,25 +348,3 @@ class DualUKF(_UnscentedPilotFilter):
 
     def _run(self, inputs: Any, u: Any, e: Any, out: core.UKFOutput) -> None:
         core.dual_run(*self._records, inputs, u, e, out)
-
-
-register(
-    EstimatorEntry(
-        name="joint-ukf",
-        summary="joint unscented Kalman filter: pilot states and parameters in one "
-        "augmented filter, on the precision or preview internal model",
-        reference="Zhao et al. 2019 (Alg. 1-2); future work of Popovici 2017, Vertregt 2020",
-        build=lambda settings: JointUKF(UKFSettings.from_dict(dict(settings))),
-        pilot_model=True,
-    )
-)
-register(
-    EstimatorEntry(
-        name="dual-ukf",
-        summary="dual unscented Kalman filter: the DEKF's state and parameter filters "
-        "with sigma points instead of Jacobians",
-        reference="Wan & van der Merwe 2001; future work of Popovici 2017, Vertregt 2020",
-        build=lambda settings: DualUKF(DualUKFSettings.from_dict(dict(settings))),
-        pilot_model=True,
-    )
-)

@@ -67,16 +67,10 @@ from manualcontrol.envs._validation import (
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _pilot_core as pilot_core
 from manualcontrol.estimators import _zhao_core as core
-from manualcontrol.estimators.filters import monitor
 from manualcontrol.estimators.filters.unscented import sigma_weights, unscented_work
 from manualcontrol.estimators.metrics import observability_gramian
-from manualcontrol.estimators.protocol import (
-    Estimate,
-    EstimateHealth,
-    EstimationResult,
-    HealthSummary,
-)
-from manualcontrol.estimators.registry import EstimatorEntry, register
+from manualcontrol.estimators.protocol import EstimationResult
+from manualcontrol.estimators.shell import FilterShell, health_summary
 from manualcontrol.pilots.driver import DRIVER_INPUTS, DRIVER_OUTPUTS, CyberneticDriverModel
 
 __all__ = [
@@ -104,10 +98,6 @@ SCHEMES: tuple[str, ...] = ("cubature", "merwe")
 STATE_NAMES: tuple[str, ...] = ("x_1", "x_2", "x_3")
 _MODEL = CyberneticDriverModel()
 _NAMES = _MODEL.parameter_names
-_REASONS = {
-    monitor.REASON_NONFINITE: "non-finite values",
-    monitor.REASON_COVARIANCE: "covariance blow-up",
-}
 
 
 def _pair(name: str, value: Any, *, allow_none: bool = True) -> tuple[float, float] | None:
@@ -518,45 +508,7 @@ def _sample_arrays(sample: Mapping[str, float], where: str) -> tuple[FloatArray,
     return np.array(values[:4]), np.array(values[4:])
 
 
-def health_summary(
-    sc: FloatArray,
-    names: tuple[str, ...],
-    pinned_time: float,
-    t: FloatArray,
-    flag: Any,
-    pinned: Any,
-    dt: float,
-) -> HealthSummary:
-    """A run's :class:`HealthSummary` from the pilot core's scalars and per-row flags."""
-    reason_code = int(sc[pilot_core.SC_DIV_REASON])
-    diverged = reason_code != monitor.REASON_NONE
-    if reason_code == monitor.REASON_PINNED:
-        reason = (
-            f"{names[int(sc[pilot_core.SC_DIV_PARAM])]} pinned at a limit for {pinned_time:g} s"
-        )
-    else:
-        reason = _REASONS.get(reason_code, "")
-    index = int(sc[pilot_core.SC_DIV_INDEX])
-    dropped = np.asarray(flag[:, 2])
-    edges = np.diff(np.concatenate(([0], dropped.astype(np.int8), [0])))
-    starts = np.flatnonzero(edges == 1)
-    stops = np.flatnonzero(edges == -1)
-    return HealthSummary(
-        diverged=diverged,
-        divergence_time=float(t[index]) if diverged and 0 <= index < len(t) else math.nan,
-        divergence_reason=reason,
-        stopped=bool(sc[pilot_core.SC_FROZEN] > 0.0),
-        dropped_samples=int(dropped.sum()),
-        dropped_stretches=tuple(
-            (float(t[a]), float((b - a) * dt)) for a, b in zip(starts, stops, strict=True)
-        ),
-        pinned_fraction={
-            n: float(np.mean(pinned[:, j])) if len(t) else 0.0 for j, n in enumerate(names)
-        },
-    )
-
-
-class ZhaoUKF:
+class ZhaoUKF(FilterShell):
     """Zhao et al.'s UKF on the cybernetic driver model (module docstring).
 
     Parameters
@@ -576,26 +528,24 @@ class ZhaoUKF:
     """
 
     name = "zhao-ukf"
+    settings_type = ZhaoUKFSettings
+    outputs = DRIVER_OUTPUTS
+    # the driver model's inputs and outputs
+    _sample_keys = _SAMPLE_KEYS
 
     def __init__(self, settings: ZhaoUKFSettings | None = None, **changes: Any) -> None:
-        if settings is None:
-            settings = ZhaoUKFSettings(**changes)
-        elif not isinstance(settings, ZhaoUKFSettings):
-            raise TypeError(f"settings must be ZhaoUKFSettings, got {settings!r}")
-        elif changes:
-            settings = dataclasses.replace(settings, **changes)
-        self._settings = settings
+        super().__init__(settings, **changes)
         self._tuning: ZhaoTuning | None = None
-        self._records: Any = None
-        self._row: Any = None
-        self._t0 = 0.0
-        self._dt = 0.01
-        self._k = 0
 
     @property
-    def settings(self) -> ZhaoUKFSettings:
-        """The frozen settings."""
-        return self._settings
+    def parameter_names(self) -> tuple[str, ...]:
+        """The driver model's parameters."""
+        return _NAMES
+
+    def signals(self, recording: Recording) -> dict[str, FloatArray]:
+        """The sample signals :meth:`estimate` feeds the filter, by key."""
+        inputs, outputs = _driving_signals(recording)
+        return dict(zip(self._sample_keys, (*inputs.T, *outputs.T), strict=True))
 
     @property
     def tuning(self) -> ZhaoTuning:
@@ -604,16 +554,8 @@ class ZhaoUKF:
             raise RuntimeError(f"the {type(self).__name__} has not been reset; call reset() first")
         return self._tuning
 
-    def configure(self, **changes: Any) -> ZhaoUKF:
-        """A new filter with some settings replaced."""
-        return type(self)(dataclasses.replace(self._settings, **changes))
-
-    def __reduce__(self) -> tuple[Any, ...]:
-        return (type(self), (self._settings,))
-
-    def __repr__(self) -> str:
-        settings = self._settings
-        return f"{type(self).__name__}(preset={settings.preset!r}, estimated={settings.estimated})"
+    def _repr_fields(self) -> Mapping[str, Any]:
+        return {"preset": self._settings.preset, "estimated": self._settings.estimated}
 
     # ----------------------------------------------------------------- reset
 
@@ -636,9 +578,7 @@ class ZhaoUKF:
             raise ValueError("reset needs the car's speed (m/s): reset(dt, speed=...)")
         tuning = zhao_tuning(settings, dt, speed, output_max)
         self._tuning = tuning
-        self._records = self._build(tuning)
-        self._row = self._new_output(1, store=False)
-        self._t0, self._dt, self._k = check_real("t0", t0), tuning.dt, 0
+        self._begin(self._build(tuning), tuning.dt, check_real("t0", t0), settings.estimated)
 
     def _build(self, tuning: ZhaoTuning) -> tuple[Any, ...]:
         settings = self._settings
@@ -737,20 +677,14 @@ class ZhaoUKF:
 
     # ---------------------------------------------------------------- update
 
-    def update(self, sample: Mapping[str, float]) -> Estimate:
-        """Consume one sample and return the estimate after it.
+    def _step_sample(self, sample: Mapping[str, float]) -> None:
+        """Step on one sample.
 
         ``sample`` maps ``theta_far, theta_near, delta_d, Gamma_s, Gamma_d, delta_sw`` to
         floats (optionally ``t``); NaN in any marks a dropped sample.
         """
-        if self._records is None:
-            raise RuntimeError(f"the {type(self).__name__} has not been reset; call reset() first")
-        inputs, outputs = _sample_arrays(sample, f"{type(self).__name__}.update sample")
-        out = self._row
-        core.zhao_step(*self._records, inputs, outputs, 0, out)
-        t = float(sample["t"]) if "t" in sample else self._t0 + self._k * self._dt
-        self._k += 1
-        return _estimate_of(out, 0, t, self._settings.estimated)
+        inputs, outputs = _sample_arrays(sample, self._where)
+        self._call_step(core.zhao_step, (*self._records, inputs, outputs, 0, self._row))
 
     # -------------------------------------------------------------- estimate
 
@@ -782,39 +716,16 @@ class ZhaoUKF:
         out = self._new_output(n, store)
         core.zhao_run(*self._records, inputs, outputs, out)
         self._k = n
-        result = self._result(np.asarray(recording.t), out, store)
-        if smooth:
-            from manualcontrol.estimators.smoothing import smooth as smooth_result
-
-            return smooth_result(result)
-        return result
+        return self._finish(self._result(np.asarray(recording.t), out, store), smooth)
 
     def _result(self, t: FloatArray, out: core.ZhaoOutput, store: bool) -> EstimationResult:
-        settings = self._settings
-        sc = self._records[1].sc
-        return EstimationResult(
-            estimator=self.name,
-            t=t,
-            parameter_names=_NAMES,
-            estimated=settings.estimated,
-            mean=out.mean,
-            std=out.std,
-            outputs=DRIVER_OUTPUTS,
-            predictions=out.predictions,
-            innovations=out.innovations,
-            innovation_covariance=out.S,
-            finite=out.flag[:, 0],
-            covariance_ok=out.flag[:, 1],
-            dropped=out.flag[:, 2],
-            diverged=out.flag[:, 3],
-            pinned=out.pinned,
-            settings={"settings": settings.to_dict(), "resolved": self.tuning.to_dict()},
-            health=health_summary(
-                sc, _NAMES, settings.pinned_time, t, out.flag, out.pinned, self._dt
-            ),
+        return self._assemble(
+            t,
+            out,
+            store,
+            settings={"settings": self._settings.to_dict(), "resolved": self.tuning.to_dict()},
             state_names=STATE_NAMES,
             states=out.states,
-            smoother_inputs=self._smoother_inputs(out) if store else None,
         )
 
     def _smoother_inputs(self, out: core.ZhaoOutput) -> Any:
@@ -839,42 +750,6 @@ class ZhaoUKF:
             lower=report.lo.copy(),
             upper=report.hi.copy(),
         )
-
-
-def _estimate_of(out: Any, row: int, t: float, estimated: tuple[str, ...]) -> Estimate:
-    """One row of a (pilot-core style) output record as an :class:`Estimate`."""
-    mean, std, flag, pinned = out.mean[row], out.std[row], out.flag[row], out.pinned[row]
-    return Estimate(
-        t=t,
-        mean={n: float(mean[j]) for j, n in enumerate(_NAMES)},
-        std={n: float(std[j]) for j, n in enumerate(_NAMES)},
-        estimated=estimated,
-        prediction=float(out.predictions[row, 0]),
-        innovation=float(out.innovations[row, 0]),
-        innovation_variance=float(out.S[row, 0, 0]),
-        health=EstimateHealth(
-            finite=bool(flag[0]),
-            covariance_ok=bool(flag[1]),
-            pinned=tuple(n for j, n in enumerate(_NAMES) if pinned[j]),
-            dropped=bool(flag[2]),
-            diverged=bool(flag[3]),
-        ),
-        outputs=DRIVER_OUTPUTS,
-        predictions=tuple(float(v) for v in out.predictions[row]),
-        innovations=tuple(float(v) for v in out.innovations[row]),
-        innovation_covariance=tuple(tuple(float(v) for v in r) for r in out.S[row]),
-    )
-
-
-register(
-    EstimatorEntry(
-        name="zhao-ukf",
-        summary="UKF (cubature points) on the cybernetic driver model, parameters as random "
-        "walks, Algorithm 3 tuning (presets ukf1, ukf2)",
-        reference="Zhao et al. 2019",
-        build=lambda settings: ZhaoUKF(ZhaoUKFSettings.from_dict(dict(settings))),
-    )
-)
 
 
 # ---------------------------------------------------------------------- multi-UKF
@@ -938,7 +813,7 @@ class MultiUKFSettings(ZhaoUKFSettings):
         return ZhaoUKFSettings(**base), ZhaoUKFSettings(**fast)
 
 
-class MultiUKF:
+class MultiUKF(FilterShell):
     """Zhao Sec. 4.2's multi-UKF: a slow and a fast :class:`ZhaoUKF` side by side, fused.
 
     The paper gives no fusion rule. This one follows the paper's roles ("one configured
@@ -972,35 +847,21 @@ class MultiUKF:
     """
 
     name = "zhao-multi-ukf"
+    settings_type = MultiUKFSettings
+    outputs = DRIVER_OUTPUTS
+    _sample_keys = _SAMPLE_KEYS
 
     def __init__(self, settings: MultiUKFSettings | None = None, **changes: Any) -> None:
-        if settings is None:
-            settings = MultiUKFSettings(**changes)
-        elif not isinstance(settings, MultiUKFSettings):
-            raise TypeError(f"settings must be MultiUKFSettings, got {settings!r}")
-        elif changes:
-            settings = dataclasses.replace(settings, **changes)
-        self._settings = settings
-        slow, fast = settings.members()
+        super().__init__(settings, **changes)
+        slow, fast = self._settings.members()
         self._slow = ZhaoUKF(slow)
         self._fast = ZhaoUKF(fast)
-        self._records: Any = None
-        self._t0, self._dt, self._k = 0.0, 0.01, 0
 
-    @property
-    def settings(self) -> MultiUKFSettings:
-        """The frozen settings."""
-        return self._settings
+    parameter_names = ZhaoUKF.parameter_names
+    signals = ZhaoUKF.signals
 
-    def configure(self, **changes: Any) -> MultiUKF:
-        """A new multi-UKF with some settings replaced."""
-        return type(self)(dataclasses.replace(self._settings, **changes))
-
-    def __reduce__(self) -> tuple[Any, ...]:
-        return (type(self), (self._settings,))
-
-    def __repr__(self) -> str:
-        return f"MultiUKF(slow={self._settings.preset!r}, fast={self._settings.fast_preset!r})"
+    def _repr_fields(self) -> Mapping[str, Any]:
+        return {"slow": self._settings.preset, "fast": self._settings.fast_preset}
 
     def reset(
         self,
@@ -1018,21 +879,23 @@ class MultiUKF:
         initial = settings.initial_vector()
         theta_index = np.array([_NAMES.index(n) for n in settings.estimated], dtype=np.int64)
         n_t = len(theta_index)
-        self._fusion = core.FusionConfig(
+        fusion = core.FusionConfig(
             a_short=1.0 - math.exp(-dt / settings.smoothing_time),
             a_long=1.0 - math.exp(-dt / settings.level_time),
             dead_zone=np.abs(settings.dead_zone * initial[theta_index]),
             feedback=settings.feedback,
             theta_index=theta_index,
         )
-        self._state = core.FusionState(np.zeros(n_t), np.zeros(n_t), np.zeros(1))
-        self._rows = self._outputs(1)
-        self._t0, self._dt, self._k = float(t0), dt, 0
+        state = core.FusionState(np.zeros(n_t), np.zeros(n_t), np.zeros(1))
+        records = (self._slow._records, self._fast._records, fusion, state)
+        self._begin(records, dt, float(t0), settings.estimated)
+        self._member_rows = self._member_outputs(1)
 
-    def _outputs(self, n: int) -> tuple[Any, Any, core.MultiOutput]:
+    def _new_output(self, n: int, store: bool) -> core.MultiOutput:
+        """The fused output (the members' are :meth:`_member_outputs`)."""
         n_t = len(self._settings.estimated)
         p = len(_NAMES)
-        fused = core.MultiOutput(
+        return core.MultiOutput(
             mean=np.zeros((n, p)),
             std=np.zeros((n, p)),
             scalar=np.zeros((n, 3)),
@@ -1045,29 +908,31 @@ class MultiUKF:
             gate=np.zeros((n, n_t)),
             members=np.zeros((n, 2 * n_t)),
         )
-        return self._slow._new_output(n, False), self._fast._new_output(n, False), fused
 
-    def update(self, sample: Mapping[str, float]) -> Estimate:
-        """Consume one sample (as :meth:`ZhaoUKF.update`) and return the fused estimate."""
-        if self._slow._records is None:
-            raise RuntimeError("the MultiUKF has not been reset; call reset() first")
-        inputs, outputs = _sample_arrays(sample, "MultiUKF.update sample")
-        out_slow, out_fast, out = self._rows
-        core.multi_step(
-            self._slow._records,
-            self._fast._records,
-            self._fusion,
-            self._state,
-            inputs,
-            outputs,
-            0,
-            out_slow,
-            out_fast,
-            out,
+    def _member_outputs(self, n: int) -> tuple[Any, Any]:
+        return self._slow._new_output(n, False), self._fast._new_output(n, False)
+
+    def _step_sample(self, sample: Mapping[str, float]) -> None:
+        """Step both members and the fusion on one sample (as :meth:`ZhaoUKF.update`)."""
+        inputs, outputs = _sample_arrays(sample, self._where)
+        arguments = (*self._records, inputs, outputs, 0, *self._member_rows, self._row)
+        self._call_step(core.multi_step, arguments)
+
+    def _health(self, t: FloatArray, flag: NDArray[np.bool_], pinned: NDArray[np.bool_]) -> Any:
+        """The slow member's health; the fast member's divergence when only it diverged."""
+        pinned_time = self._settings.pinned_time
+        health = health_summary(
+            self._slow._records[1].sc, t, self._dt, flag, pinned, _NAMES, pinned_time
         )
-        t = float(sample["t"]) if "t" in sample else self._t0 + self._k * self._dt
-        self._k += 1
-        return _estimate_of(out, 0, t, self._settings.estimated)
+        if not health.diverged:
+            fast = health_summary(
+                self._fast._records[1].sc, t, self._dt, flag, pinned, _NAMES, pinned_time
+            )
+            if fast.diverged:
+                health = dataclasses.replace(
+                    fast, divergence_reason=f"fast member: {fast.divergence_reason}", stopped=False
+                )
+        return health
 
     def estimate(self, recording: Recording, *, smoother_inputs: bool = False) -> EstimationResult:
         """Run both members and the fusion over a recording from a fresh reset.
@@ -1088,59 +953,15 @@ class MultiUKF:
                 output_max = tuple(float(np.nanmax(np.abs(outputs[:, i]))) for i in range(2))
         self.reset(recording.dt, speed=speed, output_max=output_max, t0=float(recording.t[0]))
         n = len(recording)
-        out_slow, out_fast, out = self._outputs(n)
-        core.multi_run(
-            self._slow._records,
-            self._fast._records,
-            self._fusion,
-            self._state,
-            inputs,
-            outputs,
-            out_slow,
-            out_fast,
-            out,
-        )
+        out = self._new_output(n, False)
+        core.multi_run(*self._records, inputs, outputs, *self._member_outputs(n), out)
         self._k = n
         settings = self._settings
-        t = np.asarray(recording.t)
         names = settings.estimated
-        state_names = (
-            *STATE_NAMES,
-            *(f"slow.{n_}" for n_ in names),
-            *(f"fast.{n_}" for n_ in names),
-            *(f"gate.{n_}" for n_ in names),
-        )
-        slow_sc = self._slow._records[1].sc
-        fast_sc = self._fast._records[1].sc
-        health = health_summary(
-            slow_sc, _NAMES, settings.pinned_time, t, out.flag, out.pinned, self._dt
-        )
-        if not health.diverged:
-            fast_health = health_summary(
-                fast_sc, _NAMES, settings.pinned_time, t, out.flag, out.pinned, self._dt
-            )
-            if fast_health.diverged:
-                health = dataclasses.replace(
-                    fast_health,
-                    divergence_reason=f"fast member: {fast_health.divergence_reason}",
-                    stopped=False,
-                )
-        return EstimationResult(
-            estimator=self.name,
-            t=t,
-            parameter_names=_NAMES,
-            estimated=names,
-            mean=out.mean,
-            std=out.std,
-            outputs=DRIVER_OUTPUTS,
-            predictions=out.predictions,
-            innovations=out.innovations,
-            innovation_covariance=out.S,
-            finite=out.flag[:, 0],
-            covariance_ok=out.flag[:, 1],
-            dropped=out.flag[:, 2],
-            diverged=out.flag[:, 3],
-            pinned=out.pinned,
+        return self._assemble(
+            np.asarray(recording.t),
+            out,
+            False,
             settings={
                 "settings": settings.to_dict(),
                 "resolved": {
@@ -1148,19 +969,11 @@ class MultiUKF:
                     "fast": self._fast.tuning.to_dict(),
                 },
             },
-            health=health,
-            state_names=state_names,
+            state_names=(
+                *STATE_NAMES,
+                *(f"slow.{name}" for name in names),
+                *(f"fast.{name}" for name in names),
+                *(f"gate.{name}" for name in names),
+            ),
             states=np.column_stack([out.states, out.members, out.gate]),
         )
-
-
-register(
-    EstimatorEntry(
-        name="zhao-multi-ukf",
-        summary="multi-UKF: a slow (ukf1) and a fast (ukf2) driver-model UKF, fused by "
-        "gated shrinkage of their disagreement with re-centring of the slow one",
-        reference="Zhao et al. 2019 Sec. 4.2 (fusion rule ours)",
-        build=lambda settings: MultiUKF(MultiUKFSettings.from_dict(dict(settings))),
-        smoothable=False,  # the fusion is causal; smooth the members instead
-    )
-)

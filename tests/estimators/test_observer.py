@@ -117,7 +117,7 @@ def test_the_filters_plain_path_reports_what_their_estimates_hold(case):
     for plain in (True, False):
         dekf = DEKF(**settings)
         if not plain:
-            dekf._update_plain = None  # what an estimator outside the family offers
+            dekf.update_plain = None  # what an estimator outside the family offers
         env = EstimatorObserver(
             gym.make(
                 f"ManualControl/{task}Tracking-v0",

@@ -241,18 +241,40 @@ def test_the_spread_limit_keeps_wide_priors_from_diverging():
 
 def test_every_smoothable_member_has_an_offline_twin_and_no_other():
     from manualcontrol.estimators import ESTIMATORS
-    from manualcontrol.estimators.smoothed import SUFFIX, register_smoothed
 
-    twins = [name for name in ESTIMATORS if name.endswith(SUFFIX)]
+    twins = [name for name, entry in ESTIMATORS.items() if entry.twin == "smoothed"]
     for name in twins:
-        base = ESTIMATORS[name.removesuffix(SUFFIX)]
-        assert base.smoothable, name
+        base = ESTIMATORS[ESTIMATORS[name].base]
+        assert name == f"{base.name}-smoothed" and base.smoothable, name
         assert ESTIMATORS[name].resimulate is base.resimulate  # the RDI's own model
         assert ESTIMATORS[name].pilot_model == base.pilot_model
     assert {"rdi-smoothed", "rml-smoothed", "zhao-ukf-smoothed"} <= set(twins)
     assert "zhao-multi-ukf-smoothed" not in ESTIMATORS  # its fusion is causal
-    with pytest.raises(ValueError, match="'zhao-multi-ukf' has no fixed-interval smoother"):
-        register_smoothed("zhao-multi-ukf")
+    with pytest.raises(ValueError, match="zhao-multi-ukf-smoothed"):
+        make_estimator({"name": "zhao-multi-ukf-smoothed"})
+
+
+def test_a_member_registered_later_gets_its_twins():
+    """Twins are derived at lookup: registration order cannot drop them."""
+    from manualcontrol.estimators.registry import ESTIMATORS, EstimatorEntry, register
+
+    entry = register(
+        EstimatorEntry(
+            "late-dekf",
+            "a DEKF registered after the family",
+            "",
+            ESTIMATORS["dekf"].build,
+            pilot_model=True,
+        )
+    )
+    try:
+        assert {"late-dekf-smoothed", "late-dekf-cv"} <= set(ESTIMATORS)
+        twin = make_estimator({"name": "late-dekf-smoothed", "model": "precision"})
+        assert isinstance(twin, SmoothedEstimator) and twin.settings.model == "precision"
+        assert ESTIMATORS["late-dekf-cv"].base == "late-dekf"
+    finally:
+        del ESTIMATORS[entry.name]
+    assert "late-dekf-smoothed" not in ESTIMATORS
 
 
 def test_smoothed_twin():

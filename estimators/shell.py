@@ -1,0 +1,378 @@
+"""The one shell every member of the estimator family subclasses.
+
+A member of the family is its settings, its model and a compiled step/run pair. The
+protocol around them is the same for every member and lives here once
+(:class:`FilterShell`): building from settings or keyword changes, ``configure``,
+pickling as a fresh estimator, the ``t``/``dt``/sample-count bookkeeping, the online
+step (with numba's dispatcher bypassed after the first call), the estimate of the
+one-row output the step wrote, the plain-dict form the online observer reports
+(:meth:`FilterShell.update_plain`), the health of a run, and the assembly of an
+:class:`~manualcontrol.estimators.protocol.EstimationResult` from the kernels' output
+records.
+
+Every compiled kernel of the family writes an output record with the same leading
+fields: ``mean``, ``std`` (n, p), ``scalar`` (n, 3: prediction, innovation and its
+variance of the primary output), ``flag`` (n, 4+: finite, covariance ok, dropped,
+diverged) and ``pinned`` (n, p); members with several outputs add ``predictions``,
+``innovations`` (n, m) and ``S`` (n, m, m). A member provides:
+
+- ``name``, ``settings_type`` and :attr:`FilterShell.outputs`;
+- ``reset(dt, ..., t0=...)``, which builds its records and ends with
+  :meth:`FilterShell._begin`;
+- ``_new_output(n, store)``, its output records for ``n`` rows (with smoother storage
+  or without);
+- ``_step_sample(sample)``, which reads one sample and calls its compiled step on the
+  one-row output (through :meth:`FilterShell._call_step`);
+- ``parameter_names`` and ``signals(recording)``;
+- ``estimate(recording, ...)``, which runs its compiled run and returns
+  :meth:`FilterShell._assemble`'s result (smoothed by :meth:`FilterShell._finish`);
+- for smoothing, ``_smoother_inputs(out)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from types import MappingProxyType
+from typing import Any, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from manualcontrol.estimators import _pilot_core as core
+from manualcontrol.estimators.filters import monitor
+from manualcontrol.estimators.protocol import (
+    Estimate,
+    EstimateHealth,
+    EstimationResult,
+    HealthSummary,
+    ParameterValues,
+    sample_values,
+    summarise_health,
+)
+
+__all__ = ["REASONS", "FilterShell", "health_summary", "read_sample"]
+
+FloatArray = NDArray[np.float64]
+
+#: Words for the divergence codes of :mod:`~manualcontrol.estimators.filters.monitor`.
+REASONS = {
+    monitor.REASON_NONFINITE: "non-finite values",
+    monitor.REASON_COVARIANCE: "covariance blow-up",
+}
+
+#: Distinct row healths kept per filter (one per combination of flags and pins).
+_HEALTH_CACHE = 1024
+
+
+def read_sample(sample: Any, keys: Sequence[str], where: str) -> dict[str, float]:
+    """The values of ``keys`` in ``sample`` (``t`` may be present too), checked."""
+    keys = tuple(keys)
+    return sample_values(where, sample, keys, (*keys, "t"))
+
+
+def health_summary(
+    sc: NDArray[np.float64],
+    t: NDArray[np.float64],
+    dt: float,
+    flag: NDArray[np.bool_],
+    pinned: NDArray[np.bool_],
+    names: Sequence[str],
+    pinned_time: float,
+) -> HealthSummary:
+    """A run's :class:`HealthSummary` from the kernel's scalar state and per-sample flags.
+
+    ``sc`` is laid out as ``SC_*`` of :mod:`~manualcontrol.estimators._pilot_core`;
+    ``flag[:, 2]`` marks dropped samples; ``pinned`` (n, p) the parameters at a limit.
+    """
+    reason_code = int(sc[core.SC_DIV_REASON])
+    if reason_code == monitor.REASON_PINNED:
+        reason = f"{names[int(sc[core.SC_DIV_PARAM])]} pinned at a limit for {pinned_time:g} s"
+    else:
+        reason = REASONS.get(reason_code, "")
+    return summarise_health(
+        t,
+        dt,
+        flag[:, 2],
+        pinned,
+        tuple(names),
+        reason=reason,
+        divergence_index=int(sc[core.SC_DIV_INDEX]),
+        stopped=bool(sc[core.SC_FROZEN] > 0.0),
+    )
+
+
+class FilterShell:
+    """The estimator protocol around a member's compiled filter (see the module docstring).
+
+    Parameters
+    ----------
+    settings
+        The member's settings (``settings_type``); keyword arguments replace its fields,
+        or build one from the defaults.
+    """
+
+    name: ClassVar[str] = ""
+    settings_type: ClassVar[type] = object
+    #: The measured outputs, primary first.
+    outputs: ClassVar[tuple[str, ...]] = ("u",)
+    #: Keys :meth:`update` reads (a member sets it, on the class or at construction).
+    _sample_keys: tuple[str, ...] = ()
+
+    def __init__(self, settings: Any = None, **changes: Any) -> None:
+        kind = self.settings_type
+        if settings is None:
+            settings = kind(**changes)
+        elif not isinstance(settings, kind):
+            raise TypeError(f"settings must be {kind.__name__}, got {settings!r}")
+        elif changes:
+            settings = dataclasses.replace(settings, **changes)
+        self._settings = settings
+        self._records: Any = None
+        self._row: Any = None
+        self._entry: Any = None
+        self._estimated: tuple[str, ...] = ()
+        self._healths: dict[bytes, EstimateHealth] = {}
+        self._where = f"{type(self).__name__}.update sample"
+        self._t0 = 0.0
+        self._dt = 0.01
+        self._k = 0
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any]) -> Any:
+        """The member built from a plain settings table (a suite file's, ``--set``'s)."""
+        return cls(cls.settings_type.from_dict(dict(settings)))
+
+    # ----------------------------------------------------------------- access
+
+    @property
+    def settings(self) -> Any:
+        """The frozen settings."""
+        return self._settings
+
+    @property
+    def sample_keys(self) -> tuple[str, ...]:
+        """Keys :meth:`update` needs (optionally with ``t``)."""
+        return self._sample_keys
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Reported parameter names, in the order of the results' columns."""
+        raise NotImplementedError
+
+    def configure(self, **changes: Any) -> Any:
+        """A new estimator of this kind with some settings replaced."""
+        return type(self)(dataclasses.replace(self._settings, **changes))
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickle (and deep copy) as a fresh estimator with the same settings, without run state."""
+        return (type(self), (self._settings,))
+
+    def __repr__(self) -> str:
+        fields = ", ".join(f"{name}={value!r}" for name, value in self._repr_fields().items())
+        return f"{type(self).__name__}({fields})"
+
+    def _repr_fields(self) -> Mapping[str, Any]:
+        return {}
+
+    # ----------------------------------------------------------------- reset
+
+    def _require_reset(self) -> Any:
+        if self._records is None:
+            raise RuntimeError(f"the {type(self).__name__} has not been reset; call reset() first")
+        return self._records
+
+    def _begin(self, records: Any, dt: float, t0: float, estimated: Sequence[str]) -> None:
+        """End a reset: the member's compiled ``records``, a one-row output, time zero."""
+        self._records = records
+        self._estimated = tuple(estimated)
+        self._row = self._new_output(1, store=False)
+        self._entry = None
+        self._healths.clear()
+        self._columns = MappingProxyType({n: j for j, n in enumerate(self.parameter_names)})
+        self._t0, self._dt, self._k = t0, dt, 0
+
+    def _new_output(self, n: int, store: bool) -> Any:
+        raise NotImplementedError
+
+    # ---------------------------------------------------------------- update
+
+    def update(self, sample: Mapping[str, float]) -> Estimate:
+        """Consume one sample and return the estimate after it.
+
+        ``sample`` maps :attr:`sample_keys` to floats, optionally with ``t`` (else the
+        time follows from the reset's ``t0`` and ``dt``).
+        """
+        return self._estimate_of_row(self._consume(sample))
+
+    def update_plain(self, sample: Mapping[str, float]) -> dict[str, Any]:
+        """:meth:`update` as plain data: the online observer's report of the estimate.
+
+        Plain dicts, lists and floats, new each call, built straight from the output
+        row (:class:`~manualcontrol.estimators.observer.EstimatorObserver` reports one
+        a step): ``t``, ``mean``, ``std``, ``innovation``, ``innovation_variance``,
+        ``prediction`` (of the primary output) and ``health``.
+        """
+        t = self._consume(sample)
+        row = self._row
+        columns = self._columns
+        prediction, innovation, variance = self._primary_of_row()
+        return {
+            "t": t,
+            "mean": dict(zip(columns, row.mean[0].tolist(), strict=True)),
+            "std": dict(zip(columns, row.std[0].tolist(), strict=True)),
+            "innovation": innovation,
+            "innovation_variance": variance,
+            "prediction": prediction,
+            "health": self._health_of_row(row.flag[0], row.pinned[0]).as_dict(),
+        }
+
+    def _consume(self, sample: Mapping[str, float]) -> float:
+        """Check one sample and step the filter on it; return its time."""
+        self._require_reset()
+        self._step_sample(sample)
+        t = sample.get("t")
+        t = self._t0 + self._k * self._dt if t is None else float(t)
+        self._k += 1
+        return t
+
+    def _step_sample(self, sample: Mapping[str, float]) -> None:
+        raise NotImplementedError
+
+    def _call_step(self, kernel: Any, arguments: tuple) -> None:
+        """Call the compiled one-sample ``kernel``, bypassing numba's dispatcher after once.
+
+        The dispatcher types every argument on every call; for the records of a filter
+        (some forty arrays in namedtuples) that was 16 of the 22 us an ``update()``
+        cost. The records keep their types from one reset to the next sample, so the
+        overload found on the first call is called directly afterwards.
+        """
+        if self._entry is None:
+            kernel(*arguments)
+            types = tuple(kernel.typeof_pyval(argument) for argument in arguments)
+            self._entry = kernel.overloads[types].entry_point
+        else:
+            self._entry(*arguments)
+
+    def _primary_of_row(self) -> tuple[float, float, float]:
+        """Prediction, innovation and its variance of the primary output in the row."""
+        row = self._row
+        if hasattr(row, "S"):
+            return float(row.predictions[0, 0]), float(row.innovations[0, 0]), float(row.S[0, 0, 0])
+        prediction, innovation, variance = row.scalar[0].tolist()
+        return prediction, innovation, variance
+
+    def _health_of_row(self, flag: NDArray[np.bool_], pinned: NDArray[np.bool_]) -> EstimateHealth:
+        """The (immutable, shared) health of the row's flags: one per combination."""
+        key = flag.tobytes() + pinned.tobytes()
+        health = self._healths.get(key)
+        if health is None:
+            finite, covariance_ok, dropped, diverged = flag.tolist()[:4]
+            names = self.parameter_names
+            health = EstimateHealth(
+                finite=finite,
+                covariance_ok=covariance_ok,
+                pinned=tuple(n for n, at in zip(names, pinned.tolist(), strict=True) if at),
+                dropped=dropped,
+                diverged=diverged,
+            )
+            if len(self._healths) < _HEALTH_CACHE:
+                self._healths[key] = health
+        return health
+
+    def _estimate_of_row(self, t: float) -> Estimate:
+        """The :class:`Estimate` held in the one-row output the last step wrote."""
+        row = self._row
+        prediction, innovation, variance = self._primary_of_row()
+        health = self._health_of_row(row.flag[0], row.pinned[0])
+        if self.outputs == ("u",) and not hasattr(row, "S"):
+            return Estimate.of_one_output(
+                t,
+                ParameterValues(self._columns, row.mean[0].copy()),
+                ParameterValues(self._columns, row.std[0].copy()),
+                self._estimated,
+                prediction,
+                innovation,
+                variance,
+                health,
+            )
+        names = self.parameter_names
+        multi = hasattr(row, "S")
+        return Estimate(
+            t=t,
+            mean=dict(zip(names, row.mean[0].tolist(), strict=True)),
+            std=dict(zip(names, row.std[0].tolist(), strict=True)),
+            estimated=self._estimated,
+            prediction=prediction,
+            innovation=innovation,
+            innovation_variance=variance,
+            health=health,
+            outputs=self.outputs,
+            predictions=tuple(row.predictions[0].tolist()) if multi else (prediction,),
+            innovations=tuple(row.innovations[0].tolist()) if multi else (innovation,),
+            innovation_covariance=(
+                tuple(tuple(r) for r in row.S[0].tolist()) if multi else ((variance,),)
+            ),
+        )
+
+    # -------------------------------------------------------------- estimate
+
+    def _health(self, t: FloatArray, flag: NDArray[np.bool_], pinned: NDArray[np.bool_]) -> Any:
+        """The run's health from the scalar state ``sc`` of the member's records."""
+        return health_summary(
+            self._records[1].sc,
+            t,
+            self._dt,
+            flag,
+            pinned,
+            self.parameter_names,
+            self._settings.pinned_time,
+        )
+
+    def _assemble(
+        self, t: FloatArray, out: Any, store: bool, *, settings: Mapping[str, Any], **extra: Any
+    ) -> EstimationResult:
+        """The :class:`EstimationResult` of a run from its output records.
+
+        ``settings`` is the result's record of what ran; ``extra`` sets further fields
+        (``health`` replaces the run's own, ``state_names``/``states``, ``passes``...).
+        """
+        multi = hasattr(out, "S")
+        fields = {
+            "health": None,
+            "smoother_inputs": self._smoother_inputs(out) if store else None,
+            **extra,
+        }
+        if fields["health"] is None:
+            fields["health"] = self._health(t, out.flag, out.pinned)
+        return EstimationResult(
+            estimator=self.name,
+            t=t,
+            parameter_names=self.parameter_names,
+            estimated=self._estimated,
+            mean=out.mean,
+            std=out.std,
+            outputs=self.outputs,
+            predictions=out.predictions if multi else out.scalar[:, 0:1],
+            innovations=out.innovations if multi else out.scalar[:, 1:2],
+            innovation_covariance=out.S if multi else out.scalar[:, 2, None, None],
+            finite=out.flag[:, 0],
+            covariance_ok=out.flag[:, 1],
+            dropped=out.flag[:, 2],
+            diverged=out.flag[:, 3],
+            pinned=out.pinned,
+            settings=settings,
+            **fields,
+        )
+
+    def _smoother_inputs(self, out: Any) -> Any:
+        raise NotImplementedError
+
+    @staticmethod
+    def _finish(result: EstimationResult, smooth: bool) -> EstimationResult:
+        """``result``, fixed-interval smoothed when ``smooth``."""
+        if smooth:
+            from manualcontrol.estimators.smoothing import smooth as smooth_result
+
+            return smooth_result(result)
+        return result
