@@ -1013,7 +1013,7 @@ def _progress(total: int, description: str, quiet: bool) -> Any:
 # --------------------------------------------------------------------- parser
 
 
-def _positive_int(text: str) -> int:
+def positive_int(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
@@ -1253,7 +1253,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--workers",
-        type=_positive_int,
+        type=positive_int,
         default=None,
         help="process-pool size (default: all cores)",
     )

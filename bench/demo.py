@@ -27,7 +27,7 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-from manualcontrol.bench.cli import _positive_int
+from manualcontrol.bench.cli import positive_int
 from manualcontrol.bench.report import _pyplot, write_report
 from manualcontrol.bench.runner import run_suite
 from manualcontrol.bench.scenarios import BUILTIN_SUITES, Suite, load_suite
@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", type=Path, default=Path("results/demo"), help="output folder")
     parser.add_argument(
-        "--workers", type=_positive_int, default=None, help="processes in all (default: cores)"
+        "--workers", type=positive_int, default=None, help="processes in all (default: cores)"
     )
     parser.add_argument(
         "--suite", action="append", choices=BUILTIN_SUITES, help="only these suites (repeatable)"

@@ -95,6 +95,7 @@ __all__ = [
     "EstimationMetrics",
     "evaluate",
     "has_remnant_parts",
+    "hold_last_finite",
     "innovation_cost",
     "innovation_cost_terms",
     "innovation_fractions",
@@ -350,8 +351,12 @@ def _has_pilot_model(result: EstimationResult) -> bool:
     return entry is None or entry.resimulate is None
 
 
-def _held(values: FloatArray) -> FloatArray:
-    """NaN (dropped) samples replaced by the last finite value (0 before the first)."""
+def hold_last_finite(values: FloatArray) -> FloatArray:
+    """NaN (dropped) samples replaced by the last finite value (0 before the first).
+
+    What a resimulation feeds a model where the recording dropped samples: the signal
+    held, as a display holds its last frame.
+    """
     out = np.array(values, dtype=np.float64, copy=True)
     bad = ~np.isfinite(out)
     if bad.any():
@@ -399,10 +404,10 @@ def _perception_sets(
             if signal == "ft_far":
                 perceptions[signal] = shared[signal]
             elif signal == "y":
-                perceptions[signal] = _held(np.asarray(recording.y) - y_n)
+                perceptions[signal] = hold_last_finite(np.asarray(recording.y) - y_n)
             elif signal == "e":
                 # e = ft - y, so the remnant-free error is e + y_n
-                perceptions[signal] = _held(np.asarray(recording.e) + y_n)
+                perceptions[signal] = hold_last_finite(np.asarray(recording.e) + y_n)
             else:
                 raise ValueError(f"cannot resimulate a model that reads {signal!r}")
         sets.append(perceptions)

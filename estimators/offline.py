@@ -26,7 +26,7 @@ from manualcontrol.envs.signals import ForcingPair
 from manualcontrol.pilots.models import PilotModel, make_model
 from manualcontrol.pilots.simulation import isolated_pilot_output
 
-__all__ = ["OfflineFit", "fit_pilot"]
+__all__ = ["OfflineFit", "fit_pilot", "lower_bound", "perception_signals"]
 
 FloatArray = NDArray[np.float64]
 
@@ -48,12 +48,17 @@ class OfflineFit:
     message: str
 
 
-def _perceptions(
+def perception_signals(
     recording: Recording,
     model: PilotModel,
     values: Mapping[str, float],
     forcing: ForcingPair | None,
 ) -> dict[str, FloatArray]:
+    """The signals ``model`` perceives in ``recording``.
+
+    ``e`` and ``y`` as recorded; the previewed target from ``forcing`` at the model's
+    look-ahead in ``values``.
+    """
     signals = {}
     for name in model.perceptions:
         if name in ("e", "y"):
@@ -108,7 +113,7 @@ def fit_pilot(
     if forcing is None and "forcing" in recording.metadata:
         forcing = ForcingPair.from_dict(recording.metadata["forcing"])
     names = tuple(name for name in model.parameter_names if name not in fixed)
-    lower = np.array([_lower(model, name) for name in names])
+    lower = np.array([lower_bound(model, name) for name in names])
     upper = np.array([model.spec(name).valid[1] for name in names])
     upper = np.where(np.isinf(upper), 1e3, upper)
     window = slice(min(round(skip / recording.dt), len(recording) - 2), None)
@@ -121,7 +126,7 @@ def fit_pilot(
 
     def residual(theta: FloatArray) -> FloatArray:
         values = values_of(theta)
-        perceptions = _perceptions(recording, model, values, forcing)
+        perceptions = perception_signals(recording, model, values, forcing)
         u_hat = isolated_pilot_output(model, values, perceptions, recording.dt)
         return (u - u_hat)[window]
 
@@ -147,7 +152,8 @@ def fit_pilot(
     )
 
 
-def _lower(model: PilotModel, name: str) -> float:
+def lower_bound(model: PilotModel, name: str) -> float:
+    """The lowest value a fit may give parameter ``name``: its validity, kept off zero."""
     spec = model.spec(name)
     low = spec.valid[0]
     if math.isinf(low):

@@ -87,6 +87,7 @@ from manualcontrol.envs._validation import (
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _rdi_core as core
 from manualcontrol.estimators.filters.kalman import kalman_work
+from manualcontrol.estimators.metrics import hold_last_finite
 from manualcontrol.estimators.protocol import (
     EstimationResult,
     sample_values,
@@ -617,9 +618,7 @@ def resimulate(result: EstimationResult, recording: Recording) -> FloatArray:
     p = np.ascontiguousarray(
         np.column_stack([result.mean_of(name) for name in settings.parameter_names])
     )
-    from manualcontrol.estimators.metrics import _held
-
-    held = _held(r)
+    held = hold_last_finite(r)
     return core.simulate_output(
         p, np.ascontiguousarray(held), recording.dt, settings.decimation, settings.n_a, settings.n_b
     )

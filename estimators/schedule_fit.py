@@ -80,7 +80,7 @@ from manualcontrol.envs._validation import (
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.schedules import Constant, Schedule, Sigmoid
 from manualcontrol.envs.signals import ForcingPair, Multisine
-from manualcontrol.estimators.offline import _lower, _perceptions, fit_pilot
+from manualcontrol.estimators.offline import fit_pilot, lower_bound, perception_signals
 from manualcontrol.estimators.pilot_filter import (
     DI_FAR_BREAK,
     TABLE_I,
@@ -358,7 +358,7 @@ def fit_pilot_sigmoid(
         recording, model, initial=initial, fixed=fixed, skip=skip, forcing=forcing
     ).parameters
     layout = _Layout(names, varying, fixed)
-    low = {name: _lower(model, name) for name in names}
+    low = {name: lower_bound(model, name) for name in names}
     high = {name: min(model.spec(name).valid[1], 1e3) for name in names}
     for name, bounds in limits.items():
         if name in low:
@@ -385,7 +385,7 @@ def fit_pilot_sigmoid(
 
     def output_error(x: FloatArray) -> FloatArray:
         values = layout.traces(x, t)
-        perceptions = _perceptions(recording, model, values, forcing)
+        perceptions = perception_signals(recording, model, values, forcing)
         u_hat = isolated_pilot_output(model, values, perceptions, recording.dt)
         return (u - u_hat)[window]
 
