@@ -99,7 +99,6 @@ from manualcontrol.envs._validation import (
     check_int,
     check_positive,
     check_real,
-    reject_unknown,
 )
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _pilot_core as core
@@ -115,6 +114,7 @@ from manualcontrol.estimators.protocol import (
     EstimationResult,
     sample_floats,
 )
+from manualcontrol.estimators.settings import SettingsRecord, to_json_value
 from manualcontrol.estimators.shell import FilterShell, health_summary
 from manualcontrol.pilots.models import (
     CROSSOVER_RANGE,
@@ -266,7 +266,7 @@ def _limit_pair(name: str, value: Any) -> tuple[float, float]:
 
 
 @dataclass(frozen=True)
-class PilotFilterSettings:
+class PilotFilterSettings(SettingsRecord):
     """Settings shared by the filters on pilot internal models (frozen).
 
     The DEKF's settings (:class:`~manualcontrol.estimators.dekf.DEKFSettings`) and the
@@ -362,6 +362,8 @@ class PilotFilterSettings:
         started far from a human's delay can settle in another optimum for the whole run.
 
     """
+
+    pair_mapping_fields: ClassVar[tuple[str, ...]] = ("limits",)
 
     model: str = "precision"
     ce: str | None = None
@@ -557,40 +559,6 @@ class PilotFilterSettings:
             return self.r2
         return 4.0 if self.preset == "vertregt2020-remnant" and self.ce_type == "DI" else 0.7
 
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-able form; :meth:`from_dict` inverts it (infinities as strings)."""
-        out: dict[str, Any] = {}
-        for item in dataclasses.fields(self):
-            value = getattr(self, item.name)
-            if isinstance(value, Mapping):
-                value = {k: list(v) if isinstance(v, tuple) else v for k, v in value.items()}
-                value = {k: _json_number(v) for k, v in value.items()}
-            elif isinstance(value, tuple):
-                value = list(value)
-            else:
-                value = _json_number(value)
-            out[item.name] = value
-        return out
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> PilotFilterSettings:
-        """Inverse of :meth:`to_dict`; unknown keys raise."""
-        items = dict(data)
-        reject_unknown(
-            f"{cls.__name__}.from_dict", items, [f.name for f in dataclasses.fields(cls)]
-        )
-        for key, value in list(items.items()):
-            items[key] = _from_json_number(value)
-        if items.get("estimated") is not None:
-            items["estimated"] = tuple(items["estimated"])
-        if isinstance(items.get("limits"), Mapping):
-            items["limits"] = {k: tuple(v) for k, v in items["limits"].items()}
-        return cls(**items)
-
-    def __reduce__(self) -> tuple[Any, ...]:
-        # read-only mappings do not pickle: rebuild from the plain dict
-        return (type(self).from_dict, (self.to_dict(),))
-
 
 #: Standard errors by which a restarted pass's innovations must be more likely than the
 #: kept pass's before it replaces it (about the one-sided 2.5 % level).
@@ -660,24 +628,6 @@ def _restart_point(result: EstimationResult, names: tuple[str, ...]) -> dict[str
     return start if all(math.isfinite(value) for value in start.values()) else None
 
 
-def _json_number(value: Any) -> Any:
-    if isinstance(value, list):
-        return [_json_number(v) for v in value]
-    if isinstance(value, float) and math.isinf(value):
-        return "inf" if value > 0 else "-inf"
-    return value
-
-
-def _from_json_number(value: Any) -> Any:
-    if isinstance(value, list):
-        return [_from_json_number(v) for v in value]
-    if isinstance(value, Mapping):
-        return {k: _from_json_number(v) for k, v in value.items()}
-    if value in ("inf", "-inf"):
-        return float(value)
-    return value
-
-
 # ----------------------------------------------------------------------- resolution
 
 
@@ -713,7 +663,9 @@ class ResolvedSettings:
             "initial": dict(self.initial),
             "P0": dict(self.P0),
             "Q": dict(self.Q),
-            "limits": {k: [_json_number(v[0]), _json_number(v[1])] for k, v in self.limits.items()},
+            "limits": {
+                k: [to_json_value(v[0]), to_json_value(v[1])] for k, v in self.limits.items()
+            },
             "q2": self.q2,
             "r2": self.r2,
             "r2_parameter": self.r2_parameter,

@@ -67,13 +67,12 @@ Choices where the paper leaves room or contradicts itself
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -82,7 +81,6 @@ from manualcontrol.envs._validation import (
     check_int,
     check_positive,
     check_real,
-    reject_unknown,
 )
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _rdi_core as core
@@ -93,6 +91,7 @@ from manualcontrol.estimators.protocol import (
     sample_values,
     summarise_health,
 )
+from manualcontrol.estimators.settings import SettingsRecord
 from manualcontrol.estimators.shell import REASONS, FilterShell
 
 __all__ = ["RDI", "RDISettings", "ResolvedRDI", "parameter_symbols"]
@@ -128,7 +127,7 @@ def _signal_name(name: str, value: Any) -> str:
 
 
 @dataclass(frozen=True)
-class RDISettings:
+class RDISettings(SettingsRecord):
     """Settings of the :class:`RDI` (frozen; vary with :func:`dataclasses.replace`).
 
     Parameters
@@ -170,6 +169,8 @@ class RDISettings:
         A variance above this (internal units: s^2 for ``d``) counts as divergence.
 
     """
+
+    tuple_fields: ClassVar[tuple[str, ...]] = ("estimated", "delay_limits")
 
     n_a: int = 1
     n_b: int = 1
@@ -282,34 +283,6 @@ class RDISettings:
         values["b_0"] = 1.0
         values.update(self.initial)
         return values
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-able form; :meth:`from_dict` inverts it."""
-        out: dict[str, Any] = {}
-        for item in dataclasses.fields(self):
-            value = getattr(self, item.name)
-            if isinstance(value, Mapping):
-                value = dict(value)
-            elif isinstance(value, tuple):
-                value = list(value)
-            out[item.name] = value
-        return out
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> RDISettings:
-        """Inverse of :meth:`to_dict`; unknown keys raise."""
-        items = dict(data)
-        reject_unknown(
-            f"{cls.__name__}.from_dict", items, [f.name for f in dataclasses.fields(cls)]
-        )
-        for name in ("estimated", "delay_limits"):
-            if isinstance(items.get(name), list):
-                items[name] = tuple(items[name])
-        return cls(**items)
-
-    def __reduce__(self) -> tuple[Any, ...]:
-        # read-only mappings do not pickle: rebuild from the plain dict
-        return (type(self).from_dict, (self.to_dict(),))
 
 
 @dataclass(frozen=True)

@@ -85,12 +85,11 @@ Choices where the paper leaves room, or errs
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -106,6 +105,7 @@ from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _pilot_core as pilot_core
 from manualcontrol.estimators import _schiess_roland_core as core
 from manualcontrol.estimators.protocol import EstimationResult
+from manualcontrol.estimators.settings import SettingsRecord
 from manualcontrol.estimators.shell import FilterShell, read_sample
 
 __all__ = [
@@ -195,28 +195,8 @@ def _limit_pair(name: str, value: Any) -> tuple[float, float]:
     return (low, high)
 
 
-def _json(value: Any) -> Any:
-    if isinstance(value, float) and math.isinf(value):
-        return "inf" if value > 0 else "-inf"
-    if isinstance(value, (list, tuple)):
-        return [_json(v) for v in value]
-    if isinstance(value, Mapping):
-        return {k: _json(v) for k, v in value.items()}
-    return value
-
-
-def _unjson(value: Any) -> Any:
-    if value in ("inf", "-inf"):
-        return float(value)
-    if isinstance(value, list):
-        return [_unjson(v) for v in value]
-    if isinstance(value, Mapping):
-        return {k: _unjson(v) for k, v in value.items()}
-    return value
-
-
 @dataclass(frozen=True)
-class SchiessRolandSettings:
+class SchiessRolandSettings(SettingsRecord):
     """Settings of the :class:`SchiessRoland` filter (frozen; vary with ``dataclasses.replace``).
 
     Parameters
@@ -276,6 +256,9 @@ class SchiessRolandSettings:
         as divergence (> 0; ``inf`` never).
 
     """
+
+    tuple_fields: ClassVar[tuple[str, ...]] = ("estimated", "measurement_variance")
+    pair_mapping_fields: ClassVar[tuple[str, ...]] = ("limits",)
 
     initial: Mapping[str, float] = field(default_factory=dict)
     initial_std_fraction: float = 0.1
@@ -419,38 +402,6 @@ class SchiessRolandSettings:
                     f"P0={{{name!r}: ...}}"
                 )
         return out
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-able form; :meth:`from_dict` inverts it (infinities as strings)."""
-        out: dict[str, Any] = {}
-        for item in dataclasses.fields(self):
-            value = getattr(self, item.name)
-            if isinstance(value, Mapping):
-                value = {k: list(v) if isinstance(v, tuple) else v for k, v in value.items()}
-            elif isinstance(value, tuple):
-                value = list(value)
-            out[item.name] = _json(value)
-        return out
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> SchiessRolandSettings:
-        """Inverse of :meth:`to_dict`; unknown keys raise."""
-        if not isinstance(data, Mapping):
-            raise TypeError(f"settings must be a mapping, got {data!r}")
-        items = {key: _unjson(value) for key, value in data.items()}
-        reject_unknown(
-            f"{cls.__name__}.from_dict", items, [f.name for f in dataclasses.fields(cls)]
-        )
-        for key in ("estimated", "measurement_variance"):
-            if isinstance(items.get(key), list):
-                items[key] = tuple(items[key])
-        if isinstance(items.get("limits"), Mapping):
-            items["limits"] = {k: tuple(v) for k, v in items["limits"].items()}
-        return cls(**items)
-
-    def __reduce__(self) -> tuple[Any, ...]:
-        # read-only mappings do not pickle: rebuild from the plain dict
-        return (type(self).from_dict, (self.to_dict(),))
 
 
 def initial_state_covariance(

@@ -52,7 +52,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -70,6 +70,7 @@ from manualcontrol.estimators import _zhao_core as core
 from manualcontrol.estimators.filters.unscented import sigma_weights, unscented_work
 from manualcontrol.estimators.metrics import observability_gramian
 from manualcontrol.estimators.protocol import EstimationResult
+from manualcontrol.estimators.settings import SettingsRecord
 from manualcontrol.estimators.shell import FilterShell, health_summary
 from manualcontrol.pilots.driver import DRIVER_INPUTS, DRIVER_OUTPUTS, CyberneticDriverModel
 
@@ -135,28 +136,8 @@ def _limit_pair(name: str, value: Any) -> tuple[float, float]:
     return (low, high)
 
 
-def _json(value: Any) -> Any:
-    if isinstance(value, Mapping):
-        return {k: _json(v) for k, v in value.items()}
-    if isinstance(value, (tuple, list)):
-        return [_json(v) for v in value]
-    if isinstance(value, float) and math.isinf(value):
-        return "inf" if value > 0 else "-inf"
-    return value
-
-
-def _unjson(value: Any) -> Any:
-    if isinstance(value, Mapping):
-        return {k: _unjson(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_unjson(v) for v in value]
-    if value in ("inf", "-inf"):
-        return float(value)
-    return value
-
-
 @dataclass(frozen=True)
-class ZhaoUKFSettings:
+class ZhaoUKFSettings(SettingsRecord):
     """Settings of :class:`ZhaoUKF` (frozen; module docstring for the rules).
 
     Parameters
@@ -198,6 +179,14 @@ class ZhaoUKFSettings:
         of a covariance diagonal, time at a limit reported as divergence (``inf``: never).
 
     """
+
+    tuple_fields: ClassVar[tuple[str, ...]] = (
+        "estimated",
+        "initial_states",
+        "R_d",
+        "output_error_ratios",
+    )
+    pair_mapping_fields: ClassVar[tuple[str, ...]] = ("limits",)
 
     preset: str = "ukf1"
     estimated: tuple[str, ...] = ("K_p", "K_c")
@@ -283,25 +272,6 @@ class ZhaoUKFSettings:
     def initial_vector(self) -> FloatArray:
         """Every parameter's initial value, model order."""
         return _MODEL.vector(self.initial)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-able form (infinities as strings); :meth:`from_dict` inverts it."""
-        return {f.name: _json(getattr(self, f.name)) for f in dataclasses.fields(self)}
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> ZhaoUKFSettings:
-        """Inverse of :meth:`to_dict`; unknown keys raise."""
-        reject_unknown(f"{cls.__name__}.from_dict", data, [f.name for f in dataclasses.fields(cls)])
-        items = {key: _unjson(value) for key, value in data.items()}
-        for key in ("estimated", "initial_states", "R_d", "output_error_ratios"):
-            if isinstance(items.get(key), list):
-                items[key] = tuple(items[key])
-        if isinstance(items.get("limits"), Mapping):
-            items["limits"] = {k: tuple(v) for k, v in items["limits"].items()}
-        return cls(**items)
-
-    def __reduce__(self) -> tuple[Any, ...]:
-        return (type(self).from_dict, (self.to_dict(),))
 
 
 # ------------------------------------------------------------------------- tuning
