@@ -344,32 +344,24 @@ _PREVIEW_HINT = (
 
 
 def _cmd_identify(args: argparse.Namespace) -> int:
-    import warnings
-
     from manualcontrol.bench.report import plot_estimation
-    from manualcontrol.bench.runner import make_estimator
     from manualcontrol.envs._files import atomic_write
-    from manualcontrol.estimators.fit_check import check_fit
-    from manualcontrol.estimators.metrics import resimulate
-    from manualcontrol.estimators.pilot_filter import EVIDENCE, GenericValuesWarning
+    from manualcontrol.estimators.identification import build_estimator, identify
+    from manualcontrol.estimators.pilot_filter import EVIDENCE
+    from manualcontrol.estimators.registry import ESTIMATORS
 
     _check_output("--out", args.out, folder=True)
     recording = _load_trial(args)
-    _trial_forcing(args)  # --forcing and --period together: said before any work
-    _trial_element(recording, args)  # an unreadable --element: said in its own words
+    source = _trial_forcing(args)  # --forcing and --period together: said before any work
+    element = _trial_element(recording, args)  # an unreadable --element: in its own words
     settings = _assignments(args.set, "--set")
-    from manualcontrol.estimators.registry import ESTIMATORS
-
     if args.estimator not in ESTIMATORS:
         raise UsageError(
             f"--estimator must be one of {', '.join(ESTIMATORS)} (`manualcontrol estimators`), "
             f"got {args.estimator!r}"
         )
     pilot_model = ESTIMATORS[args.estimator].pilot_model
-    spec = {"name": args.estimator, **settings}
-    if pilot_model:
-        spec.setdefault("model", args.model or "precision")
-    elif args.model is not None:
+    if not pilot_model and args.model is not None:
         raise UsageError(
             f"--model names the pilot structure of "
             f"{', '.join(n for n, e in ESTIMATORS.items() if e.pilot_model)}; the "
@@ -378,21 +370,19 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     # where the target ahead (and the RML's describing function) come from: the pilot-model
     # members read them; the others have their own models and take no such option
     target = _target_source(args) if pilot_model else {}
-    with warnings.catch_warnings():
-        # identify says so itself, with the values (below)
-        warnings.simplefilter("ignore", GenericValuesWarning)
-        estimator = None
-        if args.element is not None and "ce" not in settings and "element" not in settings:
-            # the experiment's element sets the limits and the rules by element type
-            try:
-                estimator = make_estimator({**spec, "element": args.element})
-            except (TypeError, ValueError) as error:
-                if "'element'" not in str(error):  # a member without an element setting
-                    raise
-        if estimator is None:
-            estimator = make_estimator(spec)
+    estimator = build_estimator(args.estimator, settings, model=args.model, element=args.element)
+    if not source and args.target_period is not None:  # the target's period is the forcing's
+        source = {"period": args.target_period}
     try:
-        result = estimator.estimate(recording, **target)
+        identification = identify(
+            recording,
+            estimator,
+            element=element,
+            target=target,
+            forcing=source.get("forcing"),
+            period=source.get("period"),
+            disturbance_at=args.disturbance_at,
+        )
     except ValueError as error:
         if "target ahead of the samples is unknown" in str(error):
             raise UsageError(_PREVIEW_HINT) from None
@@ -405,44 +395,19 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                     "signals being in the file)"
                 ) from None
         raise
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # a diverged fit may overflow its resimulation
-        try:
-            model_output = resimulate(result, recording, **target)
-        except (ValueError, FloatingPointError):
-            model_output = None
-    describing, note = _trial_describing_function(recording, args, result)
-    check = check_fit(
-        recording, result, model_output=model_output, describing=describing, frequency_note=note
-    )
+    result, check = identification.result, identification.check
+    model_output = identification.model_output
     one_step, resimulated = check.one_step_vaf, check.resimulated_vaf
     r_1, outside = check.innovation_lag1, check.innovation_outside
-    final = {name: round(float(value), 5) for name, value in result.final().items()}
+    final = identification.final
     health = result.health
-    stability = _identified_loop(recording, result, args)
-    summary = {
-        "estimator": result.estimator,
-        "final": final,
-        "estimated": list(result.estimated),
-        "fit": check.to_dict(),
-        "closed_loop": stability,
-        "health": health.to_dict(),
-    }
-    chosen = result.settings.get("cross_validation")
-    if chosen is not None:  # "<name>-cv": which process-noise scale the run chose, and why
-        summary["cross_validation"] = chosen
-    sigmoid = result.settings.get("sigmoid")
-    if sigmoid is not None:  # "sigmoid-fit": the change it found
-        summary["sigmoid"] = sigmoid
-    restarts = result.settings.get("restarts")
-    if restarts is not None:  # a filter with restarts: which pass the likelihood kept
-        summary["restarts"] = restarts
-    injection = result.settings.get("remnant_injection")
-    if isinstance(injection, Mapping):  # the RML's "choose": which remnant model was kept
-        summary["remnant_injection"] = injection
-    assumed = _held_by_rule(result)
-    if assumed:  # held at values no one measured
-        summary["held_at_generic_values"] = assumed
+    stability = identification.closed_loop
+    summary = identification.summary
+    chosen = summary.get("cross_validation")  # "<name>-cv": the scale the run chose
+    sigmoid = summary.get("sigmoid")  # "sigmoid-fit": the change it found
+    restarts = summary.get("restarts")  # a filter with restarts: the pass kept
+    injection = summary.get("remnant_injection")  # the RML's "choose": the model kept
+    assumed = identification.held_at_generic_values  # held at values no one measured
     out = Path(args.out)
     path = result.save(out / "estimation.npz")
     atomic_write(out / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
@@ -719,44 +684,6 @@ def _trial_forcing(args: argparse.Namespace) -> dict[str, Any]:
     return {}
 
 
-def _trial_describing_function(
-    recording: Any, args: argparse.Namespace, result: Any
-) -> tuple[Any, str]:
-    """The trial's describing function for the cross-check, or None and why not."""
-    from manualcontrol.estimators.frequency import describing_function
-
-    source = _trial_forcing(args)
-    if not source and args.target_period is not None:
-        source = {"period": args.target_period}
-    if not source and recording.metadata.get("forcing") is None:
-        return None, (
-            "not checked: the forcing frequencies are unknown (give --forcing PRESET or "
-            "--period SECONDS, the forcing signals being in the file)"
-        )
-    from manualcontrol.estimators.metrics import pilot_model_of
-
-    model = pilot_model_of(result)
-    if model is None:
-        return None, f"not checked: the {result.estimator} model is not a pilot model structure"
-    # the display the fitted model belongs to, where the recording does not say
-    task = "compensatory"
-    if model.perceptions != ("e",):
-        settings = result.settings.get("settings", result.settings)
-        task = "pursuit" if settings.get("anticipation_time") == 0.0 else "preview"
-    try:
-        describing = describing_function(
-            recording,
-            source.get("forcing"),
-            period=source.get("period"),
-            element=_trial_element(recording, args),
-            disturbance_at=args.disturbance_at,
-            task=recording.metadata.get("task", task),
-        )
-    except ValueError as error:
-        return None, f"not checked: {error}"
-    return describing, ""
-
-
 def _print_frequency_check(check: Any) -> None:
     frequency = check.frequency
     if frequency is None:
@@ -783,64 +710,6 @@ def _print_frequency_check(check: Any) -> None:
                 f"{frequency['phase_margin']:.0f} deg identified"
             )
     print(line)
-
-
-def _held_by_rule(result: Any) -> dict[str, float]:
-    """Parameters a filter held at a generic rule's value (not given, not estimated).
-
-    What the family holds by design (the single integrator's ``K_v = 0`` and constant
-    ``omega_f``, the pursuit form's ``tau_f = 0``) is no assumption about this pilot:
-    left out.
-    """
-    from manualcontrol.estimators.pilot_filter import element_type, held_without_values
-
-    resolved = result.settings.get("resolved")
-    settings = result.settings.get("settings")
-    if not isinstance(resolved, Mapping) or not isinstance(settings, Mapping):
-        return {}
-    values = resolved.get("initial", {})
-    kind = settings.get("ce")
-    if kind is None and settings.get("element") is not None:
-        kind = element_type(settings["element"])
-    assumed = held_without_values(
-        values,
-        result.estimated,
-        settings.get("initial") or {},
-        kind,
-        settings.get("anticipation_time") == 0.0,
-    )
-    return {name: float(values[name]) for name in assumed}
-
-
-def _identified_loop(recording: Any, result: Any, args: argparse.Namespace) -> dict[str, Any]:
-    """Whether the identified pilot (final values) closes a stable loop with the element.
-
-    The element comes from the recording's metadata or the estimator's ``ce`` setting;
-    without either nothing can be said.
-    """
-    from manualcontrol.pilots import Pilot, SimulationSetup
-    from manualcontrol.pilots.stability import UnstableLoopError, check_stable
-
-    settings = dict(result.settings.get("settings", result.settings))
-    element = _trial_element(recording, args) or settings.get("ce")
-    if element is None:
-        return {"stable": None, "message": "no controlled element known (--element ...)"}
-    try:
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            pilot = Pilot(settings["model"], dict(result.final()))
-            task = "compensatory" if pilot.model.task == "compensatory" else "preview"
-            preview = 5.0 if task == "preview" else None  # room for any identified tau_f
-            setup = SimulationSetup.create(pilot, element, task=task, available_preview=preview)
-            check_stable(setup)
-    except UnstableLoopError as error:
-        message = str(error).split("; use typical")[0]
-        return {"stable": False, "message": f"the identified {message}: the fit is not credible"}
-    except (TypeError, ValueError, KeyError) as error:
-        return {"stable": None, "message": f"not checked: {error}"}
-    return {"stable": True, "message": "the identified pilot closes a stable loop"}
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:

@@ -232,3 +232,30 @@ def test_too_few_forcing_lines_leave_the_check_without_its_floor(tmp_path, capsy
     code, out, err = run(capsys, "identify", str(path), "--out", str(tmp_path / "o"))
     assert code == EXIT_OK, err
     assert "(the model fitted to it: n/a: too few forcing lines for its parameters)" in out
+
+
+def test_identify_is_the_library_function_the_command_prints(trial, tmp_path, capsys):
+    """The command reads the file and prints; the analysis is identify()'s, number for number."""
+    from manualcontrol.envs.recording import Recording
+    from manualcontrol.estimators.identification import build_estimator, identify
+
+    out_dir = tmp_path / "i"
+    code, _, _ = run(
+        capsys, "identify", str(trial), *LAB_COLUMNS, "--element", "1/s",
+        "--disturbance-at", "input", "--period", "120", "--out", str(out_dir),
+    )  # fmt: skip
+    assert code == EXIT_OK
+    columns = {"u": "stick", "y": "output", "ft": "target", "fd": "disturbance"}
+    recording = Recording.load(trial, columns=columns, require=("u",)).with_error_signal()
+    element = parse_element("1/s")
+    estimator = build_estimator("dekf", element="1/s")
+    identification = identify(
+        recording, estimator, element=element, period=120.0, disturbance_at="input"
+    )
+    written = json.loads((out_dir / "summary.json").read_text())
+    assert json.loads(json.dumps(identification.summary)) == written
+    assert identification.closed_loop["stable"] is True
+    with pytest.raises(ValueError, match=r"estimator must be one of .*got 'no-such'"):
+        build_estimator("no-such")
+    with pytest.raises(ValueError, match="model names the pilot structure"):
+        build_estimator("rdi", model="precision")
