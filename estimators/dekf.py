@@ -65,15 +65,14 @@ from manualcontrol.envs._validation import check_choice, check_positive
 from manualcontrol.estimators import _dekf_core as core
 from manualcontrol.estimators._pilot_core import euler_substeps
 from manualcontrol.estimators.filters.kalman import kalman_work
-from manualcontrol.estimators.pilot_filter import (
+from manualcontrol.estimators.pilot_filter import CommonArrays, PilotFilter
+from manualcontrol.estimators.pilot_rules import (
     CE_TYPES,
     INITIAL_VARIANCE_MODES,
     MAX_DELAY_ORDER,
     NOISE_INPUTS,
     PRESETS,
     TABLE_I,
-    CommonArrays,
-    PilotFilter,
     PilotFilterSettings,
     ResolvedSettings,
 )

@@ -26,7 +26,7 @@ from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators.fit_check import FitCheck, check_fit
 from manualcontrol.estimators.frequency import DescribingFunction, describing_function
 from manualcontrol.estimators.metrics import pilot_model_of, resimulate
-from manualcontrol.estimators.pilot_filter import (
+from manualcontrol.estimators.pilot_rules import (
     GenericValuesWarning,
     element_type,
     held_without_values,

@@ -55,12 +55,8 @@ from manualcontrol.estimators.filters.unscented import (
     sigma_weights,
     unscented_work,
 )
-from manualcontrol.estimators.pilot_filter import (
-    CommonArrays,
-    PilotFilter,
-    PilotFilterSettings,
-    ResolvedSettings,
-)
+from manualcontrol.estimators.pilot_filter import CommonArrays, PilotFilter
+from manualcontrol.estimators.pilot_rules import PilotFilterSettings, ResolvedSettings
 
 __all__ = ["DualUKF", "DualUKFSettings", "JointUKF", "UKFSettings"]
 
