@@ -23,56 +23,39 @@ parameter by cross-validation; Wahba 1990, ch. 4):
    second-order Butterworth filter run forwards and backwards over the whole run, from
    half the lowest to twice the highest forcing frequency), is summed over the
    held-out samples and the folds (the zero-phase filter spreads each error over about
-   a period of the band's low edge, so 12-16 % of a fold's sum came from the errors in
-   the fitted stretches beside it, measured on a compensatory run); the error is
-   divided by the band-passed power of ``u`` outside the first window, so it reads as
-   a fraction (a held-out 1 - VAF);
+   a period of the band's low edge, so a small part of a fold's sum comes from the
+   errors in the fitted stretches beside it); the error is divided by the band-passed
+   power of ``u`` outside the first window, so it reads as a fraction (a held-out
+   1 - VAF);
 4. the scale with the smallest error is chosen, and the result is the filter's run at
    that scale, smoothed over the whole run.
 
 Why the forcing band: the resimulation integrates the low-frequency remnant that the
-closed loop suppresses (double integrator, remnant break 0.01 rad/s: held-out errors
-of 0.87-0.92 of ``u``'s power whatever the scale), so without the band-pass the choice
-follows the remnant; within the band the forcing carries most of ``u`` (less so on the
-double integrator, below). Why held-out data: the same comparison on the data the
-smoother saw (the whole run's spectrum at the forcing frequencies) picked the largest
-scale in 23 of the 35 runs of ``remnant-robustness`` and raised the NRMSE where the
-gains are constant (all-free preview SI: ``K_p`` 0.052 -> 0.104).
+closed loop suppresses (on the double integrator, remnant break 0.01 rad/s, the
+held-out errors are most of ``u``'s power whatever the scale), so without the
+band-pass the choice follows the remnant; within the band the forcing carries most of
+``u`` (less so on the double integrator, below). Why held-out data: the same comparison
+on the data the smoother saw (the whole run's spectrum at the forcing frequencies)
+picked the largest scale in most runs and raised the errors where the gains are
+constant.
 
-Measured with the RML (the defaults of the time, ``R = var(u)`` on the double integrator
-too; ``manualcontrol bench SUITE --estimators rml-smoothed,rml-cv``, batch means of the
-NRMSE, preset -> cross-validated):
-
-* ``remnant-robustness`` (35 runs): Popovici's time-varying pilot with 30 % remnant
-  ``K_p`` 0.212 -> 0.189, ``K_v`` 0.123 -> 0.114 (``tau_v`` 0.093 -> 0.114), with 20 %
-  ``K_p`` 0.147 -> 0.131; the all-free preview SI pilot ``zeta_nms`` 0.351 -> 0.311,
-  ``tau_v`` 0.300 -> 0.274, ``K_p`` 0.052 -> 0.037; 19 of 33 entries lower, 14 higher
-  (by at most 0.021).
-* ``vertregt2020-performance``, 10 runs a batch (realisations 0-1, seeds 0-4): the
-  single integrator lower in most entries (all free: ``zeta_nms`` 0.140 -> 0.119,
-  ``tau_v`` 0.159 -> 0.139; physical parameters held: ``K_f`` 0.046 -> 0.037, ``K_p``
-  0.048 -> 0.038); the double integrator mixed, and worse where it matters most (all
-  free, 55 % remnant: ``K_f`` 0.142 -> 0.206, remnant-free resimulated VAF 97.2 ->
-  96.6 %); 20 of 44 entries lower, 24 higher. Fragile there too: moving one sample at
-  the window's edge out of the held-out set flipped a choice among the 10 runs of
-  ``constant-physical-DI-half`` (``K_f`` 0.188 -> 0.182 before, 0.215 after).
-
-With the DEKF (``--estimators dekf-smoothed,dekf-cv`` on ``remnant-robustness``): 25 of
-33 entries lower, 8 higher, and the remnant-free resimulated VAF higher in 6 of 7
-batches (Popovici 30 %: ``tau_v`` 0.731 -> 0.439, VAF 78.6 -> 87.8 %; compensatory DI
-35 %: ``K_v`` 0.304 -> 0.176, VAF 75.3 -> 85.2 %): the faithful filter's preset is far
-from what these runs need.
-
-So, for the RML: a gain where the remnant is broadband (the single integrator's 10-rad/s break,
-Levison's 3 rad/s) and where the parameters vary faster than the preset allows; on the
-double integrator with its 0.01-rad/s remnant keep the preset, because within the
-forcing band the low-frequency remnant still dominates the held-out errors. Tried and
-not kept: the filter's own prediction through the held-out stretches (no smoothing, no
-resimulation), which chose 10 on constant double-integrator batches.
+Where it helps: with the DEKF, whose faithful preset is far from what runs with
+remnant need, it lowers most errors. With the RML it helps where the remnant is
+broadband (the single integrator's 10-rad/s break, Levison's 3 rad/s) and where the
+parameters vary faster than the preset allows; on the double integrator with its
+0.01-rad/s remnant keep the preset, because within the forcing band the low-frequency
+remnant still dominates the held-out errors, and the choice there is fragile (one
+sample moved at a window's edge can flip it). Tried and not kept: the filter's own
+prediction through the held-out stretches (no smoothing, no resimulation), which chose
+the largest scale on constant double-integrator batches.
 
 Each run costs ``len(scales) * folds + 2`` filter passes (smoothed) and ``len(scales) *
 folds`` resimulations: 22 and 20 with the defaults (each filter pass ``restarts + 1``
 passes for a filter with restarts, :mod:`~manualcontrol.estimators.pilot_filter`).
+
+Measured figures, each with the command that reproduces it, are in
+``docs/estimators.md`` (the ``-cv`` twins): ``manualcontrol bench SUITE --estimators
+rml-smoothed,rml-cv`` (or ``dekf-smoothed,dekf-cv``) sets the twins side by side.
 """
 
 from __future__ import annotations

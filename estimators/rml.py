@@ -5,17 +5,15 @@ Why the family's filters lose their way with remnant
 The DEKF and the joint and dual UKF treat the remnant as white noise on ``u`` and on
 the chain input. Remnant injected in the loop reaches the measured output ``y``, so
 the inputs of the filter are correlated with its noise (the closed-loop bias): on the
-double integrator with 0.01-rad/s remnant the perceived output drifts by about four
-times its remnant-free size and ``K_p``, which multiplies that drift, collapses to a
-third of its value. Modelling the remnant as a coloured state of a joint filter
-(states, remnant and parameters in one belief) does not cure it: the output gains
-and the remnant trade ``K -> a K``, remnant ``-> n/a``, and a joint (or dual) filter,
-which approximates the joint posterior of states and parameters rather than the
-likelihood of the parameters, prefers the smaller remnant (Ljung 1979: its parameter
-update leaves out how the Kalman gain depends on the parameters). Measured with a
-remnant state in the joint UKF (four runs a batch of ``vertregt2020-performance``):
-single-integrator ``K_p`` +21 to +46 %; double integrator ``K_p`` -35 to +10 % with
-``omega_f`` +19 to +48 %, depending on the remnant's assumed variance.
+double integrator with 0.01-rad/s remnant the perceived output drifts far beyond its
+remnant-free size and ``K_p``, which multiplies that drift, collapses. Modelling the
+remnant as a coloured state of a joint filter (states, remnant and parameters in one
+belief) does not cure it: the output gains and the remnant trade ``K -> a K``, remnant
+``-> n/a``, and a joint (or dual) filter, which approximates the joint posterior of
+states and parameters rather than the likelihood of the parameters, prefers the
+smaller remnant (Ljung 1979: its parameter update leaves out how the Kalman gain
+depends on the parameters). A remnant state tried in the joint UKF biased the gains
+one way or the other, depending on the remnant's assumed variance.
 
 The estimator
 -------------
@@ -38,9 +36,8 @@ remnant in the model (:mod:`~manualcontrol.estimators._rml_core`):
 * the delays (the pilot's and the anticipation delay ``tau_f*`` of the preview
   model) act on the inputs through fractional delay lines with the bicubic kernel of
   Boer & Kenyon (1998) instead of Padé approximants: with the true parameters the
-  model then reproduces the simulated pilot to 99.94 % VAF (double integrator,
-  remnant-free) where the Padé-3 internal model of the DEKF reaches 97.7 %, an error
-  the parameters otherwise absorb;
+  model then reproduces the simulated pilot almost exactly, where the Padé-3 internal
+  model of the DEKF leaves an error that the parameters otherwise absorb;
 * the preview model's pursuit form (``anticipation_time = 0``: the display shows the
   current target, nothing ahead, ``tau_f = 0`` held) reads the recorded ``ft`` through
   the pilot's delay alone, as the family's other filters do, so a pursuit recording
@@ -69,8 +66,8 @@ off), ``drift_window`` (2.5 s) and ``drift_threshold`` (0.3), below. ``r2`` defa
 ``R`` stands for what the model leaves unexplained besides the remnant (the isolated
 pilot is a model; the Euler step), and it sets the frequency weighting of the
 likelihood: with a small ``R`` the one-sample prediction errors, dominated by the
-fastest dynamics, outweigh the forcing band (remnant-free double integrator: ``K_f``
-NRMSE 0.21 with ``r2 = 0.01``, 0.035 with ``r2 = 1``). ``q2`` defaults to 1e-6: the
+fastest dynamics, outweigh the forcing band, and the parameters the forcing band
+identifies (the far view's ``K_f``) err the more. ``q2`` defaults to 1e-6: the
 remnant state, not white noise at the chain input, carries the process noise.
 
 ``variance_score`` says which pilot parameters learn from the innovation variance as
@@ -82,75 +79,44 @@ injected at the stick; the branches' parameters (the preview model's ``K_f``,
 ``omega_f``, ``tau_f``) follow the prediction error alone. ``"all"``: every
 parameter, the exact likelihood of the model with ``R`` taken as a noise variance.
 Because ``R`` is a weighting larger than what the innovations leave, ``"all"`` pulls
-the branch parameters towards a smaller predicted variance: on the thesis's double
-integrator with 55 % remnant (``vertregt2020-performance``, 100 runs, all parameters
-free) ``K_f`` NRMSE 0.349 and ``omega_f`` 0.387 with ``"all"``, 0.248 and 0.316 with
-``"remnant-path"``; on the single integrator the two agree within 0.04. Learning ``R``
-as a noise parameter instead lets it collapse (one-step VAF 100 %, ``K_p`` +180 %).
+the branch parameters towards a smaller predicted variance, and their errors grow where
+the remnant is strong (the thesis's double integrator); on the single integrator the
+two agree. Learning ``R`` as a noise parameter instead lets it collapse: the one-step
+prediction then explains all of ``u`` and ``K_p`` runs away.
 
-What ``R``'s level does with remnant, and what it leaves (measured when the RML was built;
-``manualcontrol bench`` on copies of the suites' batches with ``r2`` set, mean relative
-bias, smoothed): ``R`` also decides how the gains and the remnant share the stick's slow
-power. On the double integrator ``K_p``'s bias falls as ``r2`` rises, and the ``r2``
-without bias grows with the remnant (``remnant-robustness``'s preview DI pilot, all
-free, 6 runs a level, ``r2`` = 1 / 2 / 4: 15 % remnant -9 / -42 / -65 %, 35 % +8 / -3 /
--38 %; the thesis's, 55 %, 10 runs of ``all-DI-full``: +18 % at 1, +2 % at 4, where its
-remnant-free resimulated VAF is 97.6 against 97.2 %); on the single integrator ``r2`` =
-0.5 against 1 moves ``K_p`` by under 0.07 and the neuromuscular parameters both ways
-(the preview pilot with all parameters free, 30 % remnant, 4 runs: ``zeta_nms`` +32 ->
-+5 %, ``tau_v`` -28 -> -12 %; Popovici's time-varying pilot, 30 %, 10 runs: ``zeta_nms``
--7 -> -12 %, ``K_v`` -9 -> -13 %). On all four double-integrator batches of
-``vertregt2020-performance`` (100 runs each, smoothed, ``r2`` 1 -> 4): with 55 % remnant
-the remnant-free resimulated VAF 96.45 -> 97.20 % with all parameters free (``K_p``
-NRMSE 0.222 -> 0.175, ``zeta_nms`` 0.217 -> 0.118, ``tau_v`` 0.065 -> 0.085) and 97.69
--> 98.00 % with the physical parameters held; with 27.5 % the VAF rises less (98.23 ->
-98.52 %) and ``K_p`` errs more (0.160 -> 0.286, bias +7 -> -25 %; ``omega_f`` 0.218 ->
-0.282). No one fixed ``r2`` serves every remnant level: the level without bias is about
-seven times the remnant's share of the stick's power, i.e. ``R`` about seven times the
-remnant's part of ``var(u)``.
+What ``R``'s level does with remnant: ``R`` also decides how the gains and the remnant
+share the stick's slow power. On the double integrator ``K_p``'s bias falls as ``r2``
+rises, and the ``r2`` without bias grows with the remnant; on the single integrator
+``r2`` moves ``K_p`` little and the neuromuscular parameters both ways. No one fixed
+``r2`` serves every remnant level: the level without bias is about seven times the
+remnant's share of the stick's power, i.e. ``R`` about seven times the remnant's part
+of ``var(u)``.
 
 So where the remnant drifts (``ce="DI"`` with a remnant at the perception:
 :attr:`RMLSettings.remnant_drifts`) ``R`` follows the filter's own estimate of that
 part: ``R = r2 var(u) + r2_remnant g^2 var(r)``, ``var(r)`` the remnant state's
 stationary variance and ``g`` the gain it passes (``K_p``), both at the current
 estimate, with ``r2 = 0.5`` and ``r2_remnant = 5`` by default
-(:data:`DRIFTING_REMNANT_R2`, :data:`DRIFTING_REMNANT_WEIGHT`; chosen on 10 runs of
-``all-DI-full``, out of (0.5, 1), (0.5, 5), (0.2, 5)); elsewhere ``r2 = 1`` and no
-remnant weight, as before. Measured against ``R = var(u)`` (``manualcontrol bench`` with
-the weights set, same recordings, smoothed NRMSE batch means):
-``vertregt2020-performance``'s four DI batches (100 runs each): 21 of 26 entries lower;
-all free, 55 % remnant, the remnant-free resimulated VAF 96.45 -> 97.16 % (``K_p`` 0.222
--> 0.148, ``omega_f`` 0.250 -> 0.188, ``zeta_nms`` 0.217 -> 0.123, ``K_f`` 0.191 ->
-0.171; higher ``tau_v`` 0.065 -> 0.088, ``omega_nms`` 0.129 -> 0.144), its worst run
-81.7 -> 93.7 %; 27.5 %: VAF 98.23 -> 98.14 %, 7 of 8 lower (``K_p`` 0.160 -> 0.138,
-``zeta_nms`` 0.127 -> 0.090); physical parameters held: VAF 97.69 -> 98.06 and 98.82 ->
-98.99 %, ``K_v`` alone higher (by 0.003). Beyond the suite (6 runs each):
-``remnant-robustness``'s preview DI pilot all free with 15 % and 35 % remnant and with
-five parameters at 25 %, its compensatory sine-``K_v`` pilot at 15 % and 35 %: VAF equal
-or higher, ``K_p`` 0.137 -> 0.131, 0.228 -> 0.141, 0.178 -> 0.134, 0.126 -> 0.122, 0.250
--> 0.159; with 2 % remnant (10 runs) VAF 99.72 -> 99.69 %, ``K_p`` 0.133 -> 0.111;
-``vertregt2020-feasibility``'s remnant-free DI batches (10 runs): compensatory equal,
-preview resimulated VAF 92.0 -> 99.7 %. On the single integrator, whose remnant is
-broadband, the same weight raised the neuromuscular errors (preview, all free, 35 %, 6
-runs: ``zeta_nms`` 0.160 -> 0.268, ``tau_v`` 0.181 -> 0.247): it is not used there. The
-weight is evaluated at the bank's centre, as a weighting, not per member: per member the
-bank's differences pull ``K_p`` and the intensity towards a smaller ``R`` (tried:
-``K_p`` at its lower limit). Figures elsewhere in this docstring from before it (the
-drift rule, the variance score, restarts) were measured with ``R = var(u)``.
+(:data:`DRIFTING_REMNANT_R2`, :data:`DRIFTING_REMNANT_WEIGHT`; chosen among three
+pairs on the thesis's double-integrator pilot with 55 % remnant); elsewhere ``r2 = 1``
+and no remnant weight. Against ``R = var(u)`` it lowers most of the double integrator's
+parameter errors, most of all where the remnant is strong. On the
+single integrator, whose remnant is broadband, the same weight raised the
+neuromuscular errors: it is not used there. The weight is evaluated at the bank's
+centre, as a weighting, not per member: per member the bank's differences pull ``K_p``
+and the intensity towards a smaller ``R`` (tried: ``K_p`` ran to its lower limit).
 
-The double integrator's steady biases in ``K_v``, ``omega_nms`` and ``zeta_nms`` (55 %
-remnant, those 10 runs: -11, -13 and -23 %; all 100: -9, -13 and -21 %, from run to run
-3-6 %) are the ``dS`` term's pull towards a smaller ``S`` (above): centring that term on
-the innovations' observed level (a moving mean of ``nu^2/S``) turns them to +6, +5 and
--56 % and frees ``K_p`` (+81 %): that level is what tells the gains from the remnant's
-intensity; leaving ``omega_nms``, ``zeta_nms`` and ``tau_v`` out of it lets ``zeta_nms``
-fall by 69 %. They are not the remnant's delay (a remnant injected after the pilot's
-delay, where the filter puts it: the same biases), nor the random walk's memory (``Q`` a
-hundred times smaller for the constant parameters: larger errors), nor the break
-frequency (learned: the same). A noise model in which ``R`` is a noise, not a weighting,
-is what would remove them; none of these variants is an option. The remnant weight
-(above) brings ``K_v`` and ``zeta_nms`` to -7 and -10 % (all 100 runs); ``omega_nms``
-stays at -14 %.
+The double integrator's steady negative biases in ``K_v``, ``omega_nms`` and
+``zeta_nms`` are the ``dS`` term's pull towards a smaller ``S`` (above): centring that
+term on the innovations' observed level (a moving mean of ``nu^2/S``) turns some of
+them positive and frees ``K_p``, because that level is what tells the gains from the
+remnant's intensity; leaving ``omega_nms``, ``zeta_nms`` and ``tau_v`` out of it lets
+``zeta_nms`` fall. They are not the remnant's delay (a remnant injected after the
+pilot's delay, where the filter puts it: the same biases), nor the random walk's memory
+(``Q`` a hundred times smaller for the constant parameters: larger errors), nor the
+break frequency (learned: the same). A noise model in which ``R`` is a noise, not a
+weighting, is what would remove them; none of these variants is an option. The remnant
+weight (above) reduces the ``K_v`` and ``zeta_nms`` biases; that of ``omega_nms`` stays.
 
 Process noise that follows a change (the drift rule): the parameters' random-walk
 variances are the family's presets (thesis Sec. V-B-2), tuned for 20-s sigmoids of
@@ -160,40 +126,21 @@ cancel again (:func:`~manualcontrol.estimators._rml_core._adapt_process_noise`: 
 moving mean of the corrections in prior standard deviations over that of their size,
 above ``drift_threshold``, scales ``Q`` by up to ``1 + drift_gain``; moving means over
 ``drift_window``). It is the delta-bar-delta idea (Jacobs 1988; Sutton's IDBD, 1992)
-with the random walk's variance as the rate. Measured with and without it on the same
-recordings (``manualcontrol bench`` of each suite, 100 runs a batch of the performance
-suite): Popovici's time-varying pilot with remnant ``K_p`` 0.397 -> 0.330 online and
-0.233 -> 0.200 smoothed, without remnant 0.220 -> 0.134 and 0.126 -> 0.061; the
-performance suite's ``tau_f`` lower in every batch (0.086-0.190 -> 0.078-0.166
-smoothed) and the double integrator's resimulated VAF higher in every batch; of the 22
-NRMSE entries of thesis Tables III and IV, 12 improve and 17 are at or below the thesis
-smoothed (15 before). The cost: parameters that are constant wander a little more
-(single-integrator ``zeta_nms`` 0.107 -> 0.118 smoothed, ``K_p`` 0.041 -> 0.045). On 38
-runs of 12 batches (an earlier form of the rule, without the wait for a window), gains
-of 15-50, windows of 1.25-10 s and thresholds of 0.3-0.4 all gave a mean NRMSE of
-0.140-0.146 online (0.151 without the rule).
+with the random walk's variance as the rate. It lowers the errors of parameters that
+change faster than the preset allows (Popovici's time-varying pilot, the thesis's
+``tau_f`` sigmoids); the cost is that parameters that are constant wander a little
+more. Its gain, window and threshold mattered little over the ranges tried.
 
 Restarts (offline; ``restarts=1``, :mod:`~manualcontrol.estimators.pilot_filter`):
 with ``R = var(u)`` on the double integrator the 0.01-rad/s remnant can knock the filter
-off in its run-in (``all-DI-full`` realisation 1, seed 11: ``K_p`` at its lower limit for
-85 s, remnant-free resimulated VAF 81.7 %, 95.6 % restarted; with the remnant weight
-above 98.2 % in one pass). With the weight the passes' likelihoods are not comparable
-(each pass weights ``R`` by its own estimate), and a restart made things worse (the four
-DI batches of the performance suite, 100 runs each: 19 of 26 NRMSE entries higher,
-``all-DI-half``'s VAF 98.14 -> 97.49 %): the RML refuses restarts with ``r2_remnant >
-0``. Measured with ``R = var(u)``, with
-``manualcontrol bench SUITE --estimators rml-smoothed`` on a copy of each suite with
-``restarts = 1`` in every batch's estimator, against the same without (batch means):
-``vertregt2020-performance`` (800 runs) keeps a restart in 12-16 % of the double
-integrator's runs and 0-2 % of the single integrator's; the remnant-free resimulated
-VAF rises in every DI batch (all free, 55 % remnant 96.45 -> 96.63 %; 27.5 % 98.23 ->
-98.48 %; physical parameters held 97.69 -> 97.80 % and 98.82 -> 98.87 %), the SI
-batches' VAF unchanged and their errors within 0.0005; of the 44 NRMSE entries 23 are
-lower, 6 higher (by at most 0.008: all free 55 %, ``omega_f`` 0.250 -> 0.258, ``K_f``
-0.191 -> 0.198, ``K_p`` 0.222 -> 0.227), 15 equal; the thesis comparison is unchanged (Table
-III 11 of 14, Table IV 6 of 8 at or below it). ``remnant-robustness`` (35 runs) keeps
-no restart: every figure equal. Choosing the smaller cost without the test instead
-changed 29 of 33 entries there, 20 for the worse. Cost: a second filter pass and a
+off in its run-in (``K_p`` at its lower limit for over a minute), and a second pass
+from the first pass's smoothed estimate rescues such runs; with the remnant weight
+(above) the run examined stayed on course in one pass. With the weight the passes'
+likelihoods are not comparable (each pass weights ``R`` by its own estimate), and a
+restart made things worse: the RML refuses restarts with ``r2_remnant > 0``
+(``r2_remnant=0`` allows them again; with ``r2=1`` too, ``R = var(u)``). The
+likelihood test matters: choosing the pass with the smaller cost without it changed
+most errors, more for the worse than for the better. Cost: a second filter pass and a
 smoothing, about twice the time.
 
 Sample rates: the settings were chosen at 100 Hz (the papers' rate,
@@ -221,6 +168,10 @@ Online and offline: :meth:`estimate` and :meth:`update` give the filtered estima
 (each from the samples up to it); ``estimate(..., smooth=True)`` (or the registered
 ``"rml-smoothed"``) smooths the parameter track over the whole run as random walks
 (Rauch-Tung-Striebel, as the unscented filters).
+
+Measured figures for every choice above, each with the command that reproduces it, are
+in ``docs/estimators.md`` (the RML); ``benchmarks/rml_variants.py`` sets RML settings
+side by side on a suite's RML batches.
 """
 
 from __future__ import annotations

@@ -15,46 +15,39 @@ dynamics). The start and end values, ``T`` and ``dT`` minimise the output error
 perceptions (:func:`~manualcontrol.pilots.simulation.isolated_pilot_output`, exact
 delay), as :func:`~manualcontrol.estimators.offline.fit_pilot` does for constant
 parameters: maximum likelihood for white output noise, and, with remnant, the usual
-output-error estimate, biased where the remnant reaches the perceptions (closed loop;
-e.g. ``K_p`` about +13 % on Popovici's late pilot, ``K_p = 0.6``, with 30 % remnant).
+output-error estimate, biased where the remnant reaches the perceptions (in the
+closed loop).
 
-Why it is kept beside the random-walk filters: a random walk must stay free
-to follow a change at any moment, so on a stationary stretch the remnant moves it as
-much as a real change would; two numbers a parameter and two shared ones do not. Popovici's
-time-varying pilot (``manualcontrol bench remnant-robustness``, batches
-``popovici-tv-30`` and ``-20``, 10 and 5 runs, NRMSE batch means, smoothed RML ->
-cross-validated RML -> this fit): with 30 % remnant ``K_p`` 0.212 -> 0.189 -> 0.128,
-``K_v`` 0.123 -> 0.114 -> 0.112, remnant-free resimulated VAF 98.69 -> 98.41 -> 98.87 %;
-with 20 % ``K_p`` 0.147 -> 0.131 -> 0.110, ``K_v`` 0.116 -> 0.111 -> 0.080. The
-neuromuscular parameters and the delay, which the remnant's band overlaps, come out
-worse with 30 % (``omega_nms`` 0.078 -> 0.134, ``zeta_nms`` 0.125 -> 0.201, ``tau_v``, a
-sine in that pilot, 0.093 -> 0.118).
+Why it is kept beside the random-walk filters: a random walk must stay free to follow
+a change at any moment, so on a stationary stretch the remnant moves it as much as a
+real change would; two numbers a parameter and two shared ones do not. Where the pilot
+does change along one sigmoid, the gains come out closer than the smoothed and the
+cross-validated RML's; the neuromuscular parameters and the delay, which the remnant's
+band overlaps, come out worse.
 
 On the double integrator the remnant drifts below the forcing band (van der El's
 0.01-rad/s break, which the RML assumes), and the plain output error's closed-loop bias
-took ``K_p`` to a fifth of its value (one run a batch, ``--quick``: NRMSE 0.83 and 0.75
-where the RML has 0.28 and 0.35). With ``ce="DI"`` the output error is therefore
+took ``K_p`` to a fraction of its value. With ``ce="DI"`` the output error is therefore
 high-passed at half the lowest forcing frequency before it is squared (``highpass``):
-0.30 and 0.29 (``zeta_nms`` 0.24 -> 0.12, the remnant-free resimulated VAF 97.3 -> 99.0
-and 98.1 %), as good as the filters and no better. A parameter that changes otherwise
-(a sine, two steps, a drift) gets the sigmoid closest to it (``tau_f`` a sine: NRMSE
-0.21 against the RML's 0.07). It was the best of the three offline members on the
-single-integrator batches with one change (mean NRMSE over the parameters all three
-estimate: preview, all free, 30 %: 0.116 against 0.193 (``rml-cv``) and 0.214
-(``rml-smoothed``); compensatory, 15 %: 0.021 against 0.047 and 0.052). The same
-high-pass on the single integrator cost there (compensatory ``zeta_nms`` 0.044 -> 0.134,
-Popovici's ``K_p`` 0.177 -> 0.206 on one run): it is not applied there. Use it where one
-transition is what the experiment imposed (a change of controlled element, of task, of
-display); otherwise the filters, whose cross-validated members (``rml-cv``) choose their
-own pace. It is slow: every cost evaluation resimulates the model with a parameter set
-per sample (13 ms for 90 s), and the finite-difference least squares take thousands (20-50
-s for a 90-s compensatory run, 20-260 s for a 180-s preview run).
+the fit is then as good as the filters there, and no better. The same high-pass on the
+single integrator, whose remnant is broadband, raised the errors: it is not applied
+there. A parameter that changes otherwise (a sine, two steps, a drift) gets the sigmoid
+closest to it, and the filters follow it better. Use the fit where one transition is
+what the experiment imposed (a change of controlled element, of task, of display);
+otherwise the filters, whose cross-validated members (``rml-cv``) choose their own
+pace. It is slow: every cost evaluation resimulates the model with a parameter set per
+sample, and the finite-difference least squares take thousands of them (tens of
+seconds to minutes a run).
 
 The fit is local: it starts from the constant-parameter fit and from ``starts``
 inflection times spread over the run, and keeps the best optimum. The standard
 deviations reported are those of the least-squares estimate (the inverse of the
 Gauss-Newton information, scaled by the residual variance), carried to each sample's
 value; with remnant, whose residual is coloured, they are too small.
+
+Measured figures, each with the command that reproduces it, are in
+``docs/estimators.md`` (``sigmoid-fit``): ``manualcontrol bench remnant-robustness
+--estimators rml-smoothed,rml-cv,sigmoid-fit`` sets the fit beside the filters.
 """
 
 from __future__ import annotations
