@@ -65,7 +65,7 @@ import math
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -75,11 +75,10 @@ from manualcontrol.envs._validation import check_int, check_positive
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair, Multisine
 from manualcontrol.estimators.metrics import resimulate
+from manualcontrol.estimators.pilot_filter import PilotFilter
+from manualcontrol.estimators.pilot_rules import GenericValuesWarning
 from manualcontrol.estimators.protocol import EstimationResult
 from manualcontrol.estimators.smoothed import SmoothedEstimator
-
-if TYPE_CHECKING:
-    from manualcontrol.estimators.pilot_filter import PilotFilter
 
 __all__ = [
     "DEFAULT_SCALES",
@@ -195,8 +194,6 @@ def _copy(estimator: PilotFilter, **changes: Any) -> PilotFilter:
     The user's own construction said which parameters it holds at generic values
     (:class:`~manualcontrol.estimators.pilot_filter.GenericValuesWarning`).
     """
-    from manualcontrol.estimators.pilot_filter import GenericValuesWarning
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", GenericValuesWarning)
         return type(estimator)(estimator.settings, **changes)
@@ -260,8 +257,6 @@ def choose_noise_scale(
         no band (no multisine forcing and no ``band``); no scale with a finite error.
 
     """
-    from manualcontrol.estimators.pilot_filter import PilotFilter
-
     if not isinstance(estimator, PilotFilter):
         raise TypeError(
             "estimator must be a filter of the family on a pilot model (DEKF, RML, "
@@ -350,7 +345,6 @@ class CrossValidatedEstimator(SmoothedEstimator):
         gap: float = 4.0,
         band: tuple[float, float] | None = None,
     ) -> None:
-        from manualcontrol.estimators.pilot_filter import PilotFilter
 
         if not isinstance(filter, PilotFilter):
             raise TypeError(

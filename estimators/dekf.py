@@ -76,6 +76,7 @@ from manualcontrol.estimators.pilot_rules import (
     PilotFilterSettings,
     ResolvedSettings,
 )
+from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
 
 __all__ = [
     "CE_TYPES",
@@ -261,7 +262,6 @@ class DEKF(PilotFilter):
         core.dekf_run(*self._records, inputs, u, e, out)
 
     def _smoother_inputs(self, out: core.DEKFOutput) -> Any:
-        from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
 
         resolved = self.resolved
         n_c, _, n_t = self._sizes

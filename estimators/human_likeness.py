@@ -68,15 +68,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from manualcontrol.envs._files import atomic_path
 from manualcontrol.envs.elements import ControlledElement, make_element
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair
+from manualcontrol.estimators.fit_check import second_half_values, time_at_limits
 from manualcontrol.estimators.frequency import (
     DescribingFunction,
     describing_function,
     fit_weights,
 )
+from manualcontrol.estimators.registry import make_estimator
 from manualcontrol.pilots.models import make_model
+from manualcontrol.pilots.stability import typical_parameters
 
 __all__ = [
     "CROSSOVER_BAND",
@@ -573,8 +577,6 @@ def reference_pilot(element: Any, t: float = 0.0) -> dict[str, float] | None:
     gain; no typical pilot is published for the others). ``t``: time at which a
     time-varying element is read.
     """
-    from manualcontrol.pilots.stability import typical_parameters
-
     element = make_element(element)
     if element.kind in ("integrator", "double_integrator"):
         return {k: float(v) for k, v in typical_parameters("precision", element).items()}
@@ -789,9 +791,6 @@ def _identify(
     period: float | None,
 ) -> dict[str, Any]:
     """The recommended offline identification: smoothed RML, describing-function choices."""
-    from manualcontrol.estimators.fit_check import second_half_values, time_at_limits
-    from manualcontrol.estimators.registry import make_estimator
-
     estimator = make_estimator(
         {
             "name": "rml-smoothed",
@@ -835,8 +834,6 @@ def plot_human_likeness(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from manualcontrol.envs._files import atomic_path
 
     describing = result.describing
     omega = describing.frequencies

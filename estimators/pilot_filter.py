@@ -39,7 +39,7 @@ starts the second pass at its late values, a poor start the first pass did not h
 ``result.passes``, ``pass_mean``/``pass_std`` (each pass's final estimate) and
 ``result.settings["restarts"]`` (each pass's start, cost, evidence against the kept
 pass in standard errors, the pass chosen and why the restarts ended) record what
-happened. Measured figures: the RML's docstring.
+happened. Measured figures: docs/estimators.md.
 """
 
 from __future__ import annotations
@@ -62,9 +62,11 @@ from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _pilot_core as core
 from manualcontrol.estimators._recording_checks import check_estimable
 from manualcontrol.estimators._targets import target_function
+from manualcontrol.estimators.frequency import fit_describing_function
 from manualcontrol.estimators.internal_model import (
     InternalModel,
 )
+from manualcontrol.estimators.metrics import innovation_cost_terms, paired_cost_evidence
 from manualcontrol.estimators.pilot_rules import (
     CE_TYPES,
     CROSSOVER_RANGE,
@@ -99,6 +101,7 @@ from manualcontrol.estimators.protocol import (
     sample_floats,
 )
 from manualcontrol.estimators.shell import FilterShell, health_summary
+from manualcontrol.estimators.smoothing import smooth as smooth_result
 
 __all__ = [
     "CE_TYPES",
@@ -474,8 +477,6 @@ class PilotFilter(FilterShell):
         if restarts:
             result = self._restarted(recording, signals, result, store)
         if smooth:
-            from manualcontrol.estimators.smoothing import smooth as smooth_result
-
             return smooth_result(result)
         return result
 
@@ -483,8 +484,6 @@ class PilotFilter(FilterShell):
         self, recording: Recording, **options: Any
     ) -> EstimationResult:
         """The run from the describing-function fit's delay and neuromuscular values."""
-        from manualcontrol.estimators.frequency import fit_describing_function
-
         settings = self._settings
         describing = run_describing_function(
             settings, recording, options.get("forcing"), options.get("target_period"), "start"
@@ -525,9 +524,6 @@ class PilotFilter(FilterShell):
         noise models). A pass that stopped (non-finite values or a covariance blow-up)
         is not chosen, and no pass starts from it.
         """
-        from manualcontrol.estimators.metrics import innovation_cost_terms, paired_cost_evidence
-        from manualcontrol.estimators.smoothing import smooth as smooth_result
-
         resolved = self.resolved
         n_window = round(self._settings.window / recording.dt)
 

@@ -68,7 +68,15 @@ from manualcontrol.envs._validation import (
     check_positive,
     check_real,
 )
+from manualcontrol.envs.elements import (
+    ControlledElement,
+    DoubleIntegrator,
+    Integrator,
+    make_element,
+)
 from manualcontrol.envs.recording import Recording
+from manualcontrol.envs.signals import ForcingPair
+from manualcontrol.estimators.frequency import describing_function
 from manualcontrol.estimators.internal_model import (
     ANTICIPATED_PARAMETER,
     InternalModel,
@@ -637,15 +645,11 @@ class ResolvedSettings:
 
 def _plant(element: Any) -> Any:
     """The element a setting names (a preset, a transfer function in ``s``, a dict)."""
-    from manualcontrol.envs.elements import make_element
-
     return make_element(element)
 
 
 def _element_setting(element: Any) -> Any:
     """``element`` checked and in a JSON-able form (text as given, else a dict)."""
-    from manualcontrol.envs.elements import ControlledElement
-
     plant = _plant(element)
     if plant.is_time_varying:
         raise ValueError(f"element must be constant for the limits it sets, got {plant.describe()}")
@@ -687,9 +691,6 @@ def run_describing_function(
     period, its lines read off the recorded signals).
     ``what`` names the setting in the error when it cannot be measured.
     """
-    from manualcontrol.envs.signals import ForcingPair
-    from manualcontrol.estimators.frequency import describing_function
-
     task = "compensatory"
     if "ft_far" in make_model(settings.model).perceptions:
         task = "pursuit" if settings.pursuit else "preview"
@@ -715,8 +716,6 @@ def element_type(element: Any) -> str | None:
 
     The type sets the rules by element (the module docstring).
     """
-    from manualcontrol.envs.elements import DoubleIntegrator, Integrator
-
     plant = _plant(element)
     if isinstance(plant, Integrator):
         return "SI"

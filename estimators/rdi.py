@@ -93,6 +93,7 @@ from manualcontrol.estimators.protocol import (
 )
 from manualcontrol.estimators.settings import SettingsRecord
 from manualcontrol.estimators.shell import REASONS, FilterShell
+from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
 
 __all__ = ["RDI", "RDISettings", "ResolvedRDI", "parameter_symbols"]
 
@@ -544,7 +545,6 @@ class RDI(FilterShell):
         )
 
     def _smoother_inputs(self, out: core.RDIOutput) -> Any:
-        from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
 
         s = self._settings
         names = self.parameter_names

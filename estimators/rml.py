@@ -186,18 +186,24 @@ from manualcontrol.envs._validation import check_choice, check_int, check_positi
 from manualcontrol.estimators import _rml_core as core
 from manualcontrol.estimators._pilot_core import PAPERS_DT, euler_substeps
 from manualcontrol.estimators.filters.kalman import kalman_work
+from manualcontrol.estimators.fit_check import (
+    FAR_GAIN_DB,
+    FAR_PHASE_DEG,
+    second_half_values,
+)
+from manualcontrol.estimators.frequency import response_error
 from manualcontrol.estimators.internal_model import (
     ANTICIPATED_PARAMETER,
     InternalModel,
     build_internal_model,
 )
-from manualcontrol.estimators.pilot_filter import (
-    CommonArrays,
-    PilotFilter,
+from manualcontrol.estimators.pilot_filter import CommonArrays, PilotFilter
+from manualcontrol.estimators.pilot_rules import (
     PilotFilterSettings,
     ResolvedSettings,
     run_describing_function,
 )
+from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.pilots.models import make_model
 
 __all__ = ["BREAK_FREQUENCY", "RML", "RMLSettings"]
@@ -426,13 +432,6 @@ class RML(PilotFilter):
         if self._settings.remnant_injection != CHOOSE_INJECTION:
             return super().estimate(recording, **options)
         import dataclasses
-
-        from manualcontrol.estimators.fit_check import (
-            FAR_GAIN_DB,
-            FAR_PHASE_DEG,
-            second_half_values,
-        )
-        from manualcontrol.estimators.frequency import response_error
 
         settings = self._settings
         describing = run_describing_function(
@@ -684,8 +683,6 @@ class RML(PilotFilter):
 
     def _smoother_inputs(self, out: core.BankOutput) -> Any:
         """One random-walk block over the parameters (the noise parameters left out)."""
-        from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
-
         model_names = self._internal.parameter_names
         block = SmootherBlock(
             kind="random-walk",

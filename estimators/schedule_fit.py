@@ -74,7 +74,7 @@ from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.schedules import Constant, Schedule, Sigmoid
 from manualcontrol.envs.signals import ForcingPair, Multisine
 from manualcontrol.estimators.offline import fit_pilot, lower_bound, perception_signals
-from manualcontrol.estimators.pilot_filter import (
+from manualcontrol.estimators.pilot_rules import (
     DI_FAR_BREAK,
     TABLE_I,
     TAU_F_MARGIN,

@@ -107,6 +107,7 @@ from manualcontrol.estimators import _schiess_roland_core as core
 from manualcontrol.estimators.protocol import EstimationResult
 from manualcontrol.estimators.settings import SettingsRecord
 from manualcontrol.estimators.shell import FilterShell, read_sample
+from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
 
 __all__ = [
     "ADAPTIVE_MODES",
@@ -803,7 +804,6 @@ class SchiessRoland(FilterShell):
         return self._finish(result, smooth)
 
     def _smoother_inputs(self, out: Any) -> Any:
-        from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
 
         block = SmootherBlock(
             kind="ekf",

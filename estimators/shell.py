@@ -50,6 +50,7 @@ from manualcontrol.estimators.protocol import (
     sample_values,
     summarise_health,
 )
+from manualcontrol.estimators.smoothing import smooth as smooth_result
 
 __all__ = ["REASONS", "FilterShell", "health_summary", "read_sample"]
 
@@ -372,7 +373,5 @@ class FilterShell:
     def _finish(result: EstimationResult, smooth: bool) -> EstimationResult:
         """``result``, fixed-interval smoothed when ``smooth``."""
         if smooth:
-            from manualcontrol.estimators.smoothing import smooth as smooth_result
-
             return smooth_result(result)
         return result

@@ -57,6 +57,7 @@ from manualcontrol.estimators.filters.unscented import (
 )
 from manualcontrol.estimators.pilot_filter import CommonArrays, PilotFilter
 from manualcontrol.estimators.pilot_rules import PilotFilterSettings, ResolvedSettings
+from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
 
 __all__ = ["DualUKF", "DualUKFSettings", "JointUKF", "UKFSettings"]
 
@@ -171,7 +172,6 @@ class _UnscentedPilotFilter(PilotFilter):
 
     def _smoother_inputs(self, out: core.UKFOutput) -> Any:
         """Random-walk blocks over the parameters' marginals (see the module docstring)."""
-        from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
 
         def marginal(x_post, P_post, x_prior, P_prior, names):
             index = np.arange(len(names))

@@ -72,6 +72,7 @@ from manualcontrol.estimators.metrics import observability_gramian
 from manualcontrol.estimators.protocol import EstimationResult
 from manualcontrol.estimators.settings import SettingsRecord
 from manualcontrol.estimators.shell import FilterShell, health_summary
+from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.pilots.driver import DRIVER_INPUTS, DRIVER_OUTPUTS, CyberneticDriverModel
 
 __all__ = [
@@ -699,7 +700,6 @@ class ZhaoUKF(FilterShell):
         )
 
     def _smoother_inputs(self, out: core.ZhaoOutput) -> Any:
-        from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
 
         report = self._records[3]
         block = SmootherBlock(
