@@ -37,7 +37,7 @@ import numpy as np
 
 from manualcontrol.envs._interpolation import bicubic_derivative_weights, bicubic_weights
 from manualcontrol.estimators._pilot_core import SC_FROZEN, SC_K, report_frozen, report_row
-from manualcontrol.estimators.filters.kalman import clamp, joseph_correct
+from manualcontrol.estimators.filters.kalman import clamp, joseph_correct, kalman_work
 from manualcontrol.estimators.filters.linalg import symmetrise
 from manualcontrol.estimators.filters.monitor import belief_health
 from manualcontrol.estimators.filters.smoothers import store_belief
@@ -151,8 +151,6 @@ _PARAM_STATE = (I_K1, I_TAU1, I_TAU2, I_TAU3, I_ALPHA1, I_ALPHA2)
 
 def new_scratch() -> SRScratch:
     """Scratch arrays of one filter."""
-    from manualcontrol.estimators.filters.kalman import kalman_work
-
     n = N_STATES
     return SRScratch(
         terms=np.zeros((N_COLUMNS, N_DYNAMIC)),

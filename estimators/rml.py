@@ -176,6 +176,7 @@ side by side on a suite's RML batches.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -431,8 +432,6 @@ class RML(PilotFilter):
         """
         if self._settings.remnant_injection != CHOOSE_INJECTION:
             return super().estimate(recording, **options)
-        import dataclasses
-
         settings = self._settings
         describing = run_describing_function(
             settings,
