@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from manualcontrol.bench.cli import positive_int
-from manualcontrol.bench.report import _pyplot, write_report
+from manualcontrol.bench.report import pyplot, write_report
 from manualcontrol.bench.runner import run_suite
 from manualcontrol.bench.scenarios import BUILTIN_SUITES, Suite, load_suite
 from manualcontrol.envs._files import atomic_write
@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     suites = {name: load_suite(name) for name in args.suite or BUILTIN_SUITES}
     counts = {name: len(suite.scenarios(quick=True)) for name, suite in suites.items()}
     if sys.platform.startswith("linux"):
-        _pyplot()  # imported once here, not in every child
+        pyplot()  # imported once here, not in every child
         context = multiprocessing.get_context("fork")
         results, tasks = context.SimpleQueue(), context.SimpleQueue()
         # the streams take the next suite as they finish one, the most runs first

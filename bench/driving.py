@@ -43,19 +43,26 @@ from typing import Any
 
 import numpy as np
 
-from manualcontrol.bench.scenarios import Batch, SuiteError, _fail, _int_list
+from manualcontrol.bench.batches import (
+    Batch,
+    SuiteError,
+    batch_estimators,
+    int_list,
+    suite_error,
+)
 from manualcontrol.envs._validation import check_choice, check_positive
 from manualcontrol.envs.driving import (
     ROAD_PRESETS,
     STEERING_MODES,
     LaneKeeping,
+    Road,
     road_preset,
     vehicle_preset,
 )
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import metrics
 from manualcontrol.pilots.driver import Driver
-from manualcontrol.pilots.driving import _output_noise
+from manualcontrol.pilots.driving import output_noise_levels, resimulate_driver, simulate_driving
 
 __all__ = [
     "ENVIRONMENT_KEYS",
@@ -135,9 +142,9 @@ def parse_lane_keeping_batch(where: str, merged: Mapping[str, Any]) -> Batch:
     where = f"{where} ({name})"
     unknown = sorted(set(merged) - _BATCH_KEYS - {"available_preview"})
     if unknown:
-        raise _fail(where, f"unknown key(s) {unknown} for a lane-keeping batch")
+        raise suite_error(where, f"unknown key(s) {unknown} for a lane-keeping batch")
     if merged.get("available_preview") is not None:
-        raise _fail(where, "available_preview does not apply to lane keeping")
+        raise suite_error(where, "available_preview does not apply to lane keeping")
     try:
         environment = _environment(merged["element"])
         road = merged["forcing"]
@@ -149,34 +156,34 @@ def parse_lane_keeping_batch(where: str, merged: Mapping[str, Any]) -> Batch:
         if measurement_time is not None:
             measurement_time = check_positive("measurement_time", measurement_time)
         score_from = check_positive("score_from", merged.get("score_from", 0.0), allow_zero=True)
-        _output_noise(environment.pop("output_noise", None))
+        output_noise_levels(environment.pop("output_noise", None))
         # the environment checks the rest (speeds, distances, the drive fitting the road)
         LaneKeeping(road, dt=dt, run_in=run_in, measurement_time=measurement_time, **environment)
     except (TypeError, ValueError) as error:
-        raise _fail(where, str(error)) from None
-    realisations = _int_list(where, "realisations", merged["realisations"])
+        raise suite_error(where, str(error)) from None
+    realisations = int_list(where, "realisations", merged["realisations"])
     if road != "random" and realisations != (0,):
-        raise _fail(where, f"realisations must be [0] for the fixed road {road!r}")
-    seeds = _int_list(where, "remnant_seeds", merged.get("remnant_seeds", [0]))
+        raise suite_error(where, f"realisations must be [0] for the fixed road {road!r}")
+    seeds = int_list(where, "remnant_seeds", merged.get("remnant_seeds", [0]))
     quick = dict(merged.get("quick", {}))
     unknown = sorted(set(quick) - {"realisations", "remnant_seeds"})
     if unknown:
-        raise _fail(where, f"quick has unknown key(s) {unknown}")
-    quick_realisations = _int_list(
+        raise suite_error(where, f"quick has unknown key(s) {unknown}")
+    quick_realisations = int_list(
         where, "quick.realisations", quick.get("realisations", [realisations[0]])
     )
-    quick_seeds = _int_list(where, "quick.remnant_seeds", quick.get("remnant_seeds", [seeds[0]]))
+    quick_seeds = int_list(where, "quick.remnant_seeds", quick.get("remnant_seeds", [seeds[0]]))
     pilot = dict(merged["pilot"])
     unknown = sorted(set(pilot) - _PILOT_KEYS)
     if unknown:
-        raise _fail(where, f"pilot has unknown key(s) {unknown}; allowed: {sorted(_PILOT_KEYS)}")
+        raise suite_error(
+            where, f"pilot has unknown key(s) {unknown}; allowed: {sorted(_PILOT_KEYS)}"
+        )
     try:
         build_driver(pilot)
     except (TypeError, ValueError, KeyError) as error:
-        raise _fail(where, f"pilot: {error}") from None
-    from manualcontrol.bench.scenarios import _estimators
-
-    shared, estimators = _estimators(where, merged)
+        raise suite_error(where, f"pilot: {error}") from None
+    shared, estimators = batch_estimators(where, merged)
     template = {
         "task": TASK,
         "element": merged["element"],
@@ -204,9 +211,6 @@ def parse_lane_keeping_batch(where: str, merged: Mapping[str, Any]) -> Batch:
 
 def simulate_lane_keeping(scenario: Any) -> Recording:
     """The scenario's drive (run-in kept, as the tracking scenarios)."""
-    from manualcontrol.envs.driving import Road
-    from manualcontrol.pilots.driving import simulate_driving
-
     environment = _environment(scenario.element)
     noise = environment.pop("output_noise", None)
     if scenario.forcing == "random":
@@ -297,8 +301,6 @@ def straight_drift(recording: Recording, estimate: np.ndarray) -> float:
 
 def score_lane_keeping(scenario: Any, recording: Recording, result: Any) -> dict[str, Any]:
     """The results-row entries of one lane-keeping run (module docstring)."""
-    from manualcontrol.pilots.driving import resimulate_driver
-
     t = np.asarray(recording.t)
     mask = t >= scenario.score_from
     if not mask.any():

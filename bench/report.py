@@ -19,16 +19,22 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from manualcontrol.bench.papers import section_writer
 from manualcontrol.bench.scenarios import Suite, scenario_from_dict
 from manualcontrol.envs._files import atomic_path, atomic_write
 from manualcontrol.envs.recording import Recording
+from manualcontrol.pilots.models import MODEL_NAMES, make_model
 
 __all__ = [
     "best_estimators",
+    "draw_trace",
     "nan_median",
     "nan_percentiles",
     "plot_estimation",
     "plot_recording",
+    "pyplot",
+    "save_figure",
+    "subplots",
     "summarise",
     "thin_band",
     "thin_trace",
@@ -51,7 +57,12 @@ VAF_DEFINITIONS = (
 )
 
 
-def _pyplot() -> Any:
+def pyplot() -> Any:
+    """``matplotlib.pyplot`` on the Agg backend (files only, no window), imported here.
+
+    matplotlib is optional and slow to import, so it is loaded on the first figure;
+    a parent process calls this once before forking workers that draw.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -140,7 +151,7 @@ def thin_band(t: ArrayLike, low: ArrayLike, high: ArrayLike, buckets: int = DRAW
     )
 
 
-def _line(axis: Any, t: ArrayLike, values: ArrayLike, **style: Any) -> Any:
+def draw_trace(axis: Any, t: ArrayLike, values: ArrayLike, **style: Any) -> Any:
     """``axis.plot`` of a trace thinned by :func:`thin_trace`."""
     return axis.plot(*thin_trace(t, values), **style)
 
@@ -150,9 +161,7 @@ def _band(axis: Any, t: ArrayLike, low: ArrayLike, high: ArrayLike, **style: Any
     return axis.fill_between(*thin_band(t, low, high), **style)
 
 
-def _subplots(
-    rows: int, columns: int, *, reusable: bool = False, **options: Any
-) -> tuple[Any, Any]:
+def subplots(rows: int, columns: int, *, reusable: bool = False, **options: Any) -> tuple[Any, Any]:
     """``pyplot.subplots`` with titles at a fixed height above the panels.
 
     Matplotlib otherwise measures every x axis at each draw to lift a title clear of
@@ -170,7 +179,7 @@ def _subplots(
         fig, axes = pool.free[key].pop()
         _clear(fig)
         return fig, axes
-    plt = _pyplot()
+    plt = pyplot()
     with plt.rc_context({"axes.titley": 1.0}):
         fig, axes = plt.subplots(rows, columns, **options)
     if pool is not None:  # closed when the report ends, whatever happens
@@ -191,7 +200,7 @@ _KEPT_FIGURES = 8
 
 @contextlib.contextmanager
 def _reusing_figures() -> Iterator[None]:
-    """Within: :func:`_save` keeps each reusable figure for the next one of its layout.
+    """Within: :func:`save_figure` keeps each reusable figure for the next one of its layout.
 
     A report draws dozens of figures of a few layouts, and creating a figure's axes and
     the ticks they draw is about half of its cost. The next figure of the same layout
@@ -208,13 +217,13 @@ def _reusing_figures() -> Iterator[None]:
         yield
     finally:
         pool, _figure_pool = _figure_pool, None
-        plt = _pyplot()
+        plt = pyplot()
         for _, fig, _ in pool.made.values():
             plt.close(fig)
 
 
 def _clear(fig: Any) -> None:
-    """Remove what was drawn on ``fig``'s panels, leaving them as :func:`_subplots` made them.
+    """Remove what was drawn on ``fig``'s panels, leaving them as :func:`subplots` made them.
 
     Covers what the reusable figures draw: lines, bands and other collections, patches,
     texts, legends, titles, axis labels, limits set or autoscaled, and the colour cycle
@@ -259,7 +268,12 @@ def _plain(fig: Any, panels: int) -> bool:
     return True
 
 
-def _save(fig: Any, path: Path) -> Path:
+def save_figure(fig: Any, path: Path) -> Path:
+    """Lay out ``fig`` (:data:`FIGURE_MARGINS_IN`) and write it to ``path`` as a PNG.
+
+    The file appears whole or not at all. The figure is closed, or, when it was made
+    reusable inside :func:`_reusing_figures`, kept for the next figure of its layout.
+    """
     _lay_out(fig)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as temporary:
@@ -278,26 +292,26 @@ def _save(fig: Any, path: Path) -> Path:
             return path
     if made is not None:
         del pool.made[id(fig)]
-    _pyplot().close(fig)
+    pyplot().close(fig)
     return path
 
 
 def plot_recording(recording: Recording, path: str | Path) -> Path:
     """Target, output, error and stick of a recording, as a PNG."""
-    fig, axes = _subplots(3, 1, figsize=(10, 6.5), sharex=True)
+    fig, axes = subplots(3, 1, figsize=(10, 6.5), sharex=True)
     t = recording.t
     if "ft" in recording:
-        _line(axes[0], t, recording.ft, lw=0.9, label="target $f_t$")
-    _line(axes[0], t, recording.y, lw=0.9, label="output $y$")
+        draw_trace(axes[0], t, recording.ft, lw=0.9, label="target $f_t$")
+    draw_trace(axes[0], t, recording.y, lw=0.9, label="output $y$")
     axes[0].legend(loc="upper right")
-    _line(axes[1], t, recording.e, lw=0.8, color="tab:red", label="error $e$")
+    draw_trace(axes[1], t, recording.e, lw=0.8, color="tab:red", label="error $e$")
     axes[1].legend(loc="upper right")
-    _line(axes[2], t, recording.u, lw=0.8, color="tab:green", label="control $u$")
+    draw_trace(axes[2], t, recording.u, lw=0.8, color="tab:green", label="control $u$")
     if "n" in recording:
-        _line(axes[2], t, recording.n, lw=0.6, color="tab:gray", label="remnant $n$")
+        draw_trace(axes[2], t, recording.n, lw=0.6, color="tab:gray", label="remnant $n$")
     axes[2].legend(loc="upper right")
     axes[2].set_xlabel("time [s]")
-    return _save(fig, Path(path))
+    return save_figure(fig, Path(path))
 
 
 def plot_describing_function(
@@ -316,10 +330,10 @@ def plot_describing_function(
     channel of a two-channel model: what the measured ``U/E`` is), e.g. the
     frequency-domain fit beside a time-domain estimate's second-half values.
     """
+    # here, not at the top: the estimators load their whole family and scipy.signal
     from manualcontrol.estimators.frequency import loop_response
-    from manualcontrol.pilots.models import make_model
 
-    fig, axes = _subplots(2, 1, figsize=(7.5, 6.5), sharex=True)
+    fig, axes = subplots(2, 1, figsize=(7.5, 6.5), sharex=True)
     omega = describing.frequencies
     gain, phase = describing.gain_db, describing.phase_deg
     strong = describing.snr >= 10.0
@@ -364,12 +378,10 @@ def plot_describing_function(
         )
     axes[0].set_title(title, fontsize=9)
     axes[0].legend(loc="lower left", fontsize=8)
-    return _save(fig, Path(path))
+    return save_figure(fig, Path(path))
 
 
 def _unit(name: str) -> str:
-    from manualcontrol.pilots.models import MODEL_NAMES, make_model
-
     for model in MODEL_NAMES:
         structure = make_model(model)
         if name in structure.parameter_names:
@@ -392,15 +404,15 @@ def plot_estimation(
     names = list(result.estimated)
     innovations = bool(np.any(np.isfinite(result.innovation)))
     panels = len(names) + innovations + (model_output is not None)
-    fig, axes = _subplots(panels, 1, figsize=(9, 1.8 * panels), sharex=True)
+    fig, axes = subplots(panels, 1, figsize=(9, 1.8 * panels), sharex=True)
     axes = np.atleast_1d(axes)
     t = result.t
     for axis, name in zip(axes, names, strict=False):
         mean, std = result.mean_of(name), result.std_of(name)
-        _line(axis, t, mean, color="k", lw=1.0, label="estimate")
+        draw_trace(axis, t, mean, color="k", lw=1.0, label="estimate")
         _band(axis, t, mean - std, mean + std, color="k", alpha=0.15, lw=0)
         if name in recording.parameters:
-            _line(
+            draw_trace(
                 axis, recording.t, recording.parameters[name], color="tab:red", lw=1.0, label="true"
             )
         axis.set_ylabel(_unit(name))
@@ -408,20 +420,20 @@ def plot_estimation(
     if innovations:
         _innovation_panel(axes[len(names)], t, result)
     if model_output is not None:
-        _line(axes[-1], recording.t, recording.u, color="k", lw=0.6, label="measured u")
-        _line(
+        draw_trace(axes[-1], recording.t, recording.u, color="k", lw=0.6, label="measured u")
+        draw_trace(
             axes[-1], recording.t, model_output, color="tab:blue", lw=0.8, label="identified model"
         )
         axes[-1].set_ylabel("u [stick]")
         axes[-1].legend(loc="upper right")
     axes[-1].set_xlabel("time [s]")
-    return _save(fig, Path(path))
+    return save_figure(fig, Path(path))
 
 
 def _innovation_panel(axis: Any, t: Any, result: Any) -> None:
-    _line(axis, t, result.innovation, color="tab:red", lw=0.5, label="innovation")
+    draw_trace(axis, t, result.innovation, color="tab:red", lw=0.5, label="innovation")
     spread = np.sqrt(result.innovation_variance)
-    _line(axis, t, spread, color="k", lw=0.8, label="sqrt(variance)")
+    draw_trace(axis, t, spread, color="k", lw=0.8, label="sqrt(variance)")
     both = np.concatenate([np.asarray(result.innovation), spread])
     both = both[np.isfinite(both)]
     low, high = np.percentile(both, [0.5, 99.5])
@@ -590,6 +602,7 @@ def _mean_traces(path: Path) -> _MeanTraces:
     all 17 traces, three times the bytes; over a suite's 800 runs (2.5 GB) that
     reading was half of the report's time.
     """
+    # here, not at the top: the estimators load their whole family and scipy.signal
     from manualcontrol.estimators.protocol import RESULT_FORMAT
 
     with np.load(path, allow_pickle=False) as archive:
@@ -797,13 +810,13 @@ def _comparison_figure(
     truth = {
         name: schedule(first.t) for name, schedule in scenario.build_pilot().parameters.items()
     }
-    fig, axes = _subplots(
+    fig, axes = subplots(
         len(names), 1, reusable=True, figsize=(9, 1.8 * len(names) + 0.6), sharex=True
     )
     axes = np.atleast_1d(axes)
     for axis, name in zip(axes, names, strict=True):
         if name in truth:
-            _line(axis, first.t, truth[name], color="tab:red", lw=1.2, label="true")
+            draw_trace(axis, first.t, truth[name], color="tab:red", lw=1.2, label="true")
         for colour, (estimator, results) in zip(
             _ESTIMATOR_COLOURS, by_estimator.items(), strict=False
         ):
@@ -816,12 +829,12 @@ def _comparison_figure(
             if len(stack) > 1:
                 low, high = nan_percentiles(stack, [25, 75])
                 _band(axis, first.t, low, high, color=colour, alpha=0.15, lw=0)
-            _line(axis, first.t, median, color=colour, lw=1.0, label=label)
+            draw_trace(axis, first.t, median, color=colour, lw=1.0, label=label)
         axis.set_ylabel(_unit(name))
     axes[0].legend(loc="upper right", fontsize=7, ncol=2)
     axes[0].set_title(f"{suite.name}: {batch} (bands: 25-75 % of the runs)")
     axes[-1].set_xlabel("time [s]")
-    return _save(fig, out / "figures" / f"{batch}-estimators.png")
+    return save_figure(fig, out / "figures" / f"{batch}-estimators.png")
 
 
 def _trace_figure(
@@ -841,7 +854,7 @@ def _trace_figure(
     pilot = scenario.build_pilot().parameters if scenario.system is None else {}
     truth = {name: schedule(first.t) for name, schedule in pilot.items()}
     rows_in_figure = len(names) + 1
-    fig, axes = _subplots(
+    fig, axes = subplots(
         rows_in_figure, 1, reusable=True, figsize=(9, 1.7 * rows_in_figure), sharex=True
     )
     axes = np.atleast_1d(axes)
@@ -853,11 +866,11 @@ def _trace_figure(
         if len(stack) > 1:  # a band of one run would be a line mislabelled as a spread
             low, high = nan_percentiles(stack, [25, 75])
             _band(axis, first.t, low, high, color="k", alpha=0.2, lw=0, label="25-75 %")
-            _line(axis, first.t, median, color="k", lw=1.0, label=f"median of {len(stack)}")
+            draw_trace(axis, first.t, median, color="k", lw=1.0, label=f"median of {len(stack)}")
         else:
-            _line(axis, first.t, median, color="k", lw=1.0, label="estimate (one run)")
+            draw_trace(axis, first.t, median, color="k", lw=1.0, label="estimate (one run)")
         if name in truth:
-            _line(axis, first.t, truth[name], color="tab:red", lw=1.0, label="true")
+            draw_trace(axis, first.t, truth[name], color="tab:red", lw=1.0, label="true")
         axis.set_ylabel(name)
     axes[0].legend(loc="upper right", fontsize=8)
     moving = [row.get("moving_vaf") for row in ok if row.get("moving_vaf")]
@@ -871,12 +884,12 @@ def _trace_figure(
         lowest = float(finite.min()) if finite.size else math.nan  # no window complete
         if len(stack) > 1:
             _band(axes[-1], times, *quartiles, color="tab:blue", alpha=0.2, lw=0)
-        _line(axes[-1], times, median, color="tab:blue", lw=1.0)
+        draw_trace(axes[-1], times, median, color="tab:blue", lw=1.0)
         axes[-1].set_ylim(max(0.0, lowest - 5.0), 101.0)
     axes[-1].set_ylabel("10-s VAF [%]")
     axes[-1].set_xlabel("time [s]")
     axes[0].set_title(f"{suite.name}: {batch}")
-    return _save(fig, out / "figures" / f"{batch}.png")
+    return save_figure(fig, out / "figures" / f"{batch}.png")
 
 
 def write_report(suite: Suite, rows: Sequence[Mapping[str, Any]], out: str | Path) -> Path:
@@ -930,8 +943,6 @@ def _write_report(suite: Suite, rows: Sequence[Mapping[str, Any]], out: Path) ->
         if figure is not None:
             lines += [f"![{batch.name}](figures/{figure.name})", ""]
     lines += best_estimators(suite, rows)
-    from manualcontrol.bench.papers import section_writer
-
     writer = section_writer(suite.name)
     if writer is not None:
         lines += [*writer(suite, rows, out), ""]

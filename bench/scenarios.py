@@ -87,13 +87,20 @@ import importlib.resources
 import json
 import sys
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from manualcontrol.bench.batches import (
+    Batch,
+    SuiteError,
+    as_table,
+    batch_estimators,
+    int_list,
+    suite_error,
+)
 from manualcontrol.envs._validation import (
     check_choice,
-    check_int,
     check_positive,
     check_real,
     check_vector,
@@ -101,10 +108,13 @@ from manualcontrol.envs._validation import (
 )
 from manualcontrol.envs.elements import make_element
 from manualcontrol.envs.recording import MEASURED_SIGNALS
+from manualcontrol.envs.schedules import Schedule
 from manualcontrol.envs.signals import FORCING_PRESETS, preset_realisation_count
 from manualcontrol.envs.tasks import DISTURBANCE_POINTS
 from manualcontrol.pilots import Pilot
-from manualcontrol.pilots.simulation import INITIAL_STATE_SIGNALS, LOOPS, TASKS
+from manualcontrol.pilots.open_loop import ARMAXSystem
+from manualcontrol.pilots.simulation import INITIAL_STATE_SIGNALS, LOOPS, TASKS, SimulationSetup
+from manualcontrol.pilots.stability import check_stable
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -157,10 +167,6 @@ _OPTIONAL_FIELDS = {
     "disturbance_at": "output",
 }
 _PILOT_KEYS = {"model", "parameters", "remnant", "delay_order", "near_view"}
-
-
-class SuiteError(ValueError):
-    """A suite file or table that does not describe a valid suite."""
 
 
 @dataclass(frozen=True)
@@ -221,6 +227,7 @@ class Scenario:
     def build_pilot(self) -> Pilot:
         """The :class:`~manualcontrol.pilots.Pilot` of this scenario (lane keeping: the driver)."""
         if self.task == "lane-keeping":
+            # here, not at the top: bench.driving loads the estimators and scipy.signal
             from manualcontrol.bench.driving import build_driver
 
             return build_driver(self.pilot)  # type: ignore[return-value]
@@ -228,37 +235,13 @@ class Scenario:
 
     def build_system(self) -> Any:
         """The :class:`~manualcontrol.pilots.open_loop.ARMAXSystem` of an open-loop scenario."""
-        from manualcontrol.pilots.open_loop import ARMAXSystem
-
         if self.system is None:
             raise ValueError(f"scenario {self.key} is not open-loop: it has no system")
         return ARMAXSystem.from_dict(self.system)
 
     def build_gap(self) -> Any:
         """The postview gap as a number or schedule (None outside postview tasks)."""
-        from manualcontrol.envs.schedules import Schedule
-
         return None if self.gap is None else Schedule.from_dict(self.gap)
-
-
-@dataclass(frozen=True)
-class Batch:
-    """A scenario template crossed with realisations and seeds, plus the paper's numbers."""
-
-    name: str
-    template: Mapping[str, Any]
-    realisations: tuple[int, ...]
-    remnant_seeds: tuple[int, ...]
-    quick_realisations: tuple[int, ...]
-    quick_remnant_seeds: tuple[int, ...]
-    reference: Mapping[str, Any] = field(default_factory=dict)
-    estimators: tuple[Mapping[str, Any], ...] = ()
-    shared_estimator_settings: Mapping[str, Any] = field(default_factory=dict)
-
-    @property
-    def estimator_names(self) -> tuple[str, ...]:
-        """The batch's estimators, in order."""
-        return tuple(spec["name"] for spec in self.estimators)
 
 
 @dataclass(frozen=True)
@@ -298,6 +281,8 @@ class Suite:
         shared estimator settings. Raises :class:`SuiteError` naming the batch when an
         estimator cannot run there.
         """
+        # here, not at the top: the estimators load their whole family and scipy.signal
+        # (about a second), which importing this module need not pay
         from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
 
         names = list(names)
@@ -373,42 +358,19 @@ def _initial_state(value: Any) -> dict[str, list[float]] | None:
     }
 
 
-def _fail(where: str, message: str) -> SuiteError:
-    return SuiteError(f"{where}: {message}")
-
-
-def _table(where: str, key: str, value: Any) -> dict[str, Any]:
-    """``value`` as a dict, or an error naming the key (TOML: a table ``{...}`` or ``[key]``)."""
-    if not isinstance(value, Mapping):
-        raise _fail(where, f"{key} must be a table ({{...}} or [{key}]), got {value!r}")
-    return dict(value)
-
-
-def _int_list(where: str, key: str, value: Any) -> tuple[int, ...]:
-    if not isinstance(value, list) or not value:
-        raise _fail(where, f"{key} must be a non-empty list of integers, got {value!r}")
-    try:
-        items = tuple(check_int(key, item, minimum=0) for item in value)
-    except (TypeError, ValueError) as error:
-        raise _fail(where, str(error)) from None
-    repeated = sorted({item for item in items if items.count(item) > 1})
-    if repeated:
-        # a repeated realisation or seed would run the same scenario twice: duplicate rows
-        raise _fail(where, f"{key} must not repeat a value, repeated: {repeated}")
-    return items
-
-
 def _check_subset(where: str, key: str, subset: tuple[int, ...], full: tuple[int, ...]) -> None:
     outside = sorted(set(subset) - set(full))
     if outside:
-        raise _fail(where, f"quick.{key} must be taken from {key} {list(full)}, got {outside}")
+        raise suite_error(
+            where, f"quick.{key} must be taken from {key} {list(full)}, got {outside}"
+        )
 
 
 def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
-    raw = _table(where, "each [[batch]]", raw)
+    raw = as_table(where, "each [[batch]]", raw)
     unknown = sorted(set(raw) - _BATCH_KEYS)
     if unknown:
-        raise _fail(where, f"unknown key(s) {unknown}; allowed: {sorted(_BATCH_KEYS)}")
+        raise suite_error(where, f"unknown key(s) {unknown}; allowed: {sorted(_BATCH_KEYS)}")
     merged = {**defaults, **raw}
     if "available_preview" not in raw and raw.get("task") != "preview":
         merged.pop("available_preview", None)  # a suite-wide preview concerns preview batches
@@ -416,11 +378,12 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
     needed = ("system",) if open_loop else ("element", "pilot")
     for key in ("name", "task", "forcing", "realisations", *needed):
         if key not in merged:
-            raise _fail(where, f"missing key {key!r}")
+            raise suite_error(where, f"missing key {key!r}")
     name = merged["name"]
     if not isinstance(name, str) or not name.replace("-", "").replace("_", "").isalnum():
-        raise _fail(where, f"name must be letters, digits, '-' or '_', got {name!r}")
+        raise suite_error(where, f"name must be letters, digits, '-' or '_', got {name!r}")
     if merged["task"] == "lane-keeping":
+        # here, not at the top: bench.driving loads the estimators and scipy.signal
         from manualcontrol.bench.driving import parse_lane_keeping_batch
 
         return parse_lane_keeping_batch(where, merged)
@@ -448,31 +411,31 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
         noise = _measurement_noise(merged.get("measurement_noise"))
         initial_state = _initial_state(merged.get("initial_state"))
     except (TypeError, ValueError) as error:
-        raise _fail(where, str(error)) from None
+        raise suite_error(where, str(error)) from None
     count = preset_realisation_count(merged["forcing"])
-    realisations = _int_list(where, "realisations", merged["realisations"])
+    realisations = int_list(where, "realisations", merged["realisations"])
     if max(realisations) >= count:
-        raise _fail(
+        raise suite_error(
             where,
             f"realisations must lie in [0, {count - 1}] for forcing {merged['forcing']!r}, "
             f"got {max(realisations)}",
         )
-    seeds = _int_list(where, "remnant_seeds", merged.get("remnant_seeds", [0]))
-    quick = _table(where, "quick", merged.get("quick", {}))
+    seeds = int_list(where, "remnant_seeds", merged.get("remnant_seeds", [0]))
+    quick = as_table(where, "quick", merged.get("quick", {}))
     unknown = sorted(set(quick) - {"realisations", "remnant_seeds"})
     if unknown:
-        raise _fail(
+        raise suite_error(
             where, f"quick has unknown key(s) {unknown}; allowed: ['realisations', 'remnant_seeds']"
         )
-    quick_realisations = _int_list(
+    quick_realisations = int_list(
         where, "quick.realisations", quick.get("realisations", [realisations[0]])
     )
-    quick_seeds = _int_list(where, "quick.remnant_seeds", quick.get("remnant_seeds", [seeds[0]]))
+    quick_seeds = int_list(where, "quick.remnant_seeds", quick.get("remnant_seeds", [seeds[0]]))
     _check_subset(where, "realisations", quick_realisations, realisations)
     _check_subset(where, "remnant_seeds", quick_seeds, seeds)
     pilot, built = ({}, None) if open_loop else _checked_pilot(where, merged)
-    shared, estimators = _estimators(where, merged)
-    reference = _table(where, "reference", merged.get("reference", {}))
+    shared, estimators = batch_estimators(where, merged)
+    reference = as_table(where, "reference", merged.get("reference", {}))
     template = {
         "task": merged["task"],
         "element": merged.get("element"),
@@ -504,52 +467,6 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
     )
 
 
-def _estimators(
-    where: str, merged: Mapping[str, Any]
-) -> tuple[dict[str, Any], tuple[dict[str, Any], ...]]:
-    """The batch's shared estimator settings and its estimators (each validated)."""
-    from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
-
-    shared = _table(where, "estimator", merged.get("estimator", {}))
-    if "estimators" not in merged:
-        if "name" not in shared:
-            raise _fail(where, "estimator needs a name (or list the batch's estimators)")
-        listed: list[Any] = [shared]
-        shared = {key: value for key, value in shared.items() if key != "name"}
-    else:
-        listed = merged["estimators"]
-        if not isinstance(listed, list) or not listed:
-            raise _fail(
-                where,
-                f"estimators must be a non-empty list of names or tables with a name, got "
-                f"{listed!r}",
-            )
-        if "name" in shared:
-            raise _fail(
-                where,
-                "with estimators listed, [batch.estimator] holds their shared settings "
-                f"and takes no name, got name = {shared['name']!r}",
-            )
-    specs = []
-    for i, item in enumerate(listed):
-        label = "estimator" if "estimators" not in merged else f"estimators[{i}]"
-        entry = {"name": item} if isinstance(item, str) else _table(where, label, item)
-        if "name" not in entry:
-            raise _fail(where, f"{label} needs a name")
-        spec = {**shared, **entry}
-        try:
-            check_choice("estimator name", spec["name"], tuple(ESTIMATORS))
-            make_estimator(spec)
-        except (TypeError, ValueError) as error:
-            raise _fail(where, f"{label} ({entry['name']}): {error}") from None
-        specs.append(spec)
-    names = [spec["name"] for spec in specs]
-    repeated = sorted({name for name in names if names.count(name) > 1})
-    if repeated:
-        raise _fail(where, f"estimators must not repeat a name, repeated: {repeated}")
-    return shared, tuple(specs)
-
-
 def _check_runs(where: str, pilot: Pilot, template: Mapping[str, Any], realisation: int) -> None:
     """What would otherwise fail only at run time: the task, the pilot's schedules, the loop.
 
@@ -558,10 +475,6 @@ def _check_runs(where: str, pilot: Pilot, template: Mapping[str, Any], realisati
     loop's stability checked, so a suite that cannot run stops at load, not as a
     column of failed rows.
     """
-    from manualcontrol.envs.schedules import Schedule
-    from manualcontrol.pilots.simulation import SimulationSetup
-    from manualcontrol.pilots.stability import check_stable
-
     try:
         setup = SimulationSetup.create(
             pilot,
@@ -579,34 +492,36 @@ def _check_runs(where: str, pilot: Pilot, template: Mapping[str, Any], realisati
         if "loss_of_control" not in template:  # a run that may end at the loss is not judged
             check_stable(setup)
     except (TypeError, ValueError) as error:
-        raise _fail(where, str(error)) from None
+        raise suite_error(where, str(error)) from None
 
 
 def _checked_pilot(where: str, merged: Mapping[str, Any]) -> tuple[dict[str, Any], Pilot]:
     """The batch's pilot table, checked, and the pilot it builds."""
-    pilot = _table(where, "pilot", merged["pilot"])
+    pilot = as_table(where, "pilot", merged["pilot"])
     unknown = sorted(set(pilot) - _PILOT_KEYS)
     if unknown:
-        raise _fail(where, f"pilot has unknown key(s) {unknown}; allowed: {sorted(_PILOT_KEYS)}")
+        raise suite_error(
+            where, f"pilot has unknown key(s) {unknown}; allowed: {sorted(_PILOT_KEYS)}"
+        )
     if "model" not in pilot:
-        raise _fail(where, "pilot needs a model")
+        raise suite_error(where, "pilot needs a model")
     if "parameters" in pilot:
-        _table(where, "pilot.parameters", pilot["parameters"])
+        as_table(where, "pilot.parameters", pilot["parameters"])
     try:
         built = _pilot_from(pilot)
     except (TypeError, ValueError, KeyError) as error:
-        raise _fail(where, f"pilot: {error}") from None
+        raise suite_error(where, f"pilot: {error}") from None
     if built.model.task != "compensatory" and merged["task"] == "compensatory":
-        raise _fail(where, f"task 'compensatory' does not fit pilot model {pilot['model']!r}")
+        raise suite_error(where, f"task 'compensatory' does not fit pilot model {pilot['model']!r}")
     if (built.model.task == "postview") != (merged["task"] == "postview"):
-        raise _fail(where, f"task {merged['task']!r} does not fit pilot model {pilot['model']!r}")
+        raise suite_error(
+            where, f"task {merged['task']!r} does not fit pilot model {pilot['model']!r}"
+        )
     return pilot, built
 
 
 def _check_extras(merged: Mapping[str, Any], open_loop: bool) -> dict[str, Any]:
     """The keys of postview, loss-of-control, disturbance-point and open-loop batches, checked."""
-    from manualcontrol.envs.schedules import Schedule
-
     extra: dict[str, Any] = {}
     if open_loop:
         for key in (
@@ -619,8 +534,6 @@ def _check_extras(merged: Mapping[str, Any], open_loop: bool) -> dict[str, Any]:
         ):
             if key in merged:
                 raise ValueError(f"{key} does not apply to an open-loop batch (it has a system)")
-        from manualcontrol.pilots.open_loop import ARMAXSystem
-
         try:
             extra["system"] = ARMAXSystem.from_dict(merged["system"]).to_dict()
         except (TypeError, ValueError, KeyError) as error:
@@ -650,25 +563,25 @@ def parse_suite(data: Mapping[str, Any], source: str = "<table>") -> Suite:
     """Validate a suite given as a (TOML-parsed) table; every message names the key."""
     unknown = sorted(set(data) - {"name", "description", "defaults", "batch"})
     if unknown:
-        raise _fail(
+        raise suite_error(
             source,
             f"unknown top-level key(s) {unknown}; allowed: batch, defaults, description, name",
         )
     name = data.get("name")
     if not isinstance(name, str) or not name:
-        raise _fail(source, f"name must be a non-empty string, got {name!r}")
+        raise suite_error(source, f"name must be a non-empty string, got {name!r}")
     description = data.get("description", "")
     if not isinstance(description, str):
-        raise _fail(source, f"description must be a string, got {description!r}")
-    defaults = _table(source, "defaults", data.get("defaults", {}))
+        raise suite_error(source, f"description must be a string, got {description!r}")
+    defaults = as_table(source, "defaults", data.get("defaults", {}))
     unknown = sorted(set(defaults) - _DEFAULT_KEYS)
     if unknown:
-        raise _fail(
+        raise suite_error(
             source, f"defaults has unknown key(s) {unknown}; allowed: {sorted(_DEFAULT_KEYS)}"
         )
     raw_batches = data.get("batch")
     if not isinstance(raw_batches, list) or not raw_batches:
-        raise _fail(
+        raise suite_error(
             source, f"a suite needs at least one [[batch]] table, got batch = {raw_batches!r}"
         )
     batches = tuple(
@@ -677,7 +590,7 @@ def parse_suite(data: Mapping[str, Any], source: str = "<table>") -> Suite:
     names = [batch.name for batch in batches]
     duplicated = sorted({n for n in names if names.count(n) > 1})
     if duplicated:
-        raise _fail(source, f"batch names must be unique, repeated: {duplicated}")
+        raise suite_error(source, f"batch names must be unique, repeated: {duplicated}")
     return Suite(name, description, batches, source)
 
 

@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from manualcontrol.bench.driving import score_lane_keeping
 from manualcontrol.bench.scenarios import Scenario
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair, Multisine
@@ -77,8 +78,6 @@ def _ceilings(result: Any, recording: Recording, start: float) -> tuple[float, f
 def score(scenario: Scenario, recording: Recording, result: Any) -> dict[str, Any]:
     """The results-row entries of one run (see the module docstring)."""
     if scenario.task == "lane-keeping":
-        from manualcontrol.bench.driving import score_lane_keeping
-
         return score_lane_keeping(scenario, recording, result)
     ceilings = _ceilings(result, recording, scenario.score_from)
     measured = metrics.evaluate(result, recording, start=scenario.score_from, ceilings=False)

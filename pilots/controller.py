@@ -17,14 +17,10 @@ from numpy.typing import NDArray
 
 from manualcontrol.envs._interpolation import interpolate_at
 from manualcontrol.envs.dynamics import lpv_output_step, lpv_state_step
-from manualcontrol.pilots.simulation import (
-    SimulationSetup,
-    _as_generator,
-    discrete_pilot,
-    distinct_parameter_sets,
-    matrix_parameters,
-    simulate,
-)
+from manualcontrol.pilots._random import as_generator
+from manualcontrol.pilots.loop import SimulationSetup, discrete_pilot
+from manualcontrol.pilots.simulation import distinct_parameter_sets, matrix_parameters, simulate
+from manualcontrol.pilots.spec import PilotSpec
 from manualcontrol.pilots.stability import check_stable
 
 __all__ = ["PilotController"]
@@ -128,13 +124,11 @@ def _check_episode_growth(
     With the env's loss-of-control limit the episode ends there, as the env's would, and
     only the run up to it is judged (the critical task is meant to be lost).
     """
-    from manualcontrol.pilots.pilot import Pilot
-
     pilot = setup.pilot
     postview = {"gap": setup.gap, "postview": setup.postview} if setup.task == "postview" else {}
     try:
         simulate(
-            Pilot(pilot.model, dict(pilot.parameters), None, pilot.delay_order),
+            PilotSpec(pilot.model, dict(pilot.parameters), None, pilot.delay_order),
             setup.element,
             setup.forcing,
             task=setup.task,
@@ -190,7 +184,7 @@ class PilotController:
             disturbance_at=getattr(base, "disturbance_at", "output"),
             **postview,
         )
-        rng, _ = _as_generator(seed)
+        rng, _ = as_generator(seed)
         traces = setup.parameter_traces()
         if check_stable(setup, on_unstable=on_unstable) is None:
             _check_episode_growth(setup, on_unstable, getattr(base, "loss_of_control", None))

@@ -54,11 +54,17 @@ over the sample) or eq. 2 itself (``delay_order=1``, exact zero-order hold). Rem
 any :class:`~manualcontrol.pilots.remnant.Remnant` injected at ``"output"`` (added to
 the wheel torque, or to the wheel angle with angle steering) or ``"input"`` (added to
 the visual signal ``w`` before the delay).
+
+The driver in an episode (:class:`DriverController`, behind :meth:`Driver.reset` and
+:meth:`Driver.act`) and :func:`~manualcontrol.pilots.driving.simulate_driving` run one
+compiled closed loop, kept here (:func:`drive_episode`): the controller calibrates its
+remnant on it, so both give the same gain.
 """
 
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -69,20 +75,37 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from manualcontrol.envs._validation import check_choice, check_positive
-from manualcontrol.envs.dynamics import StateSpace, pade, poly_multiply, read_held, read_smooth
+from manualcontrol.envs.driving import LaneKeeping, lane_step, perceive
+from manualcontrol.envs.dynamics import (
+    StateSpace,
+    discretize,
+    pade,
+    poly_multiply,
+    read_held,
+    read_smooth,
+)
 from manualcontrol.envs.schedules import Schedule, as_schedule
+from manualcontrol.pilots._random import as_generator
 from manualcontrol.pilots.models import ParameterSpec
-from manualcontrol.pilots.pilot import check_parameter_values
 from manualcontrol.pilots.remnant import Remnant, make_remnant
+from manualcontrol.pilots.simulation import gain_for_ratio
+from manualcontrol.pilots.spec import check_parameter_values
 
 __all__ = [
     "DRIVER_INPUTS",
     "DRIVER_OUTPUTS",
     "DRIVER_PARAMETERS",
+    "INJECT_CODES",
     "CyberneticDriverModel",
     "Driver",
+    "DriverController",
+    "calibrated_gain",
+    "drive_episode",
     "driver_matrices",
+    "driver_record",
+    "driver_sample",
     "printed_driver_matrices",
+    "remnant_noise",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -369,8 +392,6 @@ class Driver:
         ``seed`` drives the remnant exactly as in
         :func:`~manualcontrol.pilots.driving.simulate_driving`.
         """
-        from manualcontrol.pilots.driving import DriverController
-
         object.__setattr__(self, "_controller", DriverController(self, env, seed))
 
     def act(self, observation: ArrayLike) -> FloatArray:
@@ -488,3 +509,280 @@ def pade_step(phi, gamma, C, D, inputs, noise, inject, state, work, out):
         work[5 + i] = acc
     for i in range(3):
         state[i] = work[5 + i]
+
+
+# ---------------------------------------------------------- the driver in an episode
+
+#: The car of one episode: ``packed``/``far_gain`` of the environment's model, the
+#: curvature samples, the action bound, 1.0 for angle steering, and the car state (2n,).
+CarRecord = namedtuple(
+    "CarRecord", ["packed", "far_gain", "kappa", "kappa_far", "bound", "angle", "state"]
+)
+#: The driver of one episode: parameters per sample ``p`` (n + 1, 8), speed, dt, remnant
+#: ``noise`` (n,) and its injection code, state (3,), delay-line histories and their
+#: padding, the Padé matrices per distinct parameter set and the set of each sample
+#: (empty with the exact delay), scratch and the last output (Gamma_d, delta_sw).
+DriverRecord = namedtuple(
+    "DriverRecord",
+    [
+        "p",
+        "v_x",
+        "dt",
+        "noise",
+        "inject",
+        "state",
+        "smooth",
+        "held",
+        "pad",
+        "pade",
+        "phi",
+        "gamma",
+        "C",
+        "D",
+        "index",
+        "work",
+        "out",
+    ],
+)
+LoopOutput = namedtuple("LoopOutput", ["perceived", "action", "Gamma_d", "delta_sw"])
+
+#: The compiled steps' code of each remnant injection point (None: no remnant).
+INJECT_CODES = {None: INJECT_NONE, "output": INJECT_OUTPUT, "input": INJECT_INPUT}
+
+
+@numba.njit(cache=True, _nrt=False)
+def driver_sample(d, k, inputs):
+    """The driver's outputs at sample ``k`` into ``d.out``; its state advanced."""
+    if d.pade:
+        i = d.index[k]
+        pade_step(
+            d.phi[i],
+            d.gamma[i],
+            d.C[i],
+            d.D[i],
+            inputs,
+            d.noise[k],
+            d.inject,
+            d.state,
+            d.work,
+            d.out,
+        )
+    else:
+        exact_delay_step(
+            d.p[k],
+            d.p[k + 1, 4],
+            d.v_x,
+            d.dt,
+            inputs,
+            d.noise[k],
+            d.inject,
+            d.state,
+            d.smooth,
+            d.held,
+            d.pad + k,
+            d.out,
+        )
+
+
+@numba.njit(cache=True, _nrt=False)
+def driver_action(d, k, angle, bound):
+    """The action of sample ``k`` from ``d.out``: torque, or intended angle (+ remnant)."""
+    if angle > 0.0:
+        action = d.out[1] + (d.noise[k] if d.inject == 1 else 0.0)
+    else:
+        action = d.out[0]
+    if action > bound:
+        action = bound
+    elif action < -bound:
+        action = -bound
+    return action
+
+
+@numba.njit(cache=True, _nrt=False)
+def drive(car, d, out):
+    """The closed loop over ``out.action.shape[0]`` samples (module docstring)."""
+    perceive(car.packed, car.far_gain, car.state, car.kappa[0], car.kappa_far[0], out.perceived, 0)
+    for k in range(out.action.shape[0]):
+        driver_sample(d, k, out.perceived[k])
+        out.Gamma_d[k] = d.out[0]
+        out.delta_sw[k] = d.out[1]
+        action = driver_action(d, k, car.angle, car.bound)
+        out.action[k] = action
+        lane_step(
+            car.packed,
+            car.far_gain,
+            car.state,
+            action,
+            car.kappa[k],
+            car.kappa[k + 1],
+            car.kappa_far[k + 1],
+            out.perceived,
+            k + 1,
+        )
+
+
+def remnant_noise(remnant: Remnant, white: FloatArray, dt: float) -> FloatArray:
+    """The remnant filter's shape driven by held white noise (exact zero-order hold)."""
+    import scipy.signal  # here: importing it costs 1.3 s, which every suite listing paid
+
+    num, den = remnant.shape()
+    numd, dend, _ = scipy.signal.cont2discrete((num, den), dt, method="zoh")
+    return scipy.signal.lfilter(np.ravel(numd), dend, white)
+
+
+def driver_record(
+    driver: Driver,
+    traces: Mapping[str, FloatArray],
+    v_x: float,
+    dt: float,
+    noise: FloatArray,
+    inject: int,
+) -> Any:
+    """The :data:`DriverRecord` the compiled steps read: the driver's traces at speed ``v_x``.
+
+    ``traces`` hold every parameter at every sample and one more (the delay's next
+    value), ``noise`` the remnant as injected, ``inject`` its :data:`INJECT_CODES` code;
+    with ``delay_order=1`` eq. 2 is discretised once per distinct parameter set.
+    """
+    names = driver.model.parameter_names
+    p = np.ascontiguousarray(np.column_stack([traces[name] for name in names]))
+    n = noise.shape[0]
+    pade = driver.delay_order == 1
+    if pade:
+        unique, index = np.unique(p[:n], axis=0, return_inverse=True)
+        A = np.zeros((len(unique), 3, 3))
+        B = np.zeros((len(unique), 3, 5))
+        C = np.zeros((len(unique), 2, 3))
+        D = np.zeros((len(unique), 2, 5))
+        for i, row in enumerate(unique):
+            driver_matrices(row, v_x, A[i], B[i], C[i], D[i])
+        exact = discretize(A, B, dt)
+        phi, gamma = exact.phi, exact.gamma
+        index = np.asarray(index, dtype=np.int64).ravel()
+        pad = 0
+    else:
+        phi = gamma = np.zeros((0, 3, 3))
+        C = D = np.zeros((0, 2, 3))
+        index = np.zeros(0, dtype=np.int64)
+        pad = int(np.ceil(p[:, 4].max() / dt)) + 4
+    return DriverRecord(
+        p=p,
+        v_x=float(v_x),
+        dt=float(dt),
+        noise=np.ascontiguousarray(noise, dtype=np.float64),
+        inject=inject,
+        state=np.zeros(3),
+        smooth=np.zeros(pad + n + 1),
+        held=np.zeros(pad + n + 1),
+        pad=pad,
+        pade=pade,
+        phi=np.ascontiguousarray(phi),
+        gamma=np.ascontiguousarray(gamma),
+        C=np.ascontiguousarray(C),
+        D=np.ascontiguousarray(D),
+        index=index,
+        work=np.zeros(8),
+        out=np.zeros(2),
+    )
+
+
+def _car_record(env: LaneKeeping, kappa: FloatArray, kappa_far: FloatArray) -> Any:
+    model = env.model
+    return CarRecord(
+        packed=model.packed,
+        far_gain=model.far_gain,
+        kappa=np.ascontiguousarray(kappa),
+        kappa_far=np.ascontiguousarray(kappa_far),
+        bound=float(env.action_bound),
+        angle=1.0 if env.steering == "angle" else 0.0,
+        state=np.zeros(2 * model.phi.shape[0]),
+    )
+
+
+def drive_episode(env, driver, traces, kappa, kappa_far, noise, inject) -> Any:
+    """The closed loop over ``env``'s episode (curvatures ``kappa``, ``kappa_far``).
+
+    The driver's ``traces`` and remnant ``noise`` (:func:`driver_record`) steer the
+    environment's car; returns the :data:`LoopOutput` of every sample.
+    """
+    n = env.episode_steps
+    d = driver_record(driver, traces, env.speed, env.dt, noise, inject)
+    car = _car_record(env, kappa, kappa_far)
+    out = LoopOutput(np.zeros((n + 1, 7)), np.zeros(n), np.zeros(n), np.zeros(n))
+    drive(car, d, out)
+    return out
+
+
+def calibrated_gain(
+    env: LaneKeeping,
+    driver: Driver,
+    traces: Mapping[str, FloatArray],
+    kappa: FloatArray,
+    kappa_far: FloatArray,
+    unit: FloatArray,
+    inject: int,
+    ratio: float,
+) -> float:
+    """The remnant gain for the power ratio ``ratio`` on ``env``'s episode.
+
+    The loop is run with the road and no remnant, then with the unit remnant ``unit``
+    on a straight road, and the gain solved from the two actions
+    (:func:`~manualcontrol.pilots.simulation.gain_for_ratio`). The driver acting in the
+    environment and :func:`~manualcontrol.pilots.driving.simulate_driving` both
+    calibrate here, so both give the same gain.
+    """
+    n = env.episode_steps
+    measured = slice(env.n_run_in, n)
+    forced = drive_episode(env, driver, traces, kappa, kappa_far, np.zeros(n), inject).action
+    zero = np.zeros_like(kappa)
+    alone = drive_episode(env, driver, traces, zero, zero, unit, inject).action
+    return gain_for_ratio(forced[measured], alone[measured], ratio)
+
+
+class DriverController:
+    """A driver's runtime state in one episode of :class:`~manualcontrol.envs.driving.LaneKeeping`.
+
+    Create it after ``env.reset(...)`` (it reads the episode's road); a remnant with a
+    requested power ratio is calibrated on the simulated loop of the same episode, so
+    both give the same gain.
+    """
+
+    def __init__(
+        self, driver: Driver, env: Any, seed: int | np.random.Generator | None = None
+    ) -> None:
+        base = getattr(env, "unwrapped", env)
+        if not isinstance(base, LaneKeeping):
+            raise TypeError(f"env must be a LaneKeeping environment, got {type(base).__name__}")
+        if base._k < 0:
+            raise RuntimeError("reset the environment before the driver")
+        n = base.episode_steps
+        traces = driver.parameter_traces(base.times)
+        rng, _ = as_generator(seed)
+        remnant = driver.remnant
+        inject = INJECT_CODES[None if remnant is None else remnant.injection]
+        noise = np.zeros(n)
+        if remnant is not None:
+            unit = remnant_noise(remnant, rng.standard_normal(n), base.dt)
+            gain = remnant.K_r
+            if remnant.P_r is not None:
+                kappa, kappa_far = base.episode_curvature()
+                gain = calibrated_gain(
+                    base, driver, traces, kappa, kappa_far, unit, inject, remnant.P_r
+                )
+            noise = gain * unit
+        self._record = driver_record(driver, traces, base.speed, base.dt, noise, inject)
+        self._angle = 1.0 if base.steering == "angle" else 0.0
+        self._bound = float(base.action_bound)
+        self._n = n
+        self.k = 0
+
+    def act(self, observation: Any) -> FloatArray:
+        """The action for this observation (shape ``(1,)``); advances the driver one sample."""
+        k = self.k
+        if k >= self._n:
+            raise RuntimeError("the driver's episode is over; reset it with the environment")
+        inputs = np.ascontiguousarray(np.asarray(observation, dtype=np.float64)[:4])
+        driver_sample(self._record, k, inputs)
+        self.k = k + 1
+        self.last_output = (float(self._record.out[0]), float(self._record.out[1]))
+        return np.array([driver_action(self._record, k, self._angle, self._bound)])

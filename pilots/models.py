@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from manualcontrol.envs._validation import check_choice
 from manualcontrol.envs.dynamics import pade, poly_multiply
+from manualcontrol.envs.elements import make_element
 
 __all__ = [
     "CROSSOVER_RANGE",
@@ -207,8 +208,6 @@ def element_gain_ranges(element: Any, t: float = 0.0) -> dict[str, tuple[float, 
     place (humans equalise it with a lag instead), and where the element passes nothing
     at some frequency of the range (the critical task's element at zero instability).
     """
-    from manualcontrol.envs.elements import make_element
-
     plant = make_element(element)
     _, den = (np.asarray(c, dtype=np.float64).reshape(-1) for c in plant.transfer_function(t))
     if den[-1] != 0.0:

@@ -116,6 +116,7 @@ from manualcontrol.envs.elements import ControlledElement, make_element
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair
 from manualcontrol.envs.tasks import DISTURBANCE_POINTS, resolve_forcing
+from manualcontrol.envs.tracking import CompensatoryTracking
 
 __all__ = [
     "DEFAULT_TAU_NMS",
@@ -951,8 +952,6 @@ def simulate_ocm(
     stick bound is wide so the loop stays linear). The run-in is cut; the pilot's
     settings are in ``metadata["pilot"]``.
     """
-    from manualcontrol.envs.tracking import CompensatoryTracking
-
     if not isinstance(pilot, OptimalControlPilot):
         raise TypeError(f"pilot must be an OptimalControlPilot, got {pilot!r}")
     env = CompensatoryTracking(

@@ -38,7 +38,7 @@ from manualcontrol.envs._validation import (
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.schedules import Schedule, as_schedule
 from manualcontrol.envs.signals import ForcingPair, band_limited_noise, forcing_preset
-from manualcontrol.pilots.simulation import _as_generator
+from manualcontrol.pilots._random import as_generator
 
 __all__ = ["ARMAXSystem", "simulate_open_loop"]
 
@@ -210,7 +210,7 @@ def simulate_open_loop(
     h = 1.0 / rate
     decimation = _whole("dt", dt * rate)
     lag = _whole("step", system.step * rate)
-    rng, seed_used = _as_generator(seed)
+    rng, seed_used = as_generator(seed)
     n_run_in = round(run_in / dt)
     n = n_run_in + round(measurement_time / dt)
     n_fine = n * decimation

@@ -1,70 +1,34 @@
-"""A synthetic pilot: a model structure with parameter schedules, remnant and delay mode."""
+"""A synthetic pilot: a model structure with parameter schedules, remnant and delay mode.
+
+Its data and checks are :class:`~manualcontrol.pilots.spec.PilotSpec`'s (what the
+simulation reads); :class:`Pilot` adds acting in a tracking environment through a
+:class:`~manualcontrol.pilots.controller.PilotController` and typical pilots per
+element.
+"""
 
 from __future__ import annotations
 
-import dataclasses
-import math
-import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from manualcontrol.envs._validation import check_int
-from manualcontrol.envs.schedules import Schedule, as_schedule
-from manualcontrol.pilots.models import ELEMENT_SCALED, PilotModel, make_model
-from manualcontrol.pilots.remnant import Remnant, make_remnant
+from manualcontrol.envs.schedules import Schedule
+from manualcontrol.pilots.controller import PilotController
+from manualcontrol.pilots.models import PilotModel
+from manualcontrol.pilots.remnant import Remnant
+from manualcontrol.pilots.spec import HumanLimitWarning, PilotSpec
+from manualcontrol.pilots.stability import typical_parameters
 
 __all__ = ["HumanLimitWarning", "Pilot"]
 
 FloatArray = NDArray[np.float64]
 
 
-class HumanLimitWarning(UserWarning):
-    """A pilot parameter leaves the range observed in humans (the model still works)."""
-
-
-def check_parameter_values(
-    who: str,
-    name: str,
-    spec: Any,
-    values: FloatArray,
-    *,
-    positive: bool,
-    flagged: str = "human range",
-) -> None:
-    """Raise if ``values`` leave ``spec.valid``; warn if they leave ``spec.human``.
-
-    ``who`` names the owner in the messages ("pilot", "driver"); ``positive`` makes the
-    lower bound exclusive; ``flagged`` names the warning range. Called from an owner's
-    ``_check``, the warning points at the code that called the owner's method.
-    """
-    if not np.all(np.isfinite(values)):
-        raise ValueError(f"{who} parameter {name} must be finite, got non-finite values")
-    low, high = spec.valid
-    outside = (values <= low if positive else values < low) | (values > high)
-    if np.any(outside):
-        left = "(" if positive else "["
-        raise ValueError(
-            f"{who} parameter {name} must lie in {left}{low:g}, {high:g}] {spec.unit}, "
-            f"got {float(values[outside][0])!r}"
-        )
-    low, high = spec.human
-    if np.any(values < low) or np.any(values > high):
-        extreme = float(values.min() if np.any(values < low) else values.max())
-        warnings.warn(
-            f"{who} parameter {name} = {extreme:g} {spec.unit} is outside the {flagged} "
-            f"[{low:g}, {high:g}] ({spec.description})",
-            HumanLimitWarning,
-            stacklevel=4,
-        )
-
-
 @dataclass(frozen=True)
-class Pilot:
+class Pilot(PilotSpec):
     """A cybernetic pilot: model structure, parameter values or schedules, remnant.
 
     Parameters
@@ -90,69 +54,7 @@ class Pilot:
 
     """
 
-    model: PilotModel | str
-    parameters: Mapping[str, float | Schedule] = field(default_factory=dict)
-    remnant: Remnant | str | None = None
-    delay_order: int | None = None
     _controller: Any = field(default=None, init=False, repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        model = make_model(self.model)
-        object.__setattr__(self, "model", model)
-        unknown = sorted(set(self.parameters) - set(model.parameter_names))
-        if unknown:
-            raise ValueError(
-                f"{type(model).__name__} has no parameter(s) {', '.join(map(repr, unknown))}; "
-                f"its parameters are {', '.join(model.parameter_names)}"
-            )
-        schedules: dict[str, Schedule] = {}
-        for name in model.parameter_names:
-            value = self.parameters.get(name, model.spec(name).nominal)
-            try:
-                schedules[name] = as_schedule(value)
-            except (TypeError, ValueError) as error:
-                raise type(error)(f"pilot parameter {name}: {error}") from None
-        object.__setattr__(self, "parameters", MappingProxyType(schedules))
-        object.__setattr__(self, "remnant", make_remnant(self.remnant))
-        if self.delay_order is not None:
-            object.__setattr__(
-                self, "delay_order", check_int("delay_order", self.delay_order, minimum=1)
-            )
-        for name, schedule in schedules.items():
-            if schedule.is_constant:
-                self._check(name, np.atleast_1d(schedule(0.0)))
-
-    def _check_delay(self, values: FloatArray) -> None:
-        # a Padé approximant of a zero delay has a vanishing leading coefficient
-        if self.delay_order is not None and np.any(values <= 0.0):
-            raise ValueError(
-                f"pilot parameter {self.model.delay_parameter} must be > 0 s with a Padé delay "
-                f"(delay_order={self.delay_order}), got {float(values.min())!r}"
-            )
-
-    def _check(self, name: str, values: FloatArray) -> None:
-        spec = self.model.spec(name)
-        if name in ELEMENT_SCALED:
-            # the gains humans use depend on the element, which the simulation checks
-            spec = dataclasses.replace(spec, human=(-math.inf, math.inf))
-        check_parameter_values("pilot", name, spec, values, positive=spec.positive)
-
-    @property
-    def is_time_varying(self) -> bool:
-        """True when any parameter is a non-constant schedule."""
-        return not all(schedule.is_constant for schedule in self.parameters.values())
-
-    def parameter_traces(self, t: ArrayLike) -> dict[str, FloatArray]:
-        """Every parameter evaluated at the times ``t`` (s), checked against its ranges."""
-        t = np.asarray(t, dtype=np.float64)
-        traces = {}
-        for name, schedule in self.parameters.items():
-            values = np.broadcast_to(np.asarray(schedule(t), dtype=np.float64), t.shape).copy()
-            self._check(name, values)
-            if name == self.model.delay_parameter:
-                self._check_delay(values)
-            traces[name] = values
-        return traces
 
     def reset(
         self,
@@ -170,8 +72,6 @@ class Pilot:
         poles; a growth check of the episode when something varies), or warns with
         ``on_unstable="warn"``.
         """
-        from manualcontrol.pilots.controller import PilotController
-
         controller = PilotController(self, env, seed, on_unstable)
         object.__setattr__(self, "_controller", controller)
 
@@ -195,45 +95,6 @@ class Pilot:
         ``Pilot.typical("precision", "DI")`` is the thesis's DI pilot; see
         :func:`~manualcontrol.pilots.stability.typical_parameters` for the table.
         """
-        from manualcontrol.pilots.stability import typical_parameters
-
         values: dict[str, Any] = dict(typical_parameters(model, element))
         values.update(parameters or {})
         return cls(model, values, remnant, delay_order)
-
-    def with_parameters(self, **values: float | Schedule) -> Pilot:
-        """Copy with some parameters replaced."""
-        return Pilot(self.model, {**self.parameters, **values}, self.remnant, self.delay_order)
-
-    def with_remnant(self, remnant: Remnant | str | None) -> Pilot:
-        """Copy with another remnant."""
-        return Pilot(self.model, dict(self.parameters), remnant, self.delay_order)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-able description (model, schedules, remnant, delay order)."""
-        options = {"near_view": self.model.near_view} if hasattr(self.model, "near_view") else {}
-        return {
-            "model": self.model.name,
-            "model_options": options,
-            "parameters": {name: schedule.to_dict() for name, schedule in self.parameters.items()},
-            "remnant": None if self.remnant is None else self.remnant.to_dict(),
-            "delay_order": self.delay_order,
-        }
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> Pilot:
-        """Inverse of :meth:`to_dict`."""
-        options = data.get("model_options") or {}
-        if not isinstance(options, Mapping):
-            raise TypeError(f"model_options must be a dict, got {options!r}")
-        model = make_model(data["model"], **dict(options))
-        raw = data.get("parameters") or {}
-        if not isinstance(raw, Mapping):
-            raise TypeError(f"parameters must be a dict of name: value or schedule, got {raw!r}")
-        parameters = {}
-        for name, value in raw.items():
-            try:
-                parameters[name] = Schedule.from_dict(value)
-            except (TypeError, ValueError) as error:
-                raise type(error)(f"pilot parameter {name}: {error}") from None
-        return cls(model, parameters, make_remnant(data.get("remnant")), data.get("delay_order"))

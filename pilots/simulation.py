@@ -2,7 +2,8 @@
 
 :func:`simulate` turns a :class:`~manualcontrol.pilots.pilot.Pilot`, a controlled
 element and a forcing pair into the :class:`~manualcontrol.envs.recording.Recording`
-an experiment (or the Gymnasium environments) would produce.
+an experiment (or the Gymnasium environments) would produce. The problem it solves
+and the loop's block diagram are :mod:`~manualcontrol.pilots.loop`'s.
 
 Discretisation
 --------------
@@ -51,61 +52,42 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from manualcontrol.envs._interpolation import interpolate_at
 from manualcontrol.envs._validation import (
     check_choice,
-    check_duration,
-    check_int,
     check_positive,
-    check_real,
     check_vector,
     reject_unknown,
 )
 from manualcontrol.envs.dynamics import (
     Block,
-    DelayChannel,
     Discretization,
-    Interconnection,
     StateSpace,
     discretize,
     interconnect,
-    pade,
     simulate_lpv,
-    tf_to_ccf,
 )
-from manualcontrol.envs.elements import ControlledElement, make_element
-from manualcontrol.envs.postview import (
-    DEFAULT_GAP,
-    DEFAULT_POSTVIEW,
-    check_gap,
-    edge_perceptions,
-    postview_samples,
-)
+from manualcontrol.envs.elements import ControlledElement
 from manualcontrol.envs.recording import MEASURED_SIGNALS, Recording
-from manualcontrol.envs.schedules import Schedule, as_schedule
+from manualcontrol.envs.schedules import Schedule
 from manualcontrol.envs.signals import ForcingPair
-from manualcontrol.envs.tasks import (
-    DISTURBANCE_POINTS,
-    TASKS,
-    available_preview_for,
-    check_preview_time,
-    measurement_time_for,
-    resolve_forcing,
-    sample_counts,
-    task_metadata,
+from manualcontrol.envs.tasks import TASKS
+from manualcontrol.pilots._random import as_generator
+from manualcontrol.pilots.loop import (
+    LOOP_OUTPUTS,
+    SimulationSetup,
+    closed_loop,
+    continuous_loop,
+    discrete_pilot,
+    element_sums,
+    loop_inputs,
+    pilot_diagram,
 )
-from manualcontrol.pilots.models import (
-    CROSSOVER_RANGE,
-    PilotModel,
-    element_gain_ranges,
-    make_model,
-)
-from manualcontrol.pilots.pilot import HumanLimitWarning, Pilot
+from manualcontrol.pilots.models import PilotModel, make_model
 from manualcontrol.pilots.remnant import Remnant
+from manualcontrol.pilots.spec import PilotSpec
 from manualcontrol.pilots.stability import UnstableLoopWarning, check_growth, check_stable
 
 __all__ = [
@@ -114,6 +96,7 @@ __all__ = [
     "TASKS",
     "SimulationSetup",
     "closed_loop",
+    "gain_for_ratio",
     "initial_loop_state",
     "isolated_pilot_output",
     "isolated_pilot_outputs",
@@ -129,297 +112,7 @@ LOOPS: tuple[str, ...] = ("continuous", "sampled")
 POWER_RATIO_TOLERANCE = 0.05
 
 
-@numba.njit(cache=True)
-def _read_preview(
-    target: FloatArray, positions: FloatArray, window: int
-) -> tuple[FloatArray, FloatArray]:
-    """Target value and rate at ``positions`` samples ahead, within the visible window.
-
-    Sample ``k`` sees ``target[k : k + window]`` (what a preview display shows);
-    reading near its far edge repeats the last visible sample instead of looking
-    beyond it, exactly as a pilot reading the display would.
-    """
-    n = positions.shape[0]
-    values = np.empty(n)
-    rates = np.empty(n)
-    for k in range(n):
-        values[k], rates[k] = interpolate_at(target[k : k + window], positions[k])
-    return values, rates
-
-
-@dataclass(frozen=True)
-class SimulationSetup:
-    """A validated simulation problem: everything :func:`simulate` resolved from its inputs.
-
-    Built by :meth:`create`; :func:`simulate` and the environments use it so that the
-    same checks and the same sampled signals serve every loop.
-    """
-
-    pilot: Pilot
-    element: ControlledElement
-    forcing: ForcingPair
-    task: str
-    available_preview: float
-    dt: float
-    run_in: float
-    measurement_time: float
-    gap: Schedule | None = None
-    postview: float = DEFAULT_POSTVIEW
-    start_time: float = 0.0
-    disturbance_at: str = "output"
-
-    @classmethod
-    def create(
-        cls,
-        pilot: Pilot,
-        element: str | ControlledElement | Mapping[str, Any] = "SI",
-        forcing: str | ForcingPair = "vanderel-bw4",
-        *,
-        realisation: int = 0,
-        task: str | None = None,
-        available_preview: float | None = None,
-        dt: float = 0.01,
-        run_in: float = 60.0,
-        measurement_time: float | None = None,
-        gap: float | Schedule | None = None,
-        postview: float | None = None,
-        start_time: float = 0.0,
-        disturbance_at: str = "output",
-    ) -> SimulationSetup:
-        """Resolve names to objects and check that they fit together.
-
-        ``gap`` and ``postview`` (s) belong to the postview task
-        (:mod:`manualcontrol.envs.postview`; defaults 0.4 and 1 s); ``disturbance_at``
-        is one of :data:`~manualcontrol.envs.tasks.DISTURBANCE_POINTS`.
-        """
-        if not isinstance(pilot, Pilot):
-            raise TypeError(f"pilot must be a Pilot, got {pilot!r}")
-        element = make_element(element)
-        forcing = resolve_forcing(forcing, realisation)
-        model_task = pilot.model.task
-        if task is None:
-            task = model_task
-        check_choice("task", task, TASKS)
-        if (task == "compensatory") != (model_task == "compensatory") or (
-            (task == "postview") != (model_task == "postview")
-        ):
-            raise ValueError(
-                f"task {task!r} does not fit the {pilot.model.name!r} pilot model, "
-                f"which is a {model_task} model"
-            )
-        if task == "postview":
-            postview = check_positive(
-                "postview", DEFAULT_POSTVIEW if postview is None else postview
-            )
-            try:
-                gap = as_schedule(DEFAULT_GAP if gap is None else gap)
-            except TypeError as error:
-                raise TypeError(f"gap: {error}") from None
-        elif gap is not None or postview is not None:
-            raise ValueError(
-                f"gap and postview belong to the postview task, not {task!r}; "
-                f"got gap={gap!r}, postview={postview!r}"
-            )
-        else:
-            postview = DEFAULT_POSTVIEW
-        preview = available_preview_for(task, available_preview)
-        dt = check_positive("dt", dt)
-        run_in = check_positive("run_in", run_in, allow_zero=True)
-        measurement_time = measurement_time_for(forcing, measurement_time)
-        check_duration("measurement_time", measurement_time, dt)
-        start_time = check_real("start_time", start_time)
-        disturbance_at = check_choice("disturbance_at", disturbance_at, DISTURBANCE_POINTS)
-        setup = cls(
-            pilot,
-            element,
-            forcing,
-            task,
-            preview,
-            dt,
-            run_in,
-            measurement_time,
-            gap,
-            postview,
-            start_time,
-            disturbance_at,
-        )
-        if gap is not None:
-            check_gap(gap, setup.time, postview)
-        return setup
-
-    @property
-    def n_run_in(self) -> int:
-        """Samples of run-in."""
-        return sample_counts(self.dt, self.run_in, self.measurement_time)[0]
-
-    @property
-    def n_samples(self) -> int:
-        """Samples simulated, run-in included."""
-        return sample_counts(self.dt, self.run_in, self.measurement_time)[1]
-
-    @property
-    def time(self) -> FloatArray:
-        """Simulation times, ``t = start_time`` (default 0) at the start of the measurement."""
-        return self.start_time + (np.arange(self.n_samples) - self.n_run_in) * self.dt
-
-    @property
-    def preview_window(self) -> int:
-        """Target samples visible ahead of the cursor, the current one included."""
-        return round(self.available_preview / self.dt) + 1
-
-    def _check_gains(self, traces: Mapping[str, FloatArray]) -> None:
-        """Warn where ``K_p`` or ``K_v`` leave the gains humans use on this element."""
-        ranges = element_gain_ranges(self.element, float(self.time[0]))
-        for name, (low, high) in ranges.items():
-            if name not in traces:
-                continue
-            values = traces[name]
-            if np.any(values < low) or np.any(values > high):
-                extreme = float(values.min() if np.any(values < low) else values.max())
-                warnings.warn(
-                    f"pilot parameter {name} = {extreme:g} is outside the gains humans use on "
-                    f"the element {self.element.describe()}: [{low:.3g}, {high:.3g}], a "
-                    f"crossover between {CROSSOVER_RANGE[0]:g} and {CROSSOVER_RANGE[1]:g} rad/s",
-                    HumanLimitWarning,
-                    stacklevel=4,
-                )
-
-    def parameter_traces(self) -> dict[str, FloatArray]:
-        """Pilot parameters at every simulated sample, with the task's constraints checked."""
-        traces = self.pilot.parameter_traces(self.time)
-        self._check_gains(traces)
-        for name in ("tau_f", "tau_n"):
-            if name in traces:
-                check_preview_time(name, traces[name], self.available_preview, self.task)
-        return traces
-
-    def sampled_forcing(self) -> tuple[FloatArray, FloatArray]:
-        """``ft`` over the run and the preview window beyond it, and ``fd``."""
-        n = self.n_samples
-        t0 = self.start_time - self.n_run_in * self.dt
-        return self.forcing.sample((n + self.preview_window - 1) * self.dt, self.dt, t0)
-
-    def forcing_signals(
-        self,
-        traces: Mapping[str, FloatArray],
-        sampled: tuple[FloatArray, FloatArray] | None = None,
-    ) -> dict[str, FloatArray]:
-        """Sampled ``ft`` and ``fd`` and, for preview models, what the pilot reads ahead.
-
-        ``sampled`` is :meth:`sampled_forcing` when already computed (the forcing's
-        sines are most of the cost).
-        """
-        n = self.n_samples
-        window = self.preview_window
-        target_ahead, fd = self.sampled_forcing() if sampled is None else sampled
-        signals = {"ft": target_ahead[:n].copy(), "fd": fd[:n].copy()}
-        if "ft_far" in self.pilot.model.perceptions:
-            target_ahead = np.ascontiguousarray(target_ahead)
-            signals["ft_far"] = _read_preview(target_ahead, traces["tau_f"] / self.dt, window)[0]
-        if "ft_near_rate" in self.pilot.model.perceptions:
-            rates = _read_preview(target_ahead, traces["tau_n"] / self.dt, window)[1]
-            signals["ft_near_rate"] = rates / self.dt
-        if "ft_edge" in self.pilot.model.perceptions:
-            # the postview display's rules, as the environment applies them
-            time = self.time
-            samples = postview_samples(
-                self.forcing.target, time, self.gap_trace(), self.dt, self.postview, 3
-            )
-            signals["ft_edge"], signals["ft_edge_rate"] = edge_perceptions(samples, self.dt)
-        return signals
-
-    def gap_trace(self) -> FloatArray:
-        """The postview gap at every simulated sample (postview task only)."""
-        if self.gap is None:
-            raise ValueError(f"a {self.task} task has no gap")
-        return check_gap(self.gap, self.time, self.postview)
-
-    def metadata(self) -> dict[str, Any]:
-        """What a recording of this setup says about how it was made."""
-        shared = task_metadata(
-            self.task,
-            self.element,
-            self.forcing,
-            self.available_preview,
-            self.run_in,
-            self.measurement_time,
-            self.disturbance_at,
-        )
-        postview = (
-            {"gap": self.gap.to_dict(), "postview": self.postview} if self.gap is not None else {}
-        )
-        return {
-            "task": shared.pop("task"),
-            "pilot": self.pilot.to_dict(),
-            **shared,
-            **postview,
-            "start_time": self.start_time,
-        }
-
-
-# --------------------------------------------------------------------- block diagram
-
-
-@dataclass(frozen=True)
-class _PilotDiagram:
-    blocks: tuple[Block, ...]
-    sums: dict[str, dict[str, float]]
-    delays: tuple[DelayChannel, ...]
-
-
-def _pilot_diagram(
-    pilot: Pilot,
-    values: Mapping[str, FloatArray],
-    remnant: Remnant | None,
-    sources: Mapping[str, str],
-) -> _PilotDiagram:
-    """Blocks and junctions of the pilot, from its perceptions to ``u``.
-
-    ``sources`` names the signal each perception is read from; the remnant ``n``
-    enters at its injection point. The model delay is a delay channel ``v_c -> w_c``
-    (exact) or a Padé block.
-    """
-    model = pilot.model
-    injection = None if remnant is None else remnant.injection
-    seen = {}
-    sums: dict[str, dict[str, float]] = {}
-    for perception, source in sources.items():
-        name = f"{perception}_seen"
-        sums[name] = {source: 1.0}
-        if injection == "feedback" and perception == "e":
-            sums[name]["n"] = -1.0  # e = ft - (y + n)
-        if injection == "feedback" and perception == "y":
-            sums[name]["n"] = 1.0
-        seen[perception] = name
-    blocks: list[Block] = []
-    delays: list[DelayChannel] = []
-    u_terms: dict[str, float] = {}
-    for c, channel in enumerate(model.channels(values)):
-        v, w, u = f"v{c}", f"w{c}", f"u{c}"
-        sums[v] = {}
-        for b, branch in enumerate(channel.branches):
-            out = f"pre{c}_{b}"
-            blocks.append(Block(tf_to_ccf(branch.num, branch.den), (seen[branch.signal],), (out,)))
-            sums[v][out] = 1.0
-        if injection == "input" and c == 0:
-            sums[v]["n"] = 1.0
-        if pilot.delay_order is None:
-            delays.append(DelayChannel(v, w))
-        else:
-            tau = values[model.delay_parameter]
-            blocks.append(Block(tf_to_ccf(*pade(tau, pilot.delay_order)), (v,), (w,)))
-        blocks.append(Block(tf_to_ccf(channel.num, channel.den), (w,), (u,)))
-        u_terms[u] = 1.0
-    if injection == "output":
-        u_terms["n"] = 1.0
-    sums["u"] = u_terms
-    return _PilotDiagram(tuple(blocks), sums, tuple(delays))
-
-
-def _remnant_block(remnant: Remnant | None) -> list[Block]:
-    if remnant is None:
-        return []
-    return [Block(tf_to_ccf(*remnant.shape()), ("noise",), ("n",))]
+# ------------------------------------------------------------------ discretised loop
 
 
 @dataclass(frozen=True)
@@ -434,95 +127,6 @@ class _Loop:
     delay_inputs: tuple[int, ...]
     delay_outputs: tuple[int, ...]
     held_states: tuple[int, ...] = ()
-
-
-_LOOP_OUTPUTS = ("u", "y", "e", "n")
-
-
-def _element_sums(disturbance_at: str) -> dict[str, dict[str, float]]:
-    """The junctions around the element block ``u_ce -> x_ce``, and the error.
-
-    The disturbance joins the element's input (``u_ce = u + fd``, ``y = x_ce``) or its
-    output (``u_ce = u``, ``y = x_ce + fd``); ``e = ft - y`` either way.
-    """
-    if disturbance_at == "input":
-        return {"u_ce": {"u": 1.0, "fd": 1.0}, "y": {"x_ce": 1.0}, "e": {"ft": 1.0, "y": -1.0}}
-    return {"u_ce": {"u": 1.0}, "y": {"x_ce": 1.0, "fd": 1.0}, "e": {"ft": 1.0, "y": -1.0}}
-
-
-def _continuous_loop(
-    setup: SimulationSetup,
-    values: Mapping[str, FloatArray],
-    element_model: StateSpace,
-    remnant: Remnant | None,
-) -> Interconnection:
-    model = setup.pilot.model
-    pilot = _pilot_diagram(setup.pilot, values, remnant, {p: p for p in model.perceptions})
-    return interconnect(
-        [*pilot.blocks, Block(element_model, ("u_ce",), ("x_ce",)), *_remnant_block(remnant)],
-        inputs=_loop_inputs(model, remnant),
-        outputs=_LOOP_OUTPUTS,
-        sums={
-            **pilot.sums,
-            **_element_sums(setup.disturbance_at),
-            **({} if remnant is not None else {"n": {}}),
-        },
-        delays=pilot.delays,
-    )
-
-
-def _loop_inputs(model: PilotModel, remnant: Remnant | None) -> tuple[str, ...]:
-    forcing_inputs = tuple(p for p in model.perceptions if p not in ("e", "y"))
-    noise_input = ("noise",) if remnant is not None else ()
-    return ("ft", "fd", *noise_input, *forcing_inputs)
-
-
-def closed_loop(setup: SimulationSetup, t: float = 0.0) -> Interconnection:
-    """The continuous closed loop at time ``t`` as one state-space model.
-
-    Inputs ``ft, fd`` (``fd`` at the element's output or input, as
-    ``setup.disturbance_at`` says), ``noise`` (when the pilot has a remnant; unit white
-    noise into the remnant filter with its gain ``K_r``) and the pilot's forcing perceptions
-    (``ft_far``, ...); outputs ``u, y, e, n``. With the pilot's exact delay the model
-    has a delay channel (see :class:`~manualcontrol.envs.dynamics.Interconnection`);
-    with a Padé delay it is an ordinary linear model, e.g. for frequency responses.
-    """
-    values = {name: np.atleast_1d(schedule(t)) for name, schedule in setup.pilot.parameters.items()}
-    remnant = setup.pilot.remnant
-    loop = _continuous_loop(setup, values, setup.element.state_space(np.atleast_1d(t)), remnant)
-    if remnant is not None and remnant.K_r != 1.0:
-        B = loop.system.B.copy()
-        B[..., loop.inputs.index("noise")] *= remnant.K_r
-        loop = loop._replace(system=StateSpace(loop.system.A, B, loop.system.C, loop.system.D))
-    squeezed = StateSpace(
-        *(matrix[0] for matrix in (loop.system.A, loop.system.B, loop.system.C, loop.system.D))
-    )
-    return loop._replace(system=squeezed)
-
-
-def discrete_pilot(
-    setup: SimulationSetup, values: Mapping[str, FloatArray], remnant: Remnant | None
-) -> tuple[Interconnection, Discretization, tuple[DelayChannel, ...]]:
-    """The pilot alone, discretised for the sampled loop.
-
-    Inputs: its perceptions, then ``noise`` (when it has a remnant), then the delay
-    channel targets; outputs ``u``, ``n``, then the delay channel sources. Perceptions
-    and noise are held over each sample; the delayed signals follow
-    :func:`~manualcontrol.envs.dynamics.simulate_lpv`. ``values`` carry one leading
-    batch axis (one entry per distinct parameter set).
-    """
-    model = setup.pilot.model
-    noise_input = ("noise",) if remnant is not None else ()
-    pilot = _pilot_diagram(setup.pilot, values, remnant, {p: p for p in model.perceptions})
-    system = interconnect(
-        [*pilot.blocks, *_remnant_block(remnant)],
-        inputs=(*model.perceptions, *noise_input),
-        outputs=("u", "n"),
-        sums={**pilot.sums, **({} if remnant is not None else {"n": {}})},
-        delays=pilot.delays,
-    )
-    exact = discretize(system.system.A, system.system.B, setup.dt, system.delay_inputs)
-    return system, exact, pilot.delays
 
 
 def distinct_parameter_sets(
@@ -555,9 +159,9 @@ def _assemble(
 ) -> _Loop:
     """Connect and discretise the loop for parameter values with one leading batch axis."""
     model = setup.pilot.model
-    inputs = _loop_inputs(model, remnant)
+    inputs = loop_inputs(model, remnant)
     if loop == "continuous":
-        diagram = _continuous_loop(setup, values, element_model, remnant)
+        diagram = continuous_loop(setup, values, element_model, remnant)
         exact = discretize(diagram.system.A, diagram.system.B, setup.dt, diagram.delay_inputs)
         return _Loop(
             exact,
@@ -588,8 +192,8 @@ def _assemble(
     joined = interconnect(
         [pilot_block, element_block],
         inputs=inputs,
-        outputs=_LOOP_OUTPUTS,
-        sums=_element_sums(setup.disturbance_at),
+        outputs=LOOP_OUTPUTS,
+        sums=element_sums(setup.disturbance_at),
         delays=pilot_delays,
     )
     # The ramp (first-order hold) acts only on the pilot's delayed inputs.
@@ -738,7 +342,7 @@ def isolated_pilot_outputs(
     matrix exponential per sample whose parameters changed) and run on each set; the
     outputs equal separate calls bit for bit.
     """
-    pilot = Pilot(make_model(model), delay_order=delay_order)
+    pilot = PilotSpec(make_model(model), delay_order=delay_order)
     model = pilot.model
     if not perception_sets:
         raise ValueError("perception_sets must hold at least one set of perceptions")
@@ -772,7 +376,7 @@ def isolated_pilot_outputs(
         columns.append(traces[model.delay_parameter])
     first, index = distinct_parameter_sets(columns, n)
     values = {name: trace[first] for name, trace in traces.items()}
-    diagram = _pilot_diagram(pilot, values, None, {p: p for p in model.perceptions})
+    diagram = pilot_diagram(pilot, values, None, {p: p for p in model.perceptions})
     system = interconnect(
         diagram.blocks,
         inputs=model.perceptions,
@@ -807,12 +411,14 @@ def remnant_power_ratio(u: FloatArray, u_remnant: FloatArray) -> float:
     return float(np.var(u_remnant) / np.var(u))
 
 
-def _gain_for_ratio(u_forced: FloatArray, u_unit: FloatArray, ratio: float) -> float:
+def gain_for_ratio(u_forced: FloatArray, u_unit: FloatArray, ratio: float) -> float:
     """Remnant gain ``K`` with ``var(K u_unit) / var(u_forced + K u_unit) = ratio``.
 
     By linearity the remnant part of ``u`` scales with ``K``; solving
     ``K^2 V_n (1 - P) - 2 P C K - P V_f = 0`` (sample variances ``V``, covariance
-    ``C``) gives the positive root.
+    ``C``) gives the positive root. How every simulated loop (tracking and driving)
+    meets a requested remnant power ratio ``P_r`` (thesis eq. 6) from a run with the
+    forcing alone and one with unit remnant alone.
     """
     forced = u_forced - u_forced.mean()
     unit = u_unit - u_unit.mean()
@@ -860,7 +466,7 @@ def initial_loop_state(
         raise TypeError(f"initial_state must map signal names to values, got {conditions!r}")
     reject_unknown("initial_state", conditions, INITIAL_STATE_SIGNALS)
     first = {name: trace[:1] for name, trace in traces.items()}
-    diagram = _continuous_loop(setup, first, setup.element.state_space(setup.time[:1]), remnant)
+    diagram = continuous_loop(setup, first, setup.element.state_space(setup.time[:1]), remnant)
     system = diagram.system  # one parameter set: drop the batch axis
     A, B, C, D = (m.reshape(m.shape[-2:]) for m in (system.A, system.B, system.C, system.D))
     n_x = A.shape[0]
@@ -916,19 +522,8 @@ def _measurement_noise(noise: Mapping[str, float] | None) -> dict[str, float]:
 # ------------------------------------------------------------------------ simulate
 
 
-def _as_generator(seed: int | np.random.Generator | None) -> tuple[np.random.Generator, Any]:
-    if isinstance(seed, np.random.Generator):
-        return seed, "generator"
-    if seed is None:
-        seed = int(np.random.SeedSequence().generate_state(1)[0])
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
-        raise TypeError(f"seed must be an int, a numpy Generator or None, got {seed!r}")
-    seed = check_int("seed", seed, minimum=0)
-    return np.random.default_rng(seed), seed
-
-
 def simulate(
-    pilot: Pilot,
+    pilot: PilotSpec,
     element: str | ControlledElement | Mapping[str, Any] = "SI",
     forcing: str | ForcingPair = "vanderel-bw4",
     *,
@@ -1048,7 +643,7 @@ def simulate(
     if loss_of_control is not None:
         loss_of_control = check_positive("loss_of_control", loss_of_control)
     noise_variances = _measurement_noise(measurement_noise)
-    rng, seed_used = _as_generator(seed)
+    rng, seed_used = as_generator(seed)
     x0 = None
     traces = setup.parameter_traces()
     with warnings.catch_warnings(record=True) as caught:
@@ -1172,7 +767,7 @@ def _calibrate(
     measured = slice(setup.n_run_in, setup.n_samples)
     ratio = float(remnant.P_r)
     if not (setup.pilot.is_time_varying or setup.element.is_time_varying):
-        return _gain_for_ratio(forced["u"][measured], unit["u"][measured], ratio)
+        return gain_for_ratio(forced["u"][measured], unit["u"][measured], ratio)
     # Linear simulation at the mean parameter values gives the first gain.
     mean = {name: np.full_like(trace, trace.mean()) for name, trace in traces.items()}
     linear_setup = dataclasses.replace(
@@ -1191,13 +786,13 @@ def _calibrate(
         linear, index, {**linear_columns, "noise": 0.0 * noise}, linear_delays, setup.dt
     )
     linear_unit = _run(linear, index, {**zero, "noise": noise}, linear_delays, setup.dt)
-    gain = _gain_for_ratio(linear_forced["u"][measured], linear_unit["u"][measured], ratio)
+    gain = gain_for_ratio(linear_forced["u"][measured], linear_unit["u"][measured], ratio)
     # Check on the time-varying run; re-solve there when off by more than 5 %.
     realised = remnant_power_ratio(
         forced["u"][measured] + gain * unit["u"][measured], gain * unit["u"][measured]
     )
     if abs(realised - ratio) > POWER_RATIO_TOLERANCE * ratio:
-        gain = _gain_for_ratio(forced["u"][measured], unit["u"][measured], ratio)
+        gain = gain_for_ratio(forced["u"][measured], unit["u"][measured], ratio)
     return gain
 
 

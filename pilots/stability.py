@@ -31,7 +31,9 @@ from numpy.typing import NDArray
 
 from manualcontrol.envs._validation import check_choice
 from manualcontrol.envs.elements import ControlledElement, make_element
+from manualcontrol.pilots.loop import SimulationSetup, closed_loop
 from manualcontrol.pilots.models import PilotModel, make_model
+from manualcontrol.pilots.spec import HumanLimitWarning, PilotSpec
 
 __all__ = [
     "ON_UNSTABLE",
@@ -150,12 +152,9 @@ def typical_parameters(
 
 def closed_loop_poles(setup: Any, t: float = 0.0) -> NDArray[np.complex128]:
     """Poles of the continuous closed loop at time ``t`` (delay as order-6 Padé)."""
-    from manualcontrol.pilots.pilot import HumanLimitWarning, Pilot
-    from manualcontrol.pilots.simulation import SimulationSetup, closed_loop
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", HumanLimitWarning)
-        pilot = Pilot(
+        pilot = PilotSpec(
             setup.pilot.model,
             dict(setup.pilot.parameters),
             None,  # the remnant filter is an input to the loop, not part of it

@@ -33,8 +33,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from manualcontrol.bench import runner
+from manualcontrol.bench.report import draw_trace, save_figure, subplots
 from manualcontrol.bench.scenarios import Scenario, Suite, scenario_from_dict
 from manualcontrol.envs.elements import make_element
+from manualcontrol.envs.signals import forcing_preset
+from manualcontrol.estimators.smoothing import smooth
 
 __all__ = ["equivalent_advance", "lag_behind", "report_section"]
 
@@ -106,11 +110,8 @@ def _runs(rows: Sequence[Mapping[str, Any]], batch: str) -> list[Scenario]:
 
 
 def _estimates(scenario: Scenario) -> tuple[Any, Any, Any]:
-    from manualcontrol.bench.runner import make_estimator, simulate_scenario
-    from manualcontrol.estimators.smoothing import smooth
-
-    recording = simulate_scenario(scenario)
-    estimator = make_estimator(scenario.estimator)
+    recording = runner.simulate_scenario(scenario)
+    estimator = runner.make_estimator(scenario.estimator)
     filtered = estimator.estimate(recording, smoother_inputs=True, smooth=False)
     return recording, filtered, smooth(filtered)
 
@@ -193,12 +194,10 @@ def _open_loop_lines(results: Mapping[str, Mapping[str, Any]]) -> list[str]:
 
 
 def _open_loop_figure(examples: Mapping[str, Any], out: Path) -> Path | None:
-    from manualcontrol.bench.report import _line, _save, _subplots
-
     if not examples:
         return None
     names = ("d", "a_1", "b_0", "b_1")
-    fig, axes = _subplots(
+    fig, axes = subplots(
         len(names), len(examples), figsize=(4.2 * len(examples), 8.5), sharex=True, squeeze=False
     )
     for column, (batch, (recording, filtered, smoothed)) in enumerate(examples.items()):
@@ -206,12 +205,12 @@ def _open_loop_figure(examples: Mapping[str, Any], out: Path) -> Path | None:
         for row, name in enumerate(names):
             axis = axes[row, column]
             scale = 1000.0 if name == "d" else 1.0
-            _line(
+            draw_trace(
                 axis, t, recording.parameters[name] * scale, color="tab:red", lw=1.2, label="true"
             )
-            _line(axis, t, filtered.mean_of(name) * scale, color="k", lw=0.8, label="filtered")
+            draw_trace(axis, t, filtered.mean_of(name) * scale, color="k", lw=0.8, label="filtered")
             if name in filtered.estimated:
-                _line(
+                draw_trace(
                     axis,
                     t,
                     smoothed.mean_of(name) * scale,
@@ -225,15 +224,13 @@ def _open_loop_figure(examples: Mapping[str, Any], out: Path) -> Path | None:
         axes[0, column].set_title(batch, fontsize=9)
         axes[-1, column].set_xlabel("time [s]")
     axes[0, 0].legend(loc="upper left", fontsize=7)
-    return _save(fig, out / "figures" / "boer-kenyon1998-open-loop.png")
+    return save_figure(fig, out / "figures" / "boer-kenyon1998-open-loop.png")
 
 
 # ------------------------------------------------------------------------ postview
 
 
 def _postview_truth(scenario: Scenario, recording: Any) -> tuple[FloatArray, float]:
-    from manualcontrol.envs.signals import forcing_preset
-
     parameters = recording.parameters
     track = forcing_preset(scenario.forcing, scenario.realisation).target
     K_p = float(np.mean(parameters["K_p"]))
@@ -271,15 +268,13 @@ def _postview(scenarios: list[Scenario]) -> tuple[dict[str, list[float]], Any]:
 def _task_figure(
     title: str, example: Any, truth_d: FloatArray, truth_gain: Any, path: Path
 ) -> Path:
-    from manualcontrol.bench.report import _line, _save, _subplots
-
     recording, filtered, smoothed = example[:3]
-    fig, axes = _subplots(2, 1, reusable=True, figsize=(9, 5.5), sharex=True)
+    fig, axes = subplots(2, 1, reusable=True, figsize=(9, 5.5), sharex=True)
     t = np.asarray(recording.t)
     d_name, gain_name = _delay_name(filtered), _gain_name(filtered)
-    _line(axes[0], t, truth_d * 1000.0, color="tab:red", lw=1.2, label="true")
-    _line(axes[0], t, filtered.mean_of(d_name) * 1000.0, color="k", lw=0.8, label="filtered")
-    _line(
+    draw_trace(axes[0], t, truth_d * 1000.0, color="tab:red", lw=1.2, label="true")
+    draw_trace(axes[0], t, filtered.mean_of(d_name) * 1000.0, color="k", lw=0.8, label="filtered")
+    draw_trace(
         axes[0],
         t,
         smoothed.mean_of(d_name) * 1000.0,
@@ -289,21 +284,21 @@ def _task_figure(
         label="smoothed",
     )
     if "gap" in recording.parameters:
-        _line(
+        draw_trace(
             axes[0], t, recording.parameters["gap"] * 1000.0, color="tab:gray", lw=0.8, label="gap"
         )
     axes[0].set_ylabel("delay [ms]")
     axes[0].legend(loc="upper left", fontsize=8)
     if truth_gain is not None:
-        _line(axes[1], t, truth_gain, color="tab:red", lw=1.2, label="true")
-    _line(axes[1], t, filtered.mean_of(gain_name), color="k", lw=0.8, label="filtered")
-    _line(
+        draw_trace(axes[1], t, truth_gain, color="tab:red", lw=1.2, label="true")
+    draw_trace(axes[1], t, filtered.mean_of(gain_name), color="k", lw=0.8, label="filtered")
+    draw_trace(
         axes[1], t, smoothed.mean_of(gain_name), color="tab:blue", lw=0.9, ls="--", label="smoothed"
     )
     axes[1].set_ylabel("gain")
     axes[1].set_xlabel("time [s]")
     axes[0].set_title(title)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 # ------------------------------------------------------------------ critical task

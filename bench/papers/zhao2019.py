@@ -18,6 +18,12 @@ from typing import Any
 
 import numpy as np
 
+from manualcontrol.bench import runner
+from manualcontrol.bench.report import draw_trace, save_figure, subplots
+from manualcontrol.bench.scenarios import scenario_from_dict
+from manualcontrol.estimators.protocol import load_result
+from manualcontrol.estimators.zhao_ukf import ZhaoUKFSettings, zhao_tuning
+
 __all__ = ["report_section"]
 
 MEMBERS = ("UKF1", "UKF2", "multi-UKF")
@@ -87,11 +93,6 @@ def _table(drives: Mapping[str, Mapping[str, list]]) -> list[str]:
 
 
 def _figure(condition: str, drive: str, members: Mapping[str, list], out: Path) -> Path | None:
-    from manualcontrol.bench.report import _line, _save, _subplots
-    from manualcontrol.bench.runner import simulate_scenario
-    from manualcontrol.bench.scenarios import scenario_from_dict
-    from manualcontrol.estimators.protocol import load_result
-
     results = {}
     recording = None
     for member in MEMBERS:
@@ -103,33 +104,33 @@ def _figure(condition: str, drive: str, members: Mapping[str, list], out: Path) 
             continue
         results[member] = load_result(path)
         if recording is None:
-            recording = simulate_scenario(scenario_from_dict(runs[0]["scenario"]))
+            recording = runner.simulate_scenario(scenario_from_dict(runs[0]["scenario"]))
     if not results or recording is None:
         return None
-    fig, axes = _subplots(3, 1, reusable=True, figsize=(10, 7.5), sharex=True)
+    fig, axes = subplots(3, 1, reusable=True, figsize=(10, 7.5), sharex=True)
     for axis, name in zip(axes, PARAMETERS, strict=False):
-        _line(axis, recording.t, recording.parameters[name], color="tab:red", lw=1.6, label="true")
+        draw_trace(
+            axis, recording.t, recording.parameters[name], color="tab:red", lw=1.6, label="true"
+        )
         for member, result in results.items():
-            _line(
+            draw_trace(
                 axis, result.t, result.mean_of(name), color=_COLOURS[member], lw=0.9, label=member
             )
         axis.set_ylabel(name)
     axes[0].legend(loc="upper left", fontsize=8, ncol=4)
-    _line(axes[2], recording.t, recording["theta_far"], lw=0.8, label=r"$\theta_{far}$")
-    _line(axes[2], recording.t, recording["theta_near"], lw=0.8, label=r"$\theta_{near}$")
+    draw_trace(axes[2], recording.t, recording["theta_far"], lw=0.8, label=r"$\theta_{far}$")
+    draw_trace(axes[2], recording.t, recording["theta_near"], lw=0.8, label=r"$\theta_{near}$")
     axes[2].set_ylabel("rad")
     axes[2].legend(loc="upper left", fontsize=8)
     axes[2].set_xlabel("time [s]")
     axes[0].set_title(f"zhao2019: {drive}, {condition} (first run of each member)")
     slug = f"zhao2019-{drive}-{condition}".replace(" ", "").replace(",", "-").replace("=", "")
     slug = "".join(c for c in slug if c.isalnum() or c in "-_.")
-    return _save(fig, out / "figures" / f"{slug}.png")
+    return save_figure(fig, out / "figures" / f"{slug}.png")
 
 
 def report_section(suite: Any, rows: Sequence[Mapping[str, Any]], out: str | Path) -> list[str]:
     """Markdown lines (and figures under ``out/figures``) for the zhao2019 suite."""
-    from manualcontrol.estimators.zhao_ukf import ZhaoUKFSettings, zhao_tuning
-
     out = Path(out)
     poles = zhao_tuning(ZhaoUKFSettings(), 0.001, 18.0).observer_poles()
     lines = [

@@ -82,48 +82,48 @@ def _draw(axes, variant):
 
 
 def test_a_reused_figure_draws_what_a_new_one_draws(tmp_path):
-    from manualcontrol.bench.report import _pyplot, _reusing_figures, _save, _subplots
+    from manualcontrol.bench.report import _reusing_figures, pyplot, save_figure, subplots
 
-    plt = _pyplot()
+    plt = pyplot()
     before = set(plt.get_fignums())
     layout = {"reusable": True, "figsize": (6.0, 5.0), "sharex": True}
     with _reusing_figures():
-        fig, axes = _subplots(3, 1, **layout)
+        fig, axes = subplots(3, 1, **layout)
         _draw(axes, 0)
-        _save(fig, tmp_path / "first.png")
-        again, axes = _subplots(3, 1, **layout)
+        save_figure(fig, tmp_path / "first.png")
+        again, axes = subplots(3, 1, **layout)
         assert again is fig  # handed out again, not made anew
         _draw(axes, 1)
-        _save(again, tmp_path / "reused.png")
-        other, _ = _subplots(2, 1, **layout)  # another layout gets a figure of its own
+        save_figure(again, tmp_path / "reused.png")
+        other, _ = subplots(2, 1, **layout)  # another layout gets a figure of its own
         assert other is not fig
     assert set(plt.get_fignums()) == before  # all closed on leaving, unsaved ones too
-    fig, axes = _subplots(3, 1, **layout)
+    fig, axes = subplots(3, 1, **layout)
     _draw(axes, 1)
-    _save(fig, tmp_path / "new.png")
+    save_figure(fig, tmp_path / "new.png")
     assert (tmp_path / "reused.png").read_bytes() == (tmp_path / "new.png").read_bytes()
     assert (tmp_path / "first.png").read_bytes() != (tmp_path / "new.png").read_bytes()
 
 
 def test_figures_are_closed_when_a_report_fails(tmp_path):
-    from manualcontrol.bench.report import _pyplot, _reusing_figures, _subplots
+    from manualcontrol.bench.report import _reusing_figures, pyplot, subplots
 
-    plt = _pyplot()
+    plt = pyplot()
     before = set(plt.get_fignums())
     with pytest.raises(RuntimeError, match="drawing failed"), _reusing_figures():
-        _subplots(2, 1)
+        subplots(2, 1)
         raise RuntimeError("drawing failed")
     assert set(plt.get_fignums()) == before
 
 
 def test_only_plain_reusable_figures_are_kept(tmp_path):
-    from manualcontrol.bench.report import _pyplot, _reusing_figures, _save, _subplots
+    from manualcontrol.bench.report import _reusing_figures, pyplot, save_figure, subplots
 
-    plt = _pyplot()
+    plt = pyplot()
     before = set(plt.get_fignums())
     with _reusing_figures():
-        fig, _ = _subplots(2, 1)  # not marked reusable (a public plot_* figure)
-        _save(fig, tmp_path / "a.png")
+        fig, _ = subplots(2, 1)  # not marked reusable (a public plot_* figure)
+        save_figure(fig, tmp_path / "a.png")
         assert not plt.fignum_exists(fig.number)  # closed at once
         for change in (
             lambda f, a: f.suptitle("figure title"),
@@ -131,13 +131,13 @@ def test_only_plain_reusable_figures_are_kept(tmp_path):
             lambda f, a: a[0].twinx(),
             lambda f, a: a[1].set_yticks([0.0, 0.5]),
         ):
-            fig, axes = _subplots(2, 1, reusable=True)
+            fig, axes = subplots(2, 1, reusable=True)
             change(fig, axes)
-            _save(fig, tmp_path / "b.png")
+            save_figure(fig, tmp_path / "b.png")
             assert not plt.fignum_exists(fig.number)  # _clear would not undo it
-        fig, _ = _subplots(2, 1, reusable=True)
-        _save(fig, tmp_path / "c.png")
-        _save(fig, tmp_path / "c.png")  # saved twice: kept once, handed out once
-        assert _subplots(2, 1, reusable=True)[0] is fig
-        assert _subplots(2, 1, reusable=True)[0] is not fig
+        fig, _ = subplots(2, 1, reusable=True)
+        save_figure(fig, tmp_path / "c.png")
+        save_figure(fig, tmp_path / "c.png")  # saved twice: kept once, handed out once
+        assert subplots(2, 1, reusable=True)[0] is fig
+        assert subplots(2, 1, reusable=True)[0] is not fig
     assert set(plt.get_fignums()) == before
