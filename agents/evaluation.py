@@ -9,7 +9,7 @@ cybernetic pilot model, to hold against the limitations imposed (is the identifi
 delay the imposed action delay?): by an offline output-error fit (exact delay,
 constant parameters) and by the DEKF (its estimates averaged over the measurement,
 after converging on the run-in), and, on a compensatory task, the human-likeness
-figures of :func:`~manualcontrol.estimators.human_likeness.human_likeness` (crossover,
+figures of :func:`~manualcontrol.estimators.analysis.human_likeness.human_likeness` (crossover,
 phase margin, effective delay, pilot gain flatness or lead, remnant, RMS ratio) with
 its verdict.
 
@@ -33,14 +33,17 @@ import numpy as np
 from manualcontrol.agents.training import TASK_IDS, TrainedAgent, make_env
 from manualcontrol.envs._files import atomic_path, atomic_write
 from manualcontrol.envs.recording import Recording
-from manualcontrol.estimators.frequency import FrequencyResponse, forcing_frequency_response
-from manualcontrol.estimators.human_likeness import (
+from manualcontrol.estimators.analysis.frequency import (
+    FrequencyResponse,
+    forcing_frequency_response,
+)
+from manualcontrol.estimators.analysis.human_likeness import (
     HumanLikeness,
     human_likeness,
     plot_human_likeness,
     reference_pilot,
 )
-from manualcontrol.estimators.offline import OfflineFit, fit_pilot
+from manualcontrol.estimators.offline.output_error import OfflineFit, fit_pilot
 from manualcontrol.pilots import Pilot
 
 __all__ = ["REFERENCE_PILOTS", "Evaluation", "evaluate", "fly", "write_report"]
@@ -165,7 +168,7 @@ def evaluate(
     measurement time of the forcing (for the frequency response) after ``run_in``
     seconds, with loss-of-control termination off so that a poor agent is still
     measured over the whole period. ``reference`` overrides the typical precision pilot
-    of the agent's element (:func:`~manualcontrol.estimators.human_likeness.
+    of the agent's element (:func:`~manualcontrol.estimators.analysis.human_likeness.
     reference_pilot`; an element without one, e.g. a pure gain, needs one given), in the
     RMS comparison here and in the human-likeness ratio.
     ``deterministic`` True runs without the wrappers' noise; None (default) follows the
@@ -273,7 +276,7 @@ def write_report(
     """Write ``evaluation.md``, ``evaluation.json`` and the plots into ``folder``.
 
     ``open_loop.png`` (the target lines' open loop) and, on a compensatory task,
-    ``human_likeness.png`` (:func:`~manualcontrol.estimators.human_likeness.
+    ``human_likeness.png`` (:func:`~manualcontrol.estimators.analysis.human_likeness.
     plot_human_likeness`: measured ``Y_p`` and ``Y_p Y_c``, the crossover model, the
     typical pilot, and each of ``models``: a label and a callable giving a pilot's
     ``Y_p(j omega)`` at frequencies in rad/s, e.g. an OCM pilot's ``frequency_response``).

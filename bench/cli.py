@@ -346,8 +346,8 @@ _PREVIEW_HINT = (
 def _cmd_identify(args: argparse.Namespace) -> int:
     from manualcontrol.bench.report import plot_estimation
     from manualcontrol.envs._files import atomic_write
-    from manualcontrol.estimators.identification import build_estimator, identify
-    from manualcontrol.estimators.pilot_filter import EVIDENCE
+    from manualcontrol.estimators.analysis.identification import build_estimator, identify
+    from manualcontrol.estimators.members.pilot_filter import EVIDENCE
     from manualcontrol.estimators.registry import ESTIMATORS
 
     _check_output("--out", args.out, folder=True)
@@ -502,7 +502,10 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 def _cmd_describe(args: argparse.Namespace) -> int:
     from manualcontrol.bench.report import plot_describing_function
     from manualcontrol.envs._files import atomic_write
-    from manualcontrol.estimators.frequency import describing_function, fit_describing_function
+    from manualcontrol.estimators.analysis.frequency import (
+        describing_function,
+        fit_describing_function,
+    )
 
     _check_output("--out", args.out, folder=True)
     recording = _load_trial(args)
@@ -623,7 +626,7 @@ def _cmd_describe(args: argparse.Namespace) -> int:
             "the remnant swamps the rest, so the fit is loose; more periods would help"
         )
     if describing.task == "compensatory" and describing.element_given:
-        from manualcontrol.estimators.human_likeness import human_likeness
+        from manualcontrol.estimators.analysis.human_likeness import human_likeness
 
         try:
             human = human_likeness(

@@ -60,7 +60,7 @@ from manualcontrol.envs.driving import (
     vehicle_preset,
 )
 from manualcontrol.envs.recording import Recording
-from manualcontrol.estimators import metrics
+from manualcontrol.estimators.analysis import metrics
 from manualcontrol.pilots.driver import Driver
 from manualcontrol.pilots.driving import output_noise_levels, resimulate_driver, simulate_driving
 

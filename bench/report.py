@@ -44,7 +44,7 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 
 
-#: The report's VAF rows in words (definitions: :mod:`manualcontrol.estimators.metrics`).
+#: The report's VAF rows in words (definitions: :mod:`manualcontrol.estimators.analysis.metrics`).
 VAF_DEFINITIONS = (
     "VAF rows (thesis eq. 38, over the scored samples): *one-step*: the filter's "
     "prediction of each sample from the samples before it, against u as measured "
@@ -331,7 +331,7 @@ def plot_describing_function(
     frequency-domain fit beside a time-domain estimate's second-half values.
     """
     # here, not at the top: the estimators load their whole family and scipy.signal
-    from manualcontrol.estimators.frequency import loop_response
+    from manualcontrol.estimators.analysis.frequency import loop_response
 
     fig, axes = subplots(2, 1, figsize=(7.5, 6.5), sharex=True)
     omega = describing.frequencies

@@ -45,8 +45,8 @@ from manualcontrol.bench.scenarios import Scenario, Suite
 from manualcontrol.envs._files import atomic_write
 from manualcontrol.envs._validation import check_choice, check_int
 from manualcontrol.envs.recording import Recording
+from manualcontrol.estimators.offline.smoothing import smooth
 from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
-from manualcontrol.estimators.smoothing import smooth
 
 __all__ = [
     "BACKENDS",

@@ -1,6 +1,6 @@
 """Scores of one benchmark run: the thesis's performance metrics (Part I Sec. IV-E).
 
-Computed by :func:`manualcontrol.estimators.metrics.evaluate` from
+Computed by :func:`manualcontrol.estimators.analysis.metrics.evaluate` from
 ``scenario.score_from`` on (``t >= 0`` by default: the run-in before it lets the
 filter converge, as in the thesis; Popovici et al. leave out the first 15 s of runs
 without run-in): per estimated parameter the relative bias and the NRMSE (eq. 37; RMSE
@@ -8,7 +8,7 @@ for near-zero parameters), the VAFs (eq. 38) and the innovation consistency. Add
 here: the 10-s moving VAF of the one-step output (1-s steps, for the report's figure),
 the run's health and the realised remnant power ratio.
 
-Row columns of the VAFs (definitions in :mod:`manualcontrol.estimators.metrics`):
+Row columns of the VAFs (definitions in :mod:`manualcontrol.estimators.analysis.metrics`):
 
 ``vaf_one_step``
     the filter's one-step prediction against ``u`` as measured;
@@ -32,7 +32,8 @@ suite, in every row where they apply):
     with its preview ``exp(j w tau_f)``);
 ``max_time_at_limit``, ``parameter_at_limit``
     the largest share of the run any estimated parameter spends at a limit of the
-    filter's projection, and which (:func:`~manualcontrol.estimators.fit_check.limit_shares`).
+    filter's projection, and which
+    (:func:`~manualcontrol.estimators.analysis.fit_check.limit_shares`).
 """
 
 from __future__ import annotations
@@ -47,9 +48,9 @@ from manualcontrol.bench.driving import score_lane_keeping
 from manualcontrol.bench.scenarios import Scenario
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair, Multisine
-from manualcontrol.estimators import metrics
-from manualcontrol.estimators.fit_check import limit_shares, second_half_values
-from manualcontrol.estimators.frequency import channel_responses
+from manualcontrol.estimators.analysis import metrics
+from manualcontrol.estimators.analysis.fit_check import limit_shares, second_half_values
+from manualcontrol.estimators.analysis.frequency import channel_responses
 
 __all__ = ["score"]
 

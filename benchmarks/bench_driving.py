@@ -19,7 +19,7 @@ import numpy as np
 import manualcontrol.envs  # noqa: F401
 from manualcontrol.envs.schedules import Ramp
 from manualcontrol.estimators import MultiUKF, ZhaoUKF
-from manualcontrol.estimators import _zhao_core as core
+from manualcontrol.estimators.members import _zhao_core as core
 from manualcontrol.pilots.driver import Driver
 from manualcontrol.pilots.driving import simulate_driving
 

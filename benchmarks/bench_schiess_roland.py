@@ -28,8 +28,8 @@ import time
 from pathlib import Path
 
 from manualcontrol.estimators import DEKF
-from manualcontrol.estimators import _schiess_roland_core as core
-from manualcontrol.estimators.schiess_roland import SchiessRoland
+from manualcontrol.estimators.members import _schiess_roland_core as core
+from manualcontrol.estimators.members.schiess_roland import SchiessRoland
 from manualcontrol.pilots import Pilot, SchiessRolandRemnant, simulate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests" / "estimators"))

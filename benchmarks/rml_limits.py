@@ -53,7 +53,7 @@ def _projection(x, t, frequencies, window, dt):
 
 
 def _nrmse(names, t, mean, recording, start):
-    from manualcontrol.estimators.metrics import nrmse
+    from manualcontrol.estimators.analysis.metrics import nrmse
 
     window = t >= start - 1e-9
     return {

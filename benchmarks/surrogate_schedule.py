@@ -8,7 +8,7 @@ agent's own delay is not known (its policy adds its own dynamics to the imposed 
 so the score is the tracked *change*: the identified ``tau_v`` minus its median before
 the change, against the imposed change, as an NRMSE over the measurement (RMS error
 divided by the rise). Beside it, the precision pilot of the same element
-(:func:`~manualcontrol.estimators.human_likeness.reference_pilot`) with the same rise
+(:func:`~manualcontrol.estimators.analysis.human_likeness.reference_pilot`) with the same rise
 in its ``tau_v``, simulated with 30 % remnant and identified the same way, scored the
 same way and, since its delay is known, also as the NRMSE of ``tau_v`` itself.
 
@@ -25,7 +25,7 @@ from manualcontrol.agents.evaluation import fly
 from manualcontrol.agents.training import load_agent, make_env
 from manualcontrol.envs.schedules import Ramp
 from manualcontrol.estimators import RML
-from manualcontrol.estimators.human_likeness import reference_pilot
+from manualcontrol.estimators.analysis.human_likeness import reference_pilot
 from manualcontrol.pilots import simulate
 
 RUN_IN = 30.0

@@ -43,7 +43,7 @@ def run_one(element: str, seed: int, out: str) -> dict:
 
 def markdown(rows: list[dict], command: str) -> str:
     """The results page: one line per agent, each figure beside the human range."""
-    from manualcontrol.estimators.human_likeness import FIGURES
+    from manualcontrol.estimators.analysis.human_likeness import FIGURES
 
     lines = [
         "# Surrogate operators: what the human's problem trains",
@@ -52,7 +52,7 @@ def markdown(rows: list[dict], command: str) -> str:
         "recipe `si`) trained on each element with each seed (one torch thread per",
         "training, two at a time on two cores), then evaluated over one forcing period",
         "with the wrappers' noise on (`manualcontrol evaluate`). A figure outside the human",
-        "range of `manualcontrol.estimators.human_likeness` is marked `*`.",
+        "range of `manualcontrol.estimators.analysis.human_likeness` is marked `*`.",
         "",
         "| element | seed | train (s) | " + " | ".join(FIGURES) + " |",
         "| --- | --- | --- | " + " | ".join("---" for _ in FIGURES) + " |",

@@ -5,15 +5,13 @@ DEKF, the joint and dual UKF, the recursive maximum-likelihood filter bank (:cla
 remnant modelled) and the papers' other members, all on the shared Kalman core
 :mod:`manualcontrol.estimators.filters`; :func:`smooth` turns a filtered result of any
 of them into a smoothed one (registered as ``"<name>-smoothed"`` for the bench), and
-:func:`~manualcontrol.estimators.cross_validation.choose_noise_scale` smooths a pilot
+:func:`~manualcontrol.estimators.offline.cross_validation.choose_noise_scale` smooths a pilot
 filter's run at the process-noise scale chosen by cross-validation (``"<name>-cv"``);
 :func:`fit_pilot_sigmoid` fits a pilot that changes once, along a sigmoid
 (``"sigmoid-fit"``, offline).
 """
 
-from manualcontrol.estimators.dekf import DEKF, DEKFSettings, ResolvedSettings
-from manualcontrol.estimators.internal_model import InternalModel, build_internal_model
-from manualcontrol.estimators.metrics import (
+from manualcontrol.estimators.analysis.metrics import (
     EstimationMetrics,
     evaluate,
     innovation_fractions,
@@ -24,6 +22,24 @@ from manualcontrol.estimators.metrics import (
     resimulate,
     vaf,
 )
+from manualcontrol.estimators.members.dekf import DEKF, DEKFSettings, ResolvedSettings
+from manualcontrol.estimators.members.internal_model import InternalModel, build_internal_model
+from manualcontrol.estimators.members.rdi import RDI, RDISettings
+from manualcontrol.estimators.members.rml import RML, RMLSettings
+from manualcontrol.estimators.members.schiess_roland import SchiessRoland, SchiessRolandSettings
+from manualcontrol.estimators.members.ukf import DualUKF, DualUKFSettings, JointUKF, UKFSettings
+from manualcontrol.estimators.members.zhao_ukf import (
+    MultiUKF,
+    MultiUKFSettings,
+    ZhaoUKF,
+    ZhaoUKFSettings,
+)
+from manualcontrol.estimators.offline.schedule_fit import (
+    SigmoidFit,
+    SigmoidFitEstimator,
+    fit_pilot_sigmoid,
+)
+from manualcontrol.estimators.offline.smoothing import smooth
 from manualcontrol.estimators.protocol import (
     Estimate,
     EstimateHealth,
@@ -32,14 +48,7 @@ from manualcontrol.estimators.protocol import (
     HealthSummary,
     load_result,
 )
-from manualcontrol.estimators.rdi import RDI, RDISettings
 from manualcontrol.estimators.registry import ESTIMATORS, EstimatorEntry, make_estimator
-from manualcontrol.estimators.rml import RML, RMLSettings
-from manualcontrol.estimators.schedule_fit import SigmoidFit, SigmoidFitEstimator, fit_pilot_sigmoid
-from manualcontrol.estimators.schiess_roland import SchiessRoland, SchiessRolandSettings
-from manualcontrol.estimators.smoothing import smooth
-from manualcontrol.estimators.ukf import DualUKF, DualUKFSettings, JointUKF, UKFSettings
-from manualcontrol.estimators.zhao_ukf import MultiUKF, MultiUKFSettings, ZhaoUKF, ZhaoUKFSettings
 
 __all__ = [
     "DEKF",

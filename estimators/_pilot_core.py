@@ -32,7 +32,7 @@ its meaning per second by itself: with ``Gamma = I dt`` a random walk's variance
 sample is ``Q dt^2`` and ``R`` is a sample's variance, so a filter's time constant,
 about ``dt sqrt(R / (Q dt^2)) = sqrt(R/Q)`` seconds, is the same at every rate. (The RML,
 whose remnant state has an exact, continuous noise, takes ``R`` and ``Q`` per second
-instead: :mod:`~manualcontrol.estimators.rml`, "Sample rates".)
+instead: :mod:`~manualcontrol.estimators.members.rml`, "Sample rates".)
 """
 
 from __future__ import annotations

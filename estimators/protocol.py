@@ -22,7 +22,7 @@ and plant output). The first output is the *primary* one: ``prediction``,
 one-output estimators reads every estimator alike. Estimators may also record their
 state traces (``state_names``, ``states``), iterate over a run (``passes``, with each
 pass's final estimates in ``pass_mean``/``pass_std``), and a filtered result may be
-turned into a smoothed one (:func:`manualcontrol.estimators.smoothing.smooth`), marked
+turned into a smoothed one (:func:`manualcontrol.estimators.offline.smoothing.smooth`), marked
 ``smoothed``.
 """
 
@@ -485,7 +485,7 @@ class EstimationResult:
     smoothed : bool
         The traces are fixed-interval smoothed (the innovations stay the filter's).
     smoother_inputs : object or None
-        What :func:`~manualcontrol.estimators.smoothing.smooth` needs (stored priors,
+        What :func:`~manualcontrol.estimators.offline.smoothing.smooth` needs (stored priors,
         posteriors and links of the run); kept in memory only, never saved or compared.
 
     """

@@ -10,9 +10,9 @@ its filters.
 
 The offline twins are derived at lookup, never registered: every smoothable member
 ``name`` has ``"<name>-smoothed"`` (its run smoothed over the whole recording,
-:mod:`~manualcontrol.estimators.smoothed`), and every smoothable member on a pilot
+:mod:`~manualcontrol.estimators.offline.smoothed_estimator`), and every smoothable member on a pilot
 model has ``"<name>-cv"`` (smoothed at the process-noise scale chosen by
-cross-validation, :mod:`~manualcontrol.estimators.cross_validation`). So a member
+cross-validation, :mod:`~manualcontrol.estimators.offline.cross_validation`). So a member
 always has its twins, whatever was imported first. :data:`ESTIMATORS` is the whole
 family, twins included; :func:`register` adds a member (a user's own estimator).
 :func:`make_estimator` builds one from ``{"name": ..., **settings}``, validating the
@@ -50,7 +50,7 @@ class EstimatorEntry:
 
     ``resimulate(result, recording)``, when given, is the member's own model output
     from the recorded inputs with the identified traces (for members whose model is not
-    a pilot structure; :func:`~manualcontrol.estimators.metrics.resimulate` uses it).
+    a pilot structure; :func:`~manualcontrol.estimators.analysis.metrics.resimulate` uses it).
     ``pilot_model``: the member runs on a pilot model structure named by its ``model``
     setting (``precision``, ``preview``), as ``manualcontrol identify --model`` sets it.
     ``smoothable``: its ``estimate`` takes ``smooth=True`` (a fixed-interval smoother
@@ -103,7 +103,7 @@ MEMBERS: tuple[EstimatorEntry, ...] = (
         summary="dual extended Kalman filter: states + gains, and the other parameters "
         "(total derivative), on the precision or preview internal model",
         reference="Popovici et al. 2017; Vertregt 2020",
-        build=_member(f"{_PACKAGE}.dekf", "DEKF"),
+        build=_member(f"{_PACKAGE}.members.dekf", "DEKF"),
         pilot_model=True,
     ),
     EstimatorEntry(
@@ -111,22 +111,22 @@ MEMBERS: tuple[EstimatorEntry, ...] = (
         summary="joint EKF on the delayed lead-lag pilot with a second-order remnant: 13 "
         "states, exact hereditary delay, stick and plant output measured, adaptive noise",
         reference="Schiess & Roland 1975",
-        build=_member(f"{_PACKAGE}.schiess_roland", "SchiessRoland"),
+        build=_member(f"{_PACKAGE}.members.schiess_roland", "SchiessRoland"),
     ),
     EstimatorEntry(
         name="rdi",
         summary="recursive delay identifier: EKF over ARMAX coefficients and a fractional, "
         "time-varying delay (bicubic interpolation, decimation, sign constraints, RTS)",
         reference="Boer & Kenyon 1998",
-        build=_member(f"{_PACKAGE}.rdi", "RDI"),
-        resimulate=_imported(f"{_PACKAGE}.rdi", "resimulate"),
+        build=_member(f"{_PACKAGE}.members.rdi", "RDI"),
+        resimulate=_imported(f"{_PACKAGE}.members.rdi", "resimulate"),
     ),
     EstimatorEntry(
         name="rml",
         summary="recursive maximum likelihood over a bank of Kalman filters: exact delays, "
         "a remnant shaping filter whose intensity is learned (survives remnant)",
         reference="Ljung & Söderström 1983; Levison et al. 1969",
-        build=_member(f"{_PACKAGE}.rml", "RML"),
+        build=_member(f"{_PACKAGE}.members.rml", "RML"),
         pilot_model=True,
     ),
     EstimatorEntry(
@@ -134,7 +134,7 @@ MEMBERS: tuple[EstimatorEntry, ...] = (
         summary="output-error fit of a pilot whose parameters change along one shared "
         "sigmoid (offline; the scheduling-function approach)",
         reference="Zaal 2016; thesis Part II eq. 4.2",
-        build=_member(f"{_PACKAGE}.schedule_fit", "SigmoidFitEstimator"),
+        build=_member(f"{_PACKAGE}.offline.schedule_fit", "SigmoidFitEstimator"),
         pilot_model=True,
         smoothable=False,
     ),
@@ -143,7 +143,7 @@ MEMBERS: tuple[EstimatorEntry, ...] = (
         summary="joint unscented Kalman filter: pilot states and parameters in one "
         "augmented filter, on the precision or preview internal model",
         reference="Zhao et al. 2019 (Alg. 1-2); future work of Popovici 2017, Vertregt 2020",
-        build=_member(f"{_PACKAGE}.ukf", "JointUKF"),
+        build=_member(f"{_PACKAGE}.members.ukf", "JointUKF"),
         pilot_model=True,
     ),
     EstimatorEntry(
@@ -151,7 +151,7 @@ MEMBERS: tuple[EstimatorEntry, ...] = (
         summary="dual unscented Kalman filter: the DEKF's state and parameter filters "
         "with sigma points instead of Jacobians",
         reference="Wan & van der Merwe 2001; future work of Popovici 2017, Vertregt 2020",
-        build=_member(f"{_PACKAGE}.ukf", "DualUKF"),
+        build=_member(f"{_PACKAGE}.members.ukf", "DualUKF"),
         pilot_model=True,
     ),
     EstimatorEntry(
@@ -159,21 +159,21 @@ MEMBERS: tuple[EstimatorEntry, ...] = (
         summary="UKF (cubature points) on the cybernetic driver model, parameters as random "
         "walks, Algorithm 3 tuning (presets ukf1, ukf2)",
         reference="Zhao et al. 2019",
-        build=_member(f"{_PACKAGE}.zhao_ukf", "ZhaoUKF"),
+        build=_member(f"{_PACKAGE}.members.zhao_ukf", "ZhaoUKF"),
     ),
     EstimatorEntry(
         name="zhao-multi-ukf",
         summary="multi-UKF: a slow (ukf1) and a fast (ukf2) driver-model UKF, fused by "
         "gated shrinkage of their disagreement with re-centring of the slow one",
         reference="Zhao et al. 2019 Sec. 4.2 (fusion rule ours)",
-        build=_member(f"{_PACKAGE}.zhao_ukf", "MultiUKF"),
+        build=_member(f"{_PACKAGE}.members.zhao_ukf", "MultiUKF"),
         smoothable=False,  # the fusion is causal; smooth the members instead
     ),
 )
 
 
 def _smoothed_twin(base: EstimatorEntry) -> EstimatorEntry:
-    wrap = _imported(f"{_PACKAGE}.smoothed", "SmoothedEstimator")
+    wrap = _imported(f"{_PACKAGE}.offline.smoothed_estimator", "SmoothedEstimator")
     return EstimatorEntry(
         name=f"{base.name}{SMOOTHED_SUFFIX}",
         summary=f"{base.name}, smoothed over the whole run (offline; Rauch-Tung-Striebel)",
@@ -188,7 +188,7 @@ def _smoothed_twin(base: EstimatorEntry) -> EstimatorEntry:
 
 
 def _cross_validated_twin(base: EstimatorEntry) -> EstimatorEntry:
-    wrap = _imported(f"{_PACKAGE}.cross_validation", "build_cross_validated")
+    wrap = _imported(f"{_PACKAGE}.offline.cross_validation", "build_cross_validated")
     return EstimatorEntry(
         name=f"{base.name}{CROSS_VALIDATED_SUFFIX}",
         summary=f"{base.name}, smoothed at the process-noise scale that predicts held-out "

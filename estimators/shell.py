@@ -41,6 +41,7 @@ from numpy.typing import NDArray
 
 from manualcontrol.estimators import _pilot_core as core
 from manualcontrol.estimators.filters import monitor
+from manualcontrol.estimators.offline.smoothing import smooth as smooth_result
 from manualcontrol.estimators.protocol import (
     Estimate,
     EstimateHealth,
@@ -50,7 +51,6 @@ from manualcontrol.estimators.protocol import (
     sample_values,
     summarise_health,
 )
-from manualcontrol.estimators.smoothing import smooth as smooth_result
 
 __all__ = ["REASONS", "FilterShell", "health_summary", "read_sample"]
 

@@ -17,7 +17,7 @@ rate), band-limited noise is added to the output, and the result is sampled at `
 pilot's input and response, which this system stands in for; the paper's ``r`` and
 ``y``), with ``u_n``, the noise part of ``u``, and the true parameter traces ``d``
 (the delay applied, s), ``a_1 ..``, ``b_0 ..``, the names the
-:class:`~manualcontrol.estimators.rdi.RDI` reports.
+:class:`~manualcontrol.estimators.members.rdi.RDI` reports.
 """
 
 from __future__ import annotations

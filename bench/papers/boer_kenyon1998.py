@@ -38,7 +38,7 @@ from manualcontrol.bench.report import draw_trace, save_figure, subplots
 from manualcontrol.bench.scenarios import Scenario, Suite, scenario_from_dict
 from manualcontrol.envs.elements import make_element
 from manualcontrol.envs.signals import forcing_preset
-from manualcontrol.estimators.smoothing import smooth
+from manualcontrol.estimators.offline.smoothing import smooth
 
 __all__ = ["equivalent_advance", "lag_behind", "report_section"]
 

@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 
 from manualcontrol.bench.scenarios import Suite, scenario_from_dict
+from manualcontrol.estimators.members.schiess_roland import PARAMETER_NAMES, closed_loop_eigenvalues
 from manualcontrol.estimators.protocol import EstimationResult, load_result
-from manualcontrol.estimators.schiess_roland import PARAMETER_NAMES, closed_loop_eigenvalues
 
 __all__ = ["TABLE_II", "TABLE_III", "TABLE_VI", "case_summary", "report_section"]
 

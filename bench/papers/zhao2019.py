@@ -21,8 +21,8 @@ import numpy as np
 from manualcontrol.bench import runner
 from manualcontrol.bench.report import draw_trace, save_figure, subplots
 from manualcontrol.bench.scenarios import scenario_from_dict
+from manualcontrol.estimators.members.zhao_ukf import ZhaoUKFSettings, zhao_tuning
 from manualcontrol.estimators.protocol import load_result
-from manualcontrol.estimators.zhao_ukf import ZhaoUKFSettings, zhao_tuning
 
 __all__ = ["report_section"]
 

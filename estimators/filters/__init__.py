@@ -13,9 +13,10 @@ step, and calls these for the covariance algebra:
 * :mod:`.smoothers`: the Rauch-Tung-Striebel smoother for random-walk, EKF and UKF runs;
 * :mod:`.monitor`: belief health, pinned parameters, windowed variances.
 
-The estimators built on them: the DEKF (dual EKF), :class:`~manualcontrol.estimators.ukf.JointUKF`
-and :class:`~manualcontrol.estimators.ukf.DualUKF` on the pilot internal models;
-:mod:`manualcontrol.estimators.smoothing` turns any of their filtered results into
+The estimators built on them: the DEKF (dual EKF),
+:class:`~manualcontrol.estimators.members.ukf.JointUKF` and
+:class:`~manualcontrol.estimators.members.ukf.DualUKF` on the pilot internal models;
+:mod:`manualcontrol.estimators.offline.smoothing` turns any of their filtered results into
 smoothed ones.
 """
 

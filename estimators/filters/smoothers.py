@@ -27,7 +27,7 @@ is not enough), and the number of such samples is returned. (Loading every prior
 instead changed the RDI's smoothed delay by 2e-8 relative against its exact numpy
 recursion, and did not save the full-state unscented smoother of the pilot models,
 whose canonical variances span twenty orders of magnitude: the unscented pilot
-filters smooth their parameter marginals instead, see ``estimators/ukf.py``.)
+filters smooth their parameter marginals instead, see ``estimators/members/ukf.py``.)
 """
 
 from __future__ import annotations

@@ -237,7 +237,7 @@ def test_too_few_forcing_lines_leave_the_check_without_its_floor(tmp_path, capsy
 def test_identify_is_the_library_function_the_command_prints(trial, tmp_path, capsys):
     """The command reads the file and prints; the analysis is identify()'s, number for number."""
     from manualcontrol.envs.recording import Recording
-    from manualcontrol.estimators.identification import build_estimator, identify
+    from manualcontrol.estimators.analysis.identification import build_estimator, identify
 
     out_dir = tmp_path / "i"
     code, _, _ = run(

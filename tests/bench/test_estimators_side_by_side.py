@@ -11,7 +11,7 @@ from manualcontrol.bench.cli import EXIT_OK, EXIT_USAGE, main
 from manualcontrol.bench.report import write_report
 from manualcontrol.bench.runner import run_suite
 from manualcontrol.bench.scenarios import SuiteError, load_suite, parse_suite
-from manualcontrol.estimators.pilot_filter import GenericValuesWarning
+from manualcontrol.estimators.members.pilot_filter import GenericValuesWarning
 
 SUITE = {
     "name": "three",

@@ -9,7 +9,7 @@ from manualcontrol.bench.report import best_estimators, summarise, write_report
 from manualcontrol.bench.runner import simulate_scenario
 from manualcontrol.bench.scenarios import parse_suite
 from manualcontrol.bench.scoring import score
-from manualcontrol.estimators import metrics
+from manualcontrol.estimators.analysis import metrics
 from manualcontrol.estimators.registry import make_estimator
 
 SHORT = {

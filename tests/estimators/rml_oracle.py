@@ -1,6 +1,6 @@
 """Independent numpy oracle of the RML filter bank on the compensatory precision pilot.
 
-Written from the equations of ``estimators/rml.py``'s docstring without importing any
+Written from the equations of ``estimators/members/rml.py``'s docstring without importing any
 of the package's estimators: the pilot ``(K_p + K_v s) omega^2/(s^2 + 2 zeta omega s +
 omega^2)`` driven by the error delayed by ``tau_v`` (read with the Keys cubic kernel,
 a = -0.5, written out here), in controllable canonical form, Euler substeps with the

@@ -22,11 +22,11 @@ from scipy.signal import butter, sosfiltfilt
 from manualcontrol.envs.schedules import Sine
 from manualcontrol.envs.signals import ForcingPair
 from manualcontrol.estimators import DEKF, RML, make_estimator, resimulate
-from manualcontrol.estimators.cross_validation import (
+from manualcontrol.estimators.members.pilot_filter import GenericValuesWarning
+from manualcontrol.estimators.offline.cross_validation import (
     CrossValidatedEstimator,
     choose_noise_scale,
 )
-from manualcontrol.estimators.pilot_filter import GenericValuesWarning
 from manualcontrol.pilots import Pilot, simulate
 from manualcontrol.pilots.remnant import LevisonRemnant
 

@@ -33,8 +33,8 @@ from manualcontrol.estimators import (
     Estimator,
     load_result,
 )
-from manualcontrol.estimators._targets import PeriodicExtension
-from manualcontrol.estimators.pilot_filter import GenericValuesWarning
+from manualcontrol.estimators.members._targets import PeriodicExtension
+from manualcontrol.estimators.members.pilot_filter import GenericValuesWarning
 
 sys.path.insert(0, str(Path(__file__).parent))
 from dekf_oracle import Model, NumpyDEKF

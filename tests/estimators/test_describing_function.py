@@ -17,7 +17,7 @@ import scipy.optimize
 
 from manualcontrol.envs.elements import Integrator, parse_element
 from manualcontrol.envs.signals import ForcingPair, Multisine, forcing_preset
-from manualcontrol.estimators.frequency import (
+from manualcontrol.estimators.analysis.frequency import (
     describing_function,
     fit_describing_function,
     fit_weights,

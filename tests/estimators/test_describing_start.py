@@ -13,7 +13,7 @@ import pytest
 from manualcontrol.bench.runner import simulate_scenario
 from manualcontrol.bench.scenarios import load_suite
 from manualcontrol.estimators import RML
-from manualcontrol.estimators.fit_check import second_half_values
+from manualcontrol.estimators.analysis.fit_check import second_half_values
 
 
 @pytest.fixture(scope="module")

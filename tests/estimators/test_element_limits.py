@@ -15,8 +15,8 @@ import pytest
 from manualcontrol.envs.elements import Integrator, IntegratorWithLag
 from manualcontrol.envs.schedules import Sigmoid
 from manualcontrol.estimators import DEKF
-from manualcontrol.estimators.fit_check import time_at_limits
-from manualcontrol.estimators.pilot_filter import (
+from manualcontrol.estimators.analysis.fit_check import time_at_limits
+from manualcontrol.estimators.members.pilot_filter import (
     CROSSOVER_RANGE,
     HUMAN_RANGES,
     PilotFilterSettings,

@@ -7,8 +7,8 @@ import pytest
 
 from manualcontrol.envs.elements import Integrator
 from manualcontrol.estimators import DEKF, JointUKF
-from manualcontrol.estimators.fit_check import check_fit, settled_index
-from manualcontrol.estimators.frequency import describing_function
+from manualcontrol.estimators.analysis.fit_check import check_fit, settled_index
+from manualcontrol.estimators.analysis.frequency import describing_function
 from manualcontrol.pilots import Pilot, simulate
 
 HUMAN_SI = dict(K_p=2.4, K_v=0.0, tau_v=0.25, omega_nms=12.0, zeta_nms=0.5)

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from manualcontrol.envs.recording import Recording
-from manualcontrol.estimators.frequency import model_crossover
-from manualcontrol.estimators.human_likeness import (
+from manualcontrol.estimators.analysis.frequency import model_crossover
+from manualcontrol.estimators.analysis.human_likeness import (
     FIGURES,
     HUMAN_RANGES,
     fit_crossover_model,

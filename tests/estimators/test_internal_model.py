@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from manualcontrol.envs.dynamics import pade
-from manualcontrol.estimators.internal_model import build_internal_model
+from manualcontrol.estimators.members.internal_model import build_internal_model
 from manualcontrol.pilots.models import PreviewModel, make_model
 
 RNG = np.random.default_rng(7)

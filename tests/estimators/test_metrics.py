@@ -130,7 +130,7 @@ def test_dekf_refuses_recordings_it_cannot_use_with_the_reason():
 def test_innovation_whiteness_tells_white_from_coloured():
     import numpy as np
 
-    from manualcontrol.estimators.metrics import innovation_whiteness
+    from manualcontrol.estimators.analysis.metrics import innovation_whiteness
 
     rng = np.random.default_rng(0)
     white = rng.standard_normal(20000)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from manualcontrol.envs.recording import Recording
-from manualcontrol.estimators.metrics import (
+from manualcontrol.estimators.analysis.metrics import (
     evaluate,
     innovation_cost,
     innovation_fractions,

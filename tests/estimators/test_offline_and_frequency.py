@@ -8,8 +8,8 @@ import pytest
 import scipy.optimize
 import scipy.signal
 
-from manualcontrol.estimators.frequency import forcing_frequency_response
-from manualcontrol.estimators.offline import fit_pilot
+from manualcontrol.estimators.analysis.frequency import forcing_frequency_response
+from manualcontrol.estimators.offline.output_error import fit_pilot
 from manualcontrol.pilots import Pilot, make_model, simulate
 
 DI_PILOT = dict(K_p=0.24, K_v=0.36, tau_v=0.3, omega_nms=8.0, zeta_nms=0.45)

@@ -29,7 +29,7 @@ import pytest
 
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import DEKF, RML, JointUKF, evaluate, resimulate
-from manualcontrol.estimators.metrics import resimulate_parameters, vaf
+from manualcontrol.estimators.analysis.metrics import resimulate_parameters, vaf
 from manualcontrol.pilots import Pilot, simulate
 from manualcontrol.pilots.remnant import LevisonRemnant
 

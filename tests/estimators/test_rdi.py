@@ -25,9 +25,9 @@ import pytest
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.schedules import BandLimitedRandomWalk
 from manualcontrol.estimators import RDI, RDISettings
-from manualcontrol.estimators.metrics import resimulate
+from manualcontrol.estimators.analysis.metrics import resimulate
+from manualcontrol.estimators.offline.smoothing import smooth
 from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
-from manualcontrol.estimators.smoothing import smooth
 from manualcontrol.pilots.open_loop import ARMAXSystem, simulate_open_loop
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -127,7 +127,7 @@ def test_reads_are_bicubic_inside_and_the_last_four_samples_cubic_at_the_newest(
     # Keys' kernel reproduces quadratics (value and slope) where its stencil is recorded;
     # near the newest sample the one-sided cubic reproduces cubics; both through a ring
     # that has wrapped (the ring index is the sample index modulo its size)
-    from manualcontrol.estimators._rdi_core import _read
+    from manualcontrol.estimators.members._rdi_core import _read
 
     quadratic = [0.4, -1.5, 2.0]
     cubic = [0.3, -1.0, 2.0, 0.5]

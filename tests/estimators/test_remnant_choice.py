@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from manualcontrol.estimators import RML
-from manualcontrol.estimators.fit_check import second_half_values
+from manualcontrol.estimators.analysis.fit_check import second_half_values
 from manualcontrol.pilots import Pilot, make_model, simulate
 from manualcontrol.pilots.remnant import ZaalRemnant
 

@@ -14,13 +14,13 @@ import pytest
 
 from manualcontrol.bench.scoring import score
 from manualcontrol.estimators import DEKF, RML, make_estimator
-from manualcontrol.estimators.metrics import (
+from manualcontrol.estimators.analysis.metrics import (
     innovation_cost,
     innovation_cost_terms,
     paired_cost_evidence,
 )
-from manualcontrol.estimators.pilot_filter import GenericValuesWarning
-from manualcontrol.estimators.smoothing import smooth
+from manualcontrol.estimators.members.pilot_filter import GenericValuesWarning
+from manualcontrol.estimators.offline.smoothing import smooth
 from manualcontrol.pilots import Pilot, simulate
 
 sys.path.insert(0, str(Path(__file__).parent))

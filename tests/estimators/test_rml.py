@@ -19,8 +19,8 @@ import pytest
 import scipy.signal
 
 from manualcontrol.estimators import DEKF, RML, RMLSettings, evaluate, make_estimator
-from manualcontrol.estimators.internal_model import build_internal_model
-from manualcontrol.estimators.smoothed import SmoothedEstimator
+from manualcontrol.estimators.members.internal_model import build_internal_model
+from manualcontrol.estimators.offline.smoothed_estimator import SmoothedEstimator
 from manualcontrol.pilots import Pilot, simulate
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -43,7 +43,7 @@ import pytest
 
 from manualcontrol.estimators import DEKF, make_estimator
 from manualcontrol.estimators._pilot_core import euler_substeps
-from manualcontrol.estimators.internal_model import evaluate_coefficients, model_f
+from manualcontrol.estimators.members.internal_model import evaluate_coefficients, model_f
 from manualcontrol.pilots import Pilot, simulate
 
 sys.path.insert(0, str(Path(__file__).parent))

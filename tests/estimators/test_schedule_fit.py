@@ -8,8 +8,8 @@ import pytest
 
 from manualcontrol.envs.schedules import Sigmoid
 from manualcontrol.estimators import make_estimator
-from manualcontrol.estimators.metrics import vaf
-from manualcontrol.estimators.schedule_fit import _Layout, fit_pilot_sigmoid
+from manualcontrol.estimators.analysis.metrics import vaf
+from manualcontrol.estimators.offline.schedule_fit import _Layout, fit_pilot_sigmoid
 from manualcontrol.pilots import Pilot, simulate
 from manualcontrol.pilots.simulation import isolated_pilot_output
 
@@ -80,7 +80,7 @@ def test_a_fit_that_ends_on_a_bound_says_so(schedule, warning):
 def test_an_optimiser_that_did_not_converge_is_reported():
     from types import SimpleNamespace
 
-    from manualcontrol.estimators.schedule_fit import _fit_warnings
+    from manualcontrol.estimators.offline.schedule_fit import _fit_warnings
 
     best = SimpleNamespace(success=False, message="the maximum number of evaluations")
     bounds = {"t_mid": (20.0, 2.0, 38.0), "transition": (5.0, 0.1, 160.0)}

@@ -25,9 +25,8 @@ import numpy as np
 import pytest
 
 from manualcontrol.estimators import EstimationResult, Estimator, load_result
-from manualcontrol.estimators import _schiess_roland_core as core
-from manualcontrol.estimators.registry import make_estimator
-from manualcontrol.estimators.schiess_roland import (
+from manualcontrol.estimators.members import _schiess_roland_core as core
+from manualcontrol.estimators.members.schiess_roland import (
     DYNAMIC_STATES,
     PARAMETER_NAMES,
     SchiessRoland,
@@ -36,7 +35,8 @@ from manualcontrol.estimators.schiess_roland import (
     initial_state_covariance,
     paper_initial_states,
 )
-from manualcontrol.estimators.smoothing import smooth
+from manualcontrol.estimators.offline.smoothing import smooth
+from manualcontrol.estimators.registry import make_estimator
 from manualcontrol.pilots import Pilot, SchiessRolandRemnant, simulate
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -16,7 +16,7 @@ import warnings
 import pytest
 
 from manualcontrol.estimators import DEKF, RML, DualUKF, JointUKF
-from manualcontrol.estimators.pilot_filter import (
+from manualcontrol.estimators.members.pilot_filter import (
     TABLE_I,
     GenericValuesWarning,
     ParameterMap,

@@ -29,7 +29,7 @@ from manualcontrol.estimators import (
     nrmse,
     smooth,
 )
-from manualcontrol.estimators.pilot_filter import GenericValuesWarning
+from manualcontrol.estimators.members.pilot_filter import GenericValuesWarning
 
 sys.path.insert(0, str(Path(__file__).parent))
 from dekf_oracle import Model

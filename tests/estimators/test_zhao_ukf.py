@@ -9,10 +9,10 @@ import scipy.linalg
 
 from manualcontrol.envs.schedules import Ramp
 from manualcontrol.estimators import MultiUKF, ZhaoUKF, ZhaoUKFSettings, observability_gramian
-from manualcontrol.estimators.metrics import nrmse
+from manualcontrol.estimators.analysis.metrics import nrmse
+from manualcontrol.estimators.members.zhao_ukf import MultiUKFSettings, zhao_tuning
+from manualcontrol.estimators.offline.smoothing import smooth
 from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
-from manualcontrol.estimators.smoothing import smooth
-from manualcontrol.estimators.zhao_ukf import MultiUKFSettings, zhao_tuning
 from manualcontrol.pilots.driver import Driver
 from manualcontrol.pilots.driving import simulate_driving
 
@@ -270,7 +270,7 @@ def test_settings_round_trip_and_bad_values():
 def test_docstring_example():
     import doctest
 
-    from manualcontrol.estimators import zhao_ukf
+    from manualcontrol.estimators.members import zhao_ukf
 
     results = doctest.testmod(zhao_ukf)
     assert results.attempted >= 1 and results.failed == 0

@@ -12,7 +12,7 @@ import scipy.linalg
 
 import manualcontrol.envs
 from manualcontrol.envs.signals import ForcingPair, Multisine
-from manualcontrol.estimators.frequency import describing_function
+from manualcontrol.estimators.analysis.frequency import describing_function
 from manualcontrol.pilots import OptimalControlPilot, simulate_ocm, solve_ocm
 
 # a short periodic forcing: 20.4 s is a whole number of samples at 60 and 100 Hz

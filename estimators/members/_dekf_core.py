@@ -29,7 +29,7 @@ applied through the structure of ``F`` (shift rows ``x_i' = x_{i+1}`` and one de
 row per canonical chain) in O(n^2) rather than as a dense product.
 
 With smoother storage in the output record (arrays of one row per sample, see
-:func:`manualcontrol.estimators.dekf.DEKF.estimate`), each step also stores the
+:func:`manualcontrol.estimators.members.dekf.DEKF.estimate`), each step also stores the
 state filter's prior, posterior and ``Phi_s`` and the parameter filter's prior and
 posterior, from which :mod:`~manualcontrol.estimators.filters.smoothers` smooths the
 state filter as an EKF and the parameter filter as random walks.
@@ -66,7 +66,7 @@ from manualcontrol.estimators.filters.kalman import clamp, joseph_correct
 from manualcontrol.estimators.filters.linalg import symmetrise
 from manualcontrol.estimators.filters.monitor import belief_health
 from manualcontrol.estimators.filters.smoothers import store_belief
-from manualcontrol.estimators.internal_model import evaluate_coefficients, model_f, model_g
+from manualcontrol.estimators.members.internal_model import evaluate_coefficients, model_f, model_g
 
 #: Settings as arrays: ``cfg`` (``CFG_*`` of :mod:`~manualcontrol.estimators._pilot_core`),
 #: which canonical rows of ``F`` are dense, where the gains and parameters sit in the

@@ -8,7 +8,7 @@ participant, each held against the range humans show on that controlled element
 
 ``crossover_frequency``, ``phase_margin``
     of the open loop ``Y_p Y_c`` measured at the forcing frequencies (the describing
-    function of :func:`~manualcontrol.estimators.frequency.describing_function`: Fourier
+    function of :func:`~manualcontrol.estimators.analysis.frequency.describing_function`: Fourier
     coefficients over the last whole forcing periods, interpolated between lines).
 ``effective_delay``
     ``tau_e`` of McRuer's crossover model (McRuer & Jex 1967, eq. 1 of their review),
@@ -16,7 +16,7 @@ participant, each held against the range humans show on that controlled element
     loop around crossover: the forcing lines in ``[omega_c / 2, 2 omega_c]`` (one octave
     each side of the measured crossover; the three lines nearest it, in log frequency,
     where that band holds fewer), each weighted by
-    :func:`~manualcontrol.estimators.frequency.fit_weights` (its share of forcing power,
+    :func:`~manualcontrol.estimators.analysis.frequency.fit_weights` (its share of forcing power,
     ``SNR/(1 + SNR)`` of the injected remnant). In the complex logarithm the model is
     linear in ``ln omega_c`` (the gain) and ``tau_e`` (the phase), so the weighted least
     squares has a closed form: ``tau_e = -sum w omega (phi + pi/2) / sum w omega^2`` with
@@ -48,7 +48,7 @@ Optionally (``identify=True``, tens of seconds) the parameters of the precision 
 identified the way this repository recommends for offline use (the smoothed RML with
 ``remnant_injection="choose"`` and ``start="describing-function"``), with the parameters
 that spent more than 5 % of the run at a limit of the filter
-(:func:`~manualcontrol.estimators.fit_check.time_at_limits`): a value at a limit is the
+(:func:`~manualcontrol.estimators.analysis.fit_check.time_at_limits`): a value at a limit is the
 limit's, not the pilot's.
 
 The :class:`Verdict` lists every figure outside its human range by name. A figure
@@ -72,8 +72,8 @@ from manualcontrol.envs._files import atomic_path
 from manualcontrol.envs.elements import ControlledElement, make_element
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair
-from manualcontrol.estimators.fit_check import second_half_values, time_at_limits
-from manualcontrol.estimators.frequency import (
+from manualcontrol.estimators.analysis.fit_check import second_half_values, time_at_limits
+from manualcontrol.estimators.analysis.frequency import (
     DescribingFunction,
     describing_function,
     fit_weights,
@@ -534,7 +534,7 @@ def _equalisation(describing: DescribingFunction) -> tuple[float, float, str]:
     """|Y_p| flatness (dB) and slope (dB/decade) over :data:`EQUALISATION_BAND`; why not.
 
     Weighted least squares in ``log10 omega`` over the band's lines (weights
-    :func:`~manualcontrol.estimators.frequency.fit_weights`): the slope of a straight
+    :func:`~manualcontrol.estimators.analysis.frequency.fit_weights`): the slope of a straight
     line, and the range (max - min over the band) of a quadratic, a smooth curve that
     shows a neuromuscular peak or a lead's rise but that no single line the remnant
     swamps decides (a low disturbance line of a human-like run can sit 6 dB off).
@@ -659,7 +659,7 @@ def human_likeness(
         chooses the human ranges (:data:`HUMAN_RANGES`) and the typical pilot.
     forcing, period
         The forcing (periodic multisines) or its period in seconds, as
-        :func:`~manualcontrol.estimators.frequency.describing_function` takes them;
+        :func:`~manualcontrol.estimators.analysis.frequency.describing_function` takes them;
         default the recording's metadata.
     disturbance_at
         ``"output"`` or ``"input"``; default the recording's metadata, else output.

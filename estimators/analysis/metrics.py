@@ -83,7 +83,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from manualcontrol.envs._validation import check_int, check_positive, check_real
 from manualcontrol.envs.recording import Recording
-from manualcontrol.estimators._targets import previewed_target
+from manualcontrol.estimators.members._targets import previewed_target
 from manualcontrol.estimators.protocol import EstimationResult
 from manualcontrol.estimators.registry import ESTIMATORS
 from manualcontrol.pilots.models import PilotModel, make_model
@@ -460,7 +460,7 @@ def resimulate_parameters(
     the output ``y``; target from ``forcing``, the recording's metadata, or its periodic
     extension, as for the DEKF; with ``tau_f = 0`` at every sample, the preview model's
     pursuit form, the recorded ``ft`` itself, which needs none of them:
-    :func:`~manualcontrol.estimators._targets.previewed_target`), or with
+    :func:`~manualcontrol.estimators.members._targets.previewed_target`), or with
     ``remnant_free`` by those of the remnant-free run (``y - y_n``, ``e + y_n``; see
     the module docstring). Perceptions are held over each sample; dropped samples hold
     the last value. The model delay is exact (a fractional delay line, as in the

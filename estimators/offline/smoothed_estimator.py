@@ -1,6 +1,6 @@
 """The family's offline members: each filter's results smoothed over the whole run.
 
-Offline analysis may use the whole run (:mod:`~manualcontrol.estimators.smoothing`):
+Offline analysis may use the whole run (:mod:`~manualcontrol.estimators.offline.smoothing`):
 ``estimate(recording, smooth=True)``. For the bench, whose rows are keyed by estimator
 name, every smoothable member has an offline twin ``"<name>-smoothed"`` with the same
 settings (derived in :mod:`~manualcontrol.estimators.registry`), whose

@@ -18,7 +18,7 @@ parameter by cross-validation; Wahba 1990, ch. 4):
    keeps its own) and the fold's stretches marked dropped (NaN: the filter predicts
    through them), and is smoothed over the run;
 3. the isolated pilot model is resimulated with those smoothed traces
-   (:func:`~manualcontrol.estimators.metrics.resimulate`, driven by the recorded
+   (:func:`~manualcontrol.estimators.analysis.metrics.resimulate`, driven by the recorded
    perceptions), and its error against ``u``, band-passed to the forcing band (a
    second-order Butterworth filter run forwards and backwards over the whole run, from
    half the lowest to twice the highest forcing frequency), is summed over the
@@ -51,7 +51,7 @@ the largest scale on constant double-integrator batches.
 
 Each run costs ``len(scales) * folds + 2`` filter passes (smoothed) and ``len(scales) *
 folds`` resimulations: 22 and 20 with the defaults (each filter pass ``restarts + 1``
-passes for a filter with restarts, :mod:`~manualcontrol.estimators.pilot_filter`).
+passes for a filter with restarts, :mod:`~manualcontrol.estimators.members.pilot_filter`).
 
 Measured figures, each with the command that reproduces it, are in
 ``docs/estimators.md`` (the ``-cv`` twins): ``manualcontrol bench SUITE --estimators
@@ -74,11 +74,11 @@ from scipy.signal import butter, sosfiltfilt
 from manualcontrol.envs._validation import check_int, check_positive
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair, Multisine
-from manualcontrol.estimators.metrics import resimulate
-from manualcontrol.estimators.pilot_filter import PilotFilter
-from manualcontrol.estimators.pilot_rules import GenericValuesWarning
+from manualcontrol.estimators.analysis.metrics import resimulate
+from manualcontrol.estimators.members.pilot_filter import PilotFilter
+from manualcontrol.estimators.members.pilot_rules import GenericValuesWarning
+from manualcontrol.estimators.offline.smoothed_estimator import SmoothedEstimator
 from manualcontrol.estimators.protocol import EstimationResult
-from manualcontrol.estimators.smoothed import SmoothedEstimator
 
 __all__ = [
     "DEFAULT_SCALES",
@@ -192,7 +192,7 @@ def _copy(estimator: PilotFilter, **changes: Any) -> PilotFilter:
     """The filter built again (with ``changes``), its construction's warning not repeated.
 
     The user's own construction said which parameters it holds at generic values
-    (:class:`~manualcontrol.estimators.pilot_filter.GenericValuesWarning`).
+    (:class:`~manualcontrol.estimators.members.pilot_filter.GenericValuesWarning`).
     """
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", GenericValuesWarning)

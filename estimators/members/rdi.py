@@ -11,7 +11,7 @@ predicts the output ``y`` (e.g. the stick ``u``) from its own past and the input
 ``theta = [d, a_1 .., a_na, b_0 .., b_nb]``, the delay always first. The default
 orders (1, 1) are the paper's ARMAX(1,1,0); ``n_a = 0, n_b = 0`` is the pure gain and
 delay ``b_0 r(t - d)`` of its gap-postview and critical-task experiments (Secs. V-VI).
-The compiled step is :mod:`~manualcontrol.estimators._rdi_core`.
+The compiled step is :mod:`~manualcontrol.estimators.members._rdi_core`.
 
 Choices where the paper leaves room or contradicts itself
 ---------------------------------------------------------
@@ -83,9 +83,10 @@ from manualcontrol.envs._validation import (
     check_real,
 )
 from manualcontrol.envs.recording import Recording
-from manualcontrol.estimators import _rdi_core as core
+from manualcontrol.estimators.analysis.metrics import hold_last_finite
 from manualcontrol.estimators.filters.kalman import kalman_work
-from manualcontrol.estimators.metrics import hold_last_finite
+from manualcontrol.estimators.members import _rdi_core as core
+from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.estimators.protocol import (
     EstimationResult,
     sample_values,
@@ -93,7 +94,6 @@ from manualcontrol.estimators.protocol import (
 )
 from manualcontrol.estimators.settings import SettingsRecord
 from manualcontrol.estimators.shell import REASONS, FilterShell
-from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
 
 __all__ = ["RDI", "RDISettings", "ResolvedRDI", "parameter_symbols"]
 
@@ -504,7 +504,7 @@ class RDI(FilterShell):
         recording
             Holds the ``input`` and ``output`` signals of the settings.
         smoother_inputs
-            Keep what :func:`~manualcontrol.estimators.smoothing.smooth` needs.
+            Keep what :func:`~manualcontrol.estimators.offline.smoothing.smooth` needs.
         smooth
             Return the RTS-smoothed result; None: the ``smooth`` setting.
 

@@ -1,15 +1,16 @@
 """The shell shared by the filters on pilot internal models: settings, resolution, I/O.
 
-The DEKF (:mod:`~manualcontrol.estimators.dekf`), the joint and the dual UKF
-(:mod:`~manualcontrol.estimators.ukf`) run on the same internal model (the pilot
-structure's one definition with Padé delays, :mod:`~manualcontrol.estimators.internal_model`),
+The DEKF (:mod:`~manualcontrol.estimators.members.dekf`), the joint and the dual UKF
+(:mod:`~manualcontrol.estimators.members.ukf`) run on the same internal model (the pilot
+structure's one definition with Padé delays,
+:mod:`~manualcontrol.estimators.members.internal_model`),
 with the same noise rules (``R = r^2 var(u)``, chain-input process noise ``q^2 var(e)``
 over a 5-s window, Popovici eqs. 24-25, thesis eqs. 29-30), the same initial values,
 covariances and limits (Popovici eqs. 25-34, thesis Sec. V-B and Table I), and the
 same way of reading samples and reporting results. That is written once, here:
 
 * :class:`PilotFilterSettings`, :func:`resolve_settings` and :class:`ParameterMap`
-  (:mod:`~manualcontrol.estimators.pilot_rules`, re-exported here): the settings every
+  (:mod:`~manualcontrol.estimators.members.pilot_rules`, re-exported here): the settings every
   member takes, the rules that resolve them into every number a run uses, and the
   conversion between internal and reported parameter values;
 * :class:`PilotFilter`: the estimator protocol around a compiled step (``reset``,
@@ -26,7 +27,7 @@ from the median of the previous pass's smoothed estimate over the last half of t
 (the estimated parameters; the held ones, ``P0`` and ``Q`` stay the first pass's), and
 keeps a restarted pass where its innovations are clearly more likely than those of the
 pass kept so far: the per-sample costs ``ln S + nu^2 / S`` after the first ``window``
-(:func:`~manualcontrol.estimators.metrics.innovation_cost` is their mean), paired
+(:func:`~manualcontrol.estimators.analysis.metrics.innovation_cost` is their mean), paired
 sample by sample, lower by more than :data:`EVIDENCE` = 2 standard errors of their
 mean difference (batch means over ``window``-long stretches, because the differences
 of two slowly parting parameter tracks are correlated): a choice among starting points
@@ -60,14 +61,14 @@ from manualcontrol.envs._validation import (
 )
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _pilot_core as core
-from manualcontrol.estimators._recording_checks import check_estimable
-from manualcontrol.estimators._targets import target_function
-from manualcontrol.estimators.frequency import fit_describing_function
-from manualcontrol.estimators.internal_model import (
+from manualcontrol.estimators.analysis.frequency import fit_describing_function
+from manualcontrol.estimators.analysis.metrics import innovation_cost_terms, paired_cost_evidence
+from manualcontrol.estimators.members._recording_checks import check_estimable
+from manualcontrol.estimators.members._targets import target_function
+from manualcontrol.estimators.members.internal_model import (
     InternalModel,
 )
-from manualcontrol.estimators.metrics import innovation_cost_terms, paired_cost_evidence
-from manualcontrol.estimators.pilot_rules import (
+from manualcontrol.estimators.members.pilot_rules import (
     CE_TYPES,
     CROSSOVER_RANGE,
     DESCRIBED_START,
@@ -95,13 +96,13 @@ from manualcontrol.estimators.pilot_rules import (
     run_describing_function,
     warn_held_without_values,
 )
+from manualcontrol.estimators.offline.smoothing import smooth as smooth_result
 from manualcontrol.estimators.protocol import (
     Estimate,
     EstimationResult,
     sample_floats,
 )
 from manualcontrol.estimators.shell import FilterShell, health_summary
-from manualcontrol.estimators.smoothing import smooth as smooth_result
 
 __all__ = [
     "CE_TYPES",
@@ -452,7 +453,7 @@ class PilotFilter(FilterShell):
             ``recording.metadata["forcing"]``, else the periodic extension of the
             recorded ``ft`` over ``target_period``; otherwise ``ValueError``.
         smoother_inputs
-            Keep what :func:`~manualcontrol.estimators.smoothing.smooth` needs (the
+            Keep what :func:`~manualcontrol.estimators.offline.smoothing.smooth` needs (the
             stored priors, posteriors and links: memory of order ``n`` times the square
             of the state count) in the result.
         smooth

@@ -2,7 +2,7 @@
 
 The DEKF's two arrangements with the unscented transform in place of Jacobians, on the
 same internal model (Padé delays, Euler prediction), with the same noise rules,
-initial values, covariances and limits (:mod:`~manualcontrol.estimators.pilot_filter`)
+initial values, covariances and limits (:mod:`~manualcontrol.estimators.members.pilot_filter`)
 and the same report, so the three stand side by side on the same recordings:
 
 * :class:`JointUKF` (``"joint-ukf"``): states and parameters in one augmented filter;
@@ -14,7 +14,7 @@ and the same report, so the three stand side by side on the same recordings:
 What the papers name as future work: Popovici et al. and Vertregt (thesis Part III App.
 I) both propose the unscented filter for its freedom from the Jacobians of the delay
 approximation. The algebra is :mod:`~manualcontrol.estimators.filters.unscented`; the
-compiled steps are in :mod:`~manualcontrol.estimators._ukf_core` (see its docstring
+compiled steps are in :mod:`~manualcontrol.estimators.members._ukf_core` (see its docstring
 for the order of the augmented state and the dual measurement model).
 
 Smoothing (``estimate(..., smooth=True)``) smooths each parameter marginal as random
@@ -49,15 +49,15 @@ import numpy as np
 
 from manualcontrol.envs._validation import check_choice, check_positive, check_real
 from manualcontrol.estimators import _pilot_core as pilot_core
-from manualcontrol.estimators import _ukf_core as core
 from manualcontrol.estimators.filters.unscented import (
     SIGMA_SCHEMES,
     sigma_weights,
     unscented_work,
 )
-from manualcontrol.estimators.pilot_filter import CommonArrays, PilotFilter
-from manualcontrol.estimators.pilot_rules import PilotFilterSettings, ResolvedSettings
-from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
+from manualcontrol.estimators.members import _ukf_core as core
+from manualcontrol.estimators.members.pilot_filter import CommonArrays, PilotFilter
+from manualcontrol.estimators.members.pilot_rules import PilotFilterSettings, ResolvedSettings
+from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
 
 __all__ = ["DualUKF", "DualUKFSettings", "JointUKF", "UKFSettings"]
 

@@ -26,7 +26,7 @@ its Gauss-Newton form):
 
 Delays on the inputs
     The internal model is built without its delays (``delay_order = 0`` of
-    :func:`~manualcontrol.estimators.internal_model.build_internal_model`): the pilot's
+    :func:`~manualcontrol.estimators.members.internal_model.build_internal_model`): the pilot's
     delay ``tau`` and the anticipation delay ``tau_f*`` commute with the model's linear
     branches, so they are applied to the inputs instead, read from delay lines of the
     past samples with the bicubic kernel of Boer & Kenyon (1998, App.;
@@ -84,7 +84,7 @@ from manualcontrol.estimators.filters.kalman import joseph_correct, predict_cova
 from manualcontrol.estimators.filters.linalg import cholesky, cholesky_solve_rows, symmetrise
 from manualcontrol.estimators.filters.monitor import belief_health, window_variance
 from manualcontrol.estimators.filters.smoothers import store_belief
-from manualcontrol.estimators.internal_model import evaluate_coefficients, model_f, model_g
+from manualcontrol.estimators.members.internal_model import evaluate_coefficients, model_f, model_g
 
 #: Delay lines of the raw inputs: ``hist`` (n_in, H) ring of past samples (index
 #: ``k % H``); ``delay_slot``: model-order index of the pilot delay; ``extra_slot``

@@ -96,7 +96,7 @@ class SmootherInputs:
     """Everything :func:`smooth` needs besides the result itself.
 
     ``report_offset``/``report_sign`` turn internal values into reported ones (the
-    preview time, see :class:`~manualcontrol.estimators.pilot_filter.ParameterMap`);
+    preview time, see :class:`~manualcontrol.estimators.members.pilot_filter.ParameterMap`);
     ``lower``/``upper`` are the internal limits, per parameter in result order.
     """
 

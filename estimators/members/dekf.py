@@ -10,16 +10,16 @@ Vertregt (2020, thesis Part I). Two filters run concurrently (thesis Fig. 2):
   eq. 39: ``omega_nms, zeta_nms, tau_v``; thesis eq. 41 adds ``K_f, omega_f, tau_f*``).
 
 The internal model is built from the pilot structure's one definition
-(:mod:`~manualcontrol.estimators.internal_model`), delays as Padé approximants
+(:mod:`~manualcontrol.estimators.members.internal_model`), delays as Padé approximants
 (order 3 by default). Preview time is estimated as the apparent delay
 ``tau_f* = tau_a - tau_f`` behind the target anticipated by ``tau_a`` (thesis eq. 26);
 results report ``tau_f``. Each sample runs the six steps of thesis eqs. 11-25
-(:mod:`~manualcontrol.estimators._dekf_core`, compiled): parameter prediction, Euler
+(:mod:`~manualcontrol.estimators.members._dekf_core`, compiled): parameter prediction, Euler
 state prediction, state correction, state limitation, parameter correction with the
 total derivative ``G_p^tot`` (eqs. 47-50), parameter limitation.
 
 Settings (:class:`DEKFSettings`): the family's rules for noise, initial values,
-covariances and limits (:mod:`~manualcontrol.estimators.pilot_filter`, with the papers'
+covariances and limits (:mod:`~manualcontrol.estimators.members.pilot_filter`, with the papers'
 defaults), plus ``total_derivative`` and ``r2_parameter`` below.
 
 Choices where the papers leave room (see also the module docstring of the core)
@@ -62,11 +62,11 @@ from typing import Any
 import numpy as np
 
 from manualcontrol.envs._validation import check_choice, check_positive
-from manualcontrol.estimators import _dekf_core as core
 from manualcontrol.estimators._pilot_core import euler_substeps
 from manualcontrol.estimators.filters.kalman import kalman_work
-from manualcontrol.estimators.pilot_filter import CommonArrays, PilotFilter
-from manualcontrol.estimators.pilot_rules import (
+from manualcontrol.estimators.members import _dekf_core as core
+from manualcontrol.estimators.members.pilot_filter import CommonArrays, PilotFilter
+from manualcontrol.estimators.members.pilot_rules import (
     CE_TYPES,
     INITIAL_VARIANCE_MODES,
     MAX_DELAY_ORDER,
@@ -76,7 +76,7 @@ from manualcontrol.estimators.pilot_rules import (
     PilotFilterSettings,
     ResolvedSettings,
 )
-from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
+from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
 
 __all__ = [
     "CE_TYPES",
@@ -113,7 +113,7 @@ TOTAL_DERIVATIVES: tuple[str, ...] = ("printed", "dimensional")
 class DEKFSettings(PilotFilterSettings):
     """Settings of the :class:`DEKF` (frozen; vary with :func:`dataclasses.replace`).
 
-    Every field of :class:`~manualcontrol.estimators.pilot_filter.PilotFilterSettings`,
+    Every field of :class:`~manualcontrol.estimators.members.pilot_filter.PilotFilterSettings`,
     plus:
 
     Parameters

@@ -84,7 +84,7 @@ from manualcontrol.estimators.filters.unscented import (
     weighted_covariance,
     weighted_mean,
 )
-from manualcontrol.estimators.internal_model import evaluate_coefficients, model_f, model_g
+from manualcontrol.estimators.members.internal_model import evaluate_coefficients, model_f, model_g
 
 #: ``wm``, ``wc``: sigma weights; ``q``: process noise per filter state (before
 #: ``Gamma^2``); ``slot``: model-order parameter index of each filter state (-1 for a

@@ -66,13 +66,13 @@ from manualcontrol.envs._validation import (
 )
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _pilot_core as pilot_core
-from manualcontrol.estimators import _zhao_core as core
+from manualcontrol.estimators.analysis.metrics import observability_gramian
 from manualcontrol.estimators.filters.unscented import sigma_weights, unscented_work
-from manualcontrol.estimators.metrics import observability_gramian
+from manualcontrol.estimators.members import _zhao_core as core
+from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.estimators.protocol import EstimationResult
 from manualcontrol.estimators.settings import SettingsRecord
 from manualcontrol.estimators.shell import FilterShell, health_summary
-from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.pilots.driver import DRIVER_INPUTS, DRIVER_OUTPUTS, CyberneticDriverModel
 
 __all__ = [
@@ -672,7 +672,7 @@ class ZhaoUKF(FilterShell):
         :func:`~manualcontrol.pilots.driving.simulate_driving` records them, and the
         car's ``speed`` in its metadata (or in the settings).
 
-        ``smoother_inputs`` keeps what :func:`~manualcontrol.estimators.smoothing.smooth`
+        ``smoother_inputs`` keeps what :func:`~manualcontrol.estimators.offline.smoothing.smooth`
         needs; ``smooth`` returns the smoothed result.
         """
         inputs, outputs = _driving_signals(recording)

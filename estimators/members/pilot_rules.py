@@ -1,6 +1,6 @@
 """The settings rules of the members on pilot internal models: limits, starts, noise.
 
-The DEKF, the RML and the joint and dual UKF (:mod:`~manualcontrol.estimators.pilot_filter`)
+The DEKF, the RML and the joint and dual UKF (:mod:`~manualcontrol.estimators.members.pilot_filter`)
 take the same settings (:class:`PilotFilterSettings`, each member adds its own) and
 resolve them by the same rules into every number a run uses
 (:func:`resolve_settings` -> :class:`ResolvedSettings`): the noise rules (Popovici eqs.
@@ -76,8 +76,8 @@ from manualcontrol.envs.elements import (
 )
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair
-from manualcontrol.estimators.frequency import describing_function
-from manualcontrol.estimators.internal_model import (
+from manualcontrol.estimators.analysis.frequency import describing_function
+from manualcontrol.estimators.members.internal_model import (
     ANTICIPATED_PARAMETER,
     InternalModel,
     build_internal_model,
@@ -239,8 +239,8 @@ def _limit_pair(name: str, value: Any) -> tuple[float, float]:
 class PilotFilterSettings(SettingsRecord):
     """Settings shared by the filters on pilot internal models (frozen).
 
-    The DEKF's settings (:class:`~manualcontrol.estimators.dekf.DEKFSettings`) and the
-    unscented filters' (:mod:`~manualcontrol.estimators.ukf`) add their own fields to
+    The DEKF's settings (:class:`~manualcontrol.estimators.members.dekf.DEKFSettings`) and the
+    unscented filters' (:mod:`~manualcontrol.estimators.members.ukf`) add their own fields to
     these; vary any of them with :func:`dataclasses.replace`.
 
     Parameters
@@ -327,7 +327,7 @@ class PilotFilterSettings(SettingsRecord):
         give them: the generic rules (Popovici eqs. 29-31), or (offline only,
         :meth:`PilotFilter.estimate`) the precision or preview model fitted to the run's
         describing function at the forcing frequencies
-        (:func:`~manualcontrol.estimators.frequency.fit_describing_function`), the
+        (:func:`~manualcontrol.estimators.analysis.frequency.fit_describing_function`), the
         laboratory's own measurement of this pilot, clipped into the limits. A filter
         started far from a human's delay can settle in another optimum for the whole run.
 

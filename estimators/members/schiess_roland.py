@@ -14,7 +14,7 @@ alpha_2`` as constant states (eq. 14): 13 states. Two measurements (eq. 16): the
 ``y``), each with white noise of variance 0.00092 V^2. Process noise only on ``eta'``
 (the remnant's white input ``w_p``).
 
-The filter (:mod:`~manualcontrol.estimators._schiess_roland_core`, compiled) is the
+The filter (:mod:`~manualcontrol.estimators.members._schiess_roland_core`, compiled) is the
 discrete EKF of eqs. 18-22 with the Joseph form (eq. 22) and the m = 2 Cholesky solve
 of the family's :func:`~manualcontrol.estimators.filters.kalman.joseph_correct`; the
 adaptive fictitious noise of the Appendix (eqs. A1-A6) is an option.
@@ -103,11 +103,11 @@ from manualcontrol.envs._validation import (
 )
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _pilot_core as pilot_core
-from manualcontrol.estimators import _schiess_roland_core as core
+from manualcontrol.estimators.members import _schiess_roland_core as core
+from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.estimators.protocol import EstimationResult
 from manualcontrol.estimators.settings import SettingsRecord
 from manualcontrol.estimators.shell import FilterShell, read_sample
-from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
 
 __all__ = [
     "ADAPTIVE_MODES",
@@ -750,7 +750,7 @@ class SchiessRoland(FilterShell):
 
         The traces are the last pass's; ``pass_mean``/``pass_std`` hold each pass's
         final estimates. ``smoother_inputs`` keeps what
-        :func:`~manualcontrol.estimators.smoothing.smooth` needs (of the last pass);
+        :func:`~manualcontrol.estimators.offline.smoothing.smooth` needs (of the last pass);
         ``smooth`` returns the smoothed result.
         """
         signals = self.signals(recording)

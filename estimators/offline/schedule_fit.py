@@ -13,7 +13,7 @@ them (one adaptation changes the whole pilot together, as in Zaal's change of ve
 dynamics). The start and end values, ``T`` and ``dT`` minimise the output error
 ``sum_k (u[k] - u_hat[k])^2`` of the isolated pilot model driven by the recorded
 perceptions (:func:`~manualcontrol.pilots.simulation.isolated_pilot_output`, exact
-delay), as :func:`~manualcontrol.estimators.offline.fit_pilot` does for constant
+delay), as :func:`~manualcontrol.estimators.offline.output_error.fit_pilot` does for constant
 parameters: maximum likelihood for white output noise, and, with remnant, the usual
 output-error estimate, biased where the remnant reaches the perceptions (in the
 closed loop).
@@ -73,13 +73,13 @@ from manualcontrol.envs._validation import (
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.schedules import Constant, Schedule, Sigmoid
 from manualcontrol.envs.signals import ForcingPair, Multisine
-from manualcontrol.estimators.offline import fit_pilot, lower_bound, perception_signals
-from manualcontrol.estimators.pilot_rules import (
+from manualcontrol.estimators.members.pilot_rules import (
     DI_FAR_BREAK,
     TABLE_I,
     TAU_F_MARGIN,
     held_by_design,
 )
+from manualcontrol.estimators.offline.output_error import fit_pilot, lower_bound, perception_signals
 from manualcontrol.estimators.protocol import EstimationResult, summarise_health
 from manualcontrol.pilots.models import PilotModel, make_model
 from manualcontrol.pilots.simulation import isolated_pilot_output
@@ -274,7 +274,7 @@ def fit_pilot_sigmoid(
     initial
         Starting values of the constant fit that every start begins from (default: the
         model's nominal values; the delay is tried over a grid, as
-        :func:`~manualcontrol.estimators.offline.fit_pilot` does).
+        :func:`~manualcontrol.estimators.offline.output_error.fit_pilot` does).
     fixed
         Parameters held at given values (not fitted).
     varying

@@ -7,7 +7,7 @@ one-step and resimulated VAF, what an independent measurement says:
 
 * the identified model's frequency response, with its parameters at their medians over
   the second half of the run, against the describing function measured at the forcing
-  frequencies (:mod:`~manualcontrol.estimators.frequency`): mean absolute gain gap
+  frequencies (:mod:`~manualcontrol.estimators.analysis.frequency`): mean absolute gain gap
   (dB) and phase gap (degrees), and the identified loop's crossover and phase margin;
 * the innovations' whiteness (a model that explains the data leaves white ones; warned
   where no describing function vouches for the model, since a human's model rarely
@@ -36,13 +36,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from manualcontrol.envs.recording import Recording
-from manualcontrol.estimators.frequency import (
+from manualcontrol.estimators.analysis.frequency import (
     DescribingFunction,
     fit_describing_function,
     model_crossover,
     response_error,
 )
-from manualcontrol.estimators.metrics import innovation_whiteness, pilot_model_of, vaf
+from manualcontrol.estimators.analysis.metrics import innovation_whiteness, pilot_model_of, vaf
 from manualcontrol.estimators.protocol import EstimationResult
 
 __all__ = [

@@ -321,7 +321,8 @@ def zhao_run(config, belief, monitor, report, scratch, inputs, outputs, out):
 
 # ---------------------------------------------------------------------- multi-UKF
 
-#: Fusion of a slow and a fast member (see :class:`~manualcontrol.estimators.zhao_ukf.MultiUKF`):
+#: Fusion of a slow and a fast member
+#: (see :class:`~manualcontrol.estimators.members.zhao_ukf.MultiUKF`):
 #: EWMA factors of the disagreement (``a_short``) and of its level (``a_long``), the dead
 #: zone per estimated parameter (absolute), whether to re-centre the slow member, and
 #: where the estimated parameters sit in the model's parameter vector.

@@ -6,7 +6,7 @@ of the family from its name and settings, given the experiment's controlled elem
 where the member takes one, so that limits and rules come from the real plant.
 :func:`identify` runs it over the recording, resimulates the identified model,
 measures the describing function at the forcing frequencies when they are known and
-checks the fit against it (:func:`~manualcontrol.estimators.fit_check.check_fit`),
+checks the fit against it (:func:`~manualcontrol.estimators.analysis.fit_check.check_fit`),
 checks that the identified pilot closes a stable loop with the element, and lists the
 parameters held at generic values nobody measured. :class:`Identification` holds it
 all, with the JSON-able :attr:`Identification.summary`.
@@ -23,10 +23,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from manualcontrol.envs.recording import Recording
-from manualcontrol.estimators.fit_check import FitCheck, check_fit
-from manualcontrol.estimators.frequency import DescribingFunction, describing_function
-from manualcontrol.estimators.metrics import pilot_model_of, resimulate
-from manualcontrol.estimators.pilot_rules import (
+from manualcontrol.estimators.analysis.fit_check import FitCheck, check_fit
+from manualcontrol.estimators.analysis.frequency import DescribingFunction, describing_function
+from manualcontrol.estimators.analysis.metrics import pilot_model_of, resimulate
+from manualcontrol.estimators.members.pilot_rules import (
     GenericValuesWarning,
     element_type,
     held_without_values,

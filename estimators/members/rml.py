@@ -18,7 +18,7 @@ one way or the other, depending on the remnant's assumed variance.
 The estimator
 -------------
 This filter estimates the parameters by the likelihood of the innovations, with the
-remnant in the model (:mod:`~manualcontrol.estimators._rml_core`):
+remnant in the model (:mod:`~manualcontrol.estimators.members._rml_core`):
 
 * for given parameters the pilot's isolated model with a first-order remnant filter
   at its perception (Levison et al. 1969; thesis eq. 5) is linear in its states, and a
@@ -44,7 +44,7 @@ remnant in the model (:mod:`~manualcontrol.estimators._rml_core`):
   needs no forcing or target period.
 
 Settings (beyond the shared ones of
-:class:`~manualcontrol.estimators.pilot_filter.PilotFilterSettings`) and their defaults:
+:class:`~manualcontrol.estimators.members.pilot_filter.PilotFilterSettings`) and their defaults:
 ``remnant`` (``"levison"`` or ``"none"``), ``remnant_break`` (rad/s; by default the
 break frequency van der El et al. measured for the element type, thesis Sec. IV-D: 10
 rad/s for ``ce="SI"``, 0.01 rad/s for ``"DI"``, otherwise Levison's 3 rad/s of Popovici
@@ -72,7 +72,7 @@ remnant state, not white noise at the chain input, carries the process noise.
 
 ``variance_score`` says which pilot parameters learn from the innovation variance as
 well as from the prediction (the ``dS`` part of the score,
-:mod:`~manualcontrol.estimators._rml_core`). ``"remnant-path"`` (default): those the
+:mod:`~manualcontrol.estimators.members._rml_core`). ``"remnant-path"`` (default): those the
 remnant passes through on its way to the stick, the main chain's (gains, delay,
 neuromuscular system) when the remnant is injected at the perception, none when it is
 injected at the stick; the branches' parameters (the preview model's ``K_f``,
@@ -122,7 +122,7 @@ Process noise that follows a change (the drift rule): the parameters' random-wal
 variances are the family's presets (thesis Sec. V-B-2), tuned for 20-s sigmoids of
 ``tau_f``. When a parameter changes faster, the estimate lags and every sample corrects
 it the same way; that persistence raises the parameter's ``Q`` until the corrections
-cancel again (:func:`~manualcontrol.estimators._rml_core._adapt_process_noise`: the
+cancel again (:func:`~manualcontrol.estimators.members._rml_core._adapt_process_noise`: the
 moving mean of the corrections in prior standard deviations over that of their size,
 above ``drift_threshold``, scales ``Q`` by up to ``1 + drift_gain``; moving means over
 ``drift_window``). It is the delta-bar-delta idea (Jacobs 1988; Sutton's IDBD, 1992)
@@ -131,7 +131,7 @@ change faster than the preset allows (Popovici's time-varying pilot, the thesis'
 ``tau_f`` sigmoids); the cost is that parameters that are constant wander a little
 more. Its gain, window and threshold mattered little over the ranges tried.
 
-Restarts (offline; ``restarts=1``, :mod:`~manualcontrol.estimators.pilot_filter`):
+Restarts (offline; ``restarts=1``, :mod:`~manualcontrol.estimators.members.pilot_filter`):
 with ``R = var(u)`` on the double integrator the 0.01-rad/s remnant can knock the filter
 off in its run-in (``K_p`` at its lower limit for over a minute), and a second pass
 from the first pass's smoothed estimate rescues such runs; with the remnant weight
@@ -150,7 +150,7 @@ continuous intensity), so ``R`` and the random walks' ``Q`` are continuous-time 
 anchored at 100 Hz: ``R`` (``r2 var(u)`` plus the remnant's part, or ``fixed_R``) is a
 sample's variance at 100 Hz and ``R (0.01 s) / dt`` at ``dt`` (a white noise of the same
 density), and a random walk's variance a sample, ``Q dt^2`` at 100 Hz (the family's
-``Gamma = I dt``, :mod:`~manualcontrol.estimators.pilot_filter`), is ``Q (0.01 s) dt``
+``Gamma = I dt``, :mod:`~manualcontrol.estimators.members.pilot_filter`), is ``Q (0.01 s) dt``
 at ``dt`` (``noise_input="identity"``: ``Q`` a sample at any rate). Were ``R`` a
 sample's variance at every rate, a 1-kHz run would weigh the remnant state ten times as
 much against ``R`` as a 100-Hz run, and its estimates would follow the remnant. The
@@ -184,27 +184,27 @@ from typing import Any, ClassVar
 import numpy as np
 
 from manualcontrol.envs._validation import check_choice, check_int, check_positive
-from manualcontrol.estimators import _rml_core as core
 from manualcontrol.estimators._pilot_core import PAPERS_DT, euler_substeps
-from manualcontrol.estimators.filters.kalman import kalman_work
-from manualcontrol.estimators.fit_check import (
+from manualcontrol.estimators.analysis.fit_check import (
     FAR_GAIN_DB,
     FAR_PHASE_DEG,
     second_half_values,
 )
-from manualcontrol.estimators.frequency import response_error
-from manualcontrol.estimators.internal_model import (
+from manualcontrol.estimators.analysis.frequency import response_error
+from manualcontrol.estimators.filters.kalman import kalman_work
+from manualcontrol.estimators.members import _rml_core as core
+from manualcontrol.estimators.members.internal_model import (
     ANTICIPATED_PARAMETER,
     InternalModel,
     build_internal_model,
 )
-from manualcontrol.estimators.pilot_filter import CommonArrays, PilotFilter
-from manualcontrol.estimators.pilot_rules import (
+from manualcontrol.estimators.members.pilot_filter import CommonArrays, PilotFilter
+from manualcontrol.estimators.members.pilot_rules import (
     PilotFilterSettings,
     ResolvedSettings,
     run_describing_function,
 )
-from manualcontrol.estimators.smoothing import SmootherBlock, SmootherInputs
+from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.pilots.models import make_model
 
 __all__ = ["BREAK_FREQUENCY", "RML", "RMLSettings"]
@@ -374,7 +374,7 @@ def _delay_free_model(model: str, pursuit: bool = False) -> InternalModel:
 
     ``pursuit``: the preview model's pursuit form (``anticipation_time = 0``), whose far
     view reads the recorded target ``ft`` itself (``tau_f = 0``: nothing shown ahead,
-    :func:`~manualcontrol.estimators.internal_model.build_internal_model`); otherwise
+    :func:`~manualcontrol.estimators.members.internal_model.build_internal_model`); otherwise
     it reads the anticipated target ``ft(t + tau_a)``, which a recording of a pursuit
     display does not hold.
     """
@@ -417,7 +417,7 @@ class RML(PilotFilter):
         With ``remnant_injection="choose"`` the recording is identified twice, the
         remnant model at the perception and at the stick, and the pass kept is the one
         whose model (second-half medians) lies nearer the describing function measured
-        at the forcing frequencies (:func:`~manualcontrol.estimators.frequency.
+        at the forcing frequencies (:func:`~manualcontrol.estimators.analysis.frequency.
         response_error`, gain and phase gaps each in units of the cross-check's pass
         mark, 2 dB and 10 deg). Why not the likelihood: where the remnant comes from is
         what the time domain cannot tell apart from the pilot's own dynamics. A
