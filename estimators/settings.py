@@ -21,7 +21,7 @@ from typing import Any, ClassVar
 
 from manualcontrol.envs._validation import reject_unknown
 
-__all__ = ["SettingsRecord", "from_json_value", "to_json_value"]
+__all__ = ["SettingsRecord", "from_json_value", "limit_pair", "to_json_value"]
 
 
 def to_json_value(value: Any) -> Any:
@@ -44,6 +44,18 @@ def from_json_value(value: Any) -> Any:
     if isinstance(value, str) and value in ("inf", "-inf"):
         return float(value)
     return value
+
+
+def limit_pair(name: str, value: Any) -> tuple[float, float]:
+    """``value`` as a ``(low, high)`` pair of floats, ``low < high``; else an error naming it."""
+    try:
+        low, high = value
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a (low, high) pair, got {value!r}") from None
+    low, high = float(low), float(high)
+    if math.isnan(low) or math.isnan(high) or not low < high:
+        raise ValueError(f"{name} must satisfy low < high, got ({low!r}, {high!r})")
+    return (low, high)
 
 
 class SettingsRecord:

@@ -82,7 +82,7 @@ from manualcontrol.estimators.members.internal_model import (
     InternalModel,
     build_internal_model,
 )
-from manualcontrol.estimators.settings import SettingsRecord, to_json_value
+from manualcontrol.estimators.settings import SettingsRecord, limit_pair, to_json_value
 from manualcontrol.pilots.models import (
     CROSSOVER_RANGE,
     MODEL_NAMES,
@@ -218,18 +218,6 @@ def _frozen_mapping(name: str, value: Any, convert: Any) -> Mapping[str, Any]:
             raise TypeError(f"{name} keys must be parameter names, got {key!r}")
         out[key] = convert(f"{name}[{key!r}]", item)
     return MappingProxyType(out)
-
-
-def _limit_pair(name: str, value: Any) -> tuple[float, float]:
-    try:
-        low, high = value
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a (low, high) pair, got {value!r}") from None
-    low = float(low)
-    high = float(high)
-    if math.isnan(low) or math.isnan(high) or not low < high:
-        raise ValueError(f"{name} must satisfy low < high, got ({low!r}, {high!r})")
-    return (low, high)
 
 
 # --------------------------------------------------------------------------- settings
@@ -444,7 +432,7 @@ class PilotFilterSettings(SettingsRecord):
                     "give element= (e.g. '1/s')"
                 )
         elif self.limits is not None:
-            limits = _frozen_mapping("limits", self.limits, _limit_pair)
+            limits = _frozen_mapping("limits", self.limits, limit_pair)
             check_names("limits", limits)
             if preview and "tau_f" in limits and limits["tau_f"][1] >= self.anticipation_time:
                 if pursuit:

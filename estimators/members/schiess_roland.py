@@ -106,7 +106,7 @@ from manualcontrol.estimators import _pilot_core as pilot_core
 from manualcontrol.estimators.members import _schiess_roland_core as core
 from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.estimators.protocol import EstimationResult
-from manualcontrol.estimators.settings import SettingsRecord
+from manualcontrol.estimators.settings import SettingsRecord, limit_pair
 from manualcontrol.estimators.shell import FilterShell, read_sample
 
 __all__ = [
@@ -183,17 +183,6 @@ def _mapping(name: str, value: Any, allowed: tuple[str, ...], convert: Any) -> M
         raise TypeError(f"{name} must be a mapping of names to values, got {value!r}")
     reject_unknown(name, value, allowed)
     return MappingProxyType({key: convert(f"{name}[{key!r}]", item) for key, item in value.items()})
-
-
-def _limit_pair(name: str, value: Any) -> tuple[float, float]:
-    try:
-        low, high = value
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a (low, high) pair, got {value!r}") from None
-    low, high = float(low), float(high)
-    if math.isnan(low) or math.isnan(high) or not low < high:
-        raise ValueError(f"{name} must satisfy low < high, got ({low!r}, {high!r})")
-    return (low, high)
 
 
 @dataclass(frozen=True)
@@ -355,7 +344,7 @@ class SchiessRolandSettings(SettingsRecord):
         object.__setattr__(self, "passes", check_int("passes", self.passes, minimum=1))
         check_choice("carry", self.carry, CARRY_MODES)
         object.__setattr__(self, "max_delay", check_positive("max_delay", self.max_delay))
-        limits = _mapping("limits", self.limits, PARAMETER_NAMES, _limit_pair)
+        limits = _mapping("limits", self.limits, PARAMETER_NAMES, limit_pair)
         if "theta" in limits:
             low, high = limits["theta"]
             if low < 0.0 or high > self.max_delay:

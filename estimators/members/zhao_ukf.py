@@ -71,7 +71,7 @@ from manualcontrol.estimators.filters.unscented import sigma_weights, unscented_
 from manualcontrol.estimators.members import _zhao_core as core
 from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.estimators.protocol import EstimationResult
-from manualcontrol.estimators.settings import SettingsRecord
+from manualcontrol.estimators.settings import SettingsRecord, limit_pair
 from manualcontrol.estimators.shell import FilterShell, health_summary
 from manualcontrol.pilots.driver import DRIVER_INPUTS, DRIVER_OUTPUTS, CyberneticDriverModel
 
@@ -124,17 +124,6 @@ def _names_mapping(name: str, value: Any, check: Any) -> Mapping[str, Any]:
             )
         out[key] = check(f"{name}[{key!r}]", item)
     return MappingProxyType(out)
-
-
-def _limit_pair(name: str, value: Any) -> tuple[float, float]:
-    try:
-        low, high = value
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a (low, high) pair, got {value!r}") from None
-    low, high = float(low), float(high)
-    if math.isnan(low) or math.isnan(high) or not low < high:
-        raise ValueError(f"{name} must satisfy low < high, got ({low!r}, {high!r})")
-    return (low, high)
 
 
 @dataclass(frozen=True)
@@ -258,7 +247,7 @@ class ZhaoUKFSettings(SettingsRecord):
         if isinstance(self.limits, str):
             check_choice("limits", self.limits, ("default", "none"))
         else:
-            object.__setattr__(self, "limits", _names_mapping("limits", self.limits, _limit_pair))
+            object.__setattr__(self, "limits", _names_mapping("limits", self.limits, limit_pair))
         if self.speed is not None:
             object.__setattr__(self, "speed", check_positive("speed", self.speed))
         object.__setattr__(self, "jitter", check_positive("jitter", self.jitter, allow_zero=True))
