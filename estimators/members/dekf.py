@@ -285,11 +285,6 @@ class DEKF(PilotFilter):
             parameters={name: t for t, name in enumerate(resolved.theta)},
         )
         common = self._common
-        return SmootherInputs(
-            blocks=(state_block, theta_block) if n_t else (state_block,),
-            parameter_names=names,
-            report_offset=common.report.offset.copy(),
-            report_sign=common.report.sign.copy(),
-            lower=common.report.lo.copy(),
-            upper=common.report.hi.copy(),
+        return SmootherInputs.of_report(
+            (state_block, theta_block) if n_t else (state_block,), names, common.report
         )

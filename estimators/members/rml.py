@@ -693,11 +693,4 @@ class RML(PilotFilter):
             parameters={name: i for i, name in enumerate(self._labels) if name in model_names},
         )
         report = self._common.report
-        return SmootherInputs(
-            blocks=(block,),
-            parameter_names=model_names,
-            report_offset=report.offset.copy(),
-            report_sign=report.sign.copy(),
-            lower=report.lo.copy(),
-            upper=report.hi.copy(),
-        )
+        return SmootherInputs.of_report((block,), model_names, report)

@@ -805,11 +805,4 @@ class SchiessRoland(FilterShell):
             states={name: i for i, name in enumerate(DYNAMIC_STATES)},
         )
         report = self._records[3]
-        return SmootherInputs(
-            blocks=(block,),
-            parameter_names=PARAMETER_NAMES,
-            report_offset=report.offset.copy(),
-            report_sign=report.sign.copy(),
-            lower=report.lo.copy(),
-            upper=report.hi.copy(),
-        )
+        return SmootherInputs.of_report((block,), PARAMETER_NAMES, report)

@@ -195,14 +195,7 @@ class _UnscentedPilotFilter(PilotFilter):
                 marginal(out.x_post_2, out.P_post_2, out.x_prior_2, out.P_prior_2, second)
             )
         report = self._common.report
-        return SmootherInputs(
-            blocks=tuple(blocks),
-            parameter_names=self._internal.parameter_names,
-            report_offset=report.offset.copy(),
-            report_sign=report.sign.copy(),
-            lower=report.lo.copy(),
-            upper=report.hi.copy(),
-        )
+        return SmootherInputs.of_report(tuple(blocks), self._internal.parameter_names, report)
 
     def _config(
         self,

@@ -701,14 +701,7 @@ class ZhaoUKF(FilterShell):
             parameters={name: 3 + t for t, name in enumerate(self._settings.estimated)},
             states={name: i for i, name in enumerate(STATE_NAMES)},
         )
-        return SmootherInputs(
-            blocks=(block,),
-            parameter_names=_NAMES,
-            report_offset=report.offset.copy(),
-            report_sign=report.sign.copy(),
-            lower=report.lo.copy(),
-            upper=report.hi.copy(),
-        )
+        return SmootherInputs.of_report((block,), _NAMES, report)
 
 
 # ---------------------------------------------------------------------- multi-UKF

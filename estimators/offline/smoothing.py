@@ -107,6 +107,24 @@ class SmootherInputs:
     lower: FloatArray
     upper: FloatArray
 
+    @classmethod
+    def of_report(
+        cls, blocks: tuple[SmootherBlock, ...], parameter_names: tuple[str, ...], report: Any
+    ) -> SmootherInputs:
+        """The inputs of ``blocks``, the report's transform and limits copied from the run.
+
+        ``report`` is a kernel's report record (``offset``, ``sign``, ``lo``, ``hi``: the
+        pilot core's ``PilotReport``).
+        """
+        return cls(
+            blocks=blocks,
+            parameter_names=parameter_names,
+            report_offset=report.offset.copy(),
+            report_sign=report.sign.copy(),
+            lower=report.lo.copy(),
+            upper=report.hi.copy(),
+        )
+
 
 def smooth(result: EstimationResult) -> EstimationResult:
     """The fixed-interval smoothed version of a filtered ``result``.
