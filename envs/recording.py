@@ -7,7 +7,7 @@ views, so a recording can be shared between an env, an estimator and a benchmark
 anyone changing it under the others' feet. Derived copies (:meth:`Recording.slice_time`,
 :meth:`Recording.with_signals`, ...) return new recordings.
 
-Signal names (``DESIGN.md``):
+Signal names (one spelling across the package):
 
 ======  ===========================================================================
 ``t``   time (s), strictly uniform with spacing ``dt``

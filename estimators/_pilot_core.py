@@ -8,7 +8,7 @@ pins tracked, divergence recorded; a diverged filter stops and repeats its last
 estimate). The filters differ only in between: how the belief is predicted and
 corrected.
 
-The records are namedtuples of arrays (STYLE.md item 14):
+The records are namedtuples of arrays:
 
 * ``cfg``: the ``CFG_*`` configuration vector;
 * ``sc``: the ``SC_*`` scalar state (sample counter, first-window variances, window

@@ -1,6 +1,6 @@
 """The cybernetic driver model of Zhao et al. (2019) eq. 2, after Saleh et al. (2011).
 
-Symbols are the paper's (DESIGN.md: the driver model keeps them inside its own module).
+Symbols are the paper's, kept inside the driver model's own module.
 The driver reads two visual angles and feels the steering wheel (Zhao Fig. 1, Tables 1-2):
 
 ====================  ============================================  =================

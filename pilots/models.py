@@ -12,7 +12,7 @@ and post-delay transfer functions are polynomials in ``s`` whose coefficients ar
 functions of the parameters (arrays: one value per sample of an LPV trajectory). The
 delay is applied exactly by a delay line or as a Padé approximant, as the caller asks.
 
-Parameters use the spellings of DESIGN.md: ``K_p, K_v, tau_v, omega_nms, zeta_nms``,
+Parameters have one spelling across the package: ``K_p, K_v, tau_v, omega_nms, zeta_nms``,
 ``K_f, omega_f, tau_f``, ``K_n, tau_n``, ``K_1, tau_1, tau_2, tau_3, theta``.
 """
 

@@ -2,8 +2,8 @@
 
 The filter is pure functions of a belief (mean ``x``, covariance ``P``: arrays the
 caller owns and the functions update in place), the model's linearisation at that
-belief and the sample (the dynamax ``_predict`` / ``_condition_on`` split, STYLE.md
-item 1). The model evaluates itself (``x^- = f(x^+)``, ``Phi = df/dx``,
+belief and the sample (the split of dynamax's ``_predict`` / ``_condition_on``). The
+model evaluates itself (``x^- = f(x^+)``, ``Phi = df/dx``,
 ``z^- = h(x^-)``, ``H = dh/dx``); the functions here hold the covariance algebra,
 written once for every filter of the family:
 

@@ -3,7 +3,7 @@
 Everything works in place on caller-owned arrays (numba with ``_nrt=False``: no array
 is allocated or reference counted inside a step). Covariances are kept symmetric by
 :func:`symmetrise` after every update; systems are solved through a Cholesky factor,
-never by forming an inverse (dynamax ``psd_solve``, STYLE.md item 5).
+never by forming an inverse (as dynamax's ``psd_solve``).
 """
 
 from __future__ import annotations

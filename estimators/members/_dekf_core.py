@@ -1,6 +1,6 @@
 """Compiled core of the Dual Extended Kalman Filter: one step, and a whole run.
 
-Pure numerics on small records (namedtuples of arrays, STYLE.md item 14):
+Pure numerics on small records (namedtuples of arrays):
 :func:`dekf_step` advances a :data:`DEKFBelief` by one sample and writes that
 sample's estimate into row ``row`` of a :data:`DEKFOutput`; :func:`dekf_run` loops it
 over a recording. The online ``DEKF.update`` and the batch ``DEKF.estimate`` both call

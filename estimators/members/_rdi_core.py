@@ -1,6 +1,6 @@
 """Compiled core of the recursive delay identifier (Boer & Kenyon 1998): one step, a run.
 
-Pure numerics on small records (namedtuples of arrays, STYLE.md item 14), in the
+Pure numerics on small records (namedtuples of arrays), in the
 manner of :mod:`~manualcontrol.estimators.members._dekf_core`: :func:`rdi_step` consumes one
 sample (input ``r_k``, output ``y_k``) and writes that sample's estimate into row
 ``row`` of an :data:`RDIOutput`; :func:`rdi_run` loops it over a recording. The online

@@ -1,7 +1,7 @@
 """Compiled core of the Schiess-Roland joint EKF: one step, and a whole run.
 
 The filter of :mod:`~manualcontrol.estimators.members.schiess_roland` on small records
-(namedtuples of arrays, STYLE.md item 14): :func:`sr_step` advances an :data:`SRBelief`
+(namedtuples of arrays): :func:`sr_step` advances an :data:`SRBelief`
 by one sample and writes that sample's estimate into row ``row`` of an
 :data:`SROutput`; :func:`sr_run` loops it over a recording. ``update`` and
 ``estimate`` both call :func:`sr_step`, so they give identical numbers. The covariance
