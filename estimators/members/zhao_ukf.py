@@ -62,7 +62,6 @@ from manualcontrol.envs._validation import (
     check_int,
     check_positive,
     check_real,
-    reject_unknown,
 )
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _pilot_core as pilot_core
@@ -70,7 +69,7 @@ from manualcontrol.estimators.analysis.metrics import observability_gramian
 from manualcontrol.estimators.filters.unscented import sigma_weights, unscented_work
 from manualcontrol.estimators.members import _zhao_core as core
 from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
-from manualcontrol.estimators.protocol import EstimationResult
+from manualcontrol.estimators.protocol import EstimationResult, sample_floats
 from manualcontrol.estimators.settings import SettingsRecord, limit_pair
 from manualcontrol.estimators.shell import FilterShell, health_summary
 from manualcontrol.pilots.driver import DRIVER_INPUTS, DRIVER_OUTPUTS, CyberneticDriverModel
@@ -419,6 +418,7 @@ def zhao_tuning(
 # ---------------------------------------------------------------------- estimator
 
 _SAMPLE_KEYS = (*DRIVER_INPUTS, *DRIVER_OUTPUTS)
+_ALLOWED_SAMPLE_KEYS = frozenset((*_SAMPLE_KEYS, "t"))
 
 
 def _driving_signals(recording: Recording) -> tuple[FloatArray, FloatArray]:
@@ -448,23 +448,8 @@ def _recording_speed(settings_speed: float | None, recording: Recording) -> floa
 
 
 def _sample_arrays(sample: Mapping[str, float], where: str) -> tuple[FloatArray, FloatArray]:
-    if not isinstance(sample, Mapping):
-        raise TypeError(f"sample must be a mapping of signal values, got {sample!r}")
-    reject_unknown(where, sample, (*_SAMPLE_KEYS, "t"))
-    missing = [key for key in _SAMPLE_KEYS if key not in sample]
-    if missing:
-        raise ValueError(
-            f"{where} lacks {', '.join(map(repr, missing))}; it needs {', '.join(_SAMPLE_KEYS)}"
-        )
-    values = []
-    for key in _SAMPLE_KEYS:
-        value = sample[key]
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-            raise TypeError(f"sample[{key!r}] must be a number, got {value!r}")
-        value = float(value)
-        if math.isinf(value):
-            raise ValueError(f"sample[{key!r}] must be finite or NaN (dropped), got {value!r}")
-        values.append(value)
+    """The driver model's inputs and outputs in one sample, checked (``sample_floats``)."""
+    values = sample_floats(where, sample, _SAMPLE_KEYS, _ALLOWED_SAMPLE_KEYS)
     return np.array(values[:4]), np.array(values[4:])
 
 
