@@ -208,7 +208,8 @@ class _Family(MutableMapping[str, EstimatorEntry]):
 
     def __init__(self, members: tuple[EstimatorEntry, ...]) -> None:
         self._members = {entry.name: entry for entry in members}
-        self._twins: dict[tuple[str, int], EstimatorEntry] = {}
+        # each twin with the member it was derived from: a member replaced gets fresh twins
+        self._twins: dict[str, tuple[EstimatorEntry, EstimatorEntry]] = {}
 
     def _twin(self, name: str) -> EstimatorEntry | None:
         for suffix, derive, wanted in (
@@ -223,10 +224,11 @@ class _Family(MutableMapping[str, EstimatorEntry]):
                 base = self._members.get(name[: -len(suffix)])
                 if base is None or base.base is not None or not wanted(base):
                     return None
-                key = (name, id(base))  # a member replaced gets fresh twins
-                if key not in self._twins:
-                    self._twins[key] = derive(base)
-                return self._twins[key]
+                derived_from, twin = self._twins.get(name, (None, None))
+                if derived_from is not base:
+                    twin = derive(base)
+                    self._twins[name] = (base, twin)
+                return twin
         return None
 
     def __getitem__(self, name: str) -> EstimatorEntry:
