@@ -71,7 +71,10 @@ first observation), ``include_previous_action=True`` the previous action.
 Action: ``Box(-action_bound, action_bound, (1,), float64)``: the torque (N m, default
 bound 20) or the wheel angle (rad, default bound 2); held over each sample (zero-order
 hold; the car is advanced by the exact discretisation of the model above). Actions
-outside are clipped and counted; non-finite actions raise.
+outside are clipped and counted. An action must be a real array-like of shape ``(1,)``
+(as the action space says; a bare number, a string, a bool, a complex number or a
+wrong shape raise ``TypeError``/``ValueError`` naming ``action``); non-finite actions
+raise ``ValueError``.
 
 Reward (``reward=``): ``"bounded"`` (default) ``1/(1 + (y_L/reward_scale)^2)`` in (0, 1],
 positive so ending an episode early never pays; ``"squared_offset"``
@@ -83,7 +86,9 @@ its lane, ``|y_L| > (lane_width - vehicle width)/2`` (0.85 m for a 3.5-m lane), 
 lateral acceleration exceeds the friction limit ``mu g`` (the linear tyres no longer
 hold). Episodes start at rest on the lane centre (every state zero) and are truncated
 after ``round((run_in + measurement_time)/dt)`` steps; the measurement time defaults to
-the time the road takes.
+the time the road takes. Once an episode has terminated or been truncated, ``step``
+raises ``RuntimeError`` until :meth:`~LaneKeeping.reset`; the recording ends with the
+episode's last step.
 
 ``info`` after each step: ``t`` (zero at the end of the run-in), ``s`` (m), ``kappa``,
 ``y_L``, ``psi_L``, ``a_y`` (lateral acceleration, m/s^2), ``action`` (applied),
@@ -123,8 +128,11 @@ from numpy.typing import NDArray
 
 from manualcontrol.envs._render import close_window, render_display
 from manualcontrol.envs._validation import (
+    check_action,
+    check_bool,
     check_choice,
     check_int,
+    check_options,
     check_positive,
     check_real,
     reject_unknown,
@@ -738,9 +746,11 @@ class LaneKeeping(gym.Env[FloatArray, FloatArray]):
         self.reward_kind = check_choice("reward", reward, REWARDS)
         self.reward_scale = check_positive("reward_scale", reward_scale)
         self.effort_weight = check_positive("effort_weight", effort_weight, allow_zero=True)
-        self.include_rates = bool(include_rates)
-        self.include_previous_action = bool(include_previous_action)
-        self.loss_of_control = bool(loss_of_control)
+        self.include_rates = check_bool("include_rates", include_rates)
+        self.include_previous_action = check_bool(
+            "include_previous_action", include_previous_action
+        )
+        self.loss_of_control = check_bool("loss_of_control", loss_of_control)
         if render_mode is not None:
             check_choice("render_mode", render_mode, self.metadata["render_modes"])
         self.render_mode = render_mode
@@ -762,6 +772,9 @@ class LaneKeeping(gym.Env[FloatArray, FloatArray]):
         self._clock: Any = None
         self._geometry: Any = None
         self._k = -1
+        self._clipped = 0
+        # why the episode ended (for step's error), None while it runs
+        self._ended: str | None = None
 
     # ------------------------------------------------------------------- API
 
@@ -790,8 +803,7 @@ class LaneKeeping(gym.Env[FloatArray, FloatArray]):
     ) -> tuple[FloatArray, dict[str, Any]]:
         """Start at rest on the lane centre; ``options={"road_seed": k}`` for random roads."""
         super().reset(seed=seed)
-        options = dict(options or {})
-        reject_unknown("reset options", options, _RESET_OPTIONS)
+        options = check_options(options, _RESET_OPTIONS)
         if "road_seed" in options and self.road is not None:
             raise ValueError("reset option road_seed applies to road='random' only")
         road = self.episode_road(options.get("road_seed"))
@@ -806,6 +818,7 @@ class LaneKeeping(gym.Env[FloatArray, FloatArray]):
         self._actions = np.zeros(n)
         self._previous_action = 0.0
         self._clipped = 0
+        self._ended = None
         self._geometry = None
         m = self.model
         perceive(
@@ -822,13 +835,20 @@ class LaneKeeping(gym.Env[FloatArray, FloatArray]):
         return self._observe(0), self._info(0, 0.0)
 
     def step(self, action: FloatArray) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:
-        """Apply ``action[0]`` over one sample; see the module docstring."""
+        """Apply ``action[0]`` over one sample; see the module docstring.
+
+        Raises ``RuntimeError`` before :meth:`reset` and after the episode has
+        terminated or been truncated.
+        """
         k = self._k
         if k < 0:
             raise RuntimeError("call reset() before step()")
-        if k >= self.episode_steps:
-            raise RuntimeError("the episode is over (truncated); call reset()")
-        u = float(action[0])
+        if self._ended is not None:
+            raise RuntimeError(f"the episode is over ({self._ended}); call reset()")
+        if type(action) is np.ndarray and action.shape == (1,) and action.dtype.kind == "f":
+            u = float(action[0])  # the common case, kept free of call overhead
+        else:
+            u = float(check_action("action", action, (1,))[0])
         bound = self.action_bound
         if not -bound <= u <= bound:
             if u != u or u in (math.inf, -math.inf):
@@ -865,6 +885,9 @@ class LaneKeeping(gym.Env[FloatArray, FloatArray]):
         terminated = self.loss_of_control and (
             abs(y_L) > self.lane_limit or abs(a_y) > self.skid_limit
         )
+        truncated = k >= self.episode_steps
+        if terminated or truncated:
+            self._ended = self._end_reason(k, terminated, y_L, a_y)
         if self.include_rates or self.include_previous_action:
             observation = self._observe(k)
         else:
@@ -881,7 +904,20 @@ class LaneKeeping(gym.Env[FloatArray, FloatArray]):
             "action": u,
             "clipped_actions": self._clipped,
         }
-        return observation, reward, terminated, k >= self.episode_steps, info
+        return observation, reward, terminated, truncated, info
+
+    def _end_reason(self, k: int, terminated: bool, y_L: float, a_y: float) -> str:
+        t = self.time_origin + k * self.dt
+        if not terminated:
+            return f"truncated after {k} steps, at t = {t:g} s"
+        if abs(y_L) > self.lane_limit:
+            why = f"the car left its lane, |y_L| = {abs(y_L):.3g} m > {self.lane_limit:g} m"
+        else:
+            why = (
+                f"the car lost grip, |a_y| = {abs(a_y):.3g} m/s^2 > mu g = "
+                f"{self.skid_limit:.3g} m/s^2"
+            )
+        return f"terminated at t = {t:g} s: {why}"
 
     def _observe(self, k: int) -> FloatArray:
         row = self._perceived[k]
@@ -913,6 +949,7 @@ class LaneKeeping(gym.Env[FloatArray, FloatArray]):
         Gamma_s``), ``kappa``, ``y_L``, ``psi_L``, ``a_y`` and the action: ``Gamma_d``
         (torque steering) or ``delta_command`` (angle steering), at every sample at
         which an action was taken (the observation after the last step is left out).
+        After a termination the episode's steps end there, and so does the recording.
         """
         steps = self._k
         if steps <= 0:
@@ -933,10 +970,19 @@ class LaneKeeping(gym.Env[FloatArray, FloatArray]):
         return Recording(signals=signals, dt=self.dt, metadata=self.describe())
 
     def describe(self) -> dict[str, Any]:
-        """What a recording of this environment says about how it was made."""
+        """What a recording of this environment says about how it was made.
+
+        Raises ``RuntimeError`` before :meth:`reset`: the episode's road (drawn there
+        for ``road="random"``) and its clipped actions are not known until then.
+        """
+        if self._k < 0:
+            raise RuntimeError(
+                "call reset() before describe(): it reports the episode's road and "
+                "clipped actions, which reset() sets up"
+            )
         return {
             "task": "lane-keeping",
-            "road": self.current_road.to_dict() if self._k >= 0 else None,
+            "road": self.current_road.to_dict(),
             "vehicle": self.vehicle.to_dict(),
             "speed": self.speed,
             "steering": self.steering,

@@ -23,7 +23,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
-from manualcontrol.envs._validation import check_int, reject_unknown
+from manualcontrol.envs._validation import check_action, check_int, check_options
 from manualcontrol.envs.driving import LaneKeeping, Road
 
 __all__ = ["LaneKeepingVector"]
@@ -137,8 +137,7 @@ class LaneKeepingVector(VectorEnv[FloatArray, FloatArray, FloatArray]):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[FloatArray, dict[str, Any]]:
         """Reset every copy; copy ``i`` is seeded ``seed + i``."""
-        options = dict(options or {})
-        reject_unknown("reset options", options, ("road_seed",))
+        options = check_options(options, ("road_seed",))
         if "road_seed" in options and self._tables is None:
             raise ValueError("reset option road_seed applies to road='random' only")
         if seed is not None or not self._generators:
@@ -170,7 +169,17 @@ class LaneKeepingVector(VectorEnv[FloatArray, FloatArray, FloatArray]):
     ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], NDArray[np.bool_], dict[str, Any]]:
         """Step every copy; copies whose episode ended last step are reset instead."""
         template = self.template
-        u = np.asarray(actions, dtype=np.float64).reshape(self.num_envs)
+        if not (
+            type(actions) is np.ndarray
+            and actions.dtype.kind == "f"
+            and actions.shape == (self.num_envs, 1)
+        ):
+            # (num_envs,) is accepted too: one steering action per copy either way
+            shape = (
+                (self.num_envs,) if np.shape(actions) == (self.num_envs,) else (self.num_envs, 1)
+            )
+            actions = check_action("actions", actions, shape)
+        u = actions.astype(np.float64, copy=False).reshape(self.num_envs)
         if not np.all(np.isfinite(u)):
             bad = np.flatnonzero(~np.isfinite(u)).tolist()
             raise ValueError(f"actions must be finite, got non-finite values for copies {bad}")
