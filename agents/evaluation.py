@@ -33,6 +33,7 @@ import numpy as np
 from manualcontrol.agents.training import TASK_IDS, TrainedAgent, make_env
 from manualcontrol.envs._files import atomic_path, atomic_write
 from manualcontrol.envs.recording import Recording
+from manualcontrol.envs.tasks import TASKS_BY_NAME
 from manualcontrol.estimators.analysis.frequency import (
     FrequencyResponse,
     forcing_frequency_response,
@@ -192,14 +193,15 @@ def evaluate(
     env.close()
     rms = float(np.sqrt(np.mean(recording.e**2)))
     response = forcing_frequency_response(recording)
-    model = "precision" if agent.config.task == "compensatory" else "preview"
+    display = TASKS_BY_NAME.get(agent.config.task)  # None on lane keeping: no tracking display
+    model = "preview" if display is None else display.pilot_model
     identified = fit_pilot(recording, model)
     dekf = _dekf_identification(whole, model, agent.config)
     element = agent.config.env_kwargs.get("controlled_element", "SI")
     values = reference if reference is not None else reference_pilot(element)
     reference_rms = None
     human = None
-    if agent.config.task == "compensatory":
+    if display is not None and display.shows_error_only:
         if values is not None:
             # the bare task: no limitation wrappers between the pilot and the display
             base = gym.make(TASK_IDS[agent.config.task], **{**agent.config.env_kwargs, **overrides})
@@ -247,7 +249,8 @@ def optimal_control_reference(config: Any) -> Any:
     """
     from manualcontrol.pilots import OptimalControlPilot
 
-    if config.task != "compensatory":
+    display = TASKS_BY_NAME.get(config.task)  # None on lane keeping
+    if display is None or not display.shows_error_only:
         return None
     delay = 0.2
     for spec in getattr(config, "limitations", config.wrappers):

@@ -531,9 +531,11 @@ def _cmd_describe(args: argparse.Namespace) -> int:
         )
         text = text.replace("disturbance_at", "--disturbance-at")
         raise UsageError(text) from None
-    model = args.model or ("precision" if describing.task == "compensatory" else "preview")
+    from manualcontrol.envs.tasks import task_named
     from manualcontrol.pilots.models import MODEL_NAMES, make_model
 
+    display = task_named(describing.task)
+    model = args.model or display.pilot_model
     if model not in MODEL_NAMES:
         raise UsageError(f"--model must be one of {', '.join(MODEL_NAMES)}, got {model!r}")
     names = make_model(model).parameter_names
@@ -551,7 +553,7 @@ def _cmd_describe(args: argparse.Namespace) -> int:
     sets = ", ".join(f"{name} {count}" for name, count in counts.items() if count)
     start, end = describing.window
     plural = "s" if describing.periods > 1 else ""
-    if describing.task != "compensatory":
+    if not display.shows_error_only:
         print(
             f"{describing.task} display: the table holds the disturbance's lines (U/E there is "
             "the pilot's response to y); the model is fitted to every line's U from the "
@@ -617,7 +619,7 @@ def _cmd_describe(args: argparse.Namespace) -> int:
         )
     strong = int(
         np.sum(describing.snr_injected >= 10.0)
-        if describing.task == "compensatory"
+        if display.shows_error_only
         else np.sum(describing.lines.snr >= 10.0)
     )
     if strong < len(fit.fitted) + 1:
@@ -625,7 +627,7 @@ def _cmd_describe(args: argparse.Namespace) -> int:
             f"only {strong} forcing frequencies have a signal-to-noise ratio of 10 or more: "
             "the remnant swamps the rest, so the fit is loose; more periods would help"
         )
-    if describing.task == "compensatory" and describing.element_given:
+    if display.shows_error_only and describing.element_given:
         from manualcontrol.estimators.analysis.human_likeness import human_likeness
 
         try:

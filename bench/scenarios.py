@@ -110,7 +110,7 @@ from manualcontrol.envs.elements import make_element
 from manualcontrol.envs.recording import MEASURED_SIGNALS
 from manualcontrol.envs.schedules import Schedule
 from manualcontrol.envs.signals import FORCING_PRESETS, preset_realisation_count
-from manualcontrol.envs.tasks import DISTURBANCE_POINTS
+from manualcontrol.envs.tasks import DISTURBANCE_POINTS, task_named
 from manualcontrol.pilots import Pilot
 from manualcontrol.pilots.open_loop import ARMAXSystem
 from manualcontrol.pilots.simulation import INITIAL_STATE_SIGNALS, LOOPS, TASKS, SimulationSetup
@@ -511,9 +511,10 @@ def _checked_pilot(where: str, merged: Mapping[str, Any]) -> tuple[dict[str, Any
         built = _pilot_from(pilot)
     except (TypeError, ValueError, KeyError) as error:
         raise suite_error(where, f"pilot: {error}") from None
-    if built.model.task != "compensatory" and merged["task"] == "compensatory":
+    display, written_for = task_named(merged["task"]), task_named(built.model.task)
+    if display.shows_error_only and not written_for.shows_error_only:
         raise suite_error(where, f"task 'compensatory' does not fit pilot model {pilot['model']!r}")
-    if (built.model.task == "postview") != (merged["task"] == "postview"):
+    if display.shows_postview != written_for.shows_postview:
         raise suite_error(
             where, f"task {merged['task']!r} does not fit pilot model {pilot['model']!r}"
         )
@@ -542,7 +543,7 @@ def _check_extras(merged: Mapping[str, Any], open_loop: bool) -> dict[str, Any]:
     if "system" in merged:
         raise ValueError(f"system belongs to open-loop batches, not task {merged['task']!r}")
     if "gap" in merged:
-        if merged["task"] != "postview":
+        if not task_named(merged["task"]).shows_postview:
             raise ValueError(f"gap belongs to postview batches, not task {merged['task']!r}")
         gap = merged["gap"]
         try:

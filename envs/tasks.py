@@ -6,6 +6,9 @@ time, run-in and measurement time. The Gymnasium environments
 these the same way through the helpers here, so a pilot acting in an environment and
 the simulation of the same run stay one problem:
 
+* :class:`Task` -- what each task's display shows (:func:`task_named`,
+  :data:`TASKS_BY_NAME`): the one place that says it, where every module would
+  otherwise re-decide it from the task's name;
 * :func:`resolve_forcing` -- a preset name (and realisation) or a ``ForcingPair``;
 * :func:`measurement_time_for` -- default: the forcing's period ``T_m`` (120 s when the
   forcing has none);
@@ -18,6 +21,9 @@ the simulation of the same run stay one problem:
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -32,12 +38,15 @@ __all__ = [
     "DEFAULT_MEASUREMENT_TIME",
     "DISTURBANCE_POINTS",
     "TASKS",
+    "TASKS_BY_NAME",
+    "Task",
     "available_preview_for",
     "check_preview_time",
     "measurement_time_for",
     "resolve_forcing",
     "sample_counts",
     "task_metadata",
+    "task_named",
 ]
 
 #: The display types, see :mod:`~manualcontrol.envs.tracking`.
@@ -51,6 +60,116 @@ DEFAULT_MEASUREMENT_TIME = 120.0
 #: (``y = H_c (u + fd)``: a force on the stick, a gust on the vehicle), where the
 #: element's own dynamics shape it.
 DISTURBANCE_POINTS: tuple[str, ...] = ("output", "input")
+
+
+@dataclass(frozen=True)
+class Task:
+    """A tracking task, described by what its display shows the pilot.
+
+    The task travels by its name (the environments' ``task``, ``task=`` of
+    :func:`~manualcontrol.pilots.simulate`, recording metadata, suite files); where code
+    has to act on what the display shows (the observation, the drawing, which preview is
+    allowed, which pilot model fits) it reads these attributes of :func:`task_named`'s
+    Task instead of comparing the name, so what each display shows is said here once:
+
+    ============  ==========  ======  =======  ========  ===========
+    name          error only  target  preview  postview  pilot model
+    ============  ==========  ======  =======  ========  ===========
+    compensatory  yes         no      no       no        precision
+    pursuit       no          yes     no       no        preview
+    preview       no          yes     yes      no        preview
+    postview      no          no      no       yes       postview
+    ============  ==========  ======  =======  ========  ===========
+
+    Attributes
+    ----------
+    name
+        The task's name, one of :data:`TASKS`.
+    shows_error_only
+        The display shows the tracking error ``e = ft - y`` alone (compensatory): a
+        pilot there responds to the error.
+    shows_target
+        The display shows the present target ``ft(t)`` and the output ``y`` apart
+        (pursuit, preview): two channels, the pilot responds to both.
+    shows_preview
+        The target is shown ahead of the present as well (preview; how far is the
+        run's ``available_preview``).
+    shows_postview
+        Only the target's past is shown, down to a gap before the present, with the
+        output (Boer & Kenyon's gap-postview display,
+        :mod:`~manualcontrol.envs.postview`).
+    pilot_model
+        The pilot model written for this display, fitted or flown where none is
+        named: ``"precision"`` (the error), ``"preview"`` (the target and the output;
+        on pursuit with nothing ahead) or ``"postview"``.
+    """
+
+    name: str
+    shows_error_only: bool
+    shows_target: bool
+    shows_preview: bool
+    shows_postview: bool
+    pilot_model: str
+
+    def fits_models_for(self, other: Task) -> bool:
+        """Whether a pilot model written for the ``other`` display can fly this one.
+
+        The model has to read what this display shows: the error alone, the present
+        target and the output (a preview model flies pursuit, with nothing ahead), or
+        the target's past.
+        """
+        return (self.shows_error_only, self.shows_target, self.shows_postview) == (
+            other.shows_error_only,
+            other.shows_target,
+            other.shows_postview,
+        )
+
+
+#: Every :class:`Task` by its name, in the order of :data:`TASKS` (read-only).
+TASKS_BY_NAME: Mapping[str, Task] = MappingProxyType(
+    {
+        task.name: task
+        for task in (
+            Task(
+                "compensatory",
+                shows_error_only=True,
+                shows_target=False,
+                shows_preview=False,
+                shows_postview=False,
+                pilot_model="precision",
+            ),
+            Task(
+                "pursuit",
+                shows_error_only=False,
+                shows_target=True,
+                shows_preview=False,
+                shows_postview=False,
+                pilot_model="preview",
+            ),
+            Task(
+                "preview",
+                shows_error_only=False,
+                shows_target=True,
+                shows_preview=True,
+                shows_postview=False,
+                pilot_model="preview",
+            ),
+            Task(
+                "postview",
+                shows_error_only=False,
+                shows_target=False,
+                shows_preview=False,
+                shows_postview=True,
+                pilot_model="postview",
+            ),
+        )
+    }
+)
+
+
+def task_named(name: Any) -> Task:
+    """The :class:`Task` called ``name``; an unknown name raises ``ValueError`` listing them."""
+    return TASKS_BY_NAME[check_choice("task", name, TASKS)]
 
 
 def resolve_forcing(forcing: str | ForcingPair, realisation: int = 0) -> ForcingPair:
@@ -72,8 +191,7 @@ def measurement_time_for(forcing: ForcingPair, measurement_time: float | None) -
 
 def available_preview_for(task: str, available_preview: float | None) -> float:
     """The preview (s) the task's display shows: only the preview task shows any."""
-    check_choice("task", task, TASKS)
-    if task == "preview":
+    if task_named(task).shows_preview:
         preview = DEFAULT_AVAILABLE_PREVIEW if available_preview is None else available_preview
         return check_positive("available_preview", preview, allow_zero=True)
     if available_preview not in (None, 0, 0.0):

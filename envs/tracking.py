@@ -93,6 +93,7 @@ from manualcontrol.envs.tasks import (
     resolve_forcing,
     sample_counts,
     task_metadata,
+    task_named,
 )
 
 __all__ = [
@@ -202,6 +203,7 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         self.dt = check_positive("dt", dt)
         self.measurement_time = measurement_time_for(forcing_pair, measurement_time)
         self.run_in = check_positive("run_in", run_in, allow_zero=True)
+        self._display = task_named(self.task)
         self.available_preview = available_preview_for(self.task, available_preview)
         self.action_bound = check_positive("action_bound", action_bound)
         self.reward_kind = check_choice("reward", reward, REWARDS)
@@ -309,10 +311,13 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         return realisation
 
     def _base_size(self) -> int:
-        return {"compensatory": 1, "pursuit": 2, "preview": self.preview_window + 1}[self.task]
+        display = self._display
+        if display.shows_error_only:
+            return 1  # e
+        return (self.preview_window if display.shows_preview else 1) + 1  # ft (ahead), y
 
     def _rate_size(self) -> int:
-        return {"compensatory": 1, "pursuit": 2, "preview": 2}[self.task]
+        return 1 if self._display.shows_error_only else 2
 
     # ------------------------------------------------------------------- API
 
@@ -415,12 +420,12 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         return observation, reward, terminated, truncated, self._info(k, u)
 
     def _observe(self, k: int) -> FloatArray:
-        task = self.task
-        if task == "compensatory":
+        display = self._display
+        if display.shows_error_only:
             base = [self._e[k]]
             if self.include_rates:
                 base.append(0.0 if k == 0 else (self._e[k] - self._e[k - 1]) / self.dt)
-        elif task == "pursuit":
+        elif not display.shows_preview:  # the target and the output
             base = [self._ft[k], self._y[k]]
             if self.include_rates:
                 base += (
@@ -519,7 +524,8 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         grey, target_colour, cursor_colour = (90, 90, 100), (240, 200, 60), (80, 200, 255)
         pygame.draw.line(canvas, grey, (centre, 0), (centre, height), 1)
         cursor_row = int(0.8 * height)
-        if self.task == "compensatory":
+        display = self._display
+        if display.shows_error_only:
             # a fixed reference bracket; the marker is displaced by the error alone
             row = height // 2
             white = (230, 230, 230)
@@ -532,7 +538,7 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
             pygame.draw.line(canvas, cursor_colour, (x, row - 20), (x, row + 20), 4)
             return
         y_position = centre + scale * float(self._y[k])
-        if self.task == "pursuit":
+        if not display.shows_preview:  # the target where it is now
             t_position = centre + scale * float(self._ft[k])
             pygame.draw.circle(canvas, target_colour, (int(t_position), cursor_row), 10, 3)
         else:

@@ -233,11 +233,12 @@ class TrackingVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
         rows, k = self._realisation, self._k
         dt = self.dt
         first = self._k == 0
-        if template.task == "compensatory":
+        display = template._display
+        if display.shows_error_only:
             columns = [self._e]
             if template.include_rates:
                 columns.append(np.where(first, 0.0, (self._e - self._previous["e"]) / dt))
-        elif template.task == "pursuit":
+        elif not display.shows_preview:  # the target and the output
             ft = self._ft[rows, k]
             columns = [ft, self._y]
             if template.include_rates:

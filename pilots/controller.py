@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from manualcontrol.envs._interpolation import interpolate_at
 from manualcontrol.envs.dynamics import lpv_output_step, lpv_state_step
+from manualcontrol.envs.tasks import task_named
 from manualcontrol.pilots._random import as_generator
 from manualcontrol.pilots.loop import SimulationSetup, discrete_pilot
 from manualcontrol.pilots.simulation import distinct_parameter_sets, matrix_parameters, simulate
@@ -125,14 +126,15 @@ def _check_episode_growth(
     only the run up to it is judged (the critical task is meant to be lost).
     """
     pilot = setup.pilot
-    postview = {"gap": setup.gap, "postview": setup.postview} if setup.task == "postview" else {}
+    display = task_named(setup.task)
+    postview = {"gap": setup.gap, "postview": setup.postview} if display.shows_postview else {}
     try:
         simulate(
             PilotSpec(pilot.model, dict(pilot.parameters), None, pilot.delay_order),
             setup.element,
             setup.forcing,
             task=setup.task,
-            available_preview=setup.available_preview if setup.task == "preview" else None,
+            available_preview=setup.available_preview if display.shows_preview else None,
             dt=setup.dt,
             run_in=setup.run_in,
             measurement_time=setup.measurement_time,
@@ -171,13 +173,14 @@ class PilotController:
                     f"env must be a manualcontrol tracking environment after reset(), "
                     f"it has no {attribute!r}"
                 )
-        postview = {"gap": base.gap, "postview": base.postview} if base.task == "postview" else {}
+        display = task_named(base.task)
+        postview = {"gap": base.gap, "postview": base.postview} if display.shows_postview else {}
         setup = SimulationSetup.create(
             pilot,
             base.element,
             base.forcing,
             task=base.task,
-            available_preview=base.available_preview if base.task == "preview" else None,
+            available_preview=base.available_preview if display.shows_preview else None,
             dt=base.dt,
             run_in=base.run_in,
             measurement_time=base.measurement_time,
@@ -201,7 +204,7 @@ class PilotController:
                     base.element,
                     base.forcing,
                     task=base.task,
-                    available_preview=setup.available_preview if base.task == "preview" else None,
+                    available_preview=setup.available_preview if display.shows_preview else None,
                     dt=base.dt,
                     run_in=base.run_in,
                     measurement_time=base.measurement_time,

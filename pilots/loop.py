@@ -49,13 +49,13 @@ from manualcontrol.envs.schedules import Schedule, as_schedule
 from manualcontrol.envs.signals import ForcingPair
 from manualcontrol.envs.tasks import (
     DISTURBANCE_POINTS,
-    TASKS,
     available_preview_for,
     check_preview_time,
     measurement_time_for,
     resolve_forcing,
     sample_counts,
     task_metadata,
+    task_named,
 )
 from manualcontrol.pilots.models import CROSSOVER_RANGE, PilotModel, element_gain_ranges
 from manualcontrol.pilots.remnant import Remnant
@@ -146,15 +146,13 @@ class SimulationSetup:
         model_task = pilot.model.task
         if task is None:
             task = model_task
-        check_choice("task", task, TASKS)
-        if (task == "compensatory") != (model_task == "compensatory") or (
-            (task == "postview") != (model_task == "postview")
-        ):
+        display = task_named(task)
+        if not display.fits_models_for(task_named(model_task)):
             raise ValueError(
                 f"task {task!r} does not fit the {pilot.model.name!r} pilot model, "
                 f"which is a {model_task} model"
             )
-        if task == "postview":
+        if display.shows_postview:
             postview = check_positive(
                 "postview", DEFAULT_POSTVIEW if postview is None else postview
             )

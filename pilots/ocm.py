@@ -115,7 +115,7 @@ from manualcontrol.envs.dynamics import tf_to_ccf
 from manualcontrol.envs.elements import ControlledElement, make_element
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair
-from manualcontrol.envs.tasks import DISTURBANCE_POINTS, resolve_forcing
+from manualcontrol.envs.tasks import DISTURBANCE_POINTS, resolve_forcing, task_named
 from manualcontrol.envs.tracking import CompensatoryTracking
 
 __all__ = [
@@ -874,7 +874,7 @@ class OptimalControlPilot:
                     f"env must be a manualcontrol tracking environment after reset(), "
                     f"it has no {attribute!r}"
                 )
-        if base.task != "compensatory":
+        if not task_named(base.task).shows_error_only:
             raise ValueError(f"the OCM pilot flies compensatory tasks, got task {base.task!r}")
         where = getattr(base, "disturbance_at", "output")
         solution = self.solve(

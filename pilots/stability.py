@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 
 from manualcontrol.envs._validation import check_choice
 from manualcontrol.envs.elements import ControlledElement, make_element
+from manualcontrol.envs.tasks import task_named
 from manualcontrol.pilots.loop import SimulationSetup, closed_loop
 from manualcontrol.pilots.models import PilotModel, make_model
 from manualcontrol.pilots.spec import HumanLimitWarning, PilotSpec
@@ -197,7 +198,7 @@ def check_stable(setup: Any, *, on_unstable: str = "raise") -> bool | None:
     check_choice("on_unstable", on_unstable, ON_UNSTABLE)
     if setup.pilot.is_time_varying or setup.element.is_time_varying:
         return None
-    if getattr(setup, "task", None) == "postview":
+    if task_named(setup.task).shows_postview:
         # the postview operator extrapolates a displayed past track (no model delay of
         # its own): the pole analysis has no form for it; the growth check judges the run
         return None

@@ -38,6 +38,7 @@ from manualcontrol.bench.report import draw_trace, save_figure, subplots
 from manualcontrol.bench.scenarios import Scenario, Suite, scenario_from_dict
 from manualcontrol.envs.elements import make_element
 from manualcontrol.envs.signals import forcing_preset
+from manualcontrol.envs.tasks import task_named
 from manualcontrol.estimators.offline.smoothing import smooth
 
 __all__ = ["equivalent_advance", "lag_behind", "report_section"]
@@ -344,7 +345,7 @@ def report_section(suite: Suite, rows: Sequence[Mapping[str, Any]], out: str | P
         task = scenarios[0].task
         if task == "open-loop":
             open_loop[batch.name], examples[batch.name] = _open_loop(scenarios)
-        elif task == "postview":
+        elif task_named(task).shows_postview:
             stats, example = _postview(scenarios)
             lines += [
                 f"### Sec. V, gap-postview ({batch.name}, {len(scenarios)} runs)",

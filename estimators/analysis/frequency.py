@@ -39,6 +39,7 @@ from manualcontrol.envs._validation import check_choice, check_int, check_positi
 from manualcontrol.envs.elements import ControlledElement, make_element
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair, Multisine
+from manualcontrol.envs.tasks import TASKS, task_named
 from manualcontrol.pilots.models import PilotModel, make_model
 
 __all__ = [
@@ -147,7 +148,7 @@ _PERIOD_SAMPLE_TOLERANCE = 1e-3
 
 
 #: Displays on which the pilot sees the target and the output separately.
-TWO_CHANNEL_TASKS: tuple[str, ...] = ("pursuit", "preview")
+TWO_CHANNEL_TASKS: tuple[str, ...] = tuple(name for name in TASKS if task_named(name).shows_target)
 
 
 @dataclass(frozen=True)
@@ -734,7 +735,7 @@ class _FitTarget:
         structure = make_model(model)
         self.structure = structure
         if structure.perceptions == ("e",):
-            if describing.task != "compensatory":
+            if not task_named(describing.task).shows_error_only:
                 raise ValueError(
                     f"the {structure.name} model responds to the error alone, and this is a "
                     f"{describing.task} task's describing function (the pilot sees the "
@@ -852,8 +853,9 @@ def fit_describing_function(
     structure = target.structure
     names = structure.parameter_names
     held = {"K_v": 0.0} if _single_integrator(describing) and "K_v" in names else {}
-    if describing.task == "pursuit" and "tau_f" in names:
-        held["tau_f"] = 0.0
+    display = task_named(describing.task)
+    if display.shows_target and not display.shows_preview and "tau_f" in names:
+        held["tau_f"] = 0.0  # the target shown, nothing ahead of it
     fixed = {**held, **(fixed or {})}  # what the user holds adds to (or sets) the rules
     unknown = sorted(set(fixed) - set(names))
     if unknown:

@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from manualcontrol.envs.recording import Recording
+from manualcontrol.envs.tasks import task_named
 from manualcontrol.estimators.analysis.fit_check import FitCheck, check_fit
 from manualcontrol.estimators.analysis.frequency import DescribingFunction, describing_function
 from manualcontrol.estimators.analysis.metrics import pilot_model_of, resimulate
@@ -228,8 +229,9 @@ def identified_loop(result: EstimationResult, element: Any = None) -> dict[str, 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             pilot = Pilot(settings["model"], dict(result.final()))
-            task = "compensatory" if pilot.model.task == "compensatory" else "preview"
-            preview = 5.0 if task == "preview" else None  # room for any identified tau_f
+            error_only = task_named(pilot.model.task).shows_error_only
+            task = "compensatory" if error_only else "preview"
+            preview = None if error_only else 5.0  # room for any identified tau_f
             setup = SimulationSetup.create(pilot, element, task=task, available_preview=preview)
             check_stable(setup)
     except UnstableLoopError as error:
