@@ -70,7 +70,7 @@ def median_time(function):
 
 def oracle_run(dekf, recording):
     signals = dekf.signals(recording)
-    n = round(dekf.settings.window / recording.dt)
+    n = round(dekf.settings.noise.window / recording.dt)
     var_u0 = float(np.nanvar(signals["u"][: n + 1]))
     var_e0 = float(np.nanvar(signals["e"][: n + 1]))
     oracle = NumpyDEKF(dekf, recording.dt, var_u0, var_e0)

@@ -124,7 +124,7 @@ def main() -> None:
     signals = dekf.signals(recording)
     keys = dekf.sample_keys
     samples = [{key: float(signals[key][k]) for key in keys} for k in range(len(recording))]
-    window = round(dekf.settings.window / recording.dt) + 1
+    window = round(dekf.settings.noise.window / recording.dt) + 1
 
     def online():
         dekf.reset(

@@ -67,7 +67,7 @@ def dekf_kernel(dekf, recording):
     signals = dekf.signals(recording)
     import numpy as np
 
-    n = round(dekf.settings.window / recording.dt)
+    n = round(dekf.settings.noise.window / recording.dt)
     var_u0 = float(np.nanvar(signals["u"][: n + 1]))
     var_e0 = float(np.nanvar(signals["e"][: n + 1]))
     inputs = np.ascontiguousarray(

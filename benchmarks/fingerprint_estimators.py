@@ -135,7 +135,7 @@ def _reset_options(estimator: Any, recording: Any) -> dict[str, Any]:
     parameters = inspect.signature(estimator.reset).parameters
     options: dict[str, Any] = {}
     if "var_u0" in parameters:  # a pilot filter: the first window's variances (eq. 34)
-        window = slice(0, round(estimator.settings.window / recording.dt) + 1)
+        window = slice(0, round(estimator.settings.noise.window / recording.dt) + 1)
         options["var_u0"] = float(np.nanvar(recording["u"][window]))
         options["var_e0"] = float(np.nanvar(recording.with_error_signal()["e"][window]))
     if "initial_states" in parameters:

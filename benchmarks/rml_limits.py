@@ -66,7 +66,7 @@ def _nrmse(names, t, mean, recording, start):
 def _reopened(estimator, recording, change, start):
     """Online means with the parameter covariance reset to ``P0`` at ``change`` s."""
     dt = recording.dt
-    first = slice(0, round(estimator.settings.window / dt) + 1)
+    first = slice(0, round(estimator.settings.noise.window / dt) + 1)
     estimator.reset(
         dt,
         var_u0=float(np.nanvar(recording.u[first])),

@@ -31,7 +31,6 @@ diverged) and ``pinned`` (n, p); members with several outputs add ``predictions`
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Mapping, Sequence
 from types import MappingProxyType
 from typing import Any, ClassVar
@@ -123,11 +122,11 @@ class FilterShell:
     def __init__(self, settings: Any = None, **changes: Any) -> None:
         kind = self.settings_type
         if settings is None:
-            settings = kind(**changes)
+            settings = kind.build(**changes)
         elif not isinstance(settings, kind):
             raise TypeError(f"settings must be {kind.__name__}, got {settings!r}")
         elif changes:
-            settings = dataclasses.replace(settings, **changes)
+            settings = settings.replace(**changes)
         self._settings = settings
         self._records: Any = None
         self._row: Any = None
@@ -163,7 +162,7 @@ class FilterShell:
 
     def configure(self, **changes: Any) -> Any:
         """A new estimator of this kind with some settings replaced."""
-        return type(self)(dataclasses.replace(self._settings, **changes))
+        return type(self)(self._settings.replace(**changes))
 
     def __reduce__(self) -> tuple[Any, ...]:
         """Pickle (and deep copy) as a fresh estimator with the same settings, without run state."""
@@ -327,7 +326,7 @@ class FilterShell:
             flag,
             pinned,
             self.parameter_names,
-            self._settings.pinned_time,
+            self._settings.guard.pinned_time,
         )
 
     def _assemble(

@@ -111,7 +111,7 @@ TOTAL_DERIVATIVES: tuple[str, ...] = ("printed", "dimensional")
 
 @dataclass(frozen=True)
 class DEKFSettings(PilotFilterSettings):
-    """Settings of the :class:`DEKF` (frozen; vary with :func:`dataclasses.replace`).
+    """Settings of the :class:`DEKF` (frozen; vary with its ``replace``).
 
     Every field of :class:`~manualcontrol.estimators.members.pilot_filter.PilotFilterSettings`,
     plus:
@@ -184,7 +184,7 @@ class DEKF(PilotFilter):
         P = np.zeros((n_s, n_s))
         q_state = np.zeros(n_s)
         for i in range(n_c):
-            P[i, i] = settings.P0_canonical
+            P[i, i] = settings.noise.P0_canonical
         for g, name in enumerate(resolved.gains):
             x[n_c + g] = common.p[names.index(name)]
             P[n_c + g, n_c + g] = resolved.P0[name]

@@ -265,15 +265,15 @@ class PilotFilter(FilterShell):
             )
         dt = check_positive("dt", dt)
         t0 = check_real("t0", t0)
-        n_window = round(settings.window / dt)
+        n_window = round(settings.noise.window / dt)
         if n_window < 1:
             raise ValueError(
-                f"window must be at least one sample ({dt:g} s), got {settings.window!r}"
+                f"window must be at least one sample ({dt:g} s), got {settings.noise.window!r}"
             )
         for name, value in (("var_u0", var_u0), ("var_e0", var_e0)):
             if value is not None:
                 check_positive(name, value, allow_zero=True)
-        if settings.initial_variance == "first-window" and (var_u0 is None or var_e0 is None):
+        if settings.noise.initial_variance == "first-window" and (var_u0 is None or var_e0 is None):
             raise ValueError(
                 "reset needs var_u0 and var_e0 with initial_variance='first-window' (the "
                 "variances of u and e over the first window, Popovici eq. 34); "
@@ -296,20 +296,26 @@ class PilotFilter(FilterShell):
         cfg[core.CFG_R2] = resolved.r2
         cfg[core.CFG_R2_PARAMETER] = resolved.r2_parameter
         cfg[core.CFG_WINDOW] = n_window
-        cfg[core.CFG_FIRST_WINDOW] = 1.0 if settings.initial_variance == "first-window" else 0.0
-        cfg[core.CFG_FLOOR] = settings.variance_floor
-        cfg[core.CFG_JITTER] = settings.jitter
-        cfg[core.CFG_MAX_COV] = settings.max_covariance
-        cfg[core.CFG_FIXED_R] = settings.fixed_R or 0.0
-        cfg[core.CFG_FIXED_QE] = settings.fixed_Q_error or 0.0
+        cfg[core.CFG_FIRST_WINDOW] = (
+            1.0 if settings.noise.initial_variance == "first-window" else 0.0
+        )
+        cfg[core.CFG_FLOOR] = settings.noise.variance_floor
+        cfg[core.CFG_JITTER] = settings.guard.jitter
+        cfg[core.CFG_MAX_COV] = settings.guard.max_covariance
+        cfg[core.CFG_FIXED_R] = settings.noise.fixed_R or 0.0
+        cfg[core.CFG_FIXED_QE] = settings.noise.fixed_Q_error or 0.0
         cfg[core.CFG_ERROR_STATE] = internal.input_states[0]
-        cfg[core.CFG_GAMMA2] = dt * dt if settings.noise_input == "euler" else 1.0
+        cfg[core.CFG_GAMMA2] = dt * dt if settings.noise.noise_input == "euler" else 1.0
         sc = np.zeros(core.SC_SIZE)
         sc[core.SC_VAR_U0] = var_u0 if var_u0 is not None else 0.0
         sc[core.SC_VAR_E0] = var_e0 if var_e0 is not None else 0.0
         sc[core.SC_DIV_INDEX] = -1.0
         sc[core.SC_DIV_PARAM] = -1.0
-        n_pin = 0 if math.isinf(settings.pinned_time) else max(1, round(settings.pinned_time / dt))
+        n_pin = (
+            0
+            if math.isinf(settings.guard.pinned_time)
+            else max(1, round(settings.guard.pinned_time / dt))
+        )
         watch = core.PilotMonitor(
             np.full(n_window + 1, np.nan),
             np.full(n_window + 1, np.nan),
@@ -409,7 +415,7 @@ class PilotFilter(FilterShell):
         target_period: float | None = None,
     ) -> dict[str, FloatArray]:
         """The sample signals :meth:`estimate` feeds the filter (see :meth:`update`)."""
-        check_estimable(recording, window=self._settings.window)
+        check_estimable(recording, window=self._settings.noise.window)
         if "u" not in recording:
             raise ValueError("the recording has no control signal u to estimate from")
         if "e" not in recording:
@@ -487,7 +493,11 @@ class PilotFilter(FilterShell):
         """The run from the describing-function fit's delay and neuromuscular values."""
         settings = self._settings
         describing = run_describing_function(
-            settings, recording, options.get("forcing"), options.get("target_period"), "start"
+            settings,
+            recording,
+            options.get("forcing"),
+            options.get("target_period"),
+            f"start={settings.start!r}",
         )
         fit = fit_describing_function(describing, settings.model)
         names = self._internal.parameter_names
@@ -526,7 +536,7 @@ class PilotFilter(FilterShell):
         is not chosen, and no pass starts from it.
         """
         resolved = self.resolved
-        n_window = round(self._settings.window / recording.dt)
+        n_window = round(self._settings.noise.window / recording.dt)
 
         def terms_of(result: EstimationResult) -> FloatArray:
             """Per-sample costs after the first window (NaN throughout for a stopped pass)."""
@@ -596,7 +606,7 @@ class PilotFilter(FilterShell):
     ) -> EstimationResult:
         """One filter pass over ``recording`` from a fresh reset (filtered)."""
         dt = recording.dt
-        n_window = round(self._settings.window / dt)
+        n_window = round(self._settings.noise.window / dt)
         first = slice(0, n_window + 1)
         variances = []
         for name in ("u", "e"):
@@ -627,7 +637,7 @@ class PilotFilter(FilterShell):
             flag,
             pinned,
             self._internal.parameter_names,
-            self._settings.pinned_time,
+            self._settings.guard.pinned_time,
         )
 
     def _result(self, t: FloatArray, out: Any, store: bool) -> EstimationResult:

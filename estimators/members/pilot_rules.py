@@ -82,7 +82,12 @@ from manualcontrol.estimators.members.internal_model import (
     InternalModel,
     build_internal_model,
 )
-from manualcontrol.estimators.settings import SettingsRecord, limit_pair, to_json_value
+from manualcontrol.estimators.settings import (
+    GuardSettings,
+    SettingsRecord,
+    limit_pair,
+    to_json_value,
+)
 from manualcontrol.pilots.models import (
     CROSSOVER_RANGE,
     MODEL_NAMES,
@@ -224,12 +229,92 @@ def _frozen_mapping(name: str, value: Any, convert: Any) -> Mapping[str, Any]:
 
 
 @dataclass(frozen=True)
+class NoiseSettings(SettingsRecord):
+    """The noise of a filter on a pilot internal model: its covariances and their sources.
+
+    A group of :class:`PilotFilterSettings` (``noise=``); each field is also accepted by
+    its own name in suite files, ``--set`` and keyword arguments (``q2=0.1``).
+
+    Parameters
+    ----------
+    preset : str
+        Initial covariances and process noise: one of :data:`PRESETS`.
+    q2, r2 : float
+        Process-noise factor of the error variance and measurement-noise factor of the
+        control variance (> 0); ``r2=None`` takes the preset's value.
+    window : float
+        Retrospective window of the variances (s), 5 s.
+    initial_variance : {"first-window", "causal"}
+        Before a full window: the variances of the first window (the papers; needs
+        the first ``window`` of data at reset, which ``estimate`` computes),
+        or of the samples so far (a causal online start; then ``initial`` must give
+        ``K_p`` for the precision and preview models).
+    P0, Q : Mapping[str, float]
+        Initial variance and process-noise variance per parameter (> 0; Q enters as
+        ``Gamma Q Gamma^T``), replacing the preset's.
+    P0_fraction, Q_fraction : Mapping[str, float]
+        Per parameter, the thesis's forms with another fraction: ``P_0 = (p theta_0)^2``
+        and ``Q = q theta_0`` (> 0), replacing the preset's (``P0``/``Q`` win).
+    P0_canonical : float
+        Initial variance of the canonical states (> 0), 0.1 (Popovici eq. 32).
+    noise_input : {"euler", "identity"}
+        The noise-input matrices ``Gamma``, see :data:`NOISE_INPUTS`.
+    variance_floor : float
+        Lower bound of the windowed variances (> 0) so ``R > 0`` on silent starts.
+    fixed_R, fixed_Q_error : float or None
+        Constant ``R`` and constant chain-input process noise instead of the
+        windowed ones (> 0); for checks against a linear Kalman filter.
+
+    The parameter names of ``P0``, ``Q``, ``P0_fraction`` and ``Q_fraction`` are
+    checked against the model by :class:`PilotFilterSettings`, which knows it.
+    """
+
+    preset: str = "popovici2017"
+    q2: float = 0.4
+    r2: float | None = None
+    window: float = 5.0
+    initial_variance: str = "first-window"
+    P0: Mapping[str, float] = field(default_factory=dict)
+    Q: Mapping[str, float] = field(default_factory=dict)
+    P0_fraction: Mapping[str, float] = field(default_factory=dict)
+    Q_fraction: Mapping[str, float] = field(default_factory=dict)
+    P0_canonical: float = 0.1
+    noise_input: str = "euler"
+    variance_floor: float = 1e-12
+    fixed_R: float | None = None
+    fixed_Q_error: float | None = None
+
+    def __post_init__(self) -> None:
+        check_choice("preset", self.preset, PRESETS)
+        object.__setattr__(self, "q2", check_positive("q2", self.q2))
+        if self.r2 is not None:
+            object.__setattr__(self, "r2", check_positive("r2", self.r2))
+        object.__setattr__(self, "window", check_positive("window", self.window))
+        check_choice("initial_variance", self.initial_variance, INITIAL_VARIANCE_MODES)
+        for which in ("P0", "Q", "P0_fraction", "Q_fraction"):
+            values = _frozen_mapping(which, getattr(self, which), check_positive)
+            for key, value in values.items():
+                if value <= 0.0:
+                    raise ValueError(f"{which}[{key!r}] must be > 0 (a variance), got {value!r}")
+            object.__setattr__(self, which, values)
+        object.__setattr__(self, "P0_canonical", check_positive("P0_canonical", self.P0_canonical))
+        check_choice("noise_input", self.noise_input, NOISE_INPUTS)
+        object.__setattr__(
+            self, "variance_floor", check_positive("variance_floor", self.variance_floor)
+        )
+        for which in ("fixed_R", "fixed_Q_error"):
+            value = getattr(self, which)
+            if value is not None:
+                object.__setattr__(self, which, check_positive(which, value))
+
+
+@dataclass(frozen=True)
 class PilotFilterSettings(SettingsRecord):
     """Settings shared by the filters on pilot internal models (frozen).
 
     The DEKF's settings (:class:`~manualcontrol.estimators.members.dekf.DEKFSettings`) and the
     unscented filters' (:mod:`~manualcontrol.estimators.members.ukf`) add their own fields to
-    these; vary any of them with :func:`dataclasses.replace`.
+    these; vary any of them with ``replace`` (flat keys or group tables).
 
     Parameters
     ----------
@@ -264,45 +349,16 @@ class PilotFilterSettings(SettingsRecord):
         ranges (:func:`human_limits`), none at all, or the defaults with these entries
         replaced (``(-inf, inf)`` removes one). None (default): ``"human"`` where an
         ``element`` is given, else ``"table-I"``.
-    preset : str
-        Initial covariances and process noise: one of :data:`PRESETS`.
-    q2, r2 : float
-        Process-noise factor of the error variance and measurement-noise factor of the
-        control variance (> 0); ``r2=None`` takes the preset's value.
-    window : float
-        Retrospective window of the variances (s), 5 s.
-    initial_variance : {"first-window", "causal"}
-        Before a full window: the variances of the first window (the papers; needs
-        the first ``window`` of data at reset, which ``estimate`` computes),
-        or of the samples so far (a causal online start; then ``initial`` must give
-        ``K_p`` for the precision and preview models).
-    P0, Q : Mapping[str, float]
-        Initial variance and process-noise variance per parameter (> 0; Q enters as
-        ``Gamma Q Gamma^T``), replacing the preset's.
-    P0_fraction, Q_fraction : Mapping[str, float]
-        Per parameter, the thesis's forms with another fraction: ``P_0 = (p theta_0)^2``
-        and ``Q = q theta_0`` (> 0), replacing the preset's (``P0``/``Q`` win).
-    P0_canonical : float
-        Initial variance of the canonical states (> 0), 0.1 (Popovici eq. 32).
     delay_order : int
         Padé order of the delays in the internal model, 1 to
         :data:`MAX_DELAY_ORDER`, 3 (the papers' choice).
-    noise_input : {"euler", "identity"}
-        The noise-input matrices ``Gamma``, see :data:`NOISE_INPUTS`.
-    jitter : float
-        Added to every covariance diagonal after each correction (>= 0; 0 = off): a
-        guard that keeps covariances positive definite when estimates stall.
-    variance_floor : float
-        Lower bound of the windowed variances (> 0) so ``R > 0`` on silent starts.
-    max_covariance : float
-        A covariance diagonal above this counts as divergence (stops the filter).
-    pinned_time : float
-        A parameter at a limit in at least 90 % of the samples of the last
-        ``pinned_time`` seconds is reported as divergence (the filter goes on);
-        ``inf`` never reports.
-    fixed_R, fixed_Q_error : float or None
-        Constant ``R`` and constant chain-input process noise instead of the
-        windowed ones (> 0); for checks against a linear Kalman filter.
+    noise : NoiseSettings
+        The filter's noise: preset, ``q2``/``r2``, the variances' window, initial and
+        process-noise variances (:class:`NoiseSettings`; each field also by its own
+        name, ``q2=0.1``).
+    guard : GuardSettings
+        ``jitter``, ``max_covariance``, ``pinned_time``
+        (:class:`~manualcontrol.estimators.settings.GuardSettings`).
     restarts : int
         Offline only (:meth:`PilotFilter.estimate`; ``update`` ignores it): after a
         pass over the run, the filter runs again from the median of that pass's
@@ -322,6 +378,7 @@ class PilotFilterSettings(SettingsRecord):
     """
 
     pair_mapping_fields: ClassVar[tuple[str, ...]] = ("limits",)
+    groups: ClassVar[tuple[str, ...]] = ("noise", "guard")
 
     model: str = "precision"
     ce: str | None = None
@@ -330,26 +387,11 @@ class PilotFilterSettings(SettingsRecord):
     estimated: tuple[str, ...] | None = None
     initial: Mapping[str, float] = field(default_factory=dict)
     limits: str | Mapping[str, tuple[float, float]] | None = None
-    preset: str = "popovici2017"
-    q2: float = 0.4
-    r2: float | None = None
-    window: float = 5.0
-    initial_variance: str = "first-window"
-    P0: Mapping[str, float] = field(default_factory=dict)
-    Q: Mapping[str, float] = field(default_factory=dict)
-    P0_fraction: Mapping[str, float] = field(default_factory=dict)
-    Q_fraction: Mapping[str, float] = field(default_factory=dict)
-    P0_canonical: float = 0.1
     delay_order: int = 3
-    noise_input: str = "euler"
-    jitter: float = 0.0
-    variance_floor: float = 1e-12
-    max_covariance: float = 1e8
-    pinned_time: float = 30.0
-    fixed_R: float | None = None
-    fixed_Q_error: float | None = None
     restarts: int = 0
     start: str = "generic"
+    noise: NoiseSettings = field(default_factory=lambda: NoiseSettings())
+    guard: GuardSettings = field(default_factory=GuardSettings)
 
     def __post_init__(self) -> None:
         check_choice("model", self.model, MODEL_NAMES)
@@ -445,20 +487,14 @@ class PilotFilterSettings(SettingsRecord):
                     f"{self.anticipation_time:g} s, got {limits['tau_f']!r}"
                 )
             object.__setattr__(self, "limits", limits)
-        check_choice("preset", self.preset, PRESETS)
-        object.__setattr__(self, "q2", check_positive("q2", self.q2))
-        if self.r2 is not None:
-            object.__setattr__(self, "r2", check_positive("r2", self.r2))
-        object.__setattr__(self, "window", check_positive("window", self.window))
-        check_choice("initial_variance", self.initial_variance, INITIAL_VARIANCE_MODES)
+        for group, kind in (("noise", NoiseSettings), ("guard", GuardSettings)):
+            if not isinstance(getattr(self, group), kind):
+                raise TypeError(
+                    f"{group} must be a {kind.__name__} (or its fields by name), "
+                    f"got {getattr(self, group)!r}"
+                )
         for which in ("P0", "Q", "P0_fraction", "Q_fraction"):
-            values = _frozen_mapping(which, getattr(self, which), check_positive)
-            check_names(which, values)
-            for key, value in values.items():
-                if value <= 0.0:
-                    raise ValueError(f"{which}[{key!r}] must be > 0 (a variance), got {value!r}")
-            object.__setattr__(self, which, values)
-        object.__setattr__(self, "P0_canonical", check_positive("P0_canonical", self.P0_canonical))
+            check_names(which, getattr(self.noise, which))
         order = check_int("delay_order", self.delay_order, minimum=1)
         if order > MAX_DELAY_ORDER:
             raise ValueError(
@@ -468,22 +504,6 @@ class PilotFilterSettings(SettingsRecord):
                 "samples)"
             )
         object.__setattr__(self, "delay_order", order)
-        check_choice("noise_input", self.noise_input, NOISE_INPUTS)
-        object.__setattr__(self, "jitter", check_positive("jitter", self.jitter, allow_zero=True))
-        object.__setattr__(
-            self, "variance_floor", check_positive("variance_floor", self.variance_floor)
-        )
-        object.__setattr__(
-            self, "max_covariance", check_positive("max_covariance", self.max_covariance)
-        )
-        pinned = float(self.pinned_time)
-        if math.isnan(pinned) or pinned <= 0.0:
-            raise ValueError(f"pinned_time must be > 0 s (inf: never), got {self.pinned_time!r}")
-        object.__setattr__(self, "pinned_time", pinned)
-        for which in ("fixed_R", "fixed_Q_error"):
-            value = getattr(self, which)
-            if value is not None:
-                object.__setattr__(self, which, check_positive(which, value))
         object.__setattr__(self, "restarts", check_int("restarts", self.restarts, minimum=0))
         check_choice("start", self.start, STARTS)
 
@@ -513,9 +533,9 @@ class PilotFilterSettings(SettingsRecord):
     @property
     def r2_value(self) -> float:
         """``r^2`` in use: the given one, else the preset's."""
-        if self.r2 is not None:
-            return self.r2
-        return 4.0 if self.preset == "vertregt2020-remnant" and self.ce_type == "DI" else 0.7
+        if self.noise.r2 is not None:
+            return self.noise.r2
+        return 4.0 if self.noise.preset == "vertregt2020-remnant" and self.ce_type == "DI" else 0.7
 
 
 def held_by_design(ce: str | None, pursuit: bool) -> frozenset[str]:
@@ -677,7 +697,8 @@ def run_describing_function(
     The choices: its start, the RML's remnant model. The forcing from ``forcing`` (a
     ForcingPair), else ``recording.metadata``, else ``target_period`` (the forcing's
     period, its lines read off the recorded signals).
-    ``what`` names the setting in the error when it cannot be measured.
+    ``what``, the setting that needs it as ``name=value``, is named in the error when it
+    cannot be measured.
     """
     task = "compensatory"
     if "ft_far" in make_model(settings.model).perceptions:
@@ -693,7 +714,7 @@ def run_describing_function(
         )
     except ValueError as error:
         raise ValueError(
-            f"{what}={getattr(settings, what)!r} needs the describing function of the run "
+            f"{what} needs the describing function of the run "
             f"({error}); pass forcing= (the run's ForcingPair) or target_period= (the "
             "forcing's period, s)"
         ) from None
@@ -814,24 +835,24 @@ def resolve_settings(
     for name in estimated:
         value = abs(internal_value(name))
         kind = _kind(name)
-        if settings.preset == "popovici2017":
+        if settings.noise.preset == "popovici2017":
             p0 = 10.0 if kind in ("gain", "frequency") else 1.0  # eqs. 32-33
             q = (1.0 if kind == "gain" else 0.1) * value  # eqs. 25-26
         else:
             p_factor = 0.1 if name == "omega_nms" else 0.5
             p0 = (p_factor * value) ** 2  # thesis Sec. V-B-1
             q = (0.05 if kind in ("gain", "delay") else 0.025) * value  # Sec. V-B-2
-        if name in settings.P0_fraction:
-            p0 = (settings.P0_fraction[name] * value) ** 2  # thesis Sec. V-B-1 form
-        if name in settings.Q_fraction:
-            q = settings.Q_fraction[name] * value  # thesis Sec. IV-F-2 form
-        P0[name] = settings.P0.get(name, p0)
-        Q[name] = settings.Q.get(name, q)
+        if name in settings.noise.P0_fraction:
+            p0 = (settings.noise.P0_fraction[name] * value) ** 2  # thesis Sec. V-B-1 form
+        if name in settings.noise.Q_fraction:
+            q = settings.noise.Q_fraction[name] * value  # thesis Sec. IV-F-2 form
+        P0[name] = settings.noise.P0.get(name, p0)
+        Q[name] = settings.noise.Q.get(name, q)
         for which, table in (("P0", P0), ("Q", Q)):
             if not table[name] > 0.0:
                 raise ValueError(
                     f"{which}[{name!r}] resolves to {table[name]!r} (from the initial value "
-                    f"{initial[name]!r} with preset {settings.preset!r}); covariances must "
+                    f"{initial[name]!r} with preset {settings.noise.preset!r}); covariances must "
                     f"be > 0: give {which}={{{name!r}: ...}} or another initial value"
                 )
     gains = tuple(name for name in internal.gain_parameters if name in estimated)
@@ -850,7 +871,7 @@ def resolve_settings(
         P0=MappingProxyType(P0),
         Q=MappingProxyType(Q),
         limits=MappingProxyType({k: v for k, v in limits.items() if k in estimated}),
-        q2=settings.q2,
+        q2=settings.noise.q2,
         r2=settings.r2_value,
         r2_parameter=settings.r2_value if r2_parameter is None else r2_parameter,
         var_u0=var_u0,

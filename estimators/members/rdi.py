@@ -129,7 +129,7 @@ def _signal_name(name: str, value: Any) -> str:
 
 @dataclass(frozen=True)
 class RDISettings(SettingsRecord):
-    """Settings of the :class:`RDI` (frozen; vary with :func:`dataclasses.replace`).
+    """Settings of the :class:`RDI` (frozen; vary with its ``replace``).
 
     Parameters
     ----------

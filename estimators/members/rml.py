@@ -178,7 +178,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
@@ -200,14 +201,23 @@ from manualcontrol.estimators.members.internal_model import (
 )
 from manualcontrol.estimators.members.pilot_filter import CommonArrays, PilotFilter
 from manualcontrol.estimators.members.pilot_rules import (
+    NoiseSettings,
     PilotFilterSettings,
     ResolvedSettings,
     run_describing_function,
 )
 from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
+from manualcontrol.estimators.settings import SettingsRecord
 from manualcontrol.pilots.models import make_model
 
-__all__ = ["BREAK_FREQUENCY", "RML", "RMLSettings"]
+__all__ = [
+    "BREAK_FREQUENCY",
+    "RML",
+    "BankSettings",
+    "DriftSettings",
+    "RMLSettings",
+    "RemnantSettings",
+]
 
 #: Remnant break frequency (rad/s) per controlled-element type (van der El et al.
 #: 2019, thesis Part I Sec. IV-D); other dynamics take Levison's 3 rad/s (Popovici).
@@ -235,38 +245,141 @@ LONGEST_DELAY = 1.5
 
 
 @dataclass(frozen=True)
-class RMLSettings(PilotFilterSettings):
-    """Settings of the :class:`RML` (see the module docstring for each field)."""
+class RemnantSettings(SettingsRecord):
+    """The remnant model the RML learns beside the pilot (``remnant=``; module docstring).
 
-    preset: str = "vertregt2020"
-    q2: float = 1e-6
-    r2: float | None = None
-    r2_remnant: float | None = None
-    remnant: str = "levison"
-    remnant_break: float | None = None
-    remnant_injection: str = "input"
-    remnant_variance: float = 0.5
+    Each field is also accepted flat by the name in brackets, the one error messages use.
+
+    Parameters
+    ----------
+    model : {"levison", "none"}
+        (``remnant``) Levison's first-order remnant filter, or no remnant state.
+    break_frequency : float or None
+        (``remnant_break``, rad/s) The filter's (initial) break; None: the one measured
+        for the element type (:data:`BREAK_FREQUENCY`).
+    injection : {"input", "output", "choose"}
+        (``remnant_injection``) At the perception, at the stick, or offline both with
+        the pass the describing function agrees with kept (:meth:`RML.estimate`).
+    variance : float
+        (``remnant_variance``) Initial variance as a fraction of the first window's
+        error variance.
+    learn_intensity, learn_break : bool
+        Whether the log intensity (True) and the break (False) are learned.
+    intensity_P0, intensity_Q : float
+        The log intensity's initial variance and random-walk variance.
+    r2 : float or None
+        (``r2_remnant``) The part of ``R`` that follows the remnant; None: 5 where the
+        remnant drifts (:attr:`RMLSettings.remnant_drifts`), else 0.
+    """
+
+    flat_names: ClassVar[Mapping[str, str]] = {
+        "model": "remnant",
+        "break_frequency": "remnant_break",
+        "injection": "remnant_injection",
+        "variance": "remnant_variance",
+        "r2": "r2_remnant",
+    }
+
+    model: str = "levison"
+    break_frequency: float | None = None
+    injection: str = "input"
+    variance: float = 0.5
     learn_intensity: bool = True
     learn_break: bool = False
     intensity_P0: float = 4.0
     intensity_Q: float = 1e-3
+    r2: float | None = None
+
+    def __post_init__(self) -> None:
+        check_choice("remnant", self.model, REMNANT_MODELS)
+        if self.break_frequency is not None:
+            object.__setattr__(
+                self, "break_frequency", check_positive("remnant_break", self.break_frequency)
+            )
+        check_choice("remnant_injection", self.injection, (*INJECTIONS, CHOOSE_INJECTION))
+        for name in ("learn_intensity", "learn_break"):
+            if not isinstance(getattr(self, name), bool):
+                raise TypeError(f"{name} must be True or False, got {getattr(self, name)!r}")
+        if self.r2 is not None:
+            object.__setattr__(self, "r2", check_positive("r2_remnant", self.r2, allow_zero=True))
+        object.__setattr__(self, "variance", check_positive("remnant_variance", self.variance))
+        object.__setattr__(self, "intensity_P0", check_positive("intensity_P0", self.intensity_P0))
+        object.__setattr__(
+            self, "intensity_Q", check_positive("intensity_Q", self.intensity_Q, allow_zero=True)
+        )
+
+
+@dataclass(frozen=True)
+class DriftSettings(SettingsRecord):
+    """The drift rule on the parameters' process noise (``drift=``; module docstring).
+
+    Flat keys: ``drift_gain``, ``drift_window``, ``drift_threshold``.
+
+    Parameters
+    ----------
+    gain : float
+        Largest factor on a parameter's ``Q`` is ``1 + gain`` (>= 0; 0: off).
+    window : float
+        The moving means' window (s, > 0).
+    threshold : float
+        Persistence of the corrections above which ``Q`` grows, in [0, 1).
+    """
+
+    flat_names: ClassVar[Mapping[str, str]] = {
+        "gain": "drift_gain",
+        "window": "drift_window",
+        "threshold": "drift_threshold",
+    }
+
+    gain: float = 15.0
+    window: float = 2.5
+    threshold: float = 0.3
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "gain", check_positive("drift_gain", self.gain, allow_zero=True))
+        object.__setattr__(self, "window", check_positive("drift_window", self.window))
+        threshold = check_positive("drift_threshold", self.threshold, allow_zero=True)
+        if threshold >= 1.0:
+            raise ValueError(
+                f"drift_threshold must be in [0, 1) (a persistence of the corrections), "
+                f"got {threshold!r}"
+            )
+        object.__setattr__(self, "threshold", threshold)
+
+
+@dataclass(frozen=True)
+class BankSettings(SettingsRecord):
+    """How the filter bank spreads, steps and learns (``bank=``; module docstring).
+
+    Each field is also accepted flat by its own name.
+
+    Parameters
+    ----------
+    step : float
+        The bank's spread in standard deviations (> 0).
+    substeps : int
+        Euler substeps per 0.01 s (>= 1).
+    noise_first : float
+        Seconds at the start during which only the noise parameters learn (>= 0).
+    variance_score : {"remnant-path", "all"}
+        Which pilot parameters the variance part of the score moves.
+    spread_limit : float
+        Largest offset of a member from the mean, as a fraction of each parameter's
+        limit span, in [0, 1] (0: no limit).
+    """
+
     step: float = 1.0
     substeps: int = 2
     noise_first: float = 0.0
     variance_score: str = "remnant-path"
     spread_limit: float = 0.1
-    drift_gain: float = 15.0
-    drift_window: float = 2.5
-    drift_threshold: float = 0.3
 
     def __post_init__(self) -> None:
-        super().__post_init__()
-        check_choice("remnant", self.remnant, REMNANT_MODELS)
-        if self.remnant_break is not None:
-            object.__setattr__(
-                self, "remnant_break", check_positive("remnant_break", self.remnant_break)
-            )
-        check_choice("remnant_injection", self.remnant_injection, (*INJECTIONS, CHOOSE_INJECTION))
+        object.__setattr__(self, "step", check_positive("step", self.step))
+        object.__setattr__(self, "substeps", check_int("substeps", self.substeps, minimum=1))
+        object.__setattr__(
+            self, "noise_first", check_positive("noise_first", self.noise_first, allow_zero=True)
+        )
         check_choice("variance_score", self.variance_score, VARIANCE_SCORES)
         spread = check_positive("spread_limit", self.spread_limit, allow_zero=True)
         if spread > 1.0:
@@ -274,21 +387,47 @@ class RMLSettings(PilotFilterSettings):
                 f"spread_limit must be in [0, 1] (a fraction of the limit span), got {spread!r}"
             )
         object.__setattr__(self, "spread_limit", spread)
-        for name in ("learn_intensity", "learn_break"):
-            if not isinstance(getattr(self, name), bool):
-                raise TypeError(f"{name} must be True or False, got {getattr(self, name)!r}")
-        if self.r2_remnant is not None:
-            object.__setattr__(
-                self, "r2_remnant", check_positive("r2_remnant", self.r2_remnant, allow_zero=True)
-            )
-        if self.r2_remnant is not None and self.r2_remnant > 0.0 and self.remnant == "none":
+
+
+@dataclass(frozen=True)
+class RMLSettings(PilotFilterSettings):
+    """Settings of the :class:`RML` (module docstring): the shared ones and three groups.
+
+    ``remnant`` (:class:`RemnantSettings`), ``drift`` (:class:`DriftSettings`) and
+    ``bank`` (:class:`BankSettings`), besides the shared ``noise`` (here with the
+    ``vertregt2020`` preset and ``q2 = 1e-6``) and ``guard``.
+    """
+
+    groups: ClassVar[tuple[str, ...]] = ("noise", "guard", "remnant", "drift", "bank")
+
+    noise: NoiseSettings = field(
+        default_factory=lambda: NoiseSettings(preset="vertregt2020", q2=1e-6)
+    )
+    remnant: RemnantSettings = field(default_factory=RemnantSettings)
+    drift: DriftSettings = field(default_factory=DriftSettings)
+    bank: BankSettings = field(default_factory=BankSettings)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for group, kind in (
+            ("remnant", RemnantSettings),
+            ("drift", DriftSettings),
+            ("bank", BankSettings),
+        ):
+            if not isinstance(getattr(self, group), kind):
+                raise TypeError(
+                    f"{group} must be a {kind.__name__} (or its fields by name), "
+                    f"got {getattr(self, group)!r}"
+                )
+        r2_remnant = self.remnant.r2
+        if r2_remnant is not None and r2_remnant > 0.0 and self.remnant.model == "none":
             raise ValueError(
-                f"r2_remnant = {self.r2_remnant!r} weights R by the remnant's variance; "
+                f"r2_remnant = {r2_remnant!r} weights R by the remnant's variance; "
                 'remnant="none" has none (set r2_remnant=0 or a remnant model)'
             )
         if (
             self.r2_remnant_value > 0.0
-            and self.remnant_injection == "input"
+            and self.remnant.injection == "input"
             and _REMNANT_GAIN not in make_model(self.model).parameter_names
         ):
             raise ValueError(
@@ -304,25 +443,6 @@ class RMLSettings(PilotFilterSettings):
                 "incomparable between passes (each weights by its own estimate); set "
                 "r2_remnant=0 (R = r2 var(u)) to restart"
             )
-        for name in ("remnant_variance", "intensity_P0", "step", "drift_window"):
-            object.__setattr__(self, name, check_positive(name, getattr(self, name)))
-        object.__setattr__(
-            self, "drift_gain", check_positive("drift_gain", self.drift_gain, allow_zero=True)
-        )
-        threshold = check_positive("drift_threshold", self.drift_threshold, allow_zero=True)
-        if threshold >= 1.0:
-            raise ValueError(
-                f"drift_threshold must be in [0, 1) (a persistence of the corrections), "
-                f"got {threshold!r}"
-            )
-        object.__setattr__(self, "drift_threshold", threshold)
-        object.__setattr__(
-            self, "intensity_Q", check_positive("intensity_Q", self.intensity_Q, allow_zero=True)
-        )
-        object.__setattr__(
-            self, "noise_first", check_positive("noise_first", self.noise_first, allow_zero=True)
-        )
-        object.__setattr__(self, "substeps", check_int("substeps", self.substeps, minimum=1))
         if self.delay_order != 3:
             raise ValueError(
                 "delay_order does not apply to the RML, whose delays act on the inputs through "
@@ -339,30 +459,30 @@ class RMLSettings(PilotFilterSettings):
         """
         return (
             self.ce_type == "DI"
-            and self.remnant != "none"
-            and self.remnant_injection == "input"
+            and self.remnant.model != "none"
+            and self.remnant.injection == "input"
             and _REMNANT_GAIN in make_model(self.model).parameter_names
         )
 
     @property
     def r2_value(self) -> float:
         """``r^2`` in use: the given one, else 0.5 where :attr:`remnant_drifts`, else 1."""
-        if self.r2 is not None:
-            return self.r2
+        if self.noise.r2 is not None:
+            return self.noise.r2
         return DRIFTING_REMNANT_R2 if self.remnant_drifts else 1.0
 
     @property
     def r2_remnant_value(self) -> float:
         """``r2_remnant`` in use: the given one, else 5 where :attr:`remnant_drifts`, else 0."""
-        if self.r2_remnant is not None:
-            return self.r2_remnant
+        if self.remnant.r2 is not None:
+            return self.remnant.r2
         return DRIFTING_REMNANT_WEIGHT if self.remnant_drifts else 0.0
 
     @property
-    def break_frequency(self) -> float:
+    def remnant_break_value(self) -> float:
         """The remnant filter's (initial) break frequency in use (rad/s)."""
-        if self.remnant_break is not None:
-            return self.remnant_break
+        if self.remnant.break_frequency is not None:
+            return self.remnant.break_frequency
         return BREAK_FREQUENCY.get(self.ce_type, DEFAULT_BREAK)
 
 
@@ -430,7 +550,7 @@ class RML(PilotFilter):
         gaps are in ``result.settings["remnant_injection"]`` (``target_period=``, where no
         forcing is known, is the forcing's period).
         """
-        if self._settings.remnant_injection != CHOOSE_INJECTION:
+        if self._settings.remnant.injection != CHOOSE_INJECTION:
             return super().estimate(recording, **options)
         settings = self._settings
         describing = run_describing_function(
@@ -438,7 +558,7 @@ class RML(PilotFilter):
             recording,
             options.get("forcing"),
             options.get("target_period"),
-            "remnant_injection",
+            f"remnant_injection={settings.remnant.injection!r}",
         )
         passes, gaps = {}, {}
         for point in INJECTIONS:
@@ -477,7 +597,7 @@ class RML(PilotFilter):
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
         settings = self._settings
-        if settings.remnant_injection == CHOOSE_INJECTION:
+        if settings.remnant.injection == CHOOSE_INJECTION:
             raise ValueError(
                 "remnant_injection='choose' runs the whole recording with the remnant at the "
                 "perception and at the stick and keeps the pass the describing function "
@@ -486,18 +606,18 @@ class RML(PilotFilter):
         internal = self._internal
         names = internal.parameter_names
         dt = float(common.cfg[0])
-        if settings.noise_input == "euler":
+        if settings.noise.noise_input == "euler":
             # a random walk's variance a sample: Q dt^2 at 100 Hz, Q (0.01 s) dt at dt
             # (module docstring, "Sample rates"); R is scaled to match in the core
             common.cfg[core.CFG_GAMMA2] = PAPERS_DT * dt
-        has_remnant = settings.remnant != "none"
-        omega = settings.break_frequency
+        has_remnant = settings.remnant.model != "none"
+        omega = settings.remnant_break_value
         causal = resolved.var_e0 is None
-        var_e0 = max(resolved.var_e0 or 0.0, settings.variance_floor)
+        var_e0 = max(resolved.var_e0 or 0.0, settings.noise.variance_floor)
         # the intensity is learned relative to the error variance of the first window:
         # the remnant's stationary variance is remnant_variance * var(e) to begin with
-        log_intensity = math.log(settings.remnant_variance)
-        window = round(settings.window / dt)
+        log_intensity = math.log(settings.remnant.variance)
+        window = round(settings.noise.window / dt)
         slots, mean, p0, q, lo, hi, labels = [], [], [], [], [], [], []
         for name in resolved.estimated:
             j = names.index(name)
@@ -508,19 +628,19 @@ class RML(PilotFilter):
             lo.append(common.report.lo[j])
             hi.append(common.report.hi[j])
             labels.append(name)
-        if has_remnant and settings.learn_intensity:
+        if has_remnant and settings.remnant.learn_intensity:
             slots.append(core.SLOT_LOG_INTENSITY)
             mean.append(log_intensity)
-            p0.append(settings.intensity_P0)
-            q.append(settings.intensity_Q)
+            p0.append(settings.remnant.intensity_P0)
+            q.append(settings.remnant.intensity_Q)
             lo.append(log_intensity - INTENSITY_RANGE)
             hi.append(log_intensity + INTENSITY_RANGE)
             labels.append("log_intensity")
-        if has_remnant and settings.learn_break:
+        if has_remnant and settings.remnant.learn_break:
             slots.append(core.SLOT_LOG_BREAK)
             mean.append(math.log(omega))
-            p0.append(settings.intensity_P0)
-            q.append(settings.intensity_Q)
+            p0.append(settings.remnant.intensity_P0)
+            q.append(settings.remnant.intensity_Q)
             lo.append(math.log(BREAK_RANGE[0]))
             hi.append(math.log(BREAK_RANGE[1]))
             labels.append("log_break")
@@ -528,28 +648,28 @@ class RML(PilotFilter):
         n_c = internal.n_states
         n_s = n_c + (1 if has_remnant else 0)
         members = 2 * n_t + 1
-        inject = core.INJECT_INPUT if settings.remnant_injection == "input" else core.INJECT_OUTPUT
+        inject = core.INJECT_INPUT if settings.remnant.injection == "input" else core.INJECT_OUTPUT
         config = core.BankConfig(
             cfg=common.cfg,
             slot=np.array(slots, dtype=np.int64),
             lo=np.array(lo, dtype=np.float64),
             hi=np.array(hi, dtype=np.float64),
             q=np.array(q, dtype=np.float64),
-            step=settings.step,
-            substeps=euler_substeps(dt, settings.substeps),
+            step=settings.bank.step,
+            substeps=euler_substeps(dt, settings.bank.substeps),
             inject=inject,
             has_remnant=has_remnant,
             remnant=np.array([log_intensity, math.log(omega)]),
             estimated=common.estimated,
-            noise_first=round(settings.noise_first / dt) + (window if causal else 0),
+            noise_first=round(settings.bank.noise_first / dt) + (window if causal else 0),
             base=np.array([math.log(var_e0), float(window if causal else 0)]),
             variance_score=self._variance_score(),
             spread_cap=self._spread_cap(np.array(lo), np.array(hi)),
             drift_rule=np.array(
                 [
-                    settings.drift_gain,
-                    min(1.0, dt / settings.drift_window),  # a window under a sample: one
-                    settings.drift_threshold,
+                    settings.drift.gain,
+                    min(1.0, dt / settings.drift.window),  # a window under a sample: one
+                    settings.drift.threshold,
                 ]
             ),
             remnant_weight=np.array([settings.r2_remnant_value, float(self._remnant_gain_index())]),
@@ -557,9 +677,9 @@ class RML(PilotFilter):
         state_covariance = np.zeros((members, n_s, n_s))
         for i in range(members):
             for c in range(n_c):
-                state_covariance[i, c, c] = settings.P0_canonical
+                state_covariance[i, c, c] = settings.noise.P0_canonical
             if has_remnant:
-                state_covariance[i, n_c, n_c] = settings.remnant_variance * var_e0
+                state_covariance[i, n_c, n_c] = settings.remnant.variance * var_e0
         n_in = len(internal.input_names)
         belief = core.BankBelief(
             th=np.array(mean, dtype=np.float64),
@@ -632,7 +752,7 @@ class RML(PilotFilter):
     def _spread_cap(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """Largest offset of a bank member in each parameter (inf where unlimited)."""
         span = hi - lo
-        limit = self._settings.spread_limit
+        limit = self._settings.bank.spread_limit
         if limit == 0.0:
             return np.full(span.shape, np.inf)
         return np.where(np.isfinite(span), limit * span, np.inf)
@@ -640,7 +760,7 @@ class RML(PilotFilter):
     def _remnant_gain_index(self) -> int:
         """Model index of the gain the remnant passes to the stick (-1: at it, or no weight)."""
         settings = self._settings
-        if settings.remnant_injection == "output" or settings.r2_remnant_value == 0.0:
+        if settings.remnant.injection == "output" or settings.r2_remnant_value == 0.0:
             return -1
         return self._internal.parameter_names.index(_REMNANT_GAIN)
 
@@ -648,9 +768,9 @@ class RML(PilotFilter):
         """Per model parameter: whether the variance part of the score moves it."""
         settings = self._settings
         names = self._internal.parameter_names
-        if settings.variance_score == "all":
+        if settings.bank.variance_score == "all":
             return np.ones(len(names), dtype=np.bool_)
-        on_path = settings.remnant != "none" and settings.remnant_injection == "input"
+        on_path = settings.remnant.model != "none" and settings.remnant.injection == "input"
         branches = self._internal.branch_parameters
         return np.array([on_path and name not in branches for name in names], dtype=np.bool_)
 
@@ -676,7 +796,7 @@ class RML(PilotFilter):
 
     def _state_traces(self, out: core.BankOutput) -> tuple[tuple[str, ...], Any]:
         """The centre filter's remnant estimate, the remnant intensity and break frequency."""
-        if self._settings.remnant == "none":
+        if self._settings.remnant.model == "none":
             return (), None
         return ("remnant", "remnant_intensity", "remnant_break"), out.extra
 

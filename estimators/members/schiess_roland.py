@@ -106,7 +106,7 @@ from manualcontrol.estimators import _pilot_core as pilot_core
 from manualcontrol.estimators.members import _schiess_roland_core as core
 from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.estimators.protocol import EstimationResult
-from manualcontrol.estimators.settings import SettingsRecord, limit_pair
+from manualcontrol.estimators.settings import GuardSettings, SettingsRecord, limit_pair
 from manualcontrol.estimators.shell import FilterShell, read_sample
 
 __all__ = [
@@ -237,18 +237,15 @@ class SchiessRolandSettings(SettingsRecord):
     limits : Mapping[str, (low, high)]
         Estimate-projection limits of parameters (theta's replaces ``[0, max_delay]``
         and must lie inside it).
-    jitter : float
-        Added to the covariance diagonal after each correction (>= 0).
-    max_covariance : float
-        A covariance diagonal above this counts as divergence (stops the filter).
-    pinned_time : float
-        A parameter at a limit for 90 % of the last ``pinned_time`` seconds is reported
-        as divergence (> 0; ``inf`` never).
+    guard : GuardSettings
+        ``jitter``, ``max_covariance`` (1e10 here) and ``pinned_time``, each also by its
+        own name (:class:`~manualcontrol.estimators.settings.GuardSettings`).
 
     """
 
     tuple_fields: ClassVar[tuple[str, ...]] = ("estimated", "measurement_variance")
     pair_mapping_fields: ClassVar[tuple[str, ...]] = ("limits",)
+    groups: ClassVar[tuple[str, ...]] = ("guard",)
 
     initial: Mapping[str, float] = field(default_factory=dict)
     initial_std_fraction: float = 0.1
@@ -270,9 +267,7 @@ class SchiessRolandSettings(SettingsRecord):
     carry: str = "diagonal"
     max_delay: float = 0.5
     limits: Mapping[str, tuple[float, float]] = field(default_factory=dict)
-    jitter: float = 0.0
-    max_covariance: float = 1e10
-    pinned_time: float = 30.0
+    guard: GuardSettings = field(default_factory=lambda: GuardSettings(max_covariance=1e10))
 
     def __post_init__(self) -> None:
         initial = dict(PAPER_INITIAL)
@@ -362,14 +357,10 @@ class SchiessRolandSettings(SettingsRecord):
                         f"initial {name} = {initial[name]!r} lies outside its limits "
                         f"[{low:g}, {high:g}]"
                     )
-        object.__setattr__(self, "jitter", check_positive("jitter", self.jitter, allow_zero=True))
-        object.__setattr__(
-            self, "max_covariance", check_positive("max_covariance", self.max_covariance)
-        )
-        pinned = float(self.pinned_time)
-        if math.isnan(pinned) or pinned <= 0.0:
-            raise ValueError(f"pinned_time must be > 0 s (inf: never), got {self.pinned_time!r}")
-        object.__setattr__(self, "pinned_time", pinned)
+        if not isinstance(self.guard, GuardSettings):
+            raise TypeError(
+                f"guard must be a GuardSettings (or its fields by name), got {self.guard!r}"
+            )
 
     def estimated_names(self) -> tuple[str, ...]:
         """The estimated parameters, in :data:`PARAMETER_NAMES` order."""
@@ -619,8 +610,8 @@ class SchiessRoland(FilterShell):
         cfg[core.CFG_DT] = dt
         cfg[core.CFG_PLANT_GAIN] = settings.plant_gain
         cfg[core.CFG_PROCESS_NOISE] = settings.process_noise
-        cfg[core.CFG_JITTER] = settings.jitter
-        cfg[core.CFG_MAX_COV] = settings.max_covariance
+        cfg[core.CFG_JITTER] = settings.guard.jitter
+        cfg[core.CFG_MAX_COV] = settings.guard.max_covariance
         cfg[core.CFG_BICUBIC] = 1.0 if settings.delay_read == "bicubic" else 0.0
         cfg[core.CFG_RAMP] = 1.0 if settings.delayed_input == "ramp" else 0.0
         cfg[core.CFG_ADAPTIVE] = _ADAPTIVE_CODES[settings.adaptive]
@@ -651,7 +642,11 @@ class SchiessRoland(FilterShell):
             prev_d=np.zeros(1),
             in_d=np.zeros(1),
         )
-        n_pin = 0 if math.isinf(settings.pinned_time) else max(1, round(settings.pinned_time / dt))
+        n_pin = (
+            0
+            if math.isinf(settings.guard.pinned_time)
+            else max(1, round(settings.guard.pinned_time / dt))
+        )
         watch = pilot_core.PilotMonitor(
             np.zeros(0),
             np.zeros(0),

@@ -236,7 +236,7 @@ class _UnscentedPilotFilter(PilotFilter):
             z[i] = common.p[model_names.index(name)]
             P[i, i] = resolved.P0[name]
         for i in range(len(names), n_states):
-            P[i, i] = self._settings.P0_canonical
+            P[i, i] = self._settings.noise.P0_canonical
         return z, P
 
 

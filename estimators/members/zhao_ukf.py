@@ -70,7 +70,7 @@ from manualcontrol.estimators.filters.unscented import sigma_weights, unscented_
 from manualcontrol.estimators.members import _zhao_core as core
 from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.estimators.protocol import EstimationResult, sample_floats
-from manualcontrol.estimators.settings import SettingsRecord, limit_pair
+from manualcontrol.estimators.settings import GuardSettings, SettingsRecord, limit_pair
 from manualcontrol.estimators.shell import FilterShell, health_summary
 from manualcontrol.pilots.driver import DRIVER_INPUTS, DRIVER_OUTPUTS, CyberneticDriverModel
 
@@ -163,9 +163,9 @@ class ZhaoUKFSettings(SettingsRecord):
         Estimate projection: ``[0.1, 10]`` times the initial value by default.
     speed : float or None
         ``v_x`` (m/s); None: the recording's ``speed``.
-    jitter, max_covariance, pinned_time : float
-        As the pilot filters: diagonal loading after corrections, divergence threshold
-        of a covariance diagonal, time at a limit reported as divergence (``inf``: never).
+    guard : GuardSettings
+        As the pilot filters' (``jitter``, ``max_covariance``, ``pinned_time``, each also
+        by its own name), with ``pinned_time = inf`` (never reported) by default.
 
     """
 
@@ -176,6 +176,7 @@ class ZhaoUKFSettings(SettingsRecord):
         "output_error_ratios",
     )
     pair_mapping_fields: ClassVar[tuple[str, ...]] = ("limits",)
+    groups: ClassVar[tuple[str, ...]] = ("guard",)
 
     preset: str = "ukf1"
     estimated: tuple[str, ...] = ("K_p", "K_c")
@@ -194,9 +195,7 @@ class ZhaoUKFSettings(SettingsRecord):
     scheme: str = "cubature"
     limits: str | Mapping[str, tuple[float, float]] = "default"
     speed: float | None = None
-    jitter: float = 0.0
-    max_covariance: float = 1e8
-    pinned_time: float = math.inf
+    guard: GuardSettings = field(default_factory=lambda: GuardSettings(pinned_time=math.inf))
 
     def __post_init__(self) -> None:
         check_choice("preset", self.preset, tuple(PRESETS))
@@ -249,14 +248,10 @@ class ZhaoUKFSettings(SettingsRecord):
             object.__setattr__(self, "limits", _names_mapping("limits", self.limits, limit_pair))
         if self.speed is not None:
             object.__setattr__(self, "speed", check_positive("speed", self.speed))
-        object.__setattr__(self, "jitter", check_positive("jitter", self.jitter, allow_zero=True))
-        object.__setattr__(
-            self, "max_covariance", check_positive("max_covariance", self.max_covariance)
-        )
-        pinned = float(self.pinned_time)
-        if math.isnan(pinned) or pinned <= 0.0:
-            raise ValueError(f"pinned_time must be > 0 s (inf: never), got {self.pinned_time!r}")
-        object.__setattr__(self, "pinned_time", pinned)
+        if not isinstance(self.guard, GuardSettings):
+            raise TypeError(
+                f"guard must be a GuardSettings (or its fields by name), got {self.guard!r}"
+            )
 
     def initial_vector(self) -> FloatArray:
         """Every parameter's initial value, model order."""
@@ -539,8 +534,8 @@ class ZhaoUKF(FilterShell):
         cfg[core.CFG_SUBSTEPS] = tuning.substeps
         cfg[core.CFG_SPREAD] = weights.spread
         cfg[core.CFG_COUNT] = weights.count
-        cfg[core.CFG_JITTER] = settings.jitter
-        cfg[core.CFG_MAX_COV] = settings.max_covariance
+        cfg[core.CFG_JITTER] = settings.guard.jitter
+        cfg[core.CFG_MAX_COV] = settings.guard.max_covariance
         lo = np.full(len(names), -np.inf)
         hi = np.full(len(names), np.inf)
         for name, (low, high) in tuning.limits.items():
@@ -571,7 +566,7 @@ class ZhaoUKF(FilterShell):
         belief = core.ZhaoBelief(
             x=x, P=P, prev_in=np.zeros(4), p=initial.copy(), sc=sc, link=np.zeros((n, n))
         )
-        pinned = settings.pinned_time
+        pinned = settings.guard.pinned_time
         n_pin = 0 if math.isinf(pinned) else max(1, round(pinned / tuning.dt))
         watch = pilot_core.PilotMonitor(
             np.zeros(1),
@@ -857,7 +852,7 @@ class MultiUKF(FilterShell):
 
     def _health(self, t: FloatArray, flag: NDArray[np.bool_], pinned: NDArray[np.bool_]) -> Any:
         """The slow member's health; the fast member's divergence when only it diverged."""
-        pinned_time = self._settings.pinned_time
+        pinned_time = self._settings.guard.pinned_time
         health = health_summary(
             self._slow._records[1].sc, t, self._dt, flag, pinned, _NAMES, pinned_time
         )

@@ -268,7 +268,7 @@ def choose_noise_scale(
     folds = check_int("folds", folds, minimum=2)
     gap = check_positive("gap", gap)
     t = np.asarray(recording.t)
-    window = estimator.settings.window
+    window = estimator.settings.noise.window
     # the samples the filter's first-window variances read (estimate: 0 .. n_window)
     first = min(round(window / recording.dt) + 1, t.shape[0] - 1)
     if t[-1] - t[first] < 2 * folds * gap:

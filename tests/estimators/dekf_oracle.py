@@ -162,15 +162,15 @@ class NumpyDEKF:
         self.preview = settings.model == "preview"
         self.dt = dt
         self.q2, self.r2, self.r2p = resolved.q2, resolved.r2, resolved.r2_parameter
-        self.window = round(settings.window / dt)
-        self.first_window = settings.initial_variance == "first-window"
+        self.window = round(settings.noise.window / dt)
+        self.first_window = settings.noise.initial_variance == "first-window"
         self.var0 = (var_u0, var_e0)
-        self.floor = settings.variance_floor
-        self.jitter = settings.jitter
+        self.floor = settings.noise.variance_floor
+        self.jitter = settings.guard.jitter
         self.dimensional = settings.total_derivative == "dimensional"
-        self.gamma = dt if settings.noise_input == "euler" else 1.0
-        self.fixed_R = settings.fixed_R
-        self.fixed_Q = settings.fixed_Q_error
+        self.gamma = dt if settings.noise.noise_input == "euler" else 1.0
+        self.fixed_R = settings.noise.fixed_R
+        self.fixed_Q = settings.noise.fixed_Q_error
 
         def internal(name, value):
             return self.tau_a - value if self.preview and name == "tau_f" else value
@@ -189,7 +189,9 @@ class NumpyDEKF:
         nc, ng = self.model.n, len(self.gains)
         self.nc = nc
         self.x = np.concatenate([np.zeros(nc), self.p[self.gains]])
-        self.P = np.diag([settings.P0_canonical] * nc + [resolved.P0[n] for n in resolved.gains])
+        self.P = np.diag(
+            [settings.noise.P0_canonical] * nc + [resolved.P0[n] for n in resolved.gains]
+        )
         self.th = self.p[self.theta].copy()
         self.Pp = np.diag([resolved.P0[n] for n in resolved.theta]).reshape(len(self.theta), -1)
         self.Qs = np.diag([0.0] * nc + [resolved.Q[n] for n in resolved.gains])

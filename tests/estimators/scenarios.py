@@ -92,7 +92,7 @@ def assert_update_replays_estimate(estimator, recording):
     """
     result = estimator.estimate(recording)
     signals = estimator.signals(recording)
-    n = round(estimator.settings.window / recording.dt)
+    n = round(estimator.settings.noise.window / recording.dt)
     estimator.reset(
         recording.dt,
         var_u0=float(np.nanvar(signals["u"][: n + 1])),

@@ -53,7 +53,7 @@ def test_errors_are_held_out_band_passed_resimulation_errors():
     assert choice.band == pytest.approx((low, high), rel=1e-15)
     sos = butter(2, [low, high], btype="band", fs=2.0 * math.pi / recording.dt, output="sos")
     # estimate() takes the first-window variances from samples 0 .. window/dt: kept
-    after_window = np.arange(len(t)) > round(dekf.settings.window / recording.dt)
+    after_window = np.arange(len(t)) > round(dekf.settings.noise.window / recording.dt)
     power = np.sum(sosfiltfilt(sos, u)[after_window] ** 2)
     Q = DEKF(**SETTINGS)
     Q.estimate(recording)

@@ -44,7 +44,7 @@ WELL_CONDITIONED = {"P0_canonical": 1e-8, "preset": "vertregt2020"}
 
 
 def first_window_variances(dekf, recording, signals):
-    n = round(dekf.settings.window / recording.dt)
+    n = round(dekf.settings.noise.window / recording.dt)
     return float(np.nanvar(signals["u"][: n + 1])), float(np.nanvar(signals["e"][: n + 1]))
 
 
@@ -494,7 +494,7 @@ def test_dekf_follows_the_estimator_protocol():
     dekf = DEKF(model="precision", ce="SI")
     assert isinstance(dekf, Estimator)
     other = dekf.configure(r2=4.0)
-    assert other.settings.r2 == 4.0 and dekf.settings.r2 is None
+    assert other.settings.noise.r2 == 4.0 and dekf.settings.noise.r2 is None
     assert other.settings == dataclasses.replace(dekf.settings, r2=4.0)
     dekf.reset(0.01, var_u0=1.0, var_e0=0.25)
     estimate = dekf.update({"e": 0.1, "u": 0.2, "t": 3.0})

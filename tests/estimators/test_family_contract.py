@@ -99,8 +99,8 @@ def online_setup(estimator, recording):
         signals = dict(zip(keys, signals, strict=True))
     options = {}
     settings = estimator.settings
-    if hasattr(settings, "window") and hasattr(settings, "initial_variance"):
-        first = slice(0, round(settings.window / recording.dt) + 1)
+    if hasattr(getattr(settings, "noise", None), "initial_variance"):
+        first = slice(0, round(settings.noise.window / recording.dt) + 1)
         options = {
             "var_u0": float(np.nanvar(signals["u"][first])),
             "var_e0": float(np.nanvar(signals["e"][first])),

@@ -54,7 +54,7 @@ def test_the_pass_nearer_the_describing_function_is_kept(stick_remnant_run):
     # and it is the one nearer the true pilot
     omega = np.geomspace(0.3, 15.0, 30)
     assert _gap_to_truth(passes["output"], omega) < _gap_to_truth(passes["input"], omega)
-    assert chosen.settings["settings"]["remnant_injection"] == "choose"
+    assert chosen.settings["settings"]["remnant"]["injection"] == "choose"
 
 
 def test_choose_is_offline_and_needs_the_forcing(stick_remnant_run):

@@ -61,7 +61,7 @@ def test_the_bank_equals_the_oracle(r2_remnant):
     result = rml.estimate(recording)
     resolved = rml.resolved
     e, u = np.asarray(recording.e), np.asarray(recording.u)
-    window = round(rml.settings.window / recording.dt) + 1
+    window = round(rml.settings.noise.window / recording.dt) + 1
     expected = rml_oracle.run_bank(
         e,
         u,
@@ -76,7 +76,7 @@ def test_the_bank_equals_the_oracle(r2_remnant):
             "remnant_variance": 0.4,
             "intensity_P0": 2.0,
             "intensity_Q": 0.01,
-            "P0_canonical": rml.settings.P0_canonical,
+            "P0_canonical": rml.settings.noise.P0_canonical,
             "step": 0.7,
             "substeps": 3,
             "R": 0.05,
@@ -335,10 +335,10 @@ def test_bad_settings_are_refused_by_name(changes, message):
 
 
 def test_the_remnant_break_defaults_by_element_type():
-    assert RMLSettings(model="precision", ce="SI").break_frequency == 10.0
-    assert RMLSettings(model="precision", ce="DI").break_frequency == 0.01
-    assert RMLSettings(model="precision").break_frequency == 3.0
-    assert RMLSettings(model="precision", remnant_break=2.0).break_frequency == 2.0
+    assert RMLSettings(model="precision", ce="SI").remnant_break_value == 10.0
+    assert RMLSettings(model="precision", ce="DI").remnant_break_value == 0.01
+    assert RMLSettings(model="precision").remnant_break_value == 3.0
+    assert RMLSettings(model="precision", remnant_break=2.0).remnant_break_value == 2.0
     assert RMLSettings.from_dict(RMLSettings(model="precision").to_dict()) == RMLSettings(
         model="precision"
     )
@@ -423,7 +423,7 @@ def test_online_in_an_environment_with_a_causal_start():
         means.append(info["estimates"]["mean"]["K_p"])
         pinned.append(bool(info["estimates"]["health"]["pinned"]))
         done = terminated or truncated
-    window = round(estimator.settings.window / inner.unwrapped.dt)
+    window = round(estimator.settings.noise.window / inner.unwrapped.dt)
     assert means[:window] == [1.2] * window  # held until the first window is known
     assert not any(pinned) and not info["estimates"]["health"]["diverged"]
     assert np.mean(means[-1000:]) == pytest.approx(TRUE["K_p"], rel=0.15)

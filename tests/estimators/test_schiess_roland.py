@@ -353,7 +353,7 @@ def test_settings_round_trip_and_registry():
         passes=3,
     )
     data = settings.to_dict()
-    assert data["pinned_time"] == "inf" and data["limits"] == {"tau_1": [0.01, 1.0]}
+    assert data["guard"]["pinned_time"] == "inf" and data["limits"] == {"tau_1": [0.01, 1.0]}
     assert SchiessRolandSettings.from_dict(data) == settings
     built = make_estimator({"name": "schiess-roland", **data})
     assert isinstance(built, SchiessRoland) and built.settings == settings

@@ -248,7 +248,7 @@ def test_results_hold_m_outputs():
         (UKFSettings, {"alpha": 0.0}, "alpha must be > 0"),
         (UKFSettings, {"beta": float("nan")}, "beta must be finite, got nan"),
         (DualUKFSettings, {"r2_parameter": -1.0}, "r2_parameter must be > 0"),
-        (UKFSettings, {"r2_parameter": 2.0}, "unexpected keyword argument 'r2_parameter'"),
+        (UKFSettings, {"r2_parameter": 2.0}, "unknown key(s) 'r2_parameter'"),
         (UKFSettings, {"model": "preview"}, "anticipation_time (tau_a, s) is required"),
     ],
 )
