@@ -1,0 +1,113 @@
+"""Cold first use of each estimator against the import of its dependencies, side by side.
+
+A researcher's first ``identify`` pays numba's compilation of the estimator's kernels.
+Each figure here is one fresh process with numba's on-disk cache pointed at an empty
+folder (a fresh clone's first run), timed as CPU seconds of that process:
+
+- ``import numpy, scipy, gymnasium``: the floor any tool on this stack pays;
+- ``import manualcontrol.estimators``: what importing the family adds;
+- per estimator: import, one ``estimate`` of a 30-s simulated run (compiling its
+  kernels), then a second ``estimate`` in the same process (the compiled speed).
+
+The ratios are against the dependencies' import measured in the same run (hosts differ
+by 3-4x in absolute speed). The recording is simulated once, in a warm process, and
+saved to a temporary file each cold process loads (a drive for the driver-model filters).
+
+Run: .venv/bin/python benchmarks/first_use.py [--estimators dekf,rml,...] [--repeats N]
+"""
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+DEFAULT = "dekf,rml,joint-ukf,dual-ukf,rdi,schiess-roland,zhao-ukf"
+
+IMPORT_ONLY = """
+import resource, time
+import numpy, scipy, gymnasium
+print(resource.getrusage(resource.RUSAGE_SELF).ru_utime + resource.getrusage(resource.RUSAGE_SELF).ru_stime)
+"""
+
+IMPORT_FAMILY = """
+import resource
+import manualcontrol.estimators
+print(resource.getrusage(resource.RUSAGE_SELF).ru_utime + resource.getrusage(resource.RUSAGE_SELF).ru_stime)
+"""
+
+FIRST_USE = """
+import resource, sys, time, warnings
+warnings.simplefilter("ignore")
+def cpu():
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+from manualcontrol.envs.recording import Recording
+from manualcontrol.estimators import make_estimator
+recording = Recording.load(sys.argv[2])
+estimator = make_estimator({"name": sys.argv[1]})
+start = cpu()
+estimator.estimate(recording)
+first = cpu() - start
+start = time.perf_counter()
+estimator.estimate(recording)
+print(cpu(), first, time.perf_counter() - start)
+"""
+
+SIMULATE = """
+import sys, warnings
+warnings.simplefilter("ignore")
+from manualcontrol.pilots import Pilot, simulate
+from manualcontrol.pilots.driver import Driver
+from manualcontrol.pilots.driving import simulate_driving
+simulate(Pilot("precision"), "popovici2017", "popovici2017", seed=0,
+         measurement_time=30.0).save(sys.argv[1])
+simulate_driving(Driver(), measurement_time=30.0).save(sys.argv[2])
+"""
+
+
+def run(code, *args, cache=None):
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    if cache is not None:
+        env["NUMBA_CACHE_DIR"] = cache
+    out = subprocess.run(
+        [sys.executable, "-c", code, *args], env=env, capture_output=True, text=True, check=False
+    )
+    if out.returncode != 0:
+        raise RuntimeError(out.stderr.strip().splitlines()[-1])
+    return [float(x) for x in out.stdout.split()]
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--estimators", default=DEFAULT)
+    parser.add_argument("--repeats", type=int, default=3, help="fresh processes per import figure")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as folder:
+        tracking, driving = str(Path(folder) / "run.npz"), str(Path(folder) / "drive.npz")
+        run(SIMULATE, tracking, driving)
+        floor = statistics.median(run(IMPORT_ONLY)[0] for _ in range(args.repeats))
+        family = statistics.median(run(IMPORT_FAMILY)[0] for _ in range(args.repeats))
+        rows = {"import numpy, scipy, gymnasium": (floor, None, None)}
+        rows["import manualcontrol.estimators"] = (family, None, None)
+        for name in args.estimators.split(","):
+            cache = tempfile.mkdtemp(dir=folder)
+            try:
+                recording = driving if name.startswith("zhao") else tracking
+                total, first, warm = run(FIRST_USE, name, recording, cache=cache)
+            except RuntimeError as error:
+                print(f"{name}: {error}", file=sys.stderr)
+                continue
+            rows[f"{name}: cold process"] = (total, first, warm)
+    print(f"{'CPU s':>44} {'x import':>9} {'estimate':>9} {'warm run':>9}")
+    for label, (total, first, warm) in rows.items():
+        extra = "" if first is None else f" {first:9.2f} {warm:9.3f}"
+        print(f"{label:34} {total:9.2f} {total / floor:9.1f}{extra}")
+    print(json.dumps({label: values[0] for label, values in rows.items()}))
+
+
+if __name__ == "__main__":
+    main()
