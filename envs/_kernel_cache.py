@@ -4,33 +4,77 @@ numba keys a cached kernel on its *own* source file only: when a kernel it calls
 shared Kalman algebra in ``estimators/filters``, the LPV step in ``envs/dynamics``) is
 edited, the caller's cached machine code still holds the old callee, and runs it
 silently. That happens to anyone working on an editable install (``make demo`` after a
-``git pull`` that changed only a shared kernel). So on import the package compares a
-stamp of its kernel sources (path, size and modification time of every ``.py`` file of
-the five subpackages that imports numba or compiles a kernel with it) with the one the
-last import left; when they differ, it deletes the package's cached kernels
-(``__pycache__/*.nbi``, ``*.nbc``) and numba compiles afresh.
-A fresh clone or install has no stamp and nothing to delete. Any failure here (a
-read-only install, a race between processes) leaves the caches alone: numba then
-behaves as it always did.
+``git pull`` that changed only a shared kernel). So on import the package stamps each
+*kernel module* (a ``.py`` file of the five subpackages that imports numba or compiles a
+kernel with it, :data:`_KERNEL`) with the path, size and modification time of itself
+and of every kernel module it depends on, compares the stamps with those the last
+import left, and deletes the cached kernels of exactly the modules whose stamp changed,
+is new or is gone (numba's ``__pycache__/<stem>.<qualname>-<line>.py<ver>.nbi`` and
+``.<n>.nbc`` next to the source); numba compiles those afresh and loads the others.
+
+What counts as a dependency. Module M depends on every package module it names: an
+``import`` or ``from ... import`` anywhere in its file (at the top, in a function, under
+``TYPE_CHECKING``; absolute or relative; ``from P import n`` names ``P`` and, when it
+is one, the submodule ``P.n``), and a string constant that is exactly a package
+module's full name (``"manualcontrol.x.y"``), which is how the lazily exporting package
+initialisers name the modules their public names come from. An entry point
+(``"manualcontrol.x.y:Attr"``, the Gymnasium ids) is not a dependency: a loader builds
+a Python object from it, no kernel imports it. The dependencies are followed
+transitively through *every* package module, since a kernel often reaches a callee
+through a module that compiles nothing (a package initialiser re-exporting it, a
+facade), but only the *kernel* modules reached enter the stamp: numba compiles code
+from kernel modules alone, so a module that compiles nothing cannot put code into a
+cached kernel, and editing one (a docstring, an env, a CLI) keeps every cache. The one
+thing it could put there is a global constant a compiled function reads, which numba
+freezes at compile time; no compiled function of the package reads a name imported
+from a module that compiles nothing (keep it so: put such a constant in a kernel
+module). Importing ``a.b.c`` does not name the packages ``a`` and ``a.b`` whose
+initialisers Python runs first: a kernel uses what it imports, and counting them would
+tie kernels together through package initialisers they never use. A module loaded by
+a name built at run time (``importlib.import_module(f"...{x}")``) is not seen.
+
+Cost: this runs at every ``import manualcontrol.envs``. The record (one JSON file next
+to the old stamp file, written atomically) keeps, per source file, its size, its
+modification time, whether it is a kernel module and the package modules it names, so
+an import reads and parses only the files that changed since the last one; the rest is
+a directory walk and one ``stat`` per file.
+
+A fresh clone or install has no record: every kernel module is new and the cached
+kernels under the roots, if any, are dropped (none are there). Any failure here (a
+read-only install, a race between processes) leaves the caches alone and keeps the
+record as it was: numba then behaves as it always did, and the next import tries again.
 """
 
 from __future__ import annotations
 
+import ast
 import hashlib
 import importlib.util
+import json
 import os
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
-__all__ = ["PACKAGES", "refresh_kernel_cache", "source_stamp"]
+__all__ = ["PACKAGES", "kernel_closures", "kernel_stamps", "refresh_kernel_cache"]
 
 #: The subpackages whose modules hold compiled kernels that call one another.
 PACKAGES = ("envs", "pilots", "estimators", "agents", "bench")
-_STAMP = "manualcontrol-kernel-sources.stamp"
+_RECORD = "manualcontrol-kernel-sources.json"
+_OLD_STAMP = "manualcontrol-kernel-sources.stamp"  # the single stamp of earlier versions
+_FORMAT = 1
 #: What marks a kernel source: a file that imports or compiles with numba, not one that
 #: only mentions it (a kernel may be built with ``vectorize``, ``cfunc``, ``overload``).
 _KERNEL = re.compile(rb"^\s*(?:import numba\b|from numba\b)|numba\.n?jit\b|^\s*@n?jit\b", re.M)
+#: A string constant that is a package module's full name (a lazy export's home).
+_MODULE_NAME = re.compile(r"manualcontrol(?:\.[A-Za-z_]\w*)+")
+#: A numba cache file: ``[prefix-]<file stem>.<qualname>-<line>.py<ver>.nbi`` or
+#: ``....<n>.nbc`` (``<locals>`` loses its brackets; gufunc wrappers take ``guf-``).
+_CACHED = re.compile(r"(?:[^.\-]+-)?([^.\-]+)\..*\.nb[ic]")
+
+#: A source file's record: size, modification time, kernel module or not, names it
+#: imports (full module names, ``manualcontrol.`` ones only).
+_Entry = tuple[int, int, bool, list[str]]
 
 
 def _roots() -> list[Path]:
@@ -42,41 +86,229 @@ def _roots() -> list[Path]:
     return roots
 
 
-def source_stamp(roots: Iterable[Path]) -> str:
-    """Digest of the path, size and modification time of each kernel source under ``roots``.
+def _is_kernel_source(text: bytes) -> bool:
+    """Whether ``text`` matches :data:`_KERNEL`.
 
-    Kernel sources are the ``.py`` files that import numba or compile with it
-    (:data:`_KERNEL`); editing any other file, one that only mentions numba included,
-    keeps the caches.
+    Every form it matches names ``numba`` or ``jit``, so a file naming neither is
+    passed over without the regular expression, which is slow on a file it does not
+    match (tries a match at every line).
     """
-    digest = hashlib.sha256()
+    return (b"numba" in text or b"jit" in text) and _KERNEL.search(text) is not None
+
+
+def _modules(roots: Iterable[Path]) -> dict[str, str]:
+    """Each source file under ``roots`` by its module name.
+
+    A root is the folder of the subpackage ``manualcontrol.<its folder name>``, as the
+    package's folders are laid out (``envs`` holds ``manualcontrol.envs``).
+    """
+    modules: dict[str, str] = {}
     for root in roots:
-        for path in sorted(Path(root).rglob("*.py")):
-            if "__pycache__" in path.parts or not _KERNEL.search(path.read_bytes()):
-                continue
-            status = path.stat()
-            digest.update(f"{path}\0{status.st_size}\0{status.st_mtime_ns}\n".encode())
-    return digest.hexdigest()
+        root = str(root)
+        package = f"manualcontrol.{os.path.basename(root)}"
+        for folder, folders, files in os.walk(root):
+            folders[:] = sorted(f for f in folders if f != "__pycache__" and f[0] != ".")
+            relative = os.path.relpath(folder, root)
+            prefix = package if relative == "." else f"{package}.{relative.replace(os.sep, '.')}"
+            for name in sorted(files):
+                if name.endswith(".py"):
+                    stem = name[:-3]
+                    module = prefix if stem == "__init__" else f"{prefix}.{stem}"
+                    modules.setdefault(module, os.path.join(folder, name))
+    return modules
+
+
+def _imports(text: bytes, module: str, is_package: bool) -> list[str]:
+    """The ``manualcontrol`` modules a source names (some may be other things)."""
+    try:
+        tree = ast.parse(text)
+    except (SyntaxError, ValueError):  # mid-edit: its next save is parsed again
+        return []
+    package = module if is_package else module.rpartition(".")[0]
+    names: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")
+                if node.level - 1 >= len(parts):
+                    continue
+                parent = ".".join(parts[: len(parts) - (node.level - 1)])
+                base = f"{parent}.{base}" if base else parent
+            names.add(base)
+            names.update(f"{base}.{alias.name}" for alias in node.names if alias.name != "*")
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+            if _MODULE_NAME.fullmatch(node.value):
+                names.add(node.value)
+    return sorted(n for n in names if n.startswith("manualcontrol."))
+
+
+def _scan(modules: Mapping[str, str], known: Mapping[str, _Entry]) -> dict[str, _Entry]:
+    """Each source file's record; a file whose size and mtime are as ``known`` is not read."""
+    entries: dict[str, _Entry] = {}
+    for module, path in modules.items():
+        status = os.stat(path)
+        entry = known.get(path)
+        if entry is None or (entry[0], entry[1]) != (status.st_size, status.st_mtime_ns):
+            with open(path, "rb") as source:
+                text = source.read()
+            is_package = os.path.basename(path) == "__init__.py"
+            entry = (
+                status.st_size,
+                status.st_mtime_ns,
+                _is_kernel_source(text),
+                _imports(text, module, is_package),
+            )
+        entries[path] = entry
+    return entries
+
+
+def _closures(modules: Mapping[str, str], entries: Mapping[str, _Entry]) -> dict[str, list[str]]:
+    """Each kernel module and the kernel modules it depends on, itself excluded."""
+    edges = {
+        path: {modules[name] for name in entries[path][3] if name in modules} for path in entries
+    }
+    closures: dict[str, list[str]] = {}
+    for start, entry in entries.items():
+        if not entry[2]:
+            continue
+        seen, todo = {start}, [start]
+        while todo:
+            for callee in edges[todo.pop()] - seen:
+                seen.add(callee)
+                todo.append(callee)
+        closures[start] = sorted(p for p in seen - {start} if entries[p][2])
+    return closures
+
+
+def _stamps(closures: Mapping[str, list[str]], entries: Mapping[str, _Entry]) -> dict[str, str]:
+    stamps = {}
+    for path, callees in closures.items():
+        digest = hashlib.sha256()
+        for source in (path, *callees):
+            size, mtime_ns = entries[source][:2]
+            digest.update(f"{source}\0{size}\0{mtime_ns}\n".encode())
+        stamps[path] = digest.hexdigest()
+    return stamps
+
+
+def _state(
+    roots: Iterable[Path], known: Mapping[str, _Entry]
+) -> tuple[dict[str, _Entry], dict[str, list[str]]]:
+    modules = _modules(roots)
+    entries = _scan(modules, known)
+    return entries, _closures(modules, entries)
+
+
+def _given(roots: Iterable[Path] | None) -> list[Path]:
+    return [Path(r) for r in (_roots() if roots is None else roots)]
+
+
+def kernel_closures(roots: Iterable[Path] | None = None) -> dict[Path, list[Path]]:
+    """Each kernel module under ``roots`` and the kernel modules it depends on.
+
+    ``roots`` are the subpackages' folders (the installed package's by default).
+    """
+    _, closures = _state(_given(roots), {})
+    return {Path(p): [Path(c) for c in callees] for p, callees in closures.items()}
+
+
+def kernel_stamps(roots: Iterable[Path] | None = None) -> dict[str, str]:
+    """Each kernel module's stamp, by its path.
+
+    A digest of the path, size and modification time of the module and of every kernel
+    module it depends on; editing any other file keeps them.
+    """
+    entries, closures = _state(_given(roots), {})
+    return _stamps(closures, entries)
+
+
+def _read_record(path: Path) -> tuple[dict[str, _Entry], dict[str, str]] | None:
+    try:
+        record = json.loads(path.read_text())
+        if record.get("format") != _FORMAT:
+            return None
+        files = {
+            p: (int(s), int(m), bool(k), list(i)) for p, (s, m, k, i) in record["files"].items()
+        }
+        return files, dict(record["stamps"])
+    except FileNotFoundError:
+        return None
+    except (ValueError, TypeError, KeyError, AttributeError):  # not ours, or torn
+        return None
+
+
+def _drop(sources: Iterable[str]) -> None:
+    """Delete the cached kernels of ``sources``; raise OSError if one cannot be."""
+    stems: dict[str, set[str]] = {}
+    for source in sources:
+        folder, name = os.path.split(source)
+        stems.setdefault(os.path.join(folder, "__pycache__"), set()).add(name[:-3])
+    for cache, names in stems.items():
+        try:
+            entries = os.listdir(cache)
+        except FileNotFoundError:
+            continue
+        for entry in entries:
+            match = _CACHED.fullmatch(entry)
+            if match and match.group(1) in names:
+                try:
+                    os.unlink(os.path.join(cache, entry))
+                except FileNotFoundError:  # another process dropped it first
+                    pass
+
+
+def _drop_all(roots: Iterable[Path]) -> None:
+    for root in roots:
+        for cached in (*root.rglob("*.nbi"), *root.rglob("*.nbc")):
+            try:
+                cached.unlink()
+            except FileNotFoundError:
+                pass
 
 
 def refresh_kernel_cache(roots: Iterable[Path] | None = None) -> bool:
-    """Delete the cached kernels under ``roots`` if their sources changed; True if so."""
+    """Delete the cached kernels of the modules under ``roots`` whose stamp changed.
+
+    True if some were dropped: a kernel module's stamp changed or is new, or a kernel
+    module is gone (a fresh clone, all of them new, included); False if every stamp is
+    as the last import left it, or on any OSError (nothing then is deleted or recorded).
+    """
     try:
-        roots = list(_roots() if roots is None else roots)
-        stamp = source_stamp(roots)
-        stamp_file = roots[0] / "__pycache__" / _STAMP
-        if stamp_file.is_file() and stamp_file.read_text() == stamp:
-            return False
-        for root in roots:
-            for cached in (*root.rglob("*.nbi"), *root.rglob("*.nbc")):
-                try:
-                    cached.unlink()
-                except OSError:
-                    pass
-        stamp_file.parent.mkdir(exist_ok=True)
-        temporary = stamp_file.with_name(f"{_STAMP}.{os.getpid()}.part")
-        temporary.write_text(stamp)
-        os.replace(temporary, stamp_file)
-        return True
+        roots = _given(roots)
+        cache = roots[0] / "__pycache__"
+        record_file = cache / _RECORD
+        if not os.access(cache if cache.is_dir() else roots[0], os.W_OK):
+            return False  # a read-only install: nothing can be deleted, nor recorded
+        previous = _read_record(record_file)
+        entries, closures = _state(roots, previous[0] if previous else {})
+        stamps = _stamps(closures, entries)
+        if previous is None:  # nothing tells which caches are current: drop them all
+            _drop_all(roots)
+            changed = True
+        else:
+            old = previous[1]
+            stale = {p for p in stamps.keys() | old.keys() if stamps.get(p) != old.get(p)}
+            _drop(stale)
+            changed = bool(stale)
+            if not changed and entries == previous[0]:
+                return False
+        record = {
+            "format": _FORMAT,
+            "files": {p: list(e) for p, e in sorted(entries.items())},
+            "stamps": dict(sorted(stamps.items())),
+        }
+        cache.mkdir(exist_ok=True)
+        temporary = cache / f"{_RECORD}.{os.getpid()}.part"
+        temporary.write_text(json.dumps(record, separators=(",", ":")))
+        os.replace(temporary, record_file)
+        if previous is None:
+            try:
+                (cache / _OLD_STAMP).unlink()
+            except FileNotFoundError:
+                pass
+        return changed
     except OSError:
         return False
