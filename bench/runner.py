@@ -22,6 +22,12 @@ under ``<out>/runs/<key>.json`` (its row) and ``<key>.npz`` (the estimator's
 traces); a suite run again skips those (resume), and a failing scenario is recorded
 as failed with its error while the batch goes on. At the end the rows are written to
 ``results.csv`` and ``results.parquet``.
+
+A results folder belongs to one suite: :func:`run_suite` refuses a folder whose
+results (the ``suite`` column of ``results.csv``, or of the stored runs when there is
+no table yet) came from another suite, rather than replace its table and leave its
+report beside rows it does not describe. A folder of the same suite's results is
+resumed; an empty or absent folder, or one holding no results, is used as it is.
 """
 
 from __future__ import annotations
@@ -267,6 +273,59 @@ def _done_rows(out: Path, scenarios: Sequence[Scenario]) -> dict[str, dict[str, 
     return done
 
 
+def _suites_in(out: Path, running: set[str]) -> tuple[list[str], str]:
+    """Suites whose results ``out`` holds, and where that was read.
+
+    The ``suite`` column of ``results.csv`` when there is one; else the stored runs'
+    rows (an interrupted run has no table yet), read until one of another suite than
+    ``running`` turns up.
+    """
+    import csv
+
+    table = out / "results.csv"
+    if table.is_file():
+        try:
+            with table.open(newline="", encoding="utf-8") as handle:
+                found = {row.get("suite") or "" for row in csv.DictReader(handle)}
+        except (OSError, UnicodeDecodeError, csv.Error):
+            found = set()
+        found.discard("")
+        if found:
+            return sorted(found), "results.csv"
+    runs = out / "runs"
+    found = set()
+    if runs.is_dir():
+        for path in sorted(runs.glob("*.json")):
+            try:
+                name = json.loads(path.read_text(encoding="utf-8")).get("suite")
+            except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+                continue  # a damaged row says nothing (and is run again)
+            if isinstance(name, str) and name:
+                found.add(name)
+                if name not in running:
+                    break
+    return sorted(found), "runs/*.json"
+
+
+def _check_results_folder(out: Path, running: Sequence[str]) -> None:
+    """Refuse ``out`` when it holds results of a suite other than the one being run."""
+    wanted = set(running)
+    if not wanted or not out.is_dir():
+        return
+    found, where = _suites_in(out, wanted)
+    foreign = [name for name in found if name not in wanted]
+    if not foreign:
+        return
+    theirs = ", ".join(repr(name) for name in foreign)
+    ours = ", ".join(repr(name) for name in sorted(wanted))
+    raise ValueError(
+        f"out folder {str(out)!r} holds results of suite {theirs} (its {where}), not of "
+        f"suite {ours} being run; writing there would mix the two suites' results "
+        f"(and leave the other's report): choose another --out folder, or remove "
+        f"{str(out)!r} first"
+    )
+
+
 def _one_thread() -> None:
     """Pool-worker start: one BLAS thread per process.
 
@@ -330,13 +389,16 @@ def run_suite(
     """Run every scenario (resuming finished ones) and write the results table.
 
     ``progress(done, total, row)`` is called after each run. Returns the rows in the
-    suite's scenario order.
+    suite's scenario order. Raises ``ValueError`` before writing anything when ``out``
+    holds results of another suite (see the module docstring).
     """
     check_choice("backend", backend, BACKENDS)
     if workers is not None:
         check_int("workers", workers, minimum=1)  # before any folder is made
     scenarios = suite.scenarios(quick) if isinstance(suite, Suite) else list(suite)
     out = Path(out)
+    running = [suite.name] if isinstance(suite, Suite) else [s.suite for s in scenarios]
+    _check_results_folder(out, running)
     (out / "runs").mkdir(parents=True, exist_ok=True)
     rows = _done_rows(out, scenarios)
     todo = [scenario for scenario in scenarios if scenario.key not in rows]

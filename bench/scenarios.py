@@ -24,7 +24,8 @@ Schema of a suite file::
     run_in = 60.0
     measurement_time = 120.0   # default: the forcing period
     loop = "continuous"        # or "sampled"
-    score_from = 0.0           # metrics from this time (s) of the measurement on
+    score_from = 0.0           # metrics from this time (s) on: >= 0 and at most the
+                               # last measured sample's time, or nothing is scored
     start_time = 0.0           # time of the first measured sample (s)
     measurement_noise = {u = 0.00092, y = 0.00092}   # variances added to recorded signals
     initial_state = {y = [-0.959, -5.64], u = [1.03, 40.5], n = [0.41, 2.55]}
@@ -101,6 +102,7 @@ from manualcontrol.bench.batches import (
 )
 from manualcontrol.envs._validation import (
     check_choice,
+    check_duration,
     check_positive,
     check_real,
     check_vector,
@@ -110,7 +112,12 @@ from manualcontrol.envs.elements import make_element
 from manualcontrol.envs.recording import MEASURED_SIGNALS
 from manualcontrol.envs.schedules import Schedule
 from manualcontrol.envs.signals import FORCING_PRESETS, preset_realisation_count
-from manualcontrol.envs.tasks import DISTURBANCE_POINTS, task_named
+from manualcontrol.envs.tasks import (
+    DISTURBANCE_POINTS,
+    measurement_time_for,
+    resolve_forcing,
+    task_named,
+)
 from manualcontrol.pilots import Pilot
 from manualcontrol.pilots.open_loop import ARMAXSystem
 from manualcontrol.pilots.simulation import INITIAL_STATE_SIGNALS, LOOPS, TASKS, SimulationSetup
@@ -454,6 +461,7 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
     }
     if built is not None:
         _check_runs(where, built, template, realisations[0])
+    _check_score_from(where, template, open_loop)
     return Batch(
         name,
         template,
@@ -493,6 +501,41 @@ def _check_runs(where: str, pilot: Pilot, template: Mapping[str, Any], realisati
             check_stable(setup)
     except (TypeError, ValueError) as error:
         raise suite_error(where, str(error)) from None
+
+
+def _check_score_from(where: str, template: Mapping[str, Any], open_loop: bool) -> None:
+    """A ``score_from`` that leaves at least one measured sample to score, or an error.
+
+    Rows are scored over ``t >= score_from``; the measured samples run from the start
+    time (0 for an open-loop batch, which has none) for the measurement time (the
+    forcing period by default; 60 s for an open-loop batch, as the runner does).
+    """
+    dt = template["dt"]
+    measurement_time = template["measurement_time"]
+    if measurement_time is None:
+        if open_loop:
+            measurement_time, said = 60.0, " (the default)"
+        else:
+            forcing = resolve_forcing(template["forcing"], 0)
+            measurement_time = measurement_time_for(forcing, None)
+            said = " (the forcing period)"
+    else:
+        said = ""
+    try:
+        check_duration("measurement_time", measurement_time, dt)
+    except ValueError as error:
+        raise suite_error(where, str(error)) from None
+    start = 0.0 if open_loop else template["start_time"]
+    last = start + (round(measurement_time / dt) - 1) * dt
+    score_from = template["score_from"]
+    if score_from > last + 1e-9:  # the scoring window's tolerance (bench.scoring)
+        begins = "" if start == 0.0 else f"start_time = {start:g} s, "
+        raise suite_error(
+            where,
+            f"score_from must lie in [0, {last:g}] s, the times of the measured samples "
+            f"(t = {start:g} to {last:g} s: {begins}measurement_time = {measurement_time:g} s"
+            f"{said} at dt = {dt:g} s), got {score_from!r}: it would leave nothing to score",
+        )
 
 
 def _checked_pilot(where: str, merged: Mapping[str, Any]) -> tuple[dict[str, Any], Pilot]:

@@ -23,6 +23,15 @@ def _describe(value: Any) -> str:
     return text if len(text) <= 80 else text[:77] + "..."
 
 
+def _describe_values(array: NDArray[Any]) -> str:
+    """The entries of a numeric array, short: ``0.1``, ``[0.1, 0.2]``, ``[[0.1]]``."""
+    if array.size > 8:
+        first = ", ".join(repr(v) for v in array.ravel()[:4].tolist())
+        return f"{array.size} values: {first}, ..."
+    text = repr(array.tolist())
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
 def check_real(name: str, value: Any) -> float:
     """Return ``value`` as a finite float, or raise naming ``name``."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
@@ -167,7 +176,9 @@ def check_action(name: str, value: Any, shape: tuple[int, ...]) -> NDArray[np.fl
     if array.dtype.kind not in "iuf":
         raise TypeError(f"{name} must be {expected}, got dtype {array.dtype} ({_describe(value)})")
     if array.shape != shape:
-        raise ValueError(f"{name} must be {expected}, got shape {array.shape}")
+        raise ValueError(
+            f"{name} must be {expected}, got shape {array.shape} ({_describe_values(array)})"
+        )
     return array.astype(np.float64, copy=False)
 
 
@@ -182,13 +193,20 @@ def reject_unknown(name: str, given: Iterable[str], known: Iterable[str]) -> Non
         )
 
 
-def check_options(options: Any, known: Iterable[str]) -> dict[str, Any]:
-    """``reset(options=...)`` as a dict with known keys only (None gives ``{}``)."""
+def check_options(
+    options: Any, known: Iterable[str], *, example: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
+    """``reset(options=...)`` as a dict with known keys only (None gives ``{}``).
+
+    ``example`` is the dict the error for a non-dict shows (default
+    ``{'realisation': 0}``, the tracking environments' option).
+    """
     if options is None:
         return {}
     if not isinstance(options, Mapping):
+        shown = {"realisation": 0} if example is None else dict(example)
         raise TypeError(
-            f"options must be a dict such as {{'realisation': 0}} or None, got {_describe(options)}"
+            f"options must be a dict such as {shown!r} or None, got {_describe(options)}"
         )
     options = dict(options)
     reject_unknown("reset options", options, known)

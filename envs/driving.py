@@ -803,7 +803,7 @@ class LaneKeeping(gym.Env[FloatArray, FloatArray]):
     ) -> tuple[FloatArray, dict[str, Any]]:
         """Start at rest on the lane centre; ``options={"road_seed": k}`` for random roads."""
         super().reset(seed=seed)
-        options = check_options(options, _RESET_OPTIONS)
+        options = check_options(options, _RESET_OPTIONS, example={"road_seed": 0})
         if "road_seed" in options and self.road is not None:
             raise ValueError("reset option road_seed applies to road='random' only")
         road = self.episode_road(options.get("road_seed"))

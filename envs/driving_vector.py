@@ -137,7 +137,7 @@ class LaneKeepingVector(VectorEnv[FloatArray, FloatArray, FloatArray]):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[FloatArray, dict[str, Any]]:
         """Reset every copy; copy ``i`` is seeded ``seed + i``."""
-        options = check_options(options, ("road_seed",))
+        options = check_options(options, ("road_seed",), example={"road_seed": 0})
         if "road_seed" in options and self._tables is None:
             raise ValueError("reset option road_seed applies to road='random' only")
         if seed is not None or not self._generators:

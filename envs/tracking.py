@@ -46,7 +46,10 @@ variance that of the target forcing function (of the disturbance without a targe
 Episodes start at rest (all states zero) and are truncated after
 ``round((run_in + measurement_time)/dt)`` steps. They terminate on loss of control,
 ``|e| > loss_of_control``, where a limit is given (by default only for an unstable
-element such as the critical tracking task: 10 forcing standard deviations).
+element such as the critical tracking task: 10 forcing standard deviations). Once an
+episode has terminated or been truncated, ``step`` raises ``RuntimeError`` until
+:meth:`~TrackingEnv.reset`; the recording ends with the episode's last step (the sample
+whose error exceeded the limit is the observation after it, not recorded).
 
 ``info`` after each step: ``t, ft, fd, y, e`` of the new observation, the applied
 stick ``u``, ``clipped_actions`` so far, and ``element``: the CE parameters at that
@@ -245,6 +248,8 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         self._screen = None
         self._clock = None
         self._k = -1
+        # why the episode ended (terminated or truncated), None while it runs
+        self._ended: str | None = None
 
     @property
     def spec(self) -> EnvSpec | None:
@@ -346,6 +351,7 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         self._e = np.zeros(n + 1)
         self._previous_u = 0.0
         self._clipped = 0
+        self._ended = None
         # at rest: only a disturbance at the output shows before the first step
         y = 0.0 if self._disturbance_at_input else float(fd[0])
         self._y[0] = y
@@ -356,12 +362,16 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         return observation, self._info(0, 0.0)
 
     def step(self, action: FloatArray) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:
-        """Apply the stick ``action[0]`` over one sample; see the module docstring."""
+        """Apply the stick ``action[0]`` over one sample; see the module docstring.
+
+        Raises ``RuntimeError`` before :meth:`reset` and after the episode has
+        terminated or been truncated.
+        """
         k = self._k
         if k < 0:
             raise RuntimeError("call reset() before step()")
-        if k >= self.episode_steps:
-            raise RuntimeError("the episode is over (truncated); call reset()")
+        if self._ended is not None:
+            raise RuntimeError(f"the episode is over ({self._ended}); call reset()")
         if type(action) is np.ndarray and action.shape == (1,) and action.dtype.kind == "f":
             u = float(action[0])  # the common case, kept free of call overhead
         else:
@@ -414,10 +424,20 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
             reward = -(e * e + self.effort_weight * u * u) * self._inverse_variance
         terminated = self.loss_of_control is not None and abs(e) > self.loss_of_control
         truncated = k >= self.episode_steps
+        if terminated or truncated:
+            self._ended = self._end_reason(k, terminated, e)
         observation = self._observe(k)
         if self.render_mode == "human":
             self.render()
         return observation, reward, terminated, truncated, self._info(k, u)
+
+    def _end_reason(self, k: int, terminated: bool, e: float) -> str:
+        """Why the episode ended after ``k`` steps, for the error of a later ``step``."""
+        t = float(self._time[k])
+        if not terminated:
+            return f"truncated after {k} steps, at t = {t:g} s"
+        limit = self.loss_of_control
+        return f"terminated at t = {t:g} s: |e| = {abs(e):g} > loss_of_control = {limit:g}"
 
     def _observe(self, k: int) -> FloatArray:
         display = self._display

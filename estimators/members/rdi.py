@@ -344,6 +344,76 @@ class RDI(FilterShell):
         s = self._settings
         return {"n_a": s.n_a, "n_b": s.n_b, "decimation": s.decimation}
 
+    # ---------------------------------------------------------- run length
+
+    def first_identification(self, dt: float, decimation: int | None = None) -> int:
+        """Index of the first sample at which the filter can identify (0-based).
+
+        The compiled step (:func:`~manualcontrol.estimators.members._rdi_core.rdi_step`)
+        identifies at sample ``k`` when ``k`` is a multiple of ``decimation``, the
+        ``n_a`` past outputs lie in the record (``k >= n_a decimation``) and so does the
+        oldest delayed input read with its interpolation stencil (``floor(k - n_b
+        decimation - d/dt) >= 1``, with ``d`` the initial delay); a run of fewer than
+        this index + 1 samples never corrects its starting values. ``decimation``
+        defaults to the setting's.
+        """
+        dt = check_positive("dt", dt)
+        s = self._settings
+        lam = s.decimation if decimation is None else check_int("decimation", decimation, minimum=1)
+        lag = s.initial_values["d"] / dt
+
+        def identifies(k: int) -> bool:  # the step's test, in the same arithmetic
+            return k >= s.n_a * lam and math.floor(k - float(s.n_b) * lam - lag) - 1.0 >= 0.0
+
+        lowest = max(s.n_a * lam, s.n_b * lam + lag + 1.0)
+        k = lam * max(math.ceil(lowest / lam) - 1, 0)
+        while not identifies(k):
+            k += lam
+        return k
+
+    def check_length(self, samples: int, dt: float) -> None:
+        """Raise ``ValueError`` if ``samples`` at ``dt`` leave no identification step.
+
+        :meth:`estimate` calls it: a run that never identifies would return its
+        starting values as the estimate, healthy. The message names ``decimation``, its
+        value, the recording's length and the largest decimation the recording allows.
+        """
+        s = self._settings
+        needed = self.first_identification(dt) + 1
+        if samples >= needed:
+            return
+        order = f"ARMAX({s.n_a}, {s.n_b})"
+        d0 = s.initial_values["d"]
+        largest = self._largest_decimation(samples, dt)
+        if largest is None:
+            allowed = (
+                f"no decimation fits this recording: even decimation = 1 needs "
+                f"{self.first_identification(dt, 1) + 1} samples; give a longer recording "
+                f"(or a smaller initial d)"
+            )
+        else:
+            allowed = (
+                f"the largest decimation this recording allows is {largest} "
+                f"(or give a longer recording)"
+            )
+        raise ValueError(
+            f"decimation = {s.decimation} leaves the filter no identification step in a "
+            f"recording of {samples} samples (dt = {dt:g} s): {order} from the initial "
+            f"delay d = {d0:g} s first identifies at sample index {needed - 1}, so it needs at "
+            f"least {needed} samples; {allowed}"
+        )
+
+    def _largest_decimation(self, samples: int, dt: float) -> int | None:
+        """The largest decimation (below the setting's) that identifies within ``samples``."""
+        s = self._settings
+        # a decimation identifies no earlier than max(n_a, n_b + 1) decimated samples in
+        lam = min(s.decimation - 1, (samples - 1) // max(s.n_a, s.n_b + 1, 1))
+        while lam >= 1:
+            if self.first_identification(dt, lam) < samples:
+                return lam
+            lam -= 1
+        return None
+
     # ----------------------------------------------------------------- reset
 
     @property
@@ -508,10 +578,17 @@ class RDI(FilterShell):
         smooth
             Return the RTS-smoothed result; None: the ``smooth`` setting.
 
+        Raises ``ValueError`` when the recording is too short for one identification
+        step at this ``decimation`` (:meth:`check_length`). Online (:meth:`reset`, then
+        :meth:`update`), the estimates before sample :meth:`first_identification` are
+        the starting values: the stream's length is not known there, so nothing is
+        refused.
+
         """
         r, y = self.signals(recording)
         if len(recording) < 2:
             raise ValueError(f"the recording must have at least 2 samples, got {len(recording)}")
+        self.check_length(len(recording), recording.dt)
         self.reset(recording.dt, t0=float(recording.t[0]))
         smooth = self._settings.smooth if smooth is None else bool(smooth)
         store = bool(smoother_inputs or smooth)

@@ -100,7 +100,10 @@ def test_out_of_bound_actions_are_still_clipped_not_refused(env):
 def test_reset_options_must_be_a_mapping_or_none(options, shown):
     environment = gym.make(ID, road="random", measurement_time=1.0)
     with pytest.raises(
-        TypeError, match=re.escape("options must be a dict such as") + ".*" + re.escape(shown)
+        TypeError,
+        match=re.escape("options must be a dict such as {'road_seed': 0}")
+        + ".*"
+        + re.escape(shown),
     ):
         environment.reset(options=options)
 
