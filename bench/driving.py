@@ -158,9 +158,20 @@ def parse_lane_keeping_batch(where: str, merged: Mapping[str, Any]) -> Batch:
         score_from = check_positive("score_from", merged.get("score_from", 0.0), allow_zero=True)
         output_noise_levels(environment.pop("output_noise", None))
         # the environment checks the rest (speeds, distances, the drive fitting the road)
-        LaneKeeping(road, dt=dt, run_in=run_in, measurement_time=measurement_time, **environment)
+        lane = LaneKeeping(
+            road, dt=dt, run_in=run_in, measurement_time=measurement_time, **environment
+        )
     except (TypeError, ValueError) as error:
         raise suite_error(where, str(error)) from None
+    # the measured samples run from t = 0 (after the run-in) to the episode's last step
+    last = (lane.episode_steps - lane.n_run_in - 1) * dt
+    if score_from > last + 1e-9:  # the scoring window's tolerance (bench.scoring)
+        raise suite_error(
+            where,
+            f"score_from must lie in [0, {last:g}] s, the times of the measured samples "
+            f"(t = 0 to {last:g} s: measurement_time = {lane.measurement_time:g} s at "
+            f"dt = {dt:g} s), got {score_from!r}: it would leave nothing to score",
+        )
     realisations = int_list(where, "realisations", merged["realisations"])
     if road != "random" and realisations != (0,):
         raise suite_error(where, f"realisations must be [0] for the fixed road {road!r}")

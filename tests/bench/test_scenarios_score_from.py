@@ -5,6 +5,7 @@ used to load and then fail every run. The error names the file, the batch and th
 as the other suite errors do (``tests/bench/test_scenarios.py``).
 """
 
+import importlib.resources
 import re
 import textwrap
 
@@ -147,3 +148,11 @@ def test_an_open_loop_batch_is_checked_against_its_measurement_time(tmp_path):
 @pytest.mark.parametrize("name", BUILTIN_SUITES)
 def test_every_builtin_suite_still_loads(name):
     assert load_suite(name).scenarios()
+
+
+def test_a_lane_keeping_score_from_past_its_drive_is_refused_at_load(tmp_path):
+    folder = importlib.resources.files("manualcontrol.bench").joinpath("suites")
+    text = folder.joinpath("zhao2019.toml").read_text()
+    text = text.replace("[[batch]]", "[[batch]]\nscore_from = 10000.0", 1)
+    with pytest.raises(SuiteError, match=r"score_from must lie in \[0, .*got 10000\.0"):
+        load_suite(write(tmp_path, text))
