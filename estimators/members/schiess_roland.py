@@ -119,7 +119,9 @@ __all__ = [
     "PAPER_INITIAL",
     "PARAMETER_NAMES",
     "STATE_NAMES",
+    "InitialUncertaintySettings",
     "SchiessRoland",
+    "SchiessRolandNoiseSettings",
     "SchiessRolandSettings",
     "closed_loop_eigenvalues",
     "initial_state_covariance",
@@ -186,119 +188,44 @@ def _mapping(name: str, value: Any, allowed: tuple[str, ...], convert: Any) -> M
 
 
 @dataclass(frozen=True)
-class SchiessRolandSettings(SettingsRecord):
-    """Settings of the :class:`SchiessRoland` filter (frozen; vary with ``dataclasses.replace``).
+class SchiessRolandNoiseSettings(SettingsRecord):
+    """The filter's noise: the remnant's process noise, the measurements', the adaptive noise.
+
+    A group of :class:`SchiessRolandSettings` (``noise=``); each field is also accepted
+    flat by the name in brackets (its own where none is given), the one error messages
+    use: ``process_noise=576`` is ``noise={"process": 576}``.
 
     Parameters
     ----------
-    initial : Mapping[str, float]
-        Initial parameter estimates; missing ones from :data:`PAPER_INITIAL` (Table I).
-        ``tau_1``, ``tau_2`` must be non-zero (they divide in eqs. 9-10).
-    initial_std_fraction : float
-        Initial standard deviation of each parameter as a fraction of its initial
-        value (> 0): 0.1 (the paper's 10 %), 1.0 (case 2).
-    P0 : Mapping[str, float]
-        Initial variances (> 0) of some parameters, replacing the fraction's.
-    estimated : tuple of str or None
-        Parameters to estimate (None: all seven); the others are held at their initial
-        values (variance 0).
-    plant_gain : float
-        ``K`` of the plant ``K/s^2`` (> 0), 10 s^-2.
-    process_noise : float
-        ``q`` (>= 0): variance of each held sample of the remnant's white input
-        (V^2/s^4; the paper's cases 59,600, 576 and 25).
-    noise_form : {"held", "paper"}
-        How ``q`` enters the prior (module docstring, :data:`NOISE_FORMS`).
+    process : float
+        (``process_noise``) ``q`` (>= 0): variance of each held sample of the remnant's
+        white input (V^2/s^4; the paper's cases 59,600, 576 and 25). A per-sample figure
+        (module docstring, "Sample rates").
+    form : {"held", "paper"}
+        (``noise_form``) How ``q`` enters the prior (module docstring,
+        :data:`NOISE_FORMS`).
     measurement_variance : (float, float)
         Variances (> 0) of the stick and the plant-output measurements, 0.00092 V^2 each.
-    initial_covariance : {"consistent", "paper"}
-        Initial covariance of the dynamic states (:func:`initial_state_covariance`).
-    initial_state_variance : float
-        ``"paper"``: initial variance (> 0) of ``c'``, ``y_4`` and ``eta'``, 0.1.
-    split_variance : float
-        ``"consistent"``: the variance (> 0) of the unknown split of the first stick
-        sample into ``u`` and ``eta`` (V^2), 1.
-    initial_states : Mapping[str, float]
-        Initial values of some of :data:`DYNAMIC_STATES`, replacing the paper's rule.
-    delay_read : {"integer", "bicubic"}
-        How the delayed terms are read from the history (module docstring).
-    delayed_input : {"hold", "ramp"}
-        The delayed input over a step: held (eq. 18) or linear between its ends.
     adaptive : {"off", "full", "modified"}
         The Appendix's adaptive fictitious noise.
     adaptive_window : int
         Samples over which ``qbar`` is averaged (>= 1), 20.
-    passes : int
-        Passes over the data in :meth:`SchiessRoland.estimate` (>= 1).
-    carry : {"diagonal", "block", "mean"}
-        What of the parameter belief starts the next pass (:data:`CARRY_MODES`).
-    max_delay : float
-        Longest delay the history holds (s, > 0); ``theta`` is kept in ``[0, max_delay]``.
-    limits : Mapping[str, (low, high)]
-        Estimate-projection limits of parameters (theta's replaces ``[0, max_delay]``
-        and must lie inside it).
-    guard : GuardSettings
-        ``jitter``, ``max_covariance`` (1e10 here) and ``pinned_time``, each also by its
-        own name (:class:`~manualcontrol.estimators.settings.GuardSettings`).
-
     """
 
-    tuple_fields: ClassVar[tuple[str, ...]] = ("estimated", "measurement_variance")
-    pair_mapping_fields: ClassVar[tuple[str, ...]] = ("limits",)
-    groups: ClassVar[tuple[str, ...]] = ("guard",)
+    tuple_fields: ClassVar[tuple[str, ...]] = ("measurement_variance",)
+    flat_names: ClassVar[Mapping[str, str]] = {"process": "process_noise", "form": "noise_form"}
 
-    initial: Mapping[str, float] = field(default_factory=dict)
-    initial_std_fraction: float = 0.1
-    P0: Mapping[str, float] = field(default_factory=dict)
-    estimated: tuple[str, ...] | None = None
-    plant_gain: float = 10.0
-    process_noise: float = 59600.0
-    noise_form: str = "held"
+    process: float = 59600.0
+    form: str = "held"
     measurement_variance: tuple[float, float] = (0.00092, 0.00092)
-    initial_covariance: str = "consistent"
-    initial_state_variance: float = 0.1
-    split_variance: float = 1.0
-    initial_states: Mapping[str, float] = field(default_factory=dict)
-    delay_read: str = "integer"
-    delayed_input: str = "ramp"
     adaptive: str = "off"
     adaptive_window: int = 20
-    passes: int = 1
-    carry: str = "diagonal"
-    max_delay: float = 0.5
-    limits: Mapping[str, tuple[float, float]] = field(default_factory=dict)
-    guard: GuardSettings = field(default_factory=lambda: GuardSettings(max_covariance=1e10))
 
     def __post_init__(self) -> None:
-        initial = dict(PAPER_INITIAL)
-        initial.update(_mapping("initial", self.initial, PARAMETER_NAMES, check_real))
-        for name in ("tau_1", "tau_2"):
-            if initial[name] == 0.0:
-                raise ValueError(f"initial {name} must be non-zero (it divides in eqs. 9-10)")
-        object.__setattr__(self, "initial", MappingProxyType(initial))
         object.__setattr__(
-            self,
-            "initial_std_fraction",
-            check_positive("initial_std_fraction", self.initial_std_fraction),
+            self, "process", check_positive("process_noise", self.process, allow_zero=True)
         )
-        object.__setattr__(self, "P0", _mapping("P0", self.P0, PARAMETER_NAMES, check_positive))
-        if self.estimated is not None:
-            if isinstance(self.estimated, str):
-                raise TypeError(
-                    f"estimated must be a tuple of parameter names, got {self.estimated!r}"
-                )
-            estimated = tuple(self.estimated)
-            reject_unknown("estimated", estimated, PARAMETER_NAMES)
-            if len(set(estimated)) != len(estimated):
-                raise ValueError(f"estimated names a parameter twice: {estimated}")
-            object.__setattr__(self, "estimated", estimated)
-        object.__setattr__(self, "plant_gain", check_positive("plant_gain", self.plant_gain))
-        object.__setattr__(
-            self,
-            "process_noise",
-            check_positive("process_noise", self.process_noise, allow_zero=True),
-        )
-        check_choice("noise_form", self.noise_form, NOISE_FORMS)
+        check_choice("noise_form", self.form, NOISE_FORMS)
         try:
             pair = tuple(self.measurement_variance)
         except TypeError:
@@ -316,7 +243,54 @@ class SchiessRolandSettings(SettingsRecord):
                 check_positive("measurement_variance[1]", pair[1]),
             ),
         )
-        check_choice("initial_covariance", self.initial_covariance, INITIAL_COVARIANCES)
+        check_choice("adaptive", self.adaptive, ADAPTIVE_MODES)
+        object.__setattr__(
+            self, "adaptive_window", check_int("adaptive_window", self.adaptive_window, minimum=1)
+        )
+
+
+@dataclass(frozen=True)
+class InitialUncertaintySettings(SettingsRecord):
+    """The filter's initial covariance: of the parameters and of the dynamic states.
+
+    A group of :class:`SchiessRolandSettings` (``uncertainty=``); each field is also
+    accepted flat by the name in brackets (its own where none is given), the one error
+    messages use: ``initial_covariance="paper"`` is ``uncertainty={"states": "paper"}``.
+
+    Parameters
+    ----------
+    initial_std_fraction : float
+        Initial standard deviation of each parameter as a fraction of its initial
+        value (> 0): 0.1 (the paper's 10 %), 1.0 (case 2).
+    P0 : Mapping[str, float]
+        Initial variances (> 0) of some parameters, replacing the fraction's.
+    states : {"consistent", "paper"}
+        (``initial_covariance``) Initial covariance of the dynamic states
+        (:func:`initial_state_covariance`, :data:`INITIAL_COVARIANCES`).
+    initial_state_variance : float
+        ``"paper"``: initial variance (> 0) of ``c'``, ``y_4`` and ``eta'``, 0.1.
+    split_variance : float
+        ``"consistent"``: the variance (> 0) of the unknown split of the first stick
+        sample into ``u`` and ``eta`` (V^2), 1.
+    """
+
+    tuple_fields: ClassVar[tuple[str, ...]] = ()
+    flat_names: ClassVar[Mapping[str, str]] = {"states": "initial_covariance"}
+
+    initial_std_fraction: float = 0.1
+    P0: Mapping[str, float] = field(default_factory=dict)
+    states: str = "consistent"
+    initial_state_variance: float = 0.1
+    split_variance: float = 1.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self,
+            "initial_std_fraction",
+            check_positive("initial_std_fraction", self.initial_std_fraction),
+        )
+        object.__setattr__(self, "P0", _mapping("P0", self.P0, PARAMETER_NAMES, check_positive))
+        check_choice("initial_covariance", self.states, INITIAL_COVARIANCES)
         object.__setattr__(
             self,
             "initial_state_variance",
@@ -325,6 +299,92 @@ class SchiessRolandSettings(SettingsRecord):
         object.__setattr__(
             self, "split_variance", check_positive("split_variance", self.split_variance)
         )
+
+
+@dataclass(frozen=True)
+class SchiessRolandSettings(SettingsRecord):
+    """Settings of the :class:`SchiessRoland` filter (frozen; vary with ``replace``).
+
+    The filter's noise and its initial covariance are groups (``noise``,
+    ``uncertainty``), as are its guards (``guard``); suite files, ``--set`` and keyword
+    arguments give each of their fields by its flat name (``process_noise=576``,
+    ``initial_std_fraction=1.0``, ``jitter=1e-9``) or a group as a table, and
+    ``to_dict`` writes the nested form.
+
+    Parameters
+    ----------
+    initial : Mapping[str, float]
+        Initial parameter estimates; missing ones from :data:`PAPER_INITIAL` (Table I).
+        ``tau_1``, ``tau_2`` must be non-zero (they divide in eqs. 9-10).
+    estimated : tuple of str or None
+        Parameters to estimate (None: all seven); the others are held at their initial
+        values (variance 0).
+    plant_gain : float
+        ``K`` of the plant ``K/s^2`` (> 0), 10 s^-2.
+    initial_states : Mapping[str, float]
+        Initial values of some of :data:`DYNAMIC_STATES`, replacing the paper's rule.
+    delay_read : {"integer", "bicubic"}
+        How the delayed terms are read from the history (module docstring).
+    delayed_input : {"hold", "ramp"}
+        The delayed input over a step: held (eq. 18) or linear between its ends.
+    passes : int
+        Passes over the data in :meth:`SchiessRoland.estimate` (>= 1).
+    carry : {"diagonal", "block", "mean"}
+        What of the parameter belief starts the next pass (:data:`CARRY_MODES`).
+    max_delay : float
+        Longest delay the history holds (s, > 0); ``theta`` is kept in ``[0, max_delay]``.
+    limits : Mapping[str, (low, high)]
+        Estimate-projection limits of parameters (theta's replaces ``[0, max_delay]``
+        and must lie inside it).
+    noise : SchiessRolandNoiseSettings
+        ``process_noise`` (``q``), ``noise_form``, ``measurement_variance``, ``adaptive``
+        and ``adaptive_window`` (:class:`SchiessRolandNoiseSettings`).
+    uncertainty : InitialUncertaintySettings
+        The initial covariance: ``initial_std_fraction``, ``P0``, ``initial_covariance``,
+        ``initial_state_variance`` and ``split_variance``
+        (:class:`InitialUncertaintySettings`).
+    guard : GuardSettings
+        ``jitter``, ``max_covariance`` (1e10 here) and ``pinned_time``, each also by its
+        own name (:class:`~manualcontrol.estimators.settings.GuardSettings`).
+
+    """
+
+    tuple_fields: ClassVar[tuple[str, ...]] = ("estimated",)
+    pair_mapping_fields: ClassVar[tuple[str, ...]] = ("limits",)
+    groups: ClassVar[tuple[str, ...]] = ("noise", "uncertainty", "guard")
+
+    initial: Mapping[str, float] = field(default_factory=dict)
+    estimated: tuple[str, ...] | None = None
+    plant_gain: float = 10.0
+    initial_states: Mapping[str, float] = field(default_factory=dict)
+    delay_read: str = "integer"
+    delayed_input: str = "ramp"
+    passes: int = 1
+    carry: str = "diagonal"
+    max_delay: float = 0.5
+    limits: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    noise: SchiessRolandNoiseSettings = field(default_factory=SchiessRolandNoiseSettings)
+    uncertainty: InitialUncertaintySettings = field(default_factory=InitialUncertaintySettings)
+    guard: GuardSettings = field(default_factory=lambda: GuardSettings(max_covariance=1e10))
+
+    def __post_init__(self) -> None:
+        initial = dict(PAPER_INITIAL)
+        initial.update(_mapping("initial", self.initial, PARAMETER_NAMES, check_real))
+        for name in ("tau_1", "tau_2"):
+            if initial[name] == 0.0:
+                raise ValueError(f"initial {name} must be non-zero (it divides in eqs. 9-10)")
+        object.__setattr__(self, "initial", MappingProxyType(initial))
+        if self.estimated is not None:
+            if isinstance(self.estimated, str):
+                raise TypeError(
+                    f"estimated must be a tuple of parameter names, got {self.estimated!r}"
+                )
+            estimated = tuple(self.estimated)
+            reject_unknown("estimated", estimated, PARAMETER_NAMES)
+            if len(set(estimated)) != len(estimated):
+                raise ValueError(f"estimated names a parameter twice: {estimated}")
+            object.__setattr__(self, "estimated", estimated)
+        object.__setattr__(self, "plant_gain", check_positive("plant_gain", self.plant_gain))
         object.__setattr__(
             self,
             "initial_states",
@@ -332,10 +392,6 @@ class SchiessRolandSettings(SettingsRecord):
         )
         check_choice("delay_read", self.delay_read, DELAY_READS)
         check_choice("delayed_input", self.delayed_input, DELAYED_INPUTS)
-        check_choice("adaptive", self.adaptive, ADAPTIVE_MODES)
-        object.__setattr__(
-            self, "adaptive_window", check_int("adaptive_window", self.adaptive_window, minimum=1)
-        )
         object.__setattr__(self, "passes", check_int("passes", self.passes, minimum=1))
         check_choice("carry", self.carry, CARRY_MODES)
         object.__setattr__(self, "max_delay", check_positive("max_delay", self.max_delay))
@@ -357,10 +413,16 @@ class SchiessRolandSettings(SettingsRecord):
                         f"initial {name} = {initial[name]!r} lies outside its limits "
                         f"[{low:g}, {high:g}]"
                     )
-        if not isinstance(self.guard, GuardSettings):
-            raise TypeError(
-                f"guard must be a GuardSettings (or its fields by name), got {self.guard!r}"
-            )
+        for group, kind in (
+            ("noise", SchiessRolandNoiseSettings),
+            ("uncertainty", InitialUncertaintySettings),
+            ("guard", GuardSettings),
+        ):
+            if not isinstance(getattr(self, group), kind):
+                raise TypeError(
+                    f"{group} must be a {kind.__name__} (or its fields by name), "
+                    f"got {getattr(self, group)!r}"
+                )
 
     def estimated_names(self) -> tuple[str, ...]:
         """The estimated parameters, in :data:`PARAMETER_NAMES` order."""
@@ -373,10 +435,11 @@ class SchiessRolandSettings(SettingsRecord):
 
     def initial_variances(self) -> dict[str, float]:
         """Initial variance of every estimated parameter."""
+        uncertainty = self.uncertainty
         out = {}
         for name in self.estimated_names():
-            default = (self.initial_std_fraction * self.initial[name]) ** 2
-            out[name] = self.P0.get(name, default)
+            default = (uncertainty.initial_std_fraction * self.initial[name]) ** 2
+            out[name] = uncertainty.P0.get(name, default)
             if not out[name] > 0.0:
                 raise ValueError(
                     f"the initial variance of {name} is 0 (its initial value is 0): give "
@@ -404,15 +467,16 @@ def initial_state_covariance(
     ``delta`` 30): with the exact process noise the filter then pushes those errors
     into the parameters in the first second, see the module docstring.
     """
-    r_stick, r_plant = settings.measurement_variance
+    r_stick, r_plant = settings.noise.measurement_variance
+    uncertainty = settings.uncertainty
     P = np.zeros((core.N_DYNAMIC, core.N_DYNAMIC))
-    if settings.initial_covariance == "paper":
+    if uncertainty.states == "paper":
         P[core.I_C, core.I_C] = r_plant  # the plant output is measured
         P[core.I_U, core.I_U] = P[core.I_ETA, core.I_ETA] = 0.5 * r_stick  # eqs. 23-24
         for i in (core.I_C_RATE, core.I_Y4, core.I_ETA_RATE):
-            P[i, i] = settings.initial_state_variance
+            P[i, i] = uncertainty.initial_state_variance
         return P
-    split = settings.split_variance
+    split = uncertainty.split_variance
     P[core.I_C, core.I_C] = r_plant
     P[core.I_C_RATE, core.I_C_RATE] = 2.0 * r_plant / dt**2
     P[core.I_C, core.I_C_RATE] = P[core.I_C_RATE, core.I_C] = -r_plant / dt
@@ -521,7 +585,11 @@ class SchiessRoland(FilterShell):
 
     def _repr_fields(self) -> Mapping[str, Any]:
         s = self._settings
-        return {"process_noise": s.process_noise, "adaptive": s.adaptive, "passes": s.passes}
+        return {
+            "process_noise": s.noise.process,
+            "adaptive": s.noise.adaptive,
+            "passes": s.passes,
+        }
 
     # ------------------------------------------------------------------ reset
 
@@ -570,7 +638,8 @@ class SchiessRoland(FilterShell):
         P = np.zeros((core.N_STATES, core.N_STATES))
         for i, name in enumerate(DYNAMIC_STATES):
             x[i] = check_real(f"initial_states[{name!r}]", states[name])
-        r_stick, r_plant = settings.measurement_variance
+        noise = settings.noise
+        r_stick, r_plant = noise.measurement_variance
         P[: core.N_DYNAMIC, : core.N_DYNAMIC] = initial_state_covariance(
             settings, dt, settings.initial["tau_2"]
         )
@@ -609,16 +678,16 @@ class SchiessRoland(FilterShell):
         cfg = np.zeros(core.CFG_SIZE)
         cfg[core.CFG_DT] = dt
         cfg[core.CFG_PLANT_GAIN] = settings.plant_gain
-        cfg[core.CFG_PROCESS_NOISE] = settings.process_noise
+        cfg[core.CFG_PROCESS_NOISE] = noise.process
         cfg[core.CFG_JITTER] = settings.guard.jitter
         cfg[core.CFG_MAX_COV] = settings.guard.max_covariance
         cfg[core.CFG_BICUBIC] = 1.0 if settings.delay_read == "bicubic" else 0.0
         cfg[core.CFG_RAMP] = 1.0 if settings.delayed_input == "ramp" else 0.0
-        cfg[core.CFG_ADAPTIVE] = _ADAPTIVE_CODES[settings.adaptive]
+        cfg[core.CFG_ADAPTIVE] = _ADAPTIVE_CODES[noise.adaptive]
         cfg[core.CFG_MAX_DELAY] = settings.max_delay
-        cfg[core.CFG_NOISE_FORM] = 1.0 if settings.noise_form == "paper" else 0.0
+        cfg[core.CFG_NOISE_FORM] = 1.0 if noise.form == "paper" else 0.0
         gamma = np.zeros(core.N_STATES)
-        gamma[: core.N_DYNAMIC] = GAMMA_MODIFIED if settings.adaptive == "modified" else GAMMA_FULL
+        gamma[: core.N_DYNAMIC] = GAMMA_MODIFIED if noise.adaptive == "modified" else GAMMA_FULL
         config = core.SRConfig(
             cfg=cfg,
             gamma=gamma,
@@ -637,7 +706,7 @@ class SchiessRoland(FilterShell):
             hist_d=np.zeros(size),
             hist_c=np.full(size, x[core.I_C]),
             hist_rate=np.full(size, x[core.I_C_RATE]),
-            q_window=np.zeros(settings.adaptive_window),
+            q_window=np.zeros(noise.adaptive_window),
             q_sum=np.zeros(3),
             prev_d=np.zeros(1),
             in_d=np.zeros(1),

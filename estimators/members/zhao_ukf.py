@@ -77,6 +77,9 @@ from manualcontrol.pilots.driver import DRIVER_INPUTS, DRIVER_OUTPUTS, Cyberneti
 __all__ = [
     "PRESETS",
     "REFERENCE_DT",
+    "FastMemberSettings",
+    "FusionSettings",
+    "ZhaoNoiseSettings",
     "ZhaoTuning",
     "ZhaoUKF",
     "ZhaoUKFSettings",
@@ -126,8 +129,75 @@ def _names_mapping(name: str, value: Any, check: Any) -> Mapping[str, Any]:
 
 
 @dataclass(frozen=True)
+class ZhaoNoiseSettings(SettingsRecord):
+    """The filter's covariances: Algorithm 3's tuning and the initial covariance.
+
+    A group of :class:`ZhaoUKFSettings` (``noise=``); each field is also accepted by its
+    own name in suite files, ``--set`` and keyword arguments (``Q_x_scale=0.1``). A
+    tuning field left None takes the ``preset``'s value (:func:`zhao_tuning`).
+
+    Parameters
+    ----------
+    R_d : (float, float) or None
+        Measurement noise per reference sample (``Gamma_d``, ``delta_sw``); None: the
+        preset's, or eq. 13 when ``output_error_ratios`` is given.
+    output_error_ratios : (float, float) or None
+        ``sigma_i`` of eq. 13, ``R_d = diag(sigma_i^2 max|y_i|^2)`` over the run.
+    Q_x_scale, Q_theta_scale : float or None
+        ``1/T_x`` of eq. 14 and ``alpha^2/T_theta`` of eq. 15; None: the preset's.
+    Q_theta : Mapping[str, float]
+        Per-parameter ``Q_theta,d`` per reference sample, overriding eq. 15 (estimated
+        parameters only, which :class:`ZhaoUKFSettings` checks).
+    reference_dt : float
+        The sample time (s) at which ``R_d`` and the ``Q`` are given (1 ms, the paper's).
+    gramian_horizon : float or None
+        Horizon (s) of eq. 14's sum; None: infinite.
+    P0_states, P0_fraction : float
+        Initial covariance: ``P0_states`` on the states, ``(P0_fraction theta_0)^2`` on
+        the parameters.
+    """
+
+    tuple_fields: ClassVar[tuple[str, ...]] = ("R_d", "output_error_ratios")
+
+    R_d: tuple[float, float] | None = None
+    output_error_ratios: tuple[float, float] | None = None
+    Q_x_scale: float | None = None
+    Q_theta_scale: float | None = None
+    Q_theta: Mapping[str, float] = field(default_factory=dict)
+    reference_dt: float = REFERENCE_DT
+    gramian_horizon: float | None = None
+    P0_states: float = 1e-2
+    P0_fraction: float = 0.1
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "R_d", _pair("R_d", self.R_d))
+        object.__setattr__(
+            self, "output_error_ratios", _pair("output_error_ratios", self.output_error_ratios)
+        )
+        if self.R_d is not None and self.output_error_ratios is not None:
+            raise ValueError("give R_d or output_error_ratios (eq. 13), not both")
+        for name in ("Q_x_scale", "Q_theta_scale"):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, check_positive(name, value))
+        object.__setattr__(self, "Q_theta", _names_mapping("Q_theta", self.Q_theta, check_positive))
+        object.__setattr__(self, "reference_dt", check_positive("reference_dt", self.reference_dt))
+        if self.gramian_horizon is not None:
+            object.__setattr__(
+                self, "gramian_horizon", check_positive("gramian_horizon", self.gramian_horizon)
+            )
+        object.__setattr__(self, "P0_states", check_positive("P0_states", self.P0_states))
+        object.__setattr__(self, "P0_fraction", check_positive("P0_fraction", self.P0_fraction))
+
+
+@dataclass(frozen=True)
 class ZhaoUKFSettings(SettingsRecord):
     """Settings of :class:`ZhaoUKF` (frozen; module docstring for the rules).
+
+    The covariances (``noise``) and the guards (``guard``) are groups; suite files,
+    ``--set`` and keyword arguments give each of their fields by its own name
+    (``R_d=...``, ``Q_x_scale=0.1``, ``jitter=1e-9``) or a group as a table, and
+    ``to_dict`` writes the nested form.
 
     Parameters
     ----------
@@ -139,22 +209,6 @@ class ZhaoUKFSettings(SettingsRecord):
         Initial (and, for the others, held) parameter values; Table 2 where missing.
     initial_states : (float, float, float)
         ``x[0]`` of the driver model's states (eq. 16: zeros).
-    R_d : (float, float) or None
-        Measurement noise per reference sample (``Gamma_d``, ``delta_sw``); None: the
-        preset's, or eq. 13 when ``output_error_ratios`` is given.
-    output_error_ratios : (float, float) or None
-        ``sigma_i`` of eq. 13, ``R_d = diag(sigma_i^2 max|y_i|^2)`` over the run.
-    Q_x_scale, Q_theta_scale : float or None
-        ``1/T_x`` of eq. 14 and ``alpha^2/T_theta`` of eq. 15; None: the preset's.
-    Q_theta : Mapping[str, float]
-        Per-parameter ``Q_theta,d`` per reference sample, overriding eq. 15.
-    reference_dt : float
-        The sample time (s) at which ``R_d`` and the ``Q`` are given (1 ms, the paper's).
-    gramian_horizon : float or None
-        Horizon (s) of eq. 14's sum; None: infinite.
-    P0_states, P0_fraction : float
-        Initial covariance: ``P0_states`` on the states, ``(P0_fraction theta_0)^2`` on
-        the parameters.
     substeps : int or None
         Euler steps per sample in the prediction; None: ``ceil(dt / reference_dt)``.
     scheme : {"cubature", "merwe"}
@@ -163,38 +217,29 @@ class ZhaoUKFSettings(SettingsRecord):
         Estimate projection: ``[0.1, 10]`` times the initial value by default.
     speed : float or None
         ``v_x`` (m/s); None: the recording's ``speed``.
+    noise : ZhaoNoiseSettings
+        ``R_d`` or ``output_error_ratios``, ``Q_x_scale``, ``Q_theta_scale``,
+        ``Q_theta``, ``reference_dt``, ``gramian_horizon``, ``P0_states`` and
+        ``P0_fraction`` (:class:`ZhaoNoiseSettings`).
     guard : GuardSettings
         As the pilot filters' (``jitter``, ``max_covariance``, ``pinned_time``, each also
         by its own name), with ``pinned_time = inf`` (never reported) by default.
 
     """
 
-    tuple_fields: ClassVar[tuple[str, ...]] = (
-        "estimated",
-        "initial_states",
-        "R_d",
-        "output_error_ratios",
-    )
+    tuple_fields: ClassVar[tuple[str, ...]] = ("estimated", "initial_states")
     pair_mapping_fields: ClassVar[tuple[str, ...]] = ("limits",)
-    groups: ClassVar[tuple[str, ...]] = ("guard",)
+    groups: ClassVar[tuple[str, ...]] = ("noise", "guard")
 
     preset: str = "ukf1"
     estimated: tuple[str, ...] = ("K_p", "K_c")
     initial: Mapping[str, float] = field(default_factory=dict)
     initial_states: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    R_d: tuple[float, float] | None = None
-    output_error_ratios: tuple[float, float] | None = None
-    Q_x_scale: float | None = None
-    Q_theta_scale: float | None = None
-    Q_theta: Mapping[str, float] = field(default_factory=dict)
-    reference_dt: float = REFERENCE_DT
-    gramian_horizon: float | None = None
-    P0_states: float = 1e-2
-    P0_fraction: float = 0.1
     substeps: int | None = None
     scheme: str = "cubature"
     limits: str | Mapping[str, tuple[float, float]] = "default"
     speed: float | None = None
+    noise: ZhaoNoiseSettings = field(default_factory=ZhaoNoiseSettings)
     guard: GuardSettings = field(default_factory=lambda: GuardSettings(pinned_time=math.inf))
 
     def __post_init__(self) -> None:
@@ -218,27 +263,6 @@ class ZhaoUKFSettings(SettingsRecord):
             "initial_states",
             tuple(check_real(f"initial_states[{i}]", v) for i, v in enumerate(states)),
         )
-        object.__setattr__(self, "R_d", _pair("R_d", self.R_d))
-        object.__setattr__(
-            self, "output_error_ratios", _pair("output_error_ratios", self.output_error_ratios)
-        )
-        if self.R_d is not None and self.output_error_ratios is not None:
-            raise ValueError("give R_d or output_error_ratios (eq. 13), not both")
-        for name in ("Q_x_scale", "Q_theta_scale"):
-            value = getattr(self, name)
-            if value is not None:
-                object.__setattr__(self, name, check_positive(name, value))
-        object.__setattr__(self, "Q_theta", _names_mapping("Q_theta", self.Q_theta, check_positive))
-        for name in self.Q_theta:
-            if name not in estimated:
-                raise ValueError(f"Q_theta names {name!r}, which is not estimated")
-        object.__setattr__(self, "reference_dt", check_positive("reference_dt", self.reference_dt))
-        if self.gramian_horizon is not None:
-            object.__setattr__(
-                self, "gramian_horizon", check_positive("gramian_horizon", self.gramian_horizon)
-            )
-        object.__setattr__(self, "P0_states", check_positive("P0_states", self.P0_states))
-        object.__setattr__(self, "P0_fraction", check_positive("P0_fraction", self.P0_fraction))
         if self.substeps is not None:
             object.__setattr__(self, "substeps", check_int("substeps", self.substeps, minimum=1))
         check_choice("scheme", self.scheme, SCHEMES)
@@ -248,10 +272,15 @@ class ZhaoUKFSettings(SettingsRecord):
             object.__setattr__(self, "limits", _names_mapping("limits", self.limits, limit_pair))
         if self.speed is not None:
             object.__setattr__(self, "speed", check_positive("speed", self.speed))
-        if not isinstance(self.guard, GuardSettings):
-            raise TypeError(
-                f"guard must be a GuardSettings (or its fields by name), got {self.guard!r}"
-            )
+        for group, kind in (("noise", ZhaoNoiseSettings), ("guard", GuardSettings)):
+            if not isinstance(getattr(self, group), kind):
+                raise TypeError(
+                    f"{group} must be a {kind.__name__} (or its fields by name), "
+                    f"got {getattr(self, group)!r}"
+                )
+        for name in self.noise.Q_theta:
+            if name not in estimated:
+                raise ValueError(f"Q_theta names {name!r}, which is not estimated")
 
     def initial_vector(self) -> FloatArray:
         """Every parameter's initial value, model order."""
@@ -344,37 +373,38 @@ def zhao_tuning(
     dt = check_positive("dt", dt)
     speed = check_positive("speed", speed)
     preset = PRESETS[settings.preset]
-    reference = settings.reference_dt
-    if settings.output_error_ratios is not None:
+    noise = settings.noise
+    reference = noise.reference_dt
+    if noise.output_error_ratios is not None:
         if output_max is None:
             raise ValueError(
                 "output_error_ratios (eq. 13) need the outputs' largest magnitudes: pass "
                 "output_max=(max|Gamma_d|, max|delta_sw|) to reset(); estimate() computes them"
             )
-        ratios = np.asarray(settings.output_error_ratios)
+        ratios = np.asarray(noise.output_error_ratios)
         R_ref = np.diag((ratios * np.asarray(output_max, dtype=np.float64)) ** 2)
         if not np.all(np.diag(R_ref) > 0.0):
             raise ValueError(
                 f"eq. 13 gives a zero R_d: outputs all zero? output_max={output_max!r}"
             )
     else:
-        R_ref = np.diag(settings.R_d if settings.R_d is not None else preset["R_d"])
+        R_ref = np.diag(noise.R_d if noise.R_d is not None else preset["R_d"])
     initial = settings.initial_vector()
     system = _MODEL.state_space(dict(zip(_NAMES, initial, strict=True)), speed)
     A_d = np.eye(3) + reference * system.A  # eq. 6
     horizon = None
-    if settings.gramian_horizon is not None:
-        horizon = max(1, round(settings.gramian_horizon / reference))
+    if noise.gramian_horizon is not None:
+        horizon = max(1, round(noise.gramian_horizon / reference))
     gramian = observability_gramian(A_d, system.C, horizon)
-    Q_x_scale = settings.Q_x_scale if settings.Q_x_scale is not None else preset["Q_x_scale"]
+    Q_x_scale = noise.Q_x_scale if noise.Q_x_scale is not None else preset["Q_x_scale"]
     Q_x_ref = Q_x_scale * np.linalg.inv(gramian)
     Q_x_ref = 0.5 * (Q_x_ref + Q_x_ref.T)
     Q_theta_scale = (
-        settings.Q_theta_scale if settings.Q_theta_scale is not None else preset["Q_theta_scale"]
+        noise.Q_theta_scale if noise.Q_theta_scale is not None else preset["Q_theta_scale"]
     )
     Q_theta_ref = np.array(
         [
-            settings.Q_theta.get(name, Q_theta_scale * initial[_NAMES.index(name)] ** 2)
+            noise.Q_theta.get(name, Q_theta_scale * initial[_NAMES.index(name)] ** 2)
             for name in settings.estimated
         ]
     )
@@ -558,8 +588,8 @@ class ZhaoUKF(FilterShell):
         x[:3] = settings.initial_states
         x[3:] = initial[theta_index]
         P = np.zeros((n, n))
-        P[:3, :3] = np.eye(3) * settings.P0_states
-        P[3:, 3:] = np.diag((settings.P0_fraction * initial[theta_index]) ** 2)
+        P[:3, :3] = np.eye(3) * settings.noise.P0_states
+        P[3:, 3:] = np.diag((settings.noise.P0_fraction * initial[theta_index]) ** 2)
         sc = np.zeros(pilot_core.SC_SIZE)
         sc[pilot_core.SC_DIV_INDEX] = -1.0
         sc[pilot_core.SC_DIV_PARAM] = -1.0
@@ -647,7 +677,7 @@ class ZhaoUKF(FilterShell):
         inputs, outputs = _driving_signals(recording)
         speed = _recording_speed(self._settings.speed, recording)
         output_max = None
-        if self._settings.output_error_ratios is not None:
+        if self._settings.noise.output_error_ratios is not None:
             with np.errstate(invalid="ignore"):
                 output_max = tuple(float(np.nanmax(np.abs(outputs[:, i]))) for i in range(2))
         self.reset(recording.dt, speed=speed, output_max=output_max, t0=float(recording.t[0]))
@@ -688,18 +718,14 @@ class ZhaoUKF(FilterShell):
 
 
 @dataclass(frozen=True)
-class MultiUKFSettings(ZhaoUKFSettings):
-    """Settings of :class:`MultiUKF`: both members' and the fusion's.
+class FusionSettings(SettingsRecord):
+    """How the multi-UKF fuses its members (``fusion=``; :class:`MultiUKF` for the rule).
 
-    Every :class:`ZhaoUKFSettings` field describes the slow member (``preset`` "ukf1");
-    the fast member is the same with ``fast_preset``.
+    A group of :class:`MultiUKFSettings`; each field is also accepted by its own name
+    (``dead_zone=0``).
 
     Parameters
     ----------
-    fast_preset : {"ukf1", "ukf2"}
-        The fast member: the slow member's settings with this preset (``"ukf2"``).
-    fast_Q_theta_scale : float or None
-        The fast member's ``Q_theta_scale`` (None: its preset's).
     smoothing_time : float
         Time constant (s) of the EWMA of the disagreement (2 s).
     level_time : float
@@ -709,25 +735,16 @@ class MultiUKFSettings(ZhaoUKFSettings):
         followed (0.5 %).
     feedback : bool
         Re-centre the slow member on the fused estimate (True).
-
     """
 
-    fast_preset: str = "ukf2"
-    fast_Q_theta_scale: float | None = None
+    tuple_fields: ClassVar[tuple[str, ...]] = ()
+
     smoothing_time: float = 2.0
     level_time: float = 200.0
     dead_zone: float = 0.005
     feedback: bool = True
 
     def __post_init__(self) -> None:
-        super().__post_init__()
-        check_choice("fast_preset", self.fast_preset, tuple(PRESETS))
-        if self.fast_Q_theta_scale is not None:
-            object.__setattr__(
-                self,
-                "fast_Q_theta_scale",
-                check_positive("fast_Q_theta_scale", self.fast_Q_theta_scale),
-            )
         object.__setattr__(
             self, "smoothing_time", check_positive("smoothing_time", self.smoothing_time)
         )
@@ -738,10 +755,79 @@ class MultiUKFSettings(ZhaoUKFSettings):
         if not isinstance(self.feedback, bool):
             raise TypeError(f"feedback must be True or False, got {self.feedback!r}")
 
+
+@dataclass(frozen=True)
+class FastMemberSettings(SettingsRecord):
+    """What sets the multi-UKF's fast member apart from its slow one (``fast=``).
+
+    A group of :class:`MultiUKFSettings`; each field is also accepted flat by the name in
+    brackets, the one error messages use: ``fast_preset="ukf1"`` is
+    ``fast={"preset": "ukf1"}``.
+
+    Parameters
+    ----------
+    preset : {"ukf1", "ukf2"}
+        (``fast_preset``) The fast member: the slow member's settings with this preset
+        (``"ukf2"``).
+    Q_theta_scale : float or None
+        (``fast_Q_theta_scale``) The fast member's ``Q_theta_scale`` (None: its preset's).
+    """
+
+    tuple_fields: ClassVar[tuple[str, ...]] = ()
+    flat_names: ClassVar[Mapping[str, str]] = {
+        "preset": "fast_preset",
+        "Q_theta_scale": "fast_Q_theta_scale",
+    }
+
+    preset: str = "ukf2"
+    Q_theta_scale: float | None = None
+
+    def __post_init__(self) -> None:
+        check_choice("fast_preset", self.preset, tuple(PRESETS))
+        if self.Q_theta_scale is not None:
+            object.__setattr__(
+                self, "Q_theta_scale", check_positive("fast_Q_theta_scale", self.Q_theta_scale)
+            )
+
+
+@dataclass(frozen=True)
+class MultiUKFSettings(ZhaoUKFSettings):
+    """Settings of :class:`MultiUKF`: both members' and the fusion's.
+
+    Every :class:`ZhaoUKFSettings` field (``noise`` and ``guard`` included) describes the
+    slow member (``preset`` "ukf1"); the fast member is the same with the ``fast``
+    group's preset and ``Q_theta_scale``.
+
+    Parameters
+    ----------
+    fusion : FusionSettings
+        ``smoothing_time`` (2 s), ``level_time`` (200 s), ``dead_zone`` (0.5 %) and
+        ``feedback`` (True), each also by its own name (:class:`FusionSettings`).
+    fast : FastMemberSettings
+        ``fast_preset`` (``"ukf2"``) and ``fast_Q_theta_scale`` (None: its preset's)
+        (:class:`FastMemberSettings`).
+
+    """
+
+    groups: ClassVar[tuple[str, ...]] = ("noise", "guard", "fusion", "fast")
+
+    fusion: FusionSettings = field(default_factory=FusionSettings)
+    fast: FastMemberSettings = field(default_factory=FastMemberSettings)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for group, kind in (("fusion", FusionSettings), ("fast", FastMemberSettings)):
+            if not isinstance(getattr(self, group), kind):
+                raise TypeError(
+                    f"{group} must be a {kind.__name__} (or its fields by name), "
+                    f"got {getattr(self, group)!r}"
+                )
+
     def members(self) -> tuple[ZhaoUKFSettings, ZhaoUKFSettings]:
         """The slow and the fast member's settings."""
         base = {f.name: getattr(self, f.name) for f in dataclasses.fields(ZhaoUKFSettings)}
-        fast = {**base, "preset": self.fast_preset, "Q_theta_scale": self.fast_Q_theta_scale}
+        noise = dataclasses.replace(self.noise, Q_theta_scale=self.fast.Q_theta_scale)
+        fast = {**base, "preset": self.fast.preset, "noise": noise}
         return ZhaoUKFSettings(**base), ZhaoUKFSettings(**fast)
 
 
@@ -793,7 +879,7 @@ class MultiUKF(FilterShell):
     signals = ZhaoUKF.signals
 
     def _repr_fields(self) -> Mapping[str, Any]:
-        return {"slow": self._settings.preset, "fast": self._settings.fast_preset}
+        return {"slow": self._settings.preset, "fast": self._settings.fast.preset}
 
     def reset(
         self,
@@ -811,11 +897,12 @@ class MultiUKF(FilterShell):
         initial = settings.initial_vector()
         theta_index = np.array([_NAMES.index(n) for n in settings.estimated], dtype=np.int64)
         n_t = len(theta_index)
+        rule = settings.fusion
         fusion = core.FusionConfig(
-            a_short=1.0 - math.exp(-dt / settings.smoothing_time),
-            a_long=1.0 - math.exp(-dt / settings.level_time),
-            dead_zone=np.abs(settings.dead_zone * initial[theta_index]),
-            feedback=settings.feedback,
+            a_short=1.0 - math.exp(-dt / rule.smoothing_time),
+            a_long=1.0 - math.exp(-dt / rule.level_time),
+            dead_zone=np.abs(rule.dead_zone * initial[theta_index]),
+            feedback=rule.feedback,
             theta_index=theta_index,
         )
         state = core.FusionState(np.zeros(n_t), np.zeros(n_t), np.zeros(1))
@@ -880,7 +967,7 @@ class MultiUKF(FilterShell):
         inputs, outputs = _driving_signals(recording)
         speed = _recording_speed(self._settings.speed, recording)
         output_max = None
-        if self._settings.output_error_ratios is not None:
+        if self._settings.noise.output_error_ratios is not None:
             with np.errstate(invalid="ignore"):
                 output_max = tuple(float(np.nanmax(np.abs(outputs[:, i]))) for i in range(2))
         self.reset(recording.dt, speed=speed, output_max=output_max, t0=float(recording.t[0]))

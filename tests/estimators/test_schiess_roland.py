@@ -16,6 +16,7 @@ Tolerances, and why:
 """
 
 import dataclasses
+import json
 import math
 import re
 import sys
@@ -29,7 +30,9 @@ from manualcontrol.estimators.members import _schiess_roland_core as core
 from manualcontrol.estimators.members.schiess_roland import (
     DYNAMIC_STATES,
     PARAMETER_NAMES,
+    InitialUncertaintySettings,
     SchiessRoland,
+    SchiessRolandNoiseSettings,
     SchiessRolandSettings,
     closed_loop_eigenvalues,
     initial_state_covariance,
@@ -37,6 +40,7 @@ from manualcontrol.estimators.members.schiess_roland import (
 )
 from manualcontrol.estimators.offline.smoothing import smooth
 from manualcontrol.estimators.registry import make_estimator
+from manualcontrol.estimators.settings import GuardSettings
 from manualcontrol.pilots import Pilot, SchiessRolandRemnant, simulate
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -361,6 +365,98 @@ def test_settings_round_trip_and_registry():
     import pickle
 
     assert pickle.loads(pickle.dumps(SchiessRoland(settings))).settings == settings
+
+
+FLAT_SETTINGS = {
+    "process_noise": 576.0,
+    "noise_form": "paper",
+    "measurement_variance": (0.001, 0.002),
+    "adaptive": "modified",
+    "adaptive_window": 10,
+    "initial_std_fraction": 1.0,
+    "P0": {"theta": 1e-4},
+    "initial_covariance": "paper",
+    "initial_state_variance": 0.2,
+    "split_variance": 2.0,
+    "jitter": 1e-9,
+    "passes": 3,
+}
+
+
+def test_flat_keys_and_the_nested_form_build_the_same_settings():
+    flat = SchiessRolandSettings(**FLAT_SETTINGS)
+    nested = SchiessRolandSettings(
+        passes=3,
+        noise=SchiessRolandNoiseSettings(
+            process=576.0,
+            form="paper",
+            measurement_variance=(0.001, 0.002),
+            adaptive="modified",
+            adaptive_window=10,
+        ),
+        uncertainty=InitialUncertaintySettings(
+            initial_std_fraction=1.0,
+            P0={"theta": 1e-4},
+            states="paper",
+            initial_state_variance=0.2,
+            split_variance=2.0,
+        ),
+        guard=GuardSettings(jitter=1e-9, max_covariance=1e10),
+    )
+    tables = SchiessRolandSettings.from_dict(
+        {
+            "passes": 3,
+            "noise": {
+                "process": 576,
+                "form": "paper",
+                "measurement_variance": [0.001, 0.002],
+                "adaptive": "modified",
+                "adaptive_window": 10,
+            },
+            "uncertainty": {
+                "initial_std_fraction": 1,
+                "P0": {"theta": 1e-4},
+                "states": "paper",
+                "initial_state_variance": 0.2,
+                "split_variance": 2,
+            },
+            "guard": {"jitter": 1e-9},
+        }
+    )
+    assert flat == nested == tables
+    assert SchiessRolandSettings.from_dict(FLAT_SETTINGS) == flat
+    assert make_estimator({"name": "schiess-roland", **FLAT_SETTINGS}).settings == flat
+    assert flat.noise.process == 576.0 and flat.uncertainty.states == "paper"
+    # a flat key changes one field of its group and keeps the others
+    changed = flat.replace(process_noise=25.0)
+    assert changed.noise == dataclasses.replace(flat.noise, process=25.0)
+    assert dataclasses.replace(flat, initial_covariance="consistent").uncertainty.states == (
+        "consistent"
+    )
+    with pytest.raises(ValueError, match=r"process_noise and noise\.process, one setting"):
+        SchiessRolandSettings.from_dict({"noise": {"process": 1.0}, "process_noise": 2.0})
+
+
+def test_to_dict_writes_the_nested_form_and_round_trips():
+    settings = SchiessRolandSettings(**FLAT_SETTINGS)
+    data = json.loads(json.dumps(settings.to_dict()))
+    assert data["noise"] == {
+        "process": 576.0,
+        "form": "paper",
+        "measurement_variance": [0.001, 0.002],
+        "adaptive": "modified",
+        "adaptive_window": 10,
+    }
+    assert data["uncertainty"] == {
+        "initial_std_fraction": 1.0,
+        "P0": {"theta": 1e-4},
+        "states": "paper",
+        "initial_state_variance": 0.2,
+        "split_variance": 2.0,
+    }
+    assert set(data) == {item.name for item in dataclasses.fields(SchiessRolandSettings)}
+    assert "process_noise" not in data and "initial_covariance" not in data
+    assert SchiessRolandSettings.from_dict(data) == settings
 
 
 @pytest.mark.parametrize(

@@ -1,5 +1,7 @@
 """Zhao's UKF and multi-UKF on the cybernetic driver model; Algorithm 3; the Gramian."""
 
+import dataclasses
+import json
 import math
 import re
 
@@ -10,9 +12,16 @@ import scipy.linalg
 from manualcontrol.envs.schedules import Ramp
 from manualcontrol.estimators import MultiUKF, ZhaoUKF, ZhaoUKFSettings, observability_gramian
 from manualcontrol.estimators.analysis.metrics import nrmse
-from manualcontrol.estimators.members.zhao_ukf import MultiUKFSettings, zhao_tuning
+from manualcontrol.estimators.members.zhao_ukf import (
+    FastMemberSettings,
+    FusionSettings,
+    MultiUKFSettings,
+    ZhaoNoiseSettings,
+    zhao_tuning,
+)
 from manualcontrol.estimators.offline.smoothing import smooth
 from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
+from manualcontrol.estimators.settings import GuardSettings
 from manualcontrol.pilots.driver import Driver
 from manualcontrol.pilots.driving import simulate_driving
 
@@ -233,6 +242,92 @@ def test_the_family_knows_them():
     assert isinstance(ukf, ZhaoUKF) and ukf.settings.estimated == ("K_c",)
     multi = make_estimator({"name": "zhao-multi-ukf", "dead_zone": 0.0})
     assert isinstance(multi, MultiUKF) and multi.settings.members()[1].preset == "ukf2"
+
+
+FLAT_NOISE = {
+    "output_error_ratios": (0.08, 0.05),
+    "Q_x_scale": 0.1,
+    "Q_theta_scale": 1e-9,
+    "Q_theta": {"K_c": 1e-3},
+    "reference_dt": 0.002,
+    "gramian_horizon": 5.0,
+    "P0_states": 0.02,
+    "P0_fraction": 0.2,
+}
+FLAT_MULTI = {
+    **FLAT_NOISE,
+    "jitter": 1e-9,
+    "smoothing_time": 1.0,
+    "level_time": 100.0,
+    "dead_zone": 0.0,
+    "feedback": False,
+    "fast_preset": "ukf1",
+    "fast_Q_theta_scale": 1e-5,
+}
+
+
+def test_flat_keys_and_the_nested_form_build_the_same_settings():
+    noise = ZhaoNoiseSettings(**FLAT_NOISE)
+    flat = ZhaoUKFSettings(preset="ukf2", **FLAT_NOISE)
+    assert flat == ZhaoUKFSettings(preset="ukf2", noise=noise)
+    assert flat == ZhaoUKFSettings.from_dict({"preset": "ukf2", "noise": dict(FLAT_NOISE)})
+    assert flat == make_estimator({"name": "zhao-ukf", "preset": "ukf2", **FLAT_NOISE}).settings
+    assert flat.replace(P0_states=0.5).noise == dataclasses.replace(noise, P0_states=0.5)
+
+    multi = MultiUKFSettings(**FLAT_MULTI)
+    nested = MultiUKFSettings(
+        noise=noise,
+        guard=GuardSettings(jitter=1e-9, pinned_time=math.inf),
+        fusion=FusionSettings(smoothing_time=1.0, level_time=100.0, dead_zone=0.0, feedback=False),
+        fast=FastMemberSettings(preset="ukf1", Q_theta_scale=1e-5),
+    )
+    tables = MultiUKFSettings.from_dict(
+        {
+            "noise": dict(FLAT_NOISE),
+            "guard": {"jitter": 1e-9},
+            "fusion": {"smoothing_time": 1, "level_time": 100, "dead_zone": 0, "feedback": False},
+            "fast": {"preset": "ukf1", "Q_theta_scale": 1e-5},
+        }
+    )
+    assert multi == nested == tables
+    assert multi == make_estimator({"name": "zhao-multi-ukf", **FLAT_MULTI}).settings
+    with pytest.raises(ValueError, match=r"fast_preset and fast\.preset, one setting"):
+        MultiUKFSettings.from_dict({"fast": {"preset": "ukf1"}, "fast_preset": "ukf2"})
+    with pytest.raises(ValueError, match=re.escape("fast_preset must be one of 'ukf1', 'ukf2'")):
+        MultiUKFSettings(fast_preset="ukf3")
+
+
+def test_the_multi_ukf_members_keep_their_settings():
+    slow, fast = MultiUKFSettings(**FLAT_MULTI).members()
+    assert type(slow) is type(fast) is ZhaoUKFSettings
+    assert slow == ZhaoUKFSettings(jitter=1e-9, **FLAT_NOISE)
+    assert fast == slow.replace(preset="ukf1", Q_theta_scale=1e-5)
+    # the fast member's Q_theta_scale is its own: None takes its preset's, not the slow one's
+    _, fast = MultiUKFSettings(Q_theta_scale=1e-9).members()
+    assert fast.preset == "ukf2" and fast.noise.Q_theta_scale is None
+
+
+def test_to_dict_writes_the_nested_form_and_round_trips():
+    settings = MultiUKFSettings(**FLAT_MULTI)
+    data = json.loads(json.dumps(settings.to_dict()))
+    assert data["noise"] == {
+        **FLAT_NOISE,
+        "R_d": None,
+        "output_error_ratios": [0.08, 0.05],
+    }
+    assert data["fusion"] == {
+        "smoothing_time": 1.0,
+        "level_time": 100.0,
+        "dead_zone": 0.0,
+        "feedback": False,
+    }
+    assert data["fast"] == {"preset": "ukf1", "Q_theta_scale": 1e-5}
+    assert data["guard"]["pinned_time"] == "inf"
+    assert set(data) == {item.name for item in dataclasses.fields(MultiUKFSettings)}
+    assert not set(FLAT_MULTI) & set(data)
+    assert MultiUKFSettings.from_dict(data) == settings
+    single = ZhaoUKFSettings(**FLAT_NOISE)
+    assert ZhaoUKFSettings.from_dict(json.loads(json.dumps(single.to_dict()))) == single
 
 
 def test_settings_round_trip_and_bad_values():
