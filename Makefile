@@ -21,10 +21,14 @@ $(BIN)/python:
 # every commit, not only on machines where someone installed ray by hand.
 # torch first and pinned: a local CPU wheel of 2.13.0 satisfies the `torch>=2.2` range
 # below, so pip never fetches another (multi-GB) build.
+# Then the kernels are compiled into numba's on-disk cache, split across the cores and
+# each once: the first identify, demo or test run loads them instead of compiling (a
+# job that fails is reported and only means its kernels compile at first use).
 $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet torch==2.13.0
 	$(BIN)/python -m pip install --quiet -e ".[dev,rl,plot,render,dist]"
+	-$(BIN)/python -m manualcontrol.bench.compile_kernels
 	touch $(STAMP)
 
 demo: $(STAMP)

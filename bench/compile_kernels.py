@@ -1,0 +1,208 @@
+"""Compile the package's kernels into numba's on-disk cache, split across the cores.
+
+numba compiles a kernel the first time a process calls it and keeps the machine code
+on disk (``cache=True``), so only the first use on a machine pays: 20-40 CPU-s per
+estimator, against a fraction of a second to load it afterwards. Run at install (the
+Makefile's install step does), the first ``identify``, ``bench`` or test of a newcomer
+loads instead of compiling, and the cores compile side by side, each kernel once,
+where the test workers or the demo's streams would otherwise compile the same kernels
+at the same time.
+
+What runs, each job in its own process (the longest first): short simulations of
+every tracking task and of the lane-keeping driver, a few steps of each registered
+environment and of the native vector envs, and every registered estimator's
+``estimate`` (smoothed where it can be) and ``update`` on a short recording of the kind
+it reads: the pilot filters on the precision and the preview model. Nothing is
+written but numba's cache; a job that fails is reported and the rest go on (its
+kernels then compile at first use, as without this step).
+
+Run: ``python -m manualcontrol.bench.compile_kernels [--workers N]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+import traceback
+import warnings
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+import manualcontrol.envs  # noqa: F401  (registers the environments)
+from manualcontrol.estimators.registry import ESTIMATORS
+from manualcontrol.pilots import Pilot, simulate
+from manualcontrol.pilots.driver import Driver
+from manualcontrol.pilots.driving import simulate_driving
+
+__all__ = ["JOBS", "compile_kernels", "main"]
+
+
+def _tracking_runs() -> None:
+
+    for element in ("SI", "DI"):
+        pilot = Pilot.typical("precision", element)
+        simulate(pilot, element, "popovici2017", run_in=1.0, measurement_time=2.0, seed=0)
+    simulate(
+        Pilot.typical("preview", "SI"),
+        "SI",
+        "popovici2017",
+        task="preview",
+        run_in=1.0,
+        measurement_time=2.0,
+        seed=0,
+    )
+
+
+def _environments() -> None:
+
+    for env_id in gym.registry:
+        if not env_id.startswith("ManualControl/"):
+            continue
+        env = gym.make(env_id)
+        env.reset(seed=0)
+        for _ in range(5):
+            env.step(np.zeros(env.action_space.shape, dtype=np.float64))
+        env.close()
+        try:
+            vector = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point")
+        except Exception:  # an env without a native vector form
+            continue
+        vector.reset(seed=0)
+        for _ in range(5):
+            vector.step(np.zeros(vector.action_space.shape, dtype=np.float64))
+        vector.close()
+
+
+def _driving_run() -> None:
+
+    simulate_driving(Driver(), measurement_time=2.0)
+
+
+def _recording_for(name: str) -> Any:
+
+    if name.startswith("zhao"):
+        return simulate_driving(Driver(), measurement_time=4.0)
+    if name == "schiess-roland":
+        return simulate(
+            Pilot("schiess-roland"),
+            "schiess-roland1975",
+            "schiess-roland1975",
+            run_in=0.0,
+            measurement_time=4.0,
+            seed=0,
+            measurement_noise={"u": 0.00092, "y": 0.00092},
+        )
+    return simulate(
+        Pilot("precision"), "popovici2017", "popovici2017", measurement_time=12.0, seed=0
+    )
+
+
+def _estimator(name: str, settings: dict[str, Any] | None = None) -> None:
+
+    entry = ESTIMATORS[name]
+    recording = _recording_for(name)
+    estimator = entry.build(settings or {})
+    options = {"smooth": True} if entry.smoothable else {}
+    estimator.estimate(recording, **options)
+    if not callable(getattr(estimator, "update", None)):
+        return
+    keys = tuple(estimator.sample_keys)
+    signals = estimator.signals(recording)
+    if not isinstance(signals, dict):
+        signals = dict(zip(keys, signals, strict=True))
+    reset: dict[str, Any] = {}
+    if hasattr(getattr(estimator.settings, "noise", None), "initial_variance"):
+        reset = {"var_u0": 1.0, "var_e0": 1.0}
+    elif hasattr(estimator, "initial_states_of"):
+        reset = {"initial_states": estimator.initial_states_of(recording)}
+    elif "speed" in recording.metadata:
+        reset = {"speed": recording.metadata["speed"]}
+    estimator.reset(recording.dt, **reset)
+    for k in range(3):
+        estimator.update({key: float(signals[key][k]) for key in keys})
+
+
+def _pilot_filter_on_preview(name: str) -> Callable[[], None]:
+    def job() -> None:
+
+        recording = simulate(
+            Pilot.typical("preview", "SI"),
+            "SI",
+            "popovici2017",
+            task="preview",
+            measurement_time=12.0,
+            seed=0,
+        )
+        estimator = ESTIMATORS[name].build({"model": "preview", "anticipation_time": 0.9})
+        estimator.estimate(recording, smooth=True)
+
+    return job
+
+
+#: The jobs, the longest first (CPU-s on a fresh machine, roughly in this order).
+JOBS: dict[str, Callable[[], None]] = {
+    "rml": lambda: _estimator("rml"),
+    "dekf": lambda: _estimator("dekf"),
+    "joint-ukf": lambda: _estimator("joint-ukf"),
+    "dual-ukf": lambda: _estimator("dual-ukf"),
+    "schiess-roland": lambda: _estimator("schiess-roland"),
+    "zhao-ukf": lambda: _estimator("zhao-ukf"),
+    "zhao-multi-ukf": lambda: _estimator("zhao-multi-ukf"),
+    "rdi": lambda: _estimator("rdi"),
+    "rml on the preview model": _pilot_filter_on_preview("rml"),
+    "dekf on the preview model": _pilot_filter_on_preview("dekf"),
+    "joint-ukf on the preview model": _pilot_filter_on_preview("joint-ukf"),
+    "tracking simulations": _tracking_runs,
+    "environments": _environments,
+    "lane-keeping simulation": _driving_run,
+}
+
+
+def _run_job(name: str) -> tuple[str, float, str | None]:
+    start = time.process_time()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            JOBS[name]()
+    except Exception:  # reported; its kernels compile at first use
+        return name, time.process_time() - start, traceback.format_exc(limit=3)
+    return name, time.process_time() - start, None
+
+
+def compile_kernels(workers: int | None = None, report: Callable[[str], None] = print) -> bool:
+    """Run every job of :data:`JOBS` on ``workers`` processes; True if all succeeded."""
+    workers = workers or os.cpu_count() or 1
+    start = time.perf_counter()
+    ok = True
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futures = [pool.submit(_run_job, name) for name in JOBS]
+        for future in as_completed(futures):
+            name, seconds, failure = future.result()
+            if failure is None:
+                report(f"  compiled: {name} ({seconds:.0f} CPU-s)")
+            else:
+                ok = False
+                report(f"  not compiled: {name} (compiles at first use instead)\n{failure}")
+    report(f"kernels compiled in {time.perf_counter() - start:.0f} s on {workers} processes")
+    return ok
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The command: compile, print a line per job; exit status 1 if a job failed."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--workers", type=int, default=None, help="processes (default: cores)")
+    args = parser.parse_args(argv)
+    if args.workers is not None and args.workers < 1:
+        parser.error(f"--workers must be a whole number >= 1, got {args.workers}")
+    print("compiling the kernels into numba's cache (once per machine):", flush=True)
+    return 0 if compile_kernels(args.workers, lambda line: print(line, flush=True)) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
