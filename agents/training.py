@@ -438,6 +438,15 @@ def load_agent(path: str | Path, *, trust_pickle: bool = False) -> TrainedAgent:
     model = algorithm(
         "MlpPolicy", env, policy_kwargs=dict(config.policy_kwargs), device="cpu", **extra
     )
-    model.policy.load_state_dict(torch.load(weights, weights_only=True, map_location="cpu"))
-    env.close()
+    try:
+        state = torch.load(weights, weights_only=True, map_location="cpu")
+        model.policy.load_state_dict(state)
+    except Exception as error:  # a truncated, corrupt or foreign file: torch says how
+        raise ValueError(
+            f"{weights} is not the weights of this agent's policy (corrupt, truncated, or "
+            f"from another network: {type(error).__name__}: {error}); retrain it or "
+            "restore the file"
+        ) from None
+    finally:
+        env.close()
     return TrainedAgent(config, model.policy, folder)

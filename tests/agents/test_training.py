@@ -3,9 +3,11 @@
 import dataclasses
 import json
 import re
+import shutil
 
 import numpy as np
 import pytest
+import torch
 
 from manualcontrol.agents.evaluation import REFERENCE_PILOTS, evaluate, write_report
 from manualcontrol.agents.training import TrainingConfig, load_agent, make_env, train
@@ -220,3 +222,19 @@ def test_the_optimal_control_reference_takes_the_agents_task_and_delay():
     assert np.all(lead > 0.0)
     pursuit = TrainingConfig(task="pursuit", algorithm="ppo")
     assert optimal_control_reference(pursuit) is None
+
+
+@pytest.mark.parametrize("damage", ["truncated", "garbage", "foreign"])
+def test_corrupt_policy_weights_are_refused_naming_the_file(trained, tmp_path, damage):
+    _, _, folder, _ = trained
+    copy = tmp_path / "agent"
+    shutil.copytree(folder, copy)
+    weights = copy / "policy.pt"
+    if damage == "truncated":
+        weights.write_bytes(weights.read_bytes()[:100])
+    elif damage == "garbage":
+        weights.write_bytes(b"\x00\x01 not torch at all")
+    else:  # a valid torch file of another network
+        torch.save({"layer.weight": torch.zeros(3, 3)}, weights)
+    with pytest.raises(ValueError, match=re.escape(f"{weights} is not the weights of this agent")):
+        load_agent(copy)
