@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from manualcontrol.envs._validation import check_choice, check_int
+from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
 
 __all__ = ["Batch", "SuiteError", "as_table", "batch_estimators", "int_list", "suite_error"]
 
@@ -72,10 +73,6 @@ def batch_estimators(
     where: str, merged: Mapping[str, Any]
 ) -> tuple[dict[str, Any], tuple[dict[str, Any], ...]]:
     """The batch's shared estimator settings and its estimators (each validated)."""
-    # here, not at the top: the estimators load their whole family and scipy.signal
-    # (about a second), which importing this module need not pay
-    from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
-
     shared = as_table(where, "estimator", merged.get("estimator", {}))
     if "estimators" not in merged:
         if "name" not in shared:

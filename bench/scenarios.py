@@ -100,6 +100,7 @@ from manualcontrol.bench.batches import (
     int_list,
     suite_error,
 )
+from manualcontrol.bench.driving import build_driver, parse_lane_keeping_batch
 from manualcontrol.envs._validation import (
     check_choice,
     check_duration,
@@ -118,6 +119,7 @@ from manualcontrol.envs.tasks import (
     resolve_forcing,
     task_named,
 )
+from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
 from manualcontrol.pilots import Pilot
 from manualcontrol.pilots.open_loop import ARMAXSystem
 from manualcontrol.pilots.simulation import INITIAL_STATE_SIGNALS, LOOPS, TASKS, SimulationSetup
@@ -234,9 +236,6 @@ class Scenario:
     def build_pilot(self) -> Pilot:
         """The :class:`~manualcontrol.pilots.Pilot` of this scenario (lane keeping: the driver)."""
         if self.task == "lane-keeping":
-            # here, not at the top: bench.driving loads the estimators and scipy.signal
-            from manualcontrol.bench.driving import build_driver
-
             return build_driver(self.pilot)  # type: ignore[return-value]
         return _pilot_from(self.pilot)
 
@@ -288,10 +287,6 @@ class Suite:
         shared estimator settings. Raises :class:`SuiteError` naming the batch when an
         estimator cannot run there.
         """
-        # here, not at the top: the estimators load their whole family and scipy.signal
-        # (about a second), which importing this module need not pay
-        from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
-
         names = list(names)
         if not names:
             raise SuiteError("estimators must name at least one estimator")
@@ -390,9 +385,6 @@ def _parse_batch(where: str, raw: Any, defaults: Mapping[str, Any]) -> Batch:
     if not isinstance(name, str) or not name.replace("-", "").replace("_", "").isalnum():
         raise suite_error(where, f"name must be letters, digits, '-' or '_', got {name!r}")
     if merged["task"] == "lane-keeping":
-        # here, not at the top: bench.driving loads the estimators and scipy.signal
-        from manualcontrol.bench.driving import parse_lane_keeping_batch
-
         return parse_lane_keeping_batch(where, merged)
     where = f"{where} ({name})"
     try:

@@ -28,15 +28,17 @@ from pathlib import Path
 DEFAULT = "dekf,rml,joint-ukf,dual-ukf,rdi,schiess-roland,zhao-ukf"
 
 IMPORT_ONLY = """
-import resource, time
+import resource
 import numpy, scipy, gymnasium
-print(resource.getrusage(resource.RUSAGE_SELF).ru_utime + resource.getrusage(resource.RUSAGE_SELF).ru_stime)
+usage = resource.getrusage(resource.RUSAGE_SELF)
+print(usage.ru_utime + usage.ru_stime)
 """
 
 IMPORT_FAMILY = """
 import resource
 import manualcontrol.estimators
-print(resource.getrusage(resource.RUSAGE_SELF).ru_utime + resource.getrusage(resource.RUSAGE_SELF).ru_stime)
+usage = resource.getrusage(resource.RUSAGE_SELF)
+print(usage.ru_utime + usage.ru_stime)
 """
 
 FIRST_USE = """

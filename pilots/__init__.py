@@ -1,36 +1,48 @@
-"""Cybernetic pilot models: structures, synthetic pilots, remnant and closed-loop simulation."""
+"""Cybernetic pilot models: structures, synthetic pilots, remnant and closed-loop simulation.
 
-from manualcontrol.pilots.models import (
-    MODEL_NAMES,
-    GainDelayModel,
-    ParameterSpec,
-    PilotModel,
-    PrecisionModel,
-    PreviewModel,
-    SchiessRolandModel,
-    make_model,
-)
-from manualcontrol.pilots.ocm import OCMSolution, OptimalControlPilot, simulate_ocm, solve_ocm
-from manualcontrol.pilots.pilot import HumanLimitWarning, Pilot
-from manualcontrol.pilots.remnant import (
-    INJECTION_POINTS,
-    LevisonRemnant,
-    Remnant,
-    SchiessRolandRemnant,
-    ZaalRemnant,
-    make_remnant,
-)
-from manualcontrol.pilots.simulation import (
-    SimulationSetup,
-    closed_loop,
-    remnant_power_ratio,
-    simulate,
-)
-from manualcontrol.pilots.stability import (
-    UnstableLoopError,
-    UnstableLoopWarning,
-    typical_parameters,
-)
+Each public name is imported from its module when first used
+(:mod:`manualcontrol.envs._lazy`): ``Pilot`` does not load the optimal control model
+and its scipy.optimize.
+"""
+
+from typing import TYPE_CHECKING
+
+# importing envs first, as every subpackage does: it registers the Gymnasium ids and
+# refreshes the compiled kernels' caches before any kernel here is loaded
+from manualcontrol.envs._lazy import lazy_exports
+
+if TYPE_CHECKING:  # what tools read; at run time each name is imported on first use
+    from manualcontrol.pilots.models import (
+        MODEL_NAMES,
+        GainDelayModel,
+        ParameterSpec,
+        PilotModel,
+        PrecisionModel,
+        PreviewModel,
+        SchiessRolandModel,
+        make_model,
+    )
+    from manualcontrol.pilots.ocm import OCMSolution, OptimalControlPilot, simulate_ocm, solve_ocm
+    from manualcontrol.pilots.pilot import HumanLimitWarning, Pilot
+    from manualcontrol.pilots.remnant import (
+        INJECTION_POINTS,
+        LevisonRemnant,
+        Remnant,
+        SchiessRolandRemnant,
+        ZaalRemnant,
+        make_remnant,
+    )
+    from manualcontrol.pilots.simulation import (
+        SimulationSetup,
+        closed_loop,
+        remnant_power_ratio,
+        simulate,
+    )
+    from manualcontrol.pilots.stability import (
+        UnstableLoopError,
+        UnstableLoopWarning,
+        typical_parameters,
+    )
 
 __all__ = [
     "INJECTION_POINTS",
@@ -61,3 +73,45 @@ __all__ = [
     "solve_ocm",
     "typical_parameters",
 ]
+
+__getattr__, __dir__ = lazy_exports(
+    globals(),
+    {
+        "manualcontrol.pilots.models": (
+            "MODEL_NAMES",
+            "GainDelayModel",
+            "ParameterSpec",
+            "PilotModel",
+            "PrecisionModel",
+            "PreviewModel",
+            "SchiessRolandModel",
+            "make_model",
+        ),
+        "manualcontrol.pilots.ocm": (
+            "OCMSolution",
+            "OptimalControlPilot",
+            "simulate_ocm",
+            "solve_ocm",
+        ),
+        "manualcontrol.pilots.pilot": ("HumanLimitWarning", "Pilot"),
+        "manualcontrol.pilots.remnant": (
+            "INJECTION_POINTS",
+            "LevisonRemnant",
+            "Remnant",
+            "SchiessRolandRemnant",
+            "ZaalRemnant",
+            "make_remnant",
+        ),
+        "manualcontrol.pilots.simulation": (
+            "SimulationSetup",
+            "closed_loop",
+            "remnant_power_ratio",
+            "simulate",
+        ),
+        "manualcontrol.pilots.stability": (
+            "UnstableLoopError",
+            "UnstableLoopWarning",
+            "typical_parameters",
+        ),
+    },
+)

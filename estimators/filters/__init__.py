@@ -18,30 +18,40 @@ The estimators built on them: the DEKF (dual EKF),
 :class:`~manualcontrol.estimators.members.ukf.DualUKF` on the pilot internal models;
 :mod:`manualcontrol.estimators.offline.smoothing` turns any of their filtered results into
 smoothed ones.
+
+Each public name is imported from its module when first used
+(:mod:`manualcontrol.envs._lazy`).
 """
 
-from manualcontrol.estimators.filters.kalman import (
-    KalmanWork,
-    add_diagonal,
-    clamp,
-    joseph_correct,
-    kalman_work,
-    predict_covariance,
-)
-from manualcontrol.estimators.filters.linalg import cholesky, cholesky_solve_rows, symmetrise
-from manualcontrol.estimators.filters.smoothers import rts_smooth, smoother_work
-from manualcontrol.estimators.filters.unscented import (
-    SIGMA_SCHEMES,
-    SigmaWeights,
-    UnscentedWork,
-    cross_covariance,
-    sigma_points,
-    sigma_weights,
-    unscented_correct,
-    unscented_work,
-    weighted_covariance,
-    weighted_mean,
-)
+from typing import TYPE_CHECKING
+
+# importing envs first, as every subpackage does: it registers the Gymnasium ids and
+# refreshes the compiled kernels' caches before any kernel here is loaded
+from manualcontrol.envs._lazy import lazy_exports
+
+if TYPE_CHECKING:  # what tools read; at run time each name is imported on first use
+    from manualcontrol.estimators.filters.kalman import (
+        KalmanWork,
+        add_diagonal,
+        clamp,
+        joseph_correct,
+        kalman_work,
+        predict_covariance,
+    )
+    from manualcontrol.estimators.filters.linalg import cholesky, cholesky_solve_rows, symmetrise
+    from manualcontrol.estimators.filters.smoothers import rts_smooth, smoother_work
+    from manualcontrol.estimators.filters.unscented import (
+        SIGMA_SCHEMES,
+        SigmaWeights,
+        UnscentedWork,
+        cross_covariance,
+        sigma_points,
+        sigma_weights,
+        unscented_correct,
+        unscented_work,
+        weighted_covariance,
+        weighted_mean,
+    )
 
 __all__ = [
     "SIGMA_SCHEMES",
@@ -66,3 +76,35 @@ __all__ = [
     "weighted_covariance",
     "weighted_mean",
 ]
+
+__getattr__, __dir__ = lazy_exports(
+    globals(),
+    {
+        "manualcontrol.estimators.filters.kalman": (
+            "KalmanWork",
+            "add_diagonal",
+            "clamp",
+            "joseph_correct",
+            "kalman_work",
+            "predict_covariance",
+        ),
+        "manualcontrol.estimators.filters.linalg": (
+            "cholesky",
+            "cholesky_solve_rows",
+            "symmetrise",
+        ),
+        "manualcontrol.estimators.filters.smoothers": ("rts_smooth", "smoother_work"),
+        "manualcontrol.estimators.filters.unscented": (
+            "SIGMA_SCHEMES",
+            "SigmaWeights",
+            "UnscentedWork",
+            "cross_covariance",
+            "sigma_points",
+            "sigma_weights",
+            "unscented_correct",
+            "unscented_work",
+            "weighted_covariance",
+            "weighted_mean",
+        ),
+    },
+)

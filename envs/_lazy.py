@@ -1,0 +1,46 @@
+"""A package's public names, imported from their modules on first use (PEP 562).
+
+A package ``__init__`` that imported every member would make ``import
+manualcontrol.estimators`` pay for scipy.signal, every compiled kernel and the pilot
+models before any of them is used. Instead it lists where each public name lives and
+hands :func:`lazy_exports`' two functions to Python as the module's ``__getattr__``
+and ``__dir__``: ``from manualcontrol.estimators import DEKF`` imports
+``manualcontrol.estimators.members.dekf`` then, and only then, and the name is the very
+object that module defines. A name imported once is kept in the package's namespace,
+so later lookups cost a dictionary read.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable, Mapping, MutableMapping, Sequence
+from typing import Any
+
+__all__ = ["lazy_exports"]
+
+
+def lazy_exports(
+    namespace: MutableMapping[str, Any], exports: Mapping[str, Sequence[str]]
+) -> tuple[Callable[[str], Any], Callable[[], list[str]]]:
+    """The ``__getattr__`` and ``__dir__`` of a package that exports names lazily.
+
+    ``namespace`` is the package's ``globals()``; ``exports`` maps each module (its
+    full name) to the public names it defines. A name not listed is an
+    :class:`AttributeError`, as for any module (which is also how ``from package
+    import submodule`` falls back to importing the submodule).
+    """
+    package = namespace["__name__"]
+    home = {name: module for module, names in exports.items() for name in names}
+
+    def get_attribute(name: str) -> Any:
+        module = home.get(name)
+        if module is None:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        value = getattr(importlib.import_module(module), name)
+        namespace[name] = value
+        return value
+
+    def names() -> list[str]:
+        return sorted({*namespace, *home})
+
+    return get_attribute, names
