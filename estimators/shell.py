@@ -51,7 +51,15 @@ from manualcontrol.estimators.protocol import (
     summarise_health,
 )
 
-__all__ = ["REASONS", "FilterShell", "health_summary", "read_sample"]
+__all__ = [
+    "REASONS",
+    "FilterShell",
+    "health_summary",
+    "output_arrays",
+    "read_sample",
+    "trace_arrays",
+    "two_output_arrays",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -100,6 +108,43 @@ def health_summary(
         divergence_index=int(sc[core.SC_DIV_INDEX]),
         stopped=bool(sc[core.SC_FROZEN] > 0.0),
     )
+
+
+def output_arrays(n: int, p: int, flags: int = 4) -> dict[str, FloatArray]:
+    """The leading fields of every member's output record (module docstring), zeroed.
+
+    ``mean``, ``std`` and ``pinned`` (n, p), ``scalar`` (n, 3) and ``flag`` (n, flags):
+    a member's ``_new_output`` spreads them into its record beside its own fields.
+    """
+    return {
+        "mean": np.zeros((n, p)),
+        "std": np.zeros((n, p)),
+        "scalar": np.zeros((n, 3)),
+        "flag": np.zeros((n, flags), dtype=np.bool_),
+        "pinned": np.zeros((n, p), dtype=np.bool_),
+    }
+
+
+def two_output_arrays(n: int) -> dict[str, FloatArray]:
+    """``predictions``, ``innovations`` (n, 2) and ``S`` (n, 2, 2) of a two-output member."""
+    return {
+        "predictions": np.zeros((n, 2)),
+        "innovations": np.zeros((n, 2)),
+        "S": np.zeros((n, 2, 2)),
+    }
+
+
+def trace_arrays(rows: int, size: int) -> dict[str, FloatArray]:
+    """A filter's stored run for the smoother, zeroed (``rows`` 0: nothing stored).
+
+    ``x_prior``/``x_post`` (rows, size) and ``P_prior``/``P_post`` (rows, size, size).
+    """
+    return {
+        "x_prior": np.zeros((rows, size)),
+        "P_prior": np.zeros((rows, size, size)),
+        "x_post": np.zeros((rows, size)),
+        "P_post": np.zeros((rows, size, size)),
+    }
 
 
 class FilterShell:

@@ -77,6 +77,7 @@ from manualcontrol.estimators.members.pilot_rules import (
     ResolvedSettings,
 )
 from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
+from manualcontrol.estimators.shell import output_arrays, trace_arrays
 
 __all__ = [
     "CE_TYPES",
@@ -242,15 +243,8 @@ class DEKF(PilotFilter):
         _, n_s, n_t = self._sizes
         rows = n if store else 0
         return core.DEKFOutput(
-            mean=np.zeros((n, n_p)),
-            std=np.zeros((n, n_p)),
-            scalar=np.zeros((n, 3)),
-            flag=np.zeros((n, 4), dtype=np.bool_),
-            pinned=np.zeros((n, n_p), dtype=np.bool_),
-            x_prior=np.zeros((rows, n_s)),
-            P_prior=np.zeros((rows, n_s, n_s)),
-            x_post=np.zeros((rows, n_s)),
-            P_post=np.zeros((rows, n_s, n_s)),
+            **output_arrays(n, n_p),
+            **trace_arrays(rows, n_s),
             Phi=np.zeros((rows, n_s, n_s)),
             th_prior=np.zeros((rows, n_t)),
             Pp_prior=np.zeros((rows, n_t, n_t)),
@@ -266,14 +260,8 @@ class DEKF(PilotFilter):
         resolved = self.resolved
         n_c, _, n_t = self._sizes
         names = self._internal.parameter_names
-        state_block = SmootherBlock(
-            kind="ekf",
-            x_filtered=out.x_post,
-            P_filtered=out.P_post,
-            x_predicted=out.x_prior,
-            P_predicted=out.P_prior,
-            link=out.Phi,
-            parameters={name: n_c + g for g, name in enumerate(resolved.gains)},
+        state_block = SmootherBlock.of_trace(
+            "ekf", out, out.Phi, {name: n_c + g for g, name in enumerate(resolved.gains)}
         )
         theta_block = SmootherBlock(
             kind="random-walk",

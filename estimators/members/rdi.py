@@ -93,7 +93,7 @@ from manualcontrol.estimators.protocol import (
     summarise_health,
 )
 from manualcontrol.estimators.settings import SettingsRecord
-from manualcontrol.estimators.shell import REASONS, FilterShell
+from manualcontrol.estimators.shell import REASONS, FilterShell, output_arrays, trace_arrays
 
 __all__ = ["RDI", "RDISettings", "ResolvedRDI", "parameter_symbols"]
 
@@ -510,15 +510,8 @@ class RDI(FilterShell):
         n_s = len(self._settings.estimated_symbols)
         rows = n if store else 0
         return core.RDIOutput(
-            mean=np.zeros((n, n_p)),
-            std=np.zeros((n, n_p)),
-            scalar=np.zeros((n, 3)),
-            flag=np.zeros((n, 6), dtype=np.bool_),
-            pinned=np.zeros((n, n_p), dtype=np.bool_),
-            x_prior=np.zeros((rows, n_s)),
-            P_prior=np.zeros((rows, n_s, n_s)),
-            x_post=np.zeros((rows, n_s)),
-            P_post=np.zeros((rows, n_s, n_s)),
+            **output_arrays(n, n_p, flags=6),
+            **trace_arrays(rows, n_s),
         )
 
     # ---------------------------------------------------------------- update
@@ -626,13 +619,10 @@ class RDI(FilterShell):
         s = self._settings
         names = self.parameter_names
         config = self._records[0]
-        block = SmootherBlock(
-            kind="random-walk",
-            x_filtered=out.x_post,
-            P_filtered=out.P_post,
-            x_predicted=out.x_prior,
-            P_predicted=out.P_prior,
-            link=None,
+        block = SmootherBlock.of_trace(
+            "random-walk",
+            out,
+            None,
             parameters={
                 s.report_names.get(symbol, symbol): i
                 for i, symbol in enumerate(s.estimated_symbols)

@@ -208,6 +208,7 @@ from manualcontrol.estimators.members.pilot_rules import (
 )
 from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.estimators.settings import SettingsRecord
+from manualcontrol.estimators.shell import output_arrays
 from manualcontrol.pilots.models import make_model
 
 __all__ = [
@@ -779,11 +780,7 @@ class RML(PilotFilter):
         n_t = len(self._labels)
         rows = n if store else 0
         return core.BankOutput(
-            mean=np.zeros((n, n_p)),
-            std=np.zeros((n, n_p)),
-            scalar=np.zeros((n, 3)),
-            flag=np.zeros((n, 4), dtype=np.bool_),
-            pinned=np.zeros((n, n_p), dtype=np.bool_),
+            **output_arrays(n, n_p),
             th_prior=np.zeros((rows, n_t)),
             P_prior=np.zeros((rows, n_t, n_t)),
             th_post=np.zeros((rows, n_t)),

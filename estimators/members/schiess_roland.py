@@ -107,7 +107,13 @@ from manualcontrol.estimators.members import _schiess_roland_core as core
 from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.estimators.protocol import EstimationResult
 from manualcontrol.estimators.settings import GuardSettings, SettingsRecord, limit_pair
-from manualcontrol.estimators.shell import FilterShell, read_sample
+from manualcontrol.estimators.shell import (
+    FilterShell,
+    output_arrays,
+    read_sample,
+    trace_arrays,
+    two_output_arrays,
+)
 
 __all__ = [
     "ADAPTIVE_MODES",
@@ -739,19 +745,10 @@ class SchiessRoland(FilterShell):
         rows = n if store else 0
         p, s = core.N_PARAMETERS, core.N_STATES
         return core.SROutput(
-            mean=np.zeros((n, p)),
-            std=np.zeros((n, p)),
-            scalar=np.zeros((n, 3)),
-            flag=np.zeros((n, 4), dtype=np.bool_),
-            pinned=np.zeros((n, p), dtype=np.bool_),
-            predictions=np.zeros((n, 2)),
-            innovations=np.zeros((n, 2)),
-            S=np.zeros((n, 2, 2)),
+            **output_arrays(n, p),
+            **two_output_arrays(n),
             states=np.zeros((n, len(STATE_NAMES))),
-            x_prior=np.zeros((rows, s)),
-            P_prior=np.zeros((rows, s, s)),
-            x_post=np.zeros((rows, s)),
-            P_post=np.zeros((rows, s, s)),
+            **trace_arrays(rows, s),
             Phi=np.zeros((rows, s, s)),
         )
 
@@ -858,13 +855,10 @@ class SchiessRoland(FilterShell):
 
     def _smoother_inputs(self, out: Any) -> Any:
 
-        block = SmootherBlock(
-            kind="ekf",
-            x_filtered=out.x_post,
-            P_filtered=out.P_post,
-            x_predicted=out.x_prior,
-            P_predicted=out.P_prior,
-            link=out.Phi,
+        block = SmootherBlock.of_trace(
+            "ekf",
+            out,
+            out.Phi,
             parameters={name: core.N_DYNAMIC + j for j, name in enumerate(PARAMETER_NAMES)},
             states={name: i for i, name in enumerate(DYNAMIC_STATES)},
         )

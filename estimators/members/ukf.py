@@ -58,6 +58,7 @@ from manualcontrol.estimators.members import _ukf_core as core
 from manualcontrol.estimators.members.pilot_filter import CommonArrays, PilotFilter
 from manualcontrol.estimators.members.pilot_rules import PilotFilterSettings, ResolvedSettings
 from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
+from manualcontrol.estimators.shell import output_arrays, trace_arrays
 
 __all__ = ["DualUKF", "DualUKFSettings", "JointUKF", "UKFSettings"]
 
@@ -154,15 +155,8 @@ class _UnscentedPilotFilter(PilotFilter):
         size, second = self._sizes
         rows = n if store else 0
         return core.UKFOutput(
-            mean=np.zeros((n, n_p)),
-            std=np.zeros((n, n_p)),
-            scalar=np.zeros((n, 3)),
-            flag=np.zeros((n, 4), dtype=np.bool_),
-            pinned=np.zeros((n, n_p), dtype=np.bool_),
-            x_prior=np.zeros((rows, size)),
-            P_prior=np.zeros((rows, size, size)),
-            x_post=np.zeros((rows, size)),
-            P_post=np.zeros((rows, size, size)),
+            **output_arrays(n, n_p),
+            **trace_arrays(rows, size),
             cross=np.zeros((rows, size, size)),
             x_prior_2=np.zeros((rows, second)),
             P_prior_2=np.zeros((rows, second, second)),

@@ -71,7 +71,13 @@ from manualcontrol.estimators.members import _zhao_core as core
 from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.estimators.protocol import EstimationResult, sample_floats
 from manualcontrol.estimators.settings import GuardSettings, SettingsRecord, limit_pair
-from manualcontrol.estimators.shell import FilterShell, health_summary
+from manualcontrol.estimators.shell import (
+    FilterShell,
+    health_summary,
+    output_arrays,
+    trace_arrays,
+    two_output_arrays,
+)
 from manualcontrol.pilots.driver import DRIVER_INPUTS, DRIVER_OUTPUTS, CyberneticDriverModel
 
 __all__ = [
@@ -629,19 +635,10 @@ class ZhaoUKF(FilterShell):
         p = len(_NAMES)
         rows = n if store else 0
         return core.ZhaoOutput(
-            mean=np.zeros((n, p)),
-            std=np.zeros((n, p)),
-            scalar=np.zeros((n, 3)),
-            flag=np.zeros((n, 4), dtype=np.bool_),
-            pinned=np.zeros((n, p), dtype=np.bool_),
-            predictions=np.zeros((n, 2)),
-            innovations=np.zeros((n, 2)),
-            S=np.zeros((n, 2, 2)),
+            **output_arrays(n, p),
+            **two_output_arrays(n),
             states=np.zeros((n, 3)),
-            x_prior=np.zeros((rows, n_a)),
-            P_prior=np.zeros((rows, n_a, n_a)),
-            x_post=np.zeros((rows, n_a)),
-            P_post=np.zeros((rows, n_a, n_a)),
+            **trace_arrays(rows, n_a),
             link=np.zeros((rows, n_a, n_a)),
         )
 
@@ -701,13 +698,10 @@ class ZhaoUKF(FilterShell):
     def _smoother_inputs(self, out: core.ZhaoOutput) -> Any:
 
         report = self._records[3]
-        block = SmootherBlock(
-            kind="ukf",
-            x_filtered=out.x_post,
-            P_filtered=out.P_post,
-            x_predicted=out.x_prior,
-            P_predicted=out.P_prior,
-            link=out.link,
+        block = SmootherBlock.of_trace(
+            "ukf",
+            out,
+            out.link,
             parameters={name: 3 + t for t, name in enumerate(self._settings.estimated)},
             states={name: i for i, name in enumerate(STATE_NAMES)},
         )
@@ -915,14 +909,8 @@ class MultiUKF(FilterShell):
         n_t = len(self._settings.estimated)
         p = len(_NAMES)
         return core.MultiOutput(
-            mean=np.zeros((n, p)),
-            std=np.zeros((n, p)),
-            scalar=np.zeros((n, 3)),
-            flag=np.zeros((n, 4), dtype=np.bool_),
-            pinned=np.zeros((n, p), dtype=np.bool_),
-            predictions=np.zeros((n, 2)),
-            innovations=np.zeros((n, 2)),
-            S=np.zeros((n, 2, 2)),
+            **output_arrays(n, p),
+            **two_output_arrays(n),
             states=np.zeros((n, 3)),
             gate=np.zeros((n, n_t)),
             members=np.zeros((n, 2 * n_t)),

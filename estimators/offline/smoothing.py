@@ -90,6 +90,31 @@ class SmootherBlock:
         if self.kind != "random-walk" and np.shape(self.link) != (N, n, n):
             raise ValueError(f"a {self.kind!r} block needs link of shape {(N, n, n)}")
 
+    @classmethod
+    def of_trace(
+        cls,
+        kind: str,
+        out: Any,
+        link: FloatArray | None,
+        parameters: Mapping[str, int],
+        states: Mapping[str, int] | None = None,
+    ) -> SmootherBlock:
+        """The block of a kernel's stored run, read from its output record.
+
+        ``out.x_post``, ``P_post``, ``x_prior`` and ``P_prior``, as
+        :func:`~manualcontrol.estimators.shell.trace_arrays` lays them out.
+        """
+        return cls(
+            kind=kind,
+            x_filtered=out.x_post,
+            P_filtered=out.P_post,
+            x_predicted=out.x_prior,
+            P_predicted=out.P_prior,
+            link=link,
+            parameters=parameters,
+            states={} if states is None else states,
+        )
+
 
 @dataclass(frozen=True, eq=False)
 class SmootherInputs:
