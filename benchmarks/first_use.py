@@ -7,7 +7,9 @@ folder (a fresh clone's first run), timed as CPU seconds of that process:
 - ``import numpy, scipy, gymnasium``: the floor any tool on this stack pays;
 - ``import manualcontrol.estimators``: what importing the family adds;
 - per estimator: import, one ``estimate`` of a 30-s simulated run (compiling its
-  kernels), then a second ``estimate`` in the same process (the compiled speed).
+  kernels), then a second ``estimate`` in the same process (the compiled speed);
+- per estimator again, a fresh process on the cache the first one filled: first use
+  after ``make`` has compiled the kernels at install (``bench.compile_kernels``).
 
 The ratios are against the dependencies' import measured in the same run (hosts differ
 by 3-4x in absolute speed). The recording is simulated once, in a warm process, and
@@ -100,10 +102,12 @@ def main():
             try:
                 recording = driving if name.startswith("zhao") else tracking
                 total, first, warm = run(FIRST_USE, name, recording, cache=cache)
+                installed = run(FIRST_USE, name, recording, cache=cache)
             except RuntimeError as error:
                 print(f"{name}: {error}", file=sys.stderr)
                 continue
             rows[f"{name}: cold process"] = (total, first, warm)
+            rows[f"{name}: after install"] = tuple(installed)
     print(f"{'CPU s':>44} {'x import':>9} {'estimate':>9} {'warm run':>9}")
     for label, (total, first, warm) in rows.items():
         extra = "" if first is None else f" {first:9.2f} {warm:9.3f}"
