@@ -29,6 +29,13 @@ if TYPE_CHECKING:  # what tools read; at run time each name is imported on first
         default_action_scale,
         make_device,
     )
+    from manualcontrol.human.protocol import (
+        PlannedRun,
+        Protocol,
+        ProtocolError,
+        load_protocol,
+        parse_protocol,
+    )
     from manualcontrol.human.realtime import (
         Clock,
         Flight,
@@ -38,6 +45,17 @@ if TYPE_CHECKING:  # what tools read; at run time each name is imported on first
         StepReport,
         Timing,
         fly,
+    )
+    from manualcontrol.human.report import SessionReport, write_session_report
+    from manualcontrol.human.session import (
+        PygameScreen,
+        Screen,
+        ScriptedKeys,
+        SessionAborted,
+        SessionError,
+        SessionEvent,
+        SessionResult,
+        run_session,
     )
 
 __all__ = [
@@ -52,14 +70,29 @@ __all__ = [
     "ManualClock",
     "MouseInput",
     "NoInputDevice",
+    "PlannedRun",
+    "Protocol",
+    "ProtocolError",
+    "PygameScreen",
     "RealClock",
     "RunAborted",
+    "Screen",
     "ScriptedInput",
+    "ScriptedKeys",
+    "SessionAborted",
+    "SessionError",
+    "SessionEvent",
+    "SessionReport",
+    "SessionResult",
     "StepReport",
     "Timing",
     "default_action_scale",
     "fly",
+    "load_protocol",
     "make_device",
+    "parse_protocol",
+    "run_session",
+    "write_session_report",
 ]
 
 __getattr__, __dir__ = lazy_exports(
@@ -88,5 +121,23 @@ __getattr__, __dir__ = lazy_exports(
             "Timing",
             "fly",
         ),
+        "manualcontrol.human.protocol": (
+            "PlannedRun",
+            "Protocol",
+            "ProtocolError",
+            "load_protocol",
+            "parse_protocol",
+        ),
+        "manualcontrol.human.session": (
+            "PygameScreen",
+            "Screen",
+            "ScriptedKeys",
+            "SessionAborted",
+            "SessionError",
+            "SessionEvent",
+            "SessionResult",
+            "run_session",
+        ),
+        "manualcontrol.human.report": ("SessionReport", "write_session_report"),
     },
 )

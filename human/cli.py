@@ -31,32 +31,27 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["EXIT_ABORTED", "TASKS", "add_play_arguments", "main", "run_play"]
+import gymnasium as gym
+import numpy as np
+
+import manualcontrol.envs  # noqa: F401 - registers the environments
+from manualcontrol.human.devices import (
+    InputDeviceError,
+    JoystickInput,
+    MouseInput,
+    NoInputDevice,
+    joystick_count,
+    load_pygame,
+    make_device,
+)
+from manualcontrol.human.tasks import HOW_TO_MOVE, TASK_GOALS, TASKS
+
+__all__ = ["EXIT_ABORTED", "add_play_arguments", "main", "run_play"]
 
 EXIT_OK, EXIT_ABORTED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
-#: ``--task`` choices and the environment each one flies.
-TASKS: dict[str, str] = {
-    "compensatory": "ManualControl/CompensatoryTracking-v0",
-    "pursuit": "ManualControl/PursuitTracking-v0",
-    "preview": "ManualControl/PreviewTracking-v0",
-    "postview": "ManualControl/PostviewTracking-v0",
-    "lane-keeping": "ManualControl/LaneKeeping-v0",
-}
 _INPUTS = ("mouse", "keyboard", "joystick")
 _FORMATS = (".npz", ".csv", ".mat")
-_GOAL = {
-    "compensatory": "keep the cross between the brackets",
-    "pursuit": "keep the cursor under the circle",
-    "preview": "keep the cursor on the track where it meets the cursor's line",
-    "postview": "keep the cursor where the track will cross its line",
-    "lane-keeping": "keep the car in its lane",
-}
-_HOW = {
-    "mouse": "move the mouse left and right",
-    "keyboard": "hold the left and right arrow keys",
-    "joystick": "move the stick left and right",
-}
 
 
 class _UsageError(Exception):
@@ -193,6 +188,7 @@ def _checked_options(args: argparse.Namespace) -> dict[str, Any]:
             if value is not None:
                 raise _UsageError(f"{flag} applies to the tracking tasks, not lane-keeping")
         return options
+    # loaded when the command runs: they load numba, which ``play --help`` does not need
     from manualcontrol.envs.elements import make_element
     from manualcontrol.envs.tasks import resolve_forcing
 
@@ -282,11 +278,9 @@ def _start_screen(env: Any, device: Any, task: str, input_name: str) -> None:
     gauge at the bottom shows the stick (mouse and joystick; the keyboard's stick
     moves only while flying).
     """
-    import pygame
+    from manualcontrol.human.realtime import RunAborted  # the run's (scipy), as in _play
 
-    from manualcontrol.human.devices import JoystickInput, MouseInput
-    from manualcontrol.human.realtime import RunAborted
-
+    pygame = load_pygame()
     surface = pygame.display.get_surface()
     if surface is None:
         return
@@ -295,8 +289,8 @@ def _start_screen(env: Any, device: Any, task: str, input_name: str) -> None:
     background = surface.copy()
     width, height = surface.get_size()
     lines = [
-        f"{task}: {_GOAL.get(task, 'track the target')}",
-        f"{_HOW.get(input_name, 'move the stick')}",
+        f"{task}: {TASK_GOALS.get(task, 'track the target')}",
+        f"{HOW_TO_MOVE.get(input_name, 'move the stick')}",
         "press space to start, Esc to quit",
     ]
     gauge = isinstance(device, (MouseInput, JoystickInput))
@@ -332,8 +326,6 @@ def _start_screen(env: Any, device: Any, task: str, input_name: str) -> None:
 
 
 def _rms(values: Any) -> float:
-    import numpy as np
-
     values = np.asarray(values, dtype=np.float64)
     return float(np.sqrt(np.mean(values * values)))
 
@@ -386,10 +378,8 @@ def run_play(
 
 
 def _play(args: argparse.Namespace, device: Any, clock: Any, wait_for_start: bool) -> int:
-    import gymnasium as gym
-
-    import manualcontrol.envs  # noqa: F401 - registers the environments
-    from manualcontrol.human.devices import InputDeviceError, NoInputDevice, make_device
+    # the real-time loop loads scipy (recordings): imported when a run is flown, not for
+    # ``play --help``, and looked up then (tests wrap ``realtime.fly``)
     from manualcontrol.human.realtime import RunAborted, fly
 
     options = _checked_options(args)
@@ -405,8 +395,6 @@ def _play(args: argparse.Namespace, device: Any, clock: Any, wait_for_start: boo
         except ValueError as error:
             raise _UsageError(str(error)) from None
         if args.input == "joystick":
-            from manualcontrol.human.devices import joystick_count
-
             if joystick_count() == 0:  # before a window opens for nothing
                 print(
                     "manualcontrol play: error: no joystick or gamepad found (pygame sees 0); "

@@ -40,8 +40,8 @@ and says why). A person, a pilot model and an RL agent then act through the same
 observation and action spaces: the wrapped environment's action space is the stick's,
 ``Box(-1, 1, (1,))``.
 
-pygame is imported only when a device that needs it is opened (``pip install
-'manualcontrol[render]'``); :class:`ScriptedInput` needs none.
+pygame is imported only when a device that needs it is opened (:func:`load_pygame`,
+``pip install 'manualcontrol[render]'``); :class:`ScriptedInput` needs none.
 """
 
 from __future__ import annotations
@@ -73,6 +73,7 @@ __all__ = [
     "ScriptedInput",
     "default_action_scale",
     "joystick_count",
+    "load_pygame",
     "make_device",
 ]
 
@@ -115,7 +116,14 @@ class DeviceLost(InputDeviceError):  # noqa: N818 - reads as what happened
     """The device went away during a run (a joystick unplugged)."""
 
 
-def _pygame() -> Any:
+def load_pygame() -> Any:
+    """The ``pygame`` module, imported on first use.
+
+    pygame is optional (the ``render`` extra, ``pip install 'manualcontrol[render]'``):
+    the devices that read a mouse, keyboard or joystick and the session's screens call
+    this when they open, so that importing this package needs none. Raises
+    ``gymnasium.error.DependencyNotInstalled`` when pygame is not installed.
+    """
     try:
         import pygame
     except ImportError as error:  # pragma: no cover - pygame is a dev dependency
@@ -319,7 +327,7 @@ class MouseInput(InputDevice):
     def open(self, env: gym.Env) -> None:
         """Find the window's centre, put the pointer there and (by default) grab it."""
         super().open(env)
-        pygame = _pygame()
+        pygame = load_pygame()
         surface = pygame.display.get_surface() if pygame.display.get_init() else None
         width = surface.get_width() if surface is not None else _DISPLAY_WIDTH
         self.centre = width / 2.0
@@ -334,7 +342,7 @@ class MouseInput(InputDevice):
                 self._grabbed = True
 
     def handle_event(self, event: Any) -> None:  # noqa: D102
-        pygame = _pygame()
+        pygame = load_pygame()
         if event.type == pygame.MOUSEMOTION:
             self.x = float(event.pos[0])
 
@@ -344,7 +352,7 @@ class MouseInput(InputDevice):
     def close(self) -> None:
         """Release the pointer."""
         if self._grabbed:
-            pygame = _pygame()
+            pygame = load_pygame()
             if pygame.display.get_init():
                 pygame.event.set_grab(False)
                 pygame.mouse.set_visible(True)
@@ -388,7 +396,7 @@ class KeyboardInput(InputDevice):
         self.position = 0.0
 
     def handle_event(self, event: Any) -> None:  # noqa: D102
-        pygame = _pygame()
+        pygame = load_pygame()
         if event.type in (pygame.KEYDOWN, pygame.KEYUP):
             pressed = event.type == pygame.KEYDOWN
             if event.key == pygame.K_LEFT:
@@ -416,7 +424,7 @@ class KeyboardInput(InputDevice):
 
 def joystick_count() -> int:
     """How many joysticks and gamepads pygame sees now."""
-    pygame = _pygame()
+    pygame = load_pygame()
     pygame.joystick.init()
     return int(pygame.joystick.get_count())
 
@@ -467,7 +475,7 @@ class JoystickInput(InputDevice):
     def open(self, env: gym.Env) -> None:
         """Find the joystick; raise :class:`NoInputDevice` if it is not there."""
         super().open(env)
-        pygame = _pygame()
+        pygame = load_pygame()
         count = joystick_count()
         if count == 0:
             raise NoInputDevice(
@@ -491,7 +499,7 @@ class JoystickInput(InputDevice):
         self.name = str(joystick.get_name())
 
     def handle_event(self, event: Any) -> None:  # noqa: D102
-        pygame = _pygame()
+        pygame = load_pygame()
         if event.type == pygame.JOYDEVICEREMOVED and event.instance_id == self._instance_id:
             self._joystick = None
             raise DeviceLost(f"the joystick {self.name!r} was unplugged")

@@ -2,6 +2,7 @@
 its calibration, the missing and the lost joystick, and the action a stick gives."""
 
 import math
+import sys
 
 import gymnasium as gym
 import numpy as np
@@ -20,6 +21,7 @@ from manualcontrol.human.devices import (
     NoInputDevice,
     ScriptedInput,
     default_action_scale,
+    load_pygame,
     make_device,
 )
 
@@ -197,6 +199,17 @@ def test_unplugging_the_joystick_loses_it(fake_joystick, pygame):
     device.handle_event(other)  # another device: no matter
     with pytest.raises(DeviceLost, match="'Test pad' was unplugged"):
         device.handle_event(pygame.event.Event(pygame.JOYDEVICEREMOVED, instance_id=7))
+
+
+def test_pygame_is_loaded_when_asked_and_its_absence_names_the_extra(monkeypatch):
+    import pygame
+
+    assert load_pygame() is pygame
+    monkeypatch.setitem(sys.modules, "pygame", None)  # as if it were not installed
+    with pytest.raises(gym.error.DependencyNotInstalled, match=r"manualcontrol\[render\]"):
+        load_pygame()
+    with pytest.raises(gym.error.DependencyNotInstalled, match="need pygame"):
+        make_device("mouse").open(compensatory())
 
 
 def test_make_device_by_input_name():

@@ -6,6 +6,7 @@ import re
 import subprocess
 import sys
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -13,6 +14,7 @@ from manualcontrol.envs.recording import Recording
 from manualcontrol.human.cli import add_play_arguments, main, run_play
 from manualcontrol.human.devices import ScriptedInput
 from manualcontrol.human.realtime import ManualClock
+from manualcontrol.human.tasks import TASKS
 
 
 def parse(*argv):
@@ -172,6 +174,28 @@ def test_the_start_screen_waits_for_space(tmp_path, capsys, pygame):
     assert play("--out", str(tmp_path / "b.npz"), wait_for_start=True) == 1
     assert "the window was closed before the start; nothing was saved" in capsys.readouterr().err
     assert not (tmp_path / "b.npz").exists()
+
+
+def test_the_task_choices_are_the_task_table_and_each_env_is_registered():
+    parser = argparse.ArgumentParser()
+    add_play_arguments(parser)
+    (task,) = [action for action in parser._actions if action.dest == "task"]
+    assert tuple(task.choices) == tuple(TASKS)
+    for env_id in TASKS.values():
+        assert env_id in gym.registry
+
+
+def test_the_commands_modules_load_no_kernels_plots_or_pygame():
+    # their flags and --help need none: what a run needs is imported when it runs
+    script = """
+import sys
+import manualcontrol.human.cli, manualcontrol.human.session_cli
+heavy = ("numba", "scipy", "matplotlib", "torch", "pygame")
+print(sorted({m.split(".")[0] for m in sys.modules} & set(heavy)))
+"""
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "[]"
 
 
 def test_runs_as_a_module():
