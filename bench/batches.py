@@ -15,7 +15,15 @@ from typing import Any
 from manualcontrol.envs._validation import check_choice, check_int
 from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
 
-__all__ = ["Batch", "SuiteError", "as_table", "batch_estimators", "int_list", "suite_error"]
+__all__ = [
+    "Batch",
+    "SuiteError",
+    "as_table",
+    "batch_estimators",
+    "estimator_misfit",
+    "int_list",
+    "suite_error",
+]
 
 
 class SuiteError(ValueError):
@@ -69,6 +77,65 @@ def int_list(where: str, key: str, value: Any) -> tuple[int, ...]:
     return items
 
 
+#: What the family's own members identify, by the kind of batch whose runs they read: a
+#: driver keeping a car in its lane, a system driven open loop, or a pilot in a tracking
+#: loop. A twin reads what its member reads; a user's own estimator is not checked.
+_MEMBER_KINDS: dict[str, tuple[tuple[str, ...], str]] = {
+    "zhao-ukf": (("lane-keeping",), "identifies a driver keeping a car in its lane"),
+    "zhao-multi-ukf": (("lane-keeping",), "identifies a driver keeping a car in its lane"),
+    "rdi": (
+        ("tracking", "open-loop"),
+        "identifies a delayed ARMAX system from its input and output",
+    ),
+    **{
+        name: (("tracking",), "identifies a pilot in a tracking loop")
+        for name in ("dekf", "schiess-roland", "rml", "sigmoid-fit", "joint-ukf", "dual-ukf")
+    },
+}
+
+
+def _batch_kind(task: Any) -> tuple[str, str]:
+    """The kind of a batch of ``task`` (as :data:`_MEMBER_KINDS` names it) and its words."""
+    if task == "lane-keeping":
+        return "lane-keeping", "a lane-keeping batch"
+    if task == "open-loop":
+        return "open-loop", "an open-loop system batch"
+    return "tracking", f"a {task} tracking batch"
+
+
+def _member_kind(name: str) -> tuple[tuple[str, ...], str] | None:
+    entry = ESTIMATORS.get(name)
+    if entry is None:
+        return None
+    return _MEMBER_KINDS.get(entry.base or entry.name)
+
+
+def estimator_misfit(name: str, batch: str, task: Any) -> str | None:
+    """Why estimator ``name`` cannot read the runs of batch ``batch`` (of ``task``), or None.
+
+    A driver-model estimator on a tracking batch, a pilot-model one on a lane-keeping
+    batch, ...: said in those words, with the estimators that do read such a batch,
+    before the batch's settings (another member's) make a less helpful error.
+    """
+    reads = _member_kind(name)
+    kind, words = _batch_kind(task)
+    if reads is None or kind in reads[0]:
+        return None
+    fits = [
+        other
+        for other in ESTIMATORS
+        if (found := _member_kind(other)) is not None and kind in found[0]
+    ]
+    members = [other for other in fits if ESTIMATORS[other].base is None]
+    twins = [other for other in fits if ESTIMATORS[other].base is not None]
+    if len(twins) <= 2:
+        listed = ", ".join(members + twins)
+    else:
+        suffixes = sorted({twin[len(ESTIMATORS[twin].base or "") :] for twin in twins})
+        listed = f"{', '.join(members)} and their {' and '.join(suffixes)} twins"
+    return f"{name} {reads[1]}; batch {batch!r} is {words} (estimators for it: {listed})"
+
+
 def batch_estimators(
     where: str, merged: Mapping[str, Any]
 ) -> tuple[dict[str, Any], tuple[dict[str, Any], ...]]:
@@ -102,6 +169,9 @@ def batch_estimators(
         spec = {**shared, **entry}
         try:
             check_choice("estimator name", spec["name"], tuple(ESTIMATORS))
+            misfit = estimator_misfit(spec["name"], merged.get("name"), merged.get("task"))
+            if misfit is not None:
+                raise ValueError(misfit)
             make_estimator(spec)
         except (TypeError, ValueError) as error:
             raise suite_error(where, f"{label} ({entry['name']}): {error}") from None

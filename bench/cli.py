@@ -1,15 +1,23 @@
 """The ``manualcontrol`` command.
 
-Subcommands: ``simulate`` (a pilot in a tracking task -> a recording), ``identify``
-(a recording or an experiment file -> parameter traces and plots), ``describe`` (a
-compensatory trial -> its describing function, crossover and a fitted model), ``bench`` (a suite
--> results table and report), ``suites`` (list them), ``train`` (an RL surrogate
-operator) and ``evaluate`` (a trained agent -> report). ``manualcontrol COMMAND
---help`` explains every option.
+Subcommands: ``simulate`` (a pilot in a tracking task -> a recording), ``play`` (a
+person flies a task -> a recording), ``identify`` (a recording or an experiment file ->
+parameter traces and plots), ``describe`` (a compensatory trial -> its describing
+function, crossover and a fitted model), ``bench`` (a suite -> results table and report),
+``suites`` (list them), ``train`` (an RL surrogate operator), ``evaluate`` (a trained
+agent -> report) and ``compile`` (the kernels into numba's cache). ``manualcontrol
+COMMAND --help`` explains every option.
+
+Each command imports what it runs when it runs (``play``'s flags too: its parser is
+filled when ``play`` is the command), so ``--help`` and the listings start at once.
+The library's messages name its Python keywords (``forcing=``); :func:`cli_words`
+words them as this command's flags (``--forcing PRESET``) wherever they are printed.
 
 Exit codes: 0 success; 2 a usage or input error (the message says what to fix, no
 traceback); 3 a benchmark finished but some of its runs failed (see the results
-table); 1 an unexpected internal error (with traceback).
+table), an identification that diverged or closes an unstable loop, or kernels that
+did not compile; 130 interrupted with Ctrl-C (one line, no traceback); 1 an unexpected
+internal error (with traceback).
 """
 
 from __future__ import annotations
@@ -20,20 +28,133 @@ import dataclasses
 import json
 import math
 import os
+import re
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["main"]
+__all__ = ["cli_words", "main"]
 
 EXIT_OK, EXIT_INTERNAL, EXIT_USAGE, EXIT_RUNS_FAILED = 0, 1, 2, 3
+EXIT_INTERRUPTED = 130
 
 
 class UsageError(Exception):
     """A mistake of the user: reported as a one-line message, exit code 2."""
+
+
+# ------------------------------------------------- the library's words, as flags
+
+#: Whole phrases of library messages that the command line says otherwise.
+_PHRASES: tuple[tuple[str, str], ...] = (
+    (
+        "give the forcing (forcing=) or its period (period=, seconds)",
+        "give --forcing PRESET or --period SECONDS",
+    ),
+    (
+        " (or pass format='npz', 'csv' or 'mat')",
+        " (rename the file to end in one of them)",
+    ),
+    (
+        "(reset with var_u0 and var_e0, or use initial_variance='first-window' through estimate)",
+        "(--set initial_variance=first-window measures them; they are zero when u or e "
+        "never moves)",
+    ),
+    (
+        "use typical parameters for the element (Pilot.typical(model, element); the "
+        "`manualcontrol simulate` default), or pass on_unstable='warn' (--allow-unstable)",
+        "leave the parameters at the element's typical values (drop --param), or pass "
+        "--allow-unstable",
+    ),
+    ("pass resample=True", "pass --resample"),
+    (" (`--forcing PRESET`)", ""),
+    (
+        "band=(low, high) in rad/s (`cv_band` in suite files and `--set`)",
+        "--set cv_band='[low, high]' in rad/s",
+    ),
+    (
+        "(folds, gap; `cv_folds`, `cv_gap` in suite files and `--set`)",
+        "(--set cv_folds=N, --set cv_gap=SECONDS)",
+    ),
+    ("(task='pursuit' or 'preview')", "(--task pursuit or preview)"),
+    (" (a ForcingPair or a callable of time)", ""),
+    ("record metadata['forcing'], ", ""),
+)
+
+#: Keywords of the library's functions and the flag that gives each on the command line.
+_FLAGS: dict[str, str] = {
+    "forcing": "--forcing PRESET",
+    "target_period": "--target-period SECONDS",
+    "period": "--period SECONDS",
+    "element": "--element",
+    "dt": "--dt SECONDS",
+    "disturbance_at": "--disturbance-at",
+    "time_unit": "--time-unit",
+    "time_column": "--column t=COLUMN",
+    "task": "--task",
+}
+
+#: Estimator settings the library's messages name (``identify --set NAME=VALUE``).
+_SETTINGS = (
+    "initial_variance",
+    "initial",
+    "start",
+    "limits",
+    "remnant_injection",
+    "estimated",
+    "anticipation_time",
+    "window",
+    "restarts",
+    "q2",
+    "r2",
+    "ce",
+)
+
+#: ``name=`` where a keyword starts: not inside a word, a flag, or ``--set name=``.
+_KEYWORD = r"(?<![\w\-.'\"`\[])(?<!--set )\b({names})="
+
+
+def cli_words(text: str, command: str = "") -> str:
+    """A library message as the command line says it: its flags for the Python keywords.
+
+    ``give forcing= or period=`` becomes ``give --forcing PRESET or --period SECONDS``,
+    ``time_unit='ms'`` ``--time-unit ms``, and for ``identify`` the estimator settings
+    ``initial={'K_p': ...}`` ``--set initial='{"K_p": ...}'`` and ``start='generic'``
+    ``--set start=generic``. Parameter values such as ``K_p=1.2`` and text already in
+    the command line's words are left as they are.
+    """
+    for phrase, words in _PHRASES:
+        text = text.replace(phrase, words)
+    flags = _KEYWORD.format(names="|".join(sorted(_FLAGS, key=len, reverse=True)))
+
+    def flag(found: re.Match[str]) -> str:
+        name, value = found.group(1), found.group(2)
+        word = _FLAGS[name]
+        if not value:  # a bare keyword: the flag and its placeholder
+            return word
+        head, _, placeholder = word.partition(" ")
+        value = value.strip("'")
+        if "=" in placeholder:  # --column t=COLUMN: the value is the column
+            return f"{head} {placeholder.split('=')[0]}={value}"
+        return f"{head} {value}"
+
+    text = re.sub(flags + r"('[^']*'|(?=[\s,;:)]|$))", flag, text)
+    if command != "identify":
+        return text
+    settings = _KEYWORD.format(names="|".join(_SETTINGS))
+
+    def setting(found: re.Match[str]) -> str:
+        name, value = found.group(1), found.group(2)
+        if not value:
+            return f"--set {name}=..."
+        if value.startswith("{"):  # a Python dict: JSON, quoted for the shell
+            return "--set " + name + "='" + value.replace("'", '"') + "'"
+        return "--set " + name + "=" + value.strip("'")
+
+    return re.sub(settings + r"(\{[^}]*\}|'[^']*'|(?=[\s,;:)]|$))", setting, text)
 
 
 _WORDS = {"true": True, "false": False, "null": None, "none": None}
@@ -124,13 +245,44 @@ def _check_output(option: str, path: Path, *, folder: bool) -> None:
 
 
 def _assignments(items: Sequence[str] | None, what: str) -> dict[str, Any]:
+    """``NAME=VALUE`` items as a dict, each value read by :func:`_value`.
+
+    A value written as a JSON table or list (``{...}``, ``[...]``) that does not parse is
+    refused, saying where it broke, instead of arriving as a string that a setting then
+    calls "not a mapping".
+    """
     out = {}
     for item in items or ():
         if "=" not in item:
             raise UsageError(f"{what} must look like NAME=VALUE, got {item!r}")
         name, text = item.split("=", 1)
-        out[name.strip()] = _value(text)
+        name = name.strip()
+        if text.strip()[:1] in ("{", "["):
+            try:
+                json.loads(text)
+            except json.JSONDecodeError as error:
+                raise UsageError(
+                    f"{what} {name}=: {text!r} is not valid JSON ({error.msg} at character "
+                    f"{error.pos + 1}); JSON writes strings in double quotes and has no nan "
+                    'or inf: where a setting allows infinity give the string "inf" or '
+                    '"-inf" (e.g. limits=\'{"K_p": [0, "inf"]}\')'
+                ) from None
+        out[name] = _value(text)
     return out
+
+
+#: Settings that hold a tuple of parameter names: ``--set estimated=K_p,K_v`` gives one.
+_NAME_TUPLES = ("estimated",)
+
+
+def _settings(items: Sequence[str] | None) -> dict[str, Any]:
+    """``--set`` items: a bare name or comma-separated names for a tuple of names."""
+    settings = _assignments(items, "--set")
+    for key in _NAME_TUPLES:
+        value = settings.get(key)
+        if isinstance(value, str):
+            settings[key] = tuple(name.strip() for name in value.split(",") if name.strip())
+    return settings
 
 
 def _schedule(text: Any) -> Any:
@@ -316,7 +468,100 @@ def _load_trial(args: argparse.Namespace) -> Any:
         recording = recording.with_signals(ft=np.zeros(len(recording)))
     if "e" not in recording and "ft" in recording and "y" in recording:
         recording = recording.with_error_signal()
+    from manualcontrol.estimators.analysis.identification import control_never_moves
+
+    still = control_never_moves(recording)  # said before any estimator or fit runs
+    if still is not None:
+        raise UsageError(f"{args.recording}: {still}")
     return recording
+
+
+# ---------------------------------------------------------- result folders
+
+
+def _held_result(out: Path) -> str | None:
+    """What result ``out`` holds, in words (``"a dekf identification"``), or None."""
+    summary = out / "summary.json"
+    if not summary.is_file():
+        return None
+    try:
+        data = json.loads(summary.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return "a summary.json that cannot be read"
+    if isinstance(data, dict) and isinstance(data.get("estimator"), str):
+        return f"a {data['estimator']} identification"
+    if isinstance(data, dict) and "describing_function" in data:
+        return "a describing-function measurement (describe)"
+    return "a summary.json of another program"
+
+
+def _check_result_folder(out: Path, mine: str, overwrite: bool) -> None:
+    """Refuse ``out`` when it holds another result than ``mine`` (unless ``overwrite``)."""
+    held = _held_result(out)
+    if held is None or held == mine or overwrite:
+        return
+    raise UsageError(
+        f"--out {out}: the folder holds {held} (its summary.json); writing {mine} there "
+        "would replace it: give another --out folder, or pass --overwrite to replace it"
+    )
+
+
+@contextlib.contextmanager
+def _staged(out: Path) -> Iterator[Path]:
+    """A new folder beside ``out`` to write a result into; its files then replace out's.
+
+    Until everything is written nothing in ``out`` changes: a failure or Ctrl-C leaves the
+    earlier result there whole, never part of the old beside part of the new. The files
+    move into ``out`` at the end with Ctrl-C held off meanwhile (an absent ``out`` is the
+    staged folder renamed); files of ``out`` that this command does not write stay.
+    """
+    import shutil
+    import tempfile
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".part", dir=out.parent))
+    except PermissionError:
+        if not out.is_dir():
+            raise UsageError(f"--out {out}: cannot write in {out.parent}") from None
+        # a writable folder in a read-only one: stage inside it (each file still moves whole)
+        stage = Path(tempfile.mkdtemp(prefix=".staged.", suffix=".part", dir=out))
+    try:
+        yield stage
+        with _ctrl_c_held():
+            if not out.exists():
+                os.chmod(stage, 0o777 & ~_umask())  # mkdtemp's folder is private
+                os.rename(stage, out)
+            else:
+                for path in sorted(stage.iterdir()):
+                    os.replace(path, out / path.name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+@contextlib.contextmanager
+def _ctrl_c_held() -> Iterator[None]:
+    """Hold Ctrl-C off for a moment (the main thread only); it takes effect on leaving."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[Any] = []
+    previous = signal.signal(signal.SIGINT, lambda *frame: caught.append(frame))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        raise KeyboardInterrupt
 
 
 def _target_source(args: argparse.Namespace) -> dict[str, Any]:
@@ -343,18 +588,31 @@ _PREVIEW_HINT = (
 )
 
 
+#: What a high share of innovation lags outside the white-noise band means, and what to do.
+_WHITENESS_GUIDE = (
+    "  (white innovations need u to be the model's output plus white noise: a human's "
+    "remnant is coloured, a model may miss some of the pilot's dynamics, and on noise-free "
+    "data (a remnant-free simulation) the small residue left is smooth, so a high share is "
+    "common and no error by itself; judge the parameters by the frequency-domain check "
+    "(it needs --forcing or --period where the recording does not name its forcing))"
+)
+
+
 def _cmd_identify(args: argparse.Namespace) -> int:
     from manualcontrol.bench.report import plot_estimation
     from manualcontrol.envs._files import atomic_write
+    from manualcontrol.estimators.analysis.fit_check import WHITENESS_LIMIT
     from manualcontrol.estimators.analysis.identification import build_estimator, identify
     from manualcontrol.estimators.members.pilot_filter import EVIDENCE
     from manualcontrol.estimators.registry import ESTIMATORS
 
     _check_output("--out", args.out, folder=True)
+    out = Path(args.out)
+    _check_result_folder(out, f"a {args.estimator} identification", args.overwrite)
     recording = _load_trial(args)
     source = _trial_forcing(args)  # --forcing and --period together: said before any work
     element = _trial_element(recording, args)  # an unreadable --element: in its own words
-    settings = _assignments(args.set, "--set")
+    settings = _settings(args.set)
     if args.estimator not in ESTIMATORS:
         raise UsageError(
             f"--estimator must be one of {', '.join(ESTIMATORS)} (`manualcontrol estimators`), "
@@ -370,7 +628,22 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     # where the target ahead (and the RML's describing function) come from: the pilot-model
     # members read them; the others have their own models and take no such option
     target = _target_source(args) if pilot_model else {}
-    estimator = build_estimator(args.estimator, settings, model=args.model, element=args.element)
+    try:
+        estimator = build_estimator(
+            args.estimator, settings, model=args.model, element=args.element
+        )
+    except (TypeError, ValueError) as error:
+        text = str(error)
+        unknown = re.fullmatch(
+            r"the (\S+) estimator has no setting (.+?); its settings: (.*)", text, re.DOTALL
+        )
+        if unknown is not None:
+            names, known = (unknown.group(i).replace("'", "") for i in (2, 3))
+            text = (
+                f"--set {names}: the {unknown.group(1)} estimator has no such setting; its "
+                f"settings: {known}"
+            )
+        raise UsageError(cli_words(text, "identify")) from None
     if not source and args.target_period is not None:  # the target's period is the forcing's
         source = {"period": args.target_period}
     try:
@@ -382,6 +655,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             forcing=source.get("forcing"),
             period=source.get("period"),
             disturbance_at=args.disturbance_at,
+            name=args.estimator,
         )
     except ValueError as error:
         if "target ahead of the samples is unknown" in str(error):
@@ -408,10 +682,13 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     restarts = summary.get("restarts")  # a filter with restarts: the pass kept
     injection = summary.get("remnant_injection")  # the RML's "choose": the model kept
     assumed = identification.held_at_generic_values  # held at values no one measured
-    out = Path(args.out)
-    path = result.save(out / "estimation.npz")
-    atomic_write(out / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
-    figure = plot_estimation(recording, result, out / "parameters.png", model_output=model_output)
+    truth = identification.truth  # a simulation's true parameters: the errors against them
+    with _staged(out) as stage:
+        result.save(stage / "estimation.npz")
+        text = json.dumps(summary, indent=2)
+        atomic_write(stage / "summary.json", lambda p: p.write_text(text))
+        plot_estimation(recording, result, stage / "parameters.png", model_output=model_output)
+    path, figure = out / "estimation.npz", out / "parameters.png"
     print(f"estimated {', '.join(result.estimated)}; final values {final}")
     if assumed:
         listed = ", ".join(f"{name} {value:.4g}" for name, value in assumed.items())
@@ -428,6 +705,15 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             f"autocorrelation {r_1:.2f}, {100 * outside:.0f} % of lags up to 0.5 s outside the "
             "white-noise band (white innovations give about 5 %)"
         )
+        if math.isfinite(outside) and outside > WHITENESS_LIMIT:
+            print(_WHITENESS_GUIDE)
+    if truth is not None:
+        errors = ", ".join(
+            f"{name} {'n/a' if value is None else f'{value:.3g}'}"
+            + (" (RMSE: its true mean is near 0)" if truth["error_kind"][name] == "rmse" else "")
+            for name, value in truth["nrmse"].items()
+        )
+        print(f"against the simulation's true parameters (over the whole run): NRMSE {errors}")
     _print_frequency_check(check)
     if chosen is not None:
         errors = ", ".join(
@@ -476,7 +762,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         )
     print(f"wrote {path}, {out / 'summary.json'}, {figure}")
     for warning in check.warnings:
-        print(f"manualcontrol identify: warning: {warning}", file=sys.stderr)
+        print(f"manualcontrol identify: warning: {cli_words(warning, 'identify')}", file=sys.stderr)
     code = EXIT_OK
     if health.diverged:
         print(
@@ -490,7 +776,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     if stability.get("stable") is False:
         level = "warning" if args.allow_unstable else "error"
         print(
-            f"manualcontrol identify: {level}: {stability['message']}"
+            f"manualcontrol identify: {level}: {cli_words(stability['message'], 'identify')}"
             + ("" if args.allow_unstable else " (--allow-unstable to accept it)"),
             file=sys.stderr,
         )
@@ -508,6 +794,8 @@ def _cmd_describe(args: argparse.Namespace) -> int:
     )
 
     _check_output("--out", args.out, folder=True)
+    out = Path(args.out)
+    _check_result_folder(out, "a describing-function measurement (describe)", args.overwrite)
     recording = _load_trial(args)
     source = _trial_forcing(args)
     element = _trial_element(recording, args)
@@ -525,11 +813,7 @@ def _cmd_describe(args: argparse.Namespace) -> int:
             task=args.task,
         )
     except ValueError as error:
-        text = str(error).replace(
-            "give the forcing (forcing=) or its period (period=, seconds)",
-            "give --forcing PRESET or --period SECONDS",
-        )
-        text = text.replace("disturbance_at", "--disturbance-at")
+        text = cli_words(str(error), "describe").replace("disturbance_at", "--disturbance-at")
         raise UsageError(text) from None
     from manualcontrol.envs.tasks import task_named
     from manualcontrol.pilots.models import MODEL_NAMES, make_model
@@ -642,18 +926,21 @@ def _cmd_describe(args: argparse.Namespace) -> int:
             human = None  # a display the figures do not describe: the table above stands
         if human is not None:
             print(f"human-likeness: {human.verdict.text()}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     summary = {
         "describing_function": describing.to_dict(),
         "fit": fit.to_dict(),
         "warnings": warnings_found,
     }
-    atomic_write(out / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
-    figure = plot_describing_function(
-        describing, out / "bode.png", models={f"fitted {fit.model}": fit.values}, model=fit.model
-    )
-    print(f"wrote {out / 'summary.json'}, {figure}")
+    with _staged(out) as stage:
+        text = json.dumps(summary, indent=2)
+        atomic_write(stage / "summary.json", lambda p: p.write_text(text))
+        plot_describing_function(
+            describing,
+            stage / "bode.png",
+            models={f"fitted {fit.model}": fit.values},
+            model=fit.model,
+        )
+    print(f"wrote {out / 'summary.json'}, {out / 'bode.png'}")
     for warning in warnings_found:
         print(f"manualcontrol describe: warning: {warning}", file=sys.stderr)
     return EXIT_OK
@@ -692,7 +979,7 @@ def _trial_forcing(args: argparse.Namespace) -> dict[str, Any]:
 def _print_frequency_check(check: Any) -> None:
     frequency = check.frequency
     if frequency is None:
-        print(f"frequency domain: {check.frequency_note}")
+        print(f"frequency domain: {cli_words(check.frequency_note, 'identify')}")
         return
     best = (
         f"{frequency['best_gain_error_db']:.1f} dB, {frequency['best_phase_error_deg']:.0f} deg"
@@ -717,10 +1004,37 @@ def _print_frequency_check(check: Any) -> None:
     print(line)
 
 
+def _suite(spec: str) -> Any:
+    """The suite ``spec`` names: a built-in name or a suite file, said plainly when neither."""
+    from manualcontrol.bench.scenarios import BUILTIN_SUITES, load_suite
+
+    path = Path(spec)
+    if spec not in BUILTIN_SUITES and (path.suffix == ".toml" or os.sep in spec):
+        builtin = ", ".join(BUILTIN_SUITES)
+        if path.is_dir():
+            raise UsageError(
+                f"{spec!r} is a directory, not a suite file (give a .toml file or a "
+                f"built-in suite: {builtin})"
+            )
+        if not path.exists():
+            raise UsageError(f"no such suite file {spec!r} (built-in suites: {builtin})")
+    return load_suite(spec)
+
+
+def _check_estimators_fit(suite: Any, names: Sequence[str]) -> None:
+    """Refuse ``--estimators`` that cannot read a batch's runs, saying what each reads."""
+    from manualcontrol.bench.batches import estimator_misfit
+
+    for batch in suite.batches:
+        for name in names:
+            misfit = estimator_misfit(name, batch.name, batch.template.get("task"))
+            if misfit is not None:
+                raise UsageError(f"--estimators: {misfit}")
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     from manualcontrol.bench.report import write_report
-    from manualcontrol.bench.runner import run_suite
-    from manualcontrol.bench.scenarios import load_suite
+    from manualcontrol.bench.runner import SuiteInterrupted, run_suite
 
     if args.backend == "ray":
         import importlib.util
@@ -730,9 +1044,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                 "--backend ray needs Ray: pip install 'manualcontrol[dist]' (or use the "
                 "default --backend process)"
             )
-    suite = load_suite(args.suite)
+    suite = _suite(args.suite)
     if args.estimators is not None:
+        from manualcontrol.estimators.registry import ESTIMATORS
+
         names = [name.strip() for name in args.estimators.split(",") if name.strip()]
+        _check_estimators_fit(suite, [name for name in names if name in ESTIMATORS])
         suite = suite.with_estimators(names)
     out = Path(args.out or f"results/{suite.name}{'-quick' if args.quick else ''}")
     _check_output("--out", out, folder=True)
@@ -740,13 +1057,29 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     bar = _progress(total, f"{suite.name}", args.quiet)
 
     def progress(done: int, total: int, row: dict[str, Any]) -> None:
+        if not row:  # the runs stored by an earlier, interrupted command
+            bar.write(f"resuming: {done} of {total} runs already done (in {out})", file=sys.stdout)
         bar.update(done - bar.n)
         if row.get("status") == "failed":
             bar.write(f"failed: {row['key']}: {row['error']}")
 
-    rows = run_suite(
-        suite, out, backend=args.backend, workers=args.workers, quick=args.quick, progress=progress
-    )
+    try:
+        rows = run_suite(
+            suite,
+            out,
+            backend=args.backend,
+            workers=args.workers,
+            quick=args.quick,
+            progress=progress,
+        )
+    except SuiteInterrupted as stop:
+        bar.close()
+        print(
+            f"manualcontrol bench: interrupted: {stop.done} of {stop.total} runs kept in "
+            f"{stop.out}; run the same command again to resume",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
     bar.close()
     failed = sum(row.get("status") != "ok" for row in rows)
     print(f"results: {out / 'results.csv'} ({len(rows)} runs, {failed} failed)")
@@ -759,9 +1092,10 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from manualcontrol.agents.training import TrainingConfig, train
 
     _check_output("--out", args.out, folder=True)
+    report = None if args.quiet else _training_report
     if args.recipe is not None:
         config = _recipe_config(args)
-        agent = train(config, args.out, report=None if args.quiet else print)
+        agent = train(config, args.out, report=report)
         print(f"saved agent to {agent.path} (config.json, policy.pt, model.zip)")
         return EXIT_OK
     delay = _limitation("--delay", args.delay)
@@ -803,9 +1137,19 @@ def _cmd_train(args: argparse.Namespace) -> int:
         for name, (flag, _) in {**fields, "history_length": ("--history", None)}.items():
             text = text.replace(name, flag)
         raise UsageError(text) from None
-    agent = train(config, args.out, report=None if args.quiet else print)
+    agent = train(config, args.out, report=report)
     print(f"saved agent to {agent.path} (config.json, policy.pt, model.zip)")
     return EXIT_OK
+
+
+_NO_EPISODE_YET = "mean reward per step n/a"
+
+
+def _training_report(line: str) -> None:
+    """A progress line of the training, the reward left out until an episode has ended."""
+    if line.endswith(_NO_EPISODE_YET):
+        line = line[: -len(_NO_EPISODE_YET)] + "(no episode has ended yet: no mean reward)"
+    print(line, flush=True)
 
 
 #: train flags a recipe sets itself, with their unset values.
@@ -876,6 +1220,47 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         )
     print(f"report: {path}")
     return EXIT_OK
+
+
+def _cmd_play(args: argparse.Namespace) -> int:
+    from manualcontrol.human.cli import run_play
+
+    return run_play(args)  # prints its own errors and returns its exit code
+
+
+#: Set while ``compile`` runs: a process forked then leaves Ctrl-C to this one.
+_QUIET_CHILDREN = False
+
+
+def _quiet_child() -> None:
+    if _QUIET_CHILDREN:
+        import signal
+
+        # the pool's workers die with the command, silently, instead of each printing a
+        # traceback of the job it was compiling
+        signal.signal(signal.SIGINT, lambda *frame: os._exit(EXIT_INTERRUPTED))
+
+
+def _cmd_compile(args: argparse.Namespace) -> int:
+    from manualcontrol.bench.compile_kernels import compile_kernels
+
+    global _QUIET_CHILDREN
+    if hasattr(os, "register_at_fork") and not getattr(_cmd_compile, "hooked", False):
+        os.register_at_fork(after_in_child=_quiet_child)
+        _cmd_compile.hooked = True  # type: ignore[attr-defined]
+    print("compiling the kernels into numba's cache (once per machine):", flush=True)
+    _QUIET_CHILDREN = True
+    try:
+        ok = compile_kernels(args.workers, lambda line: print(line, flush=True))
+    finally:
+        _QUIET_CHILDREN = False
+    if not ok:
+        print(
+            "manualcontrol compile: some jobs did not compile (above); their kernels "
+            "compile at first use instead",
+            file=sys.stderr,
+        )
+    return EXIT_OK if ok else EXIT_RUNS_FAILED
 
 
 def _progress(total: int, description: str, quiet: bool) -> Any:
@@ -964,15 +1349,54 @@ def _add_trial_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose flags may be added when it parses (``fill``).
+
+    ``play``'s flags live with the play command (:mod:`manualcontrol.human.cli`); they are
+    added only when ``play`` is the command, so that the other commands and ``--help``
+    import nothing of it.
+    """
+
+    def __init__(
+        self, *args: Any, fill: Callable[[argparse.ArgumentParser], None] | None = None, **kw: Any
+    ) -> None:
+        super().__init__(*args, **kw)
+        self._fill = fill
+
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:
+        if self._fill is not None:
+            fill, self._fill = self._fill, None
+            fill(self)
+        return super().parse_known_args(args, namespace)
+
+
+def _play_arguments(parser: argparse.ArgumentParser) -> None:
+    from manualcontrol.human.cli import add_play_arguments
+
+    add_play_arguments(parser)
+
+
+_IDENTIFY_EXIT_CODES = (
+    "Exit codes: 0 identified and written; 2 a usage or input error (the message says what "
+    "to fix; nothing is written); 3 written, but the filter diverged (the traces after the "
+    "time said are not estimates) or the identified pilot closes an unstable loop with the "
+    "element (--allow-unstable accepts it); 130 interrupted with Ctrl-C (an earlier result "
+    "in --out is left whole); 1 an internal error."
+)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``manualcontrol`` command."""
     parser = argparse.ArgumentParser(
         prog="manualcontrol",
         description="Tracking tasks, cybernetic pilots and online estimators of manual control.",
-        epilog="Exit codes: 0 ok, 2 usage or input error, 3 some benchmark runs failed, "
+        epilog="Exit codes: 0 ok, 2 usage or input error, 3 some benchmark runs failed (or an "
+        "identification diverged or closes an unstable loop), 130 interrupted (Ctrl-C), "
         "1 internal error.",
     )
-    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    commands = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=_Parser
+    )
 
     p = commands.add_parser("suites", help="list the built-in benchmark suites")
     p.set_defaults(run=_cmd_suites)
@@ -1044,7 +1468,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(run=_cmd_simulate)
 
     p = commands.add_parser(
-        "identify", help="estimate pilot parameters from a recording or experiment file"
+        "play",
+        help="fly a task yourself with a mouse, keyboard or joystick; save the recording",
+        description="Fly one run of a task with a mouse, keyboard or joystick, in real time, "
+        "and save the recording.",
+        epilog="Exit codes: 0 saved, 1 aborted (nothing saved), 2 bad flag or missing "
+        "device, 130 Ctrl-C.",
+        fill=_play_arguments,
+    )
+    p.set_defaults(run=_cmd_play)
+
+    p = commands.add_parser(
+        "identify",
+        help="estimate pilot parameters from a recording or experiment file",
+        epilog=_IDENTIFY_EXIT_CODES,
     )
     p.add_argument(
         "recording", type=Path, help="a Recording or an experiment file (.npz, .csv, .mat)"
@@ -1065,7 +1502,10 @@ def build_parser() -> argparse.ArgumentParser:
         action="append",
         metavar="KEY=VALUE",
         help="estimator setting, e.g. ce=DI, anticipation_time=0.9, r2=4, "
-        'estimated=["K_p","K_v"]; repeatable',
+        "estimated=K_p,K_v (a bare name or comma-separated names give a setting that "
+        'is a list of parameter names; JSON works too: estimated=\'["K_p","K_v"]\'), '
+        'initial=\'{"K_p": 1.2}\' (JSON: double quotes, no nan; infinity as "inf"); '
+        "repeatable",
     )
     _add_trial_options(p)
     p.add_argument(
@@ -1080,7 +1520,18 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="accept an identified pilot that closes an unstable loop (a warning)",
     )
-    p.add_argument("--out", type=Path, default=Path("results/identify"), help="output folder")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("results/identify"),
+        help="output folder: estimation.npz, summary.json and parameters.png replace the "
+        "ones there once all are written (default results/identify)",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace a result of another estimator (or of describe) in --out",
+    )
     p.set_defaults(run=_cmd_identify)
 
     p = commands.add_parser(
@@ -1112,7 +1563,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME=VALUE",
         help="hold a model parameter at a value in the fit, e.g. K_v=0; repeatable",
     )
-    p.add_argument("--out", type=Path, default=Path("results/describe"), help="output folder")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("results/describe"),
+        help="output folder: summary.json and bode.png replace the ones there once both "
+        "are written (default results/describe)",
+    )
+    p.add_argument("--overwrite", action="store_true", help="replace an identify result in --out")
     p.set_defaults(run=_cmd_describe, target_period=None)
 
     p = commands.add_parser("bench", help="run a benchmark suite, write results and a report")
@@ -1266,6 +1724,23 @@ def build_parser() -> argparse.ArgumentParser:
         help="load model.zip (pickle: runs code from the file; only for files you trust)",
     )
     p.set_defaults(run=_cmd_evaluate)
+
+    p = commands.add_parser(
+        "compile",
+        help="compile the kernels into numba's cache now (make does it at install)",
+        description="Compile the package's kernels into numba's on-disk cache, split across "
+        "the cores, so that the first identify, bench or test loads them instead of "
+        "compiling (20-40 CPU-s per estimator). `make install` runs this.",
+        epilog="Exit codes: 0 all compiled; 3 some jobs failed (their kernels compile at "
+        "first use instead); 130 Ctrl-C.",
+    )
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        default=None,
+        help="processes compiling side by side (default: all cores)",
+    )
+    p.set_defaults(run=_cmd_compile)
     return parser
 
 
@@ -1278,6 +1753,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exit_.code if isinstance(exit_.code, int) else EXIT_USAGE
     try:
         return args.run(args)
+    except KeyboardInterrupt:
+        print(f"manualcontrol {args.command}: {_interrupted(args)}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except BrokenPipeError:
         # the reader left (`manualcontrol suites | head`): not an error of the command;
         # stdout goes to devnull so the interpreter's last flush does not fail again
@@ -1291,8 +1769,37 @@ def main(argv: Sequence[str] | None = None) -> int:
         if os.environ.get("MANUALCONTROL_DEBUG"):
             raise
         message = error.args[0] if isinstance(error, KeyError) and error.args else error
+        if not isinstance(error, UsageError):  # the library's words, not yet the flags'
+            message = cli_words(str(message), args.command)
         print(f"manualcontrol {args.command}: error: {message}", file=sys.stderr)
         return EXIT_USAGE
+
+
+def _interrupted(args: argparse.Namespace) -> str:
+    """The one line Ctrl-C leaves: what was kept."""
+    command = args.command
+    if command in ("identify", "describe"):
+        kept = (
+            f" (the earlier result in {args.out} is left as it was)"
+            if (Path(args.out) / "summary.json").is_file()
+            else ""
+        )
+        return f"interrupted (Ctrl-C); nothing was written{kept}"
+    if command == "simulate":
+        return f"interrupted (Ctrl-C); {args.out} was not written"
+    if command == "train":
+        checkpoints = Path(args.out) / "checkpoints"
+        kept = (
+            f"; the checkpoints so far are in {checkpoints}"
+            if checkpoints.is_dir() and any(checkpoints.iterdir())
+            else ""
+        )
+        return f"interrupted (Ctrl-C); the agent was not saved{kept}"
+    if command == "compile":
+        return "interrupted (Ctrl-C); the kernels compiled so far stay in numba's cache"
+    if command == "play":
+        return "interrupted (Ctrl-C); nothing was saved"
+    return "interrupted (Ctrl-C)"
 
 
 def main_exit() -> None:

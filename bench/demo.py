@@ -14,6 +14,9 @@ its stream goes on: drawing the figures costs about as much as the runs. On a fr
 clone the streams also compile the family's kernels side by side instead of one after
 another.
 Elsewhere the suites run one after the other on the process pool.
+
+Ctrl-C stops every stream with one line per suite it was running (the runs kept) and
+no traceback; running the demo again resumes each suite from its stored runs.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from __future__ import annotations
 import argparse
 import multiprocessing
 import os
+import signal
 import sys
 import time
 import traceback
@@ -29,7 +33,7 @@ from typing import Any
 
 from manualcontrol.bench.cli import positive_int
 from manualcontrol.bench.report import pyplot, write_report
-from manualcontrol.bench.runner import run_suite
+from manualcontrol.bench.runner import SuiteInterrupted, run_suite
 from manualcontrol.bench.scenarios import BUILTIN_SUITES, Suite, load_suite
 from manualcontrol.envs._files import atomic_write
 
@@ -38,6 +42,8 @@ def _write_report_here(suite: Suite, rows: list[dict[str, Any]], folder: Path) -
     """A report child's body: write the report; a failure is its exit status."""
     try:
         write_report(suite, rows, folder)
+    except KeyboardInterrupt:  # Ctrl-C: the demo says it once
+        raise SystemExit(130) from None
     except BaseException:
         traceback.print_exc()
         raise SystemExit(1) from None
@@ -79,14 +85,18 @@ def _run_stream(
             suite, folder = suites[name], out / name
             print(f"{name}: {len(suite.scenarios(quick=True))} runs ...", flush=True)
             backend = "inprocess" if workers == 1 else "process"
-            rows = run_suite(
-                suite,
-                folder,
-                quick=True,
-                backend=backend,
-                workers=workers,
-                progress=_progress(name),
-            )
+            try:
+                rows = run_suite(
+                    suite,
+                    folder,
+                    quick=True,
+                    backend=backend,
+                    workers=workers,
+                    progress=_progress(name),
+                )
+            except SuiteInterrupted as stop:
+                print(f"{name}: interrupted: {stop.done} of {stop.total} runs kept", flush=True)
+                raise
             bad = sum(row.get("status") != "ok" for row in rows)
             if forked:
                 child = multiprocessing.get_context("fork").Process(
@@ -98,9 +108,18 @@ def _run_stream(
                 write_report(suite, rows, folder)
                 _said_done(name, len(rows), bad, True, out)
                 results.put((name, len(rows), bad, True))
+    except KeyboardInterrupt:
+        if forked:  # a stream ends quietly, no traceback; the demo says the rest
+            raise SystemExit(130) from None
+        raise
     finally:
+        if forked:  # only waiting now: a Ctrl-C reaches the report children themselves
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
         for name, runs, bad, child in children:
             child.join()
+            if child.exitcode == 130:
+                print(f"{name}: {runs} runs; its report was interrupted", flush=True)
+                continue
             _said_done(name, runs, bad, child.exitcode == 0, out)
             results.put((name, runs, bad, child.exitcode == 0))
 
@@ -110,6 +129,15 @@ def _said_done(name: str, runs: int, bad: int, report_ok: bool, out: Path) -> No
     print(f"{name}: {runs} runs, {bad} failed {state}", flush=True)
 
 
+def _interrupted(out: Path) -> int:
+    print(
+        f"demo: interrupted (Ctrl-C); the runs so far are kept under {out}: run the demo "
+        "again to resume",
+        flush=True,
+    )
+    return 130
+
+
 class _Collected(list):
     """What a stream run in this process reports (the ``put`` of a queue)."""
 
@@ -117,7 +145,7 @@ class _Collected(list):
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the quick suites; return 0 when every run succeeded, 3 otherwise."""
+    """Run the quick suites; return 0 when every run succeeded, 3 otherwise (130: Ctrl-C)."""
     parser = argparse.ArgumentParser(
         prog="python -m manualcontrol.bench.demo", description=__doc__.splitlines()[0]
     )
@@ -153,15 +181,23 @@ def main(argv: list[str] | None = None) -> int:
         ]
         for stream in streams:
             stream.start()
-        for stream in streams:  # what a stream puts is a few bytes: it never waits for us
-            stream.join()
+        try:
+            for stream in streams:  # what a stream puts is a few bytes: it never waits for us
+                stream.join()
+        except KeyboardInterrupt:  # the streams had it too: each ends with its own line
+            for stream in streams:
+                stream.join()
+            return _interrupted(args.out)
         collected = []
         while not results.empty():
             collected.append(results.get())
     else:
         collected = _Collected()
         order = sorted(suites, key=lambda name: -counts[name])
-        _run_stream(suites, order, args.out, False, collected, workers)
+        try:
+            _run_stream(suites, order, args.out, False, collected, workers)
+        except KeyboardInterrupt:
+            return _interrupted(args.out)
     summary = {name: (runs, bad, ok) for name, runs, bad, ok in collected}
     for name in suites:
         if name not in summary:  # its stream died before it finished

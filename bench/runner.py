@@ -23,6 +23,11 @@ traces); a suite run again skips those (resume), and a failing scenario is recor
 as failed with its error while the batch goes on. At the end the rows are written to
 ``results.csv`` and ``results.parquet``.
 
+Ctrl-C stops a run cleanly: the pool's workers ignore it (no traceback from them), the
+main process cancels what has not started, stops the workers and raises
+:class:`SuiteInterrupted` (a ``KeyboardInterrupt``) saying how many runs are stored;
+running the same suite into the same folder again resumes from there.
+
 A results folder belongs to one suite: :func:`run_suite` refuses a folder whose
 results (the ``suite`` column of ``results.csv``, or of the stored runs when there is
 no table yet) came from another suite, rather than replace its table and leave its
@@ -37,6 +42,7 @@ import json
 import math
 import multiprocessing
 import os
+import signal
 import sys
 import time
 import traceback
@@ -57,6 +63,7 @@ from manualcontrol.estimators.registry import ESTIMATORS, make_estimator
 __all__ = [
     "BACKENDS",
     "ESTIMATORS",
+    "SuiteInterrupted",
     "make_estimator",
     "run_scenario",
     "run_scenarios",
@@ -65,6 +72,17 @@ __all__ = [
 ]
 
 BACKENDS: tuple[str, ...] = ("process", "inprocess", "ray")
+
+
+class SuiteInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`run_suite`: ``done`` of ``total`` runs are stored in ``out``.
+
+    Running the same suite into ``out`` again resumes: the stored runs are skipped.
+    """
+
+    def __init__(self, done: int, total: int, out: Path) -> None:
+        super().__init__(f"interrupted: {done} of {total} runs kept in {out}")
+        self.done, self.total, self.out = done, total, out
 
 
 def simulate_scenario(scenario: Scenario) -> Recording:
@@ -327,14 +345,17 @@ def _check_results_folder(out: Path, running: Sequence[str]) -> None:
 
 
 def _one_thread() -> None:
-    """Pool-worker start: one BLAS thread per process.
+    """Pool-worker start: one BLAS thread per process, and Ctrl-C left to the main process.
 
     Several workers each spinning a BLAS thread pool on few cores slow the small
     matrix exponentials of every run down a hundredfold (measured: 8 quick performance
-    runs took 342 s instead of 25 s on 2 cores).
+    runs took 342 s instead of 25 s on 2 cores). Ctrl-C reaches every process of the
+    terminal's group: a worker ignores it (else each prints its own traceback), and the
+    main process stops the workers (see :func:`_stop_pool`).
     """
     from threadpoolctl import threadpool_limits
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     threadpool_limits(1)
 
 
@@ -354,6 +375,25 @@ def _pool_context() -> Any:
     if sys.platform.startswith("linux"):
         return multiprocessing.get_context("fork")
     return None
+
+
+def _stop_pool(pool: ProcessPoolExecutor, out: Path) -> None:
+    """Cancel the runs not started, stop the workers at once, and tidy what they left.
+
+    The workers ignore Ctrl-C and would finish their runs first; they are terminated
+    instead. Every stored file is written atomically, so a run cut short leaves only
+    its temporary file (``.<name>.*.part*`` in ``runs/``), removed here.
+    """
+    # the executor keeps its worker processes here (CPython) and forgets them on shutdown
+    workers = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for worker in workers:
+        if worker.is_alive():
+            worker.terminate()
+    for worker in workers:
+        worker.join(timeout=5.0)
+    for leftover in (out / "runs").glob(".*.part*"):
+        leftover.unlink(missing_ok=True)
 
 
 def _run_with_ray(
@@ -414,7 +454,24 @@ def run_suite(
         if progress is not None:
             progress(done, total, row)
 
-    groups = _groups(todo)
+    try:
+        _run_groups(_groups(todo), out, backend, workers, collect)
+    except KeyboardInterrupt:
+        kept = len(_done_rows(out, scenarios))  # what the workers stored counts too
+        raise SuiteInterrupted(kept, total, out) from None
+    ordered = [rows[scenario.key] for scenario in scenarios]
+    write_table(ordered, out)
+    return ordered
+
+
+def _run_groups(
+    groups: Sequence[Sequence[Scenario]],
+    out: Path,
+    backend: str,
+    workers: int | None,
+    collect: Callable[[dict[str, Any]], None],
+) -> None:
+    """Run every group with ``backend``, handing each row to ``collect`` as it comes."""
     if backend == "inprocess" or (backend == "process" and len(groups) <= 1):
         for group in groups:
             for row in run_scenarios(group, out):
@@ -433,22 +490,24 @@ def run_suite(
                 collect(row)
         rest = groups[1:]
         if rest:
-            with ProcessPoolExecutor(
+            pool = ProcessPoolExecutor(
                 max_workers=min(count, len(rest)),
                 initializer=_one_thread,
                 mp_context=_pool_context(),
-            ) as pool:
+            )
+            try:
                 futures = [pool.submit(run_scenarios, group, out) for group in rest]
                 for future in as_completed(futures):
                     for row in future.result():
                         collect(row)
+            except BaseException:
+                _stop_pool(pool, out)
+                raise
+            pool.shutdown(wait=True)
     else:
         for group_rows in _run_with_ray(groups, out):
             for row in group_rows:
                 collect(row)
-    ordered = [rows[scenario.key] for scenario in scenarios]
-    write_table(ordered, out)
-    return ordered
 
 
 def write_table(rows: Sequence[Mapping[str, Any]], out: str | Path) -> tuple[Path, Path | None]:

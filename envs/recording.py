@@ -1083,6 +1083,10 @@ def _load(
     explicit = _check_columns(columns, time_column)
     if dt is not None:
         dt = check_positive("dt", dt)
+    if path.is_dir():
+        raise IsADirectoryError(
+            f"{path} is a directory, not a recording file (give a .csv, .mat or .npz file)"
+        )
     kind = _file_format(path, format)
     if not path.is_file():
         raise FileNotFoundError(f"no such recording file: {path}")
@@ -1090,7 +1094,10 @@ def _load(
         try:
             archive = np.load(path, allow_pickle=False)
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
-            raise ValueError(f"{path} is not a readable .npz file: {error}") from error
+            raise ValueError(
+                f"{path} is not a readable .npz file, so not a recording: "
+                f"{_npz_problem(path, error)}"
+            ) from error
         if not isinstance(archive, np.lib.npyio.NpzFile):
             raise ValueError(f"{path} holds a single array, not named entries (.npz archive)")
         with archive:
@@ -1098,6 +1105,28 @@ def _load(
     if kind == "csv":
         return _assemble(path, _read_csv(path), explicit, dt, options)
     return _assemble(path, _read_mat(path), explicit, dt, options)
+
+
+def _npz_problem(path: Path, error: BaseException) -> str:
+    """What numpy found wrong with an ``.npz`` file, in the words of someone who gave one.
+
+    numpy reads a file that is neither a zip archive nor a ``.npy`` array as a pickle,
+    and refuses that with advice to load pickles unsafely: not what a recording needs.
+    """
+    try:
+        size = path.stat().st_size
+    except OSError:
+        size = None
+    if size == 0:
+        return "the file is empty"
+    if isinstance(error, zipfile.BadZipFile):
+        return f"it is not a valid zip archive ({error}); it may be damaged or truncated"
+    if isinstance(error, EOFError) or "pickle" in str(error):
+        return (
+            "its bytes are not a .npz archive (a zip of arrays, as manualcontrol and numpy "
+            "write it); it may be another format renamed .npz, or damaged"
+        )
+    return str(error)
 
 
 def _check_columns(columns: Mapping[str, str] | None, time_column: str | None) -> dict[str, str]:

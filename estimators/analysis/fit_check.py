@@ -9,9 +9,10 @@ one-step and resimulated VAF, what an independent measurement says:
   the second half of the run, against the describing function measured at the forcing
   frequencies (:mod:`~manualcontrol.estimators.analysis.frequency`): mean absolute gain gap
   (dB) and phase gap (degrees), and the identified loop's crossover and phase margin;
-* the innovations' whiteness (a model that explains the data leaves white ones; warned
-  where no describing function vouches for the model, since a human's model rarely
-  leaves white ones);
+* the innovations' whiteness (white only when ``u`` is the model's output plus the white
+  noise the filter assumes; warned where no describing function vouches for the model,
+  since a human's coloured remnant, dynamics the model lacks, or noise-free data, where
+  the small residue left is smooth, all colour them);
 * signals that barely move (nothing to identify);
 * parameters that sit at a limit of the filter's projection for more than
   :data:`PINNED_SHARE` of the run: the value there is the limit's, not the pilot's.
@@ -22,7 +23,9 @@ second half of the run, when its own uncertainty says it has settled. A joint fi
 started far from the pilot otherwise scores a transient of thousands of per cent.
 
 Each finding that should stop a user reading the numbers as found becomes a sentence in
-``FitCheck.warnings``, saying what was seen and what to do.
+``FitCheck.warnings``, saying what was seen and what to do, with the settings and
+keywords named as Python names them (``limits=``, ``element=``; the command line prints
+them as its flags).
 """
 
 from __future__ import annotations
@@ -196,9 +199,9 @@ def check_fit(
         warnings.append(
             f"{name} sits at its {side} limit {where['limit']:g} for "
             f"{100 * where['share']:.0f} % of the run: there it reports the limit, not the "
-            f"pilot; widen it (--set limits='{{\"{name}\": [low, high]}}'), give the "
-            "experiment's element (--element) if the limits are a thesis's, or hold the "
-            "parameter at a known value"
+            f"pilot; widen it (limits={{'{name}': [low, high]}}), give the experiment's "
+            "element (element=) if the limits are a thesis's, or hold the parameter at a "
+            "known value"
         )
     warnings += frequency_warnings
     return FitCheck(

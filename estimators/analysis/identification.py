@@ -7,9 +7,16 @@ where the member takes one, so that limits and rules come from the real plant.
 :func:`identify` runs it over the recording, resimulates the identified model,
 measures the describing function at the forcing frequencies when they are known and
 checks the fit against it (:func:`~manualcontrol.estimators.analysis.fit_check.check_fit`),
-checks that the identified pilot closes a stable loop with the element, and lists the
-parameters held at generic values nobody measured. :class:`Identification` holds it
-all, with the JSON-able :attr:`Identification.summary`.
+checks that the identified pilot closes a stable loop with the element, lists the
+parameters held at generic values nobody measured and, on a simulation that carries its
+true parameter traces, scores the estimate against them (NRMSE and relative bias,
+thesis eq. 37, as the benchmark does). :class:`Identification` holds it all, with the
+JSON-able :attr:`Identification.summary`.
+
+A control signal that never moves is refused before any estimator runs
+(:func:`control_never_moves`): nothing can be identified from it. Messages name the
+keywords of these functions (``forcing=``, ``period=``, ``element=``); the command line
+words them as its flags.
 """
 
 from __future__ import annotations
@@ -26,7 +33,13 @@ from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.tasks import task_named
 from manualcontrol.estimators.analysis.fit_check import FitCheck, check_fit
 from manualcontrol.estimators.analysis.frequency import DescribingFunction, describing_function
-from manualcontrol.estimators.analysis.metrics import pilot_model_of, resimulate
+from manualcontrol.estimators.analysis.metrics import (
+    NEAR_ZERO,
+    nrmse,
+    pilot_model_of,
+    relative_bias,
+    resimulate,
+)
 from manualcontrol.estimators.members.pilot_rules import (
     GenericValuesWarning,
     element_type,
@@ -40,10 +53,12 @@ from manualcontrol.pilots.stability import UnstableLoopError, check_stable
 __all__ = [
     "Identification",
     "build_estimator",
+    "control_never_moves",
     "held_by_rule",
     "identified_loop",
     "identify",
     "trial_describing_function",
+    "truth_errors",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -66,6 +81,12 @@ class Identification:
         ``stable`` (True, False, or None where nothing can be said) and ``message``.
     held_at_generic_values
         Parameters held at a generic rule's value, neither given nor estimated.
+    truth
+        The estimate against the recording's true parameter traces (a simulation's):
+        see :func:`truth_errors`; None where the recording carries none.
+    name
+        The estimator's name as it was asked for (``"dekf-smoothed"``); None: the
+        result's own (``result.estimator``, the filter's).
     """
 
     result: EstimationResult
@@ -73,6 +94,8 @@ class Identification:
     check: FitCheck
     closed_loop: dict[str, Any]
     held_at_generic_values: dict[str, float]
+    truth: dict[str, Any] | None = None
+    name: str | None = None
 
     @property
     def final(self) -> dict[str, float]:
@@ -83,12 +106,15 @@ class Identification:
     def summary(self) -> dict[str, Any]:
         """The JSON-able summary ``manualcontrol identify`` writes.
 
-        Estimator, final values, fit, closed loop, health, and the member's own record
-        where it has one (cross-validation, sigmoid, restarts, remnant choice).
+        Estimator and its settings, final values, fit, closed loop, health, the errors
+        against the true parameters where the recording has them, and the member's own
+        record where it has one (cross-validation, sigmoid, restarts, remnant choice).
         """
         result = self.result
+        settings = result.settings.get("settings")
         summary: dict[str, Any] = {
-            "estimator": result.estimator,
+            "estimator": self.name or result.estimator,
+            "settings": _json_safe(settings) if isinstance(settings, Mapping) else None,
             "final": self.final,
             "estimated": list(result.estimated),
             "fit": self.check.to_dict(),
@@ -104,7 +130,24 @@ class Identification:
             summary["remnant_injection"] = injection
         if self.held_at_generic_values:
             summary["held_at_generic_values"] = self.held_at_generic_values
+        if self.truth is not None:
+            summary["truth"] = self.truth
         return summary
+
+
+def _json_safe(value: Any) -> Any:
+    """``value`` as JSON data: tables as dicts, tuples as lists, non-finite numbers None."""
+    if isinstance(value, Mapping):
+        return {str(key): _json_safe(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(item) for item in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not np.isfinite(value):
+        return None if np.isnan(value) else ("inf" if value > 0 else "-inf")
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    return str(value)
 
 
 def build_estimator(
@@ -145,8 +188,36 @@ def build_estimator(
                 return make_estimator({**spec, "element": element})
             except (TypeError, ValueError) as error:
                 if "'element'" not in str(error):  # a member without an element setting
-                    raise
-        return make_estimator(spec)
+                    raise _unknown_settings(name, error) from None
+        try:
+            return make_estimator(spec)
+        except (TypeError, ValueError) as error:
+            raise _unknown_settings(name, error) from None
+
+
+def _unknown_settings(name: str, error: Exception) -> Exception:
+    """A settings class's unknown-key error, said of the member ``name`` with all its keys.
+
+    The settings class's message names the class (``DEKFSettings.from_dict got unknown
+    key(s) 'x'; known: ...``); a ``-cv`` twin's list lacks the cross-validation's own
+    ``cv_*`` keys, which it takes too. Any other error is returned as it is.
+    """
+    import re
+
+    found = re.fullmatch(
+        r"\w+\.from_dict got unknown key\(s\) (.+?); known: (.*)", str(error), re.DOTALL
+    )
+    if found is None:
+        return error
+    known = found.group(2)
+    entry = ESTIMATORS.get(name)
+    if entry is not None and entry.twin == "cross-validated":
+        from manualcontrol.estimators.offline.cross_validation import OPTION_KEYS
+
+        known += ", " + ", ".join(repr(key) for key in OPTION_KEYS)
+    return ValueError(
+        f"the {name} estimator has no setting {found.group(1)}; its settings: {known}"
+    )
 
 
 def trial_describing_function(
@@ -165,8 +236,8 @@ def trial_describing_function(
     """
     if forcing is None and period is None and recording.metadata.get("forcing") is None:
         return None, (
-            "not checked: the forcing frequencies are unknown (give --forcing PRESET or "
-            "--period SECONDS, the forcing signals being in the file)"
+            "not checked: the forcing frequencies are unknown (give forcing= or period=, "
+            "the forcing signals being in the recording)"
         )
     model = pilot_model_of(result)
     if model is None:
@@ -224,7 +295,10 @@ def identified_loop(result: EstimationResult, element: Any = None) -> dict[str, 
     settings = dict(result.settings.get("settings", result.settings))
     element = element or settings.get("ce")
     if element is None:
-        return {"stable": None, "message": "no controlled element known (--element ...)"}
+        return {
+            "stable": None,
+            "message": "not checked: no controlled element known (give element=)",
+        }
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -236,10 +310,68 @@ def identified_loop(result: EstimationResult, element: Any = None) -> dict[str, 
             check_stable(setup)
     except UnstableLoopError as error:
         message = str(error).split("; use typical")[0]
+        message = message[len("the ") :] if message.startswith("the ") else message
         return {"stable": False, "message": f"the identified {message}: the fit is not credible"}
     except (TypeError, ValueError, KeyError) as error:
         return {"stable": None, "message": f"not checked: {error}"}
     return {"stable": True, "message": "the identified pilot closes a stable loop"}
+
+
+def control_never_moves(recording: Recording) -> str | None:
+    """Why ``recording``'s control ``u`` identifies nothing, or None when it moves.
+
+    A stick that never moved (every finite sample the same) or a ``u`` with no finite
+    sample leaves no input-output relation to identify: every estimator would only
+    fail on it later, in its own words.
+    """
+    if "u" not in recording:
+        return None
+    u = np.asarray(recording.u, dtype=np.float64)
+    finite = u[np.isfinite(u)]
+    if finite.size == 0:
+        return "u holds no finite sample: the stick was not recorded; nothing can be identified"
+    if float(finite.max()) == float(finite.min()):
+        return (
+            f"u is constant ({float(finite[0]):g} in all {finite.size} samples): the stick "
+            "never moved; nothing can be identified (check that the column read as u is "
+            "the stick's and that the trial was flown)"
+        )
+    return None
+
+
+def truth_errors(
+    result: EstimationResult, recording: Recording, *, start: float = 0.0
+) -> dict[str, Any] | None:
+    """The estimate against the recording's true parameter traces (simulations).
+
+    Per estimated parameter with a true trace, from time ``start`` on: the NRMSE (thesis
+    eq. 37; the plain RMSE where the true mean is within :data:`NEAR_ZERO` of zero,
+    ``error_kind`` says which) and the relative bias, as
+    :func:`~manualcontrol.estimators.analysis.metrics.evaluate` and the benchmark
+    compute them. None when the recording carries no true trace of any of them.
+    """
+    truth = recording.parameters
+    names = [name for name in result.estimated if name in truth]
+    if not names:
+        return None
+    mask = np.asarray(recording.t) >= start
+    errors, biases, kinds = {}, {}, {}
+    for name in names:
+        true_trace = np.asarray(truth[name])[mask]
+        estimate = result.mean_of(name)[mask]
+        errors[name] = _finite_or_none(nrmse(estimate, true_trace))
+        biases[name] = _finite_or_none(relative_bias(estimate, true_trace))
+        kinds[name] = "rmse" if abs(float(np.mean(true_trace))) < NEAR_ZERO else "nrmse"
+    return {
+        "scored_from_s": float(start),
+        "nrmse": errors,
+        "relative_bias": biases,
+        "error_kind": kinds,
+    }
+
+
+def _finite_or_none(value: float) -> float | None:
+    return round(float(value), 5) if np.isfinite(value) else None
 
 
 def identify(
@@ -251,6 +383,7 @@ def identify(
     forcing: Any = None,
     period: float | None = None,
     disturbance_at: str = "output",
+    name: str | None = None,
 ) -> Identification:
     """Identify ``recording`` with ``estimator`` and check the fit (module docstring).
 
@@ -271,7 +404,16 @@ def identify(
         forcing's period with its signals in the recording).
     disturbance_at
         Where the disturbance entered: ``"output"`` or ``"input"`` of the element.
+    name
+        The estimator's name for the summary (``"dekf-smoothed"``; default the
+        result's own).
+
+    Raises ``ValueError`` before any estimation when the control never moves
+    (:func:`control_never_moves`).
     """
+    still = control_never_moves(recording)
+    if still is not None:
+        raise ValueError(still)
     target = dict(target or {})
     result = estimator.estimate(recording, **target)
     with warnings.catch_warnings():
@@ -297,4 +439,6 @@ def identify(
         check=check,
         closed_loop=identified_loop(result, element),
         held_at_generic_values=held_by_rule(result),
+        truth=truth_errors(result, recording),
+        name=name,
     )

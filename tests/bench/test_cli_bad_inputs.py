@@ -216,3 +216,112 @@ def test_identify_preview_hint_speaks_the_command_line(tmp_path, capsys):
     assert "--forcing PRESET" in err and "--target-period SECONDS" in err
     assert "forcing=" not in err and "target_period=" not in err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_directory_is_not_a_recording(tmp_path, capsys):
+    folder = tmp_path / "trials"
+    folder.mkdir()
+    for command in ("identify", "describe"):
+        code, _, err = run(capsys, command, folder, "--out", tmp_path / "o")
+        assert code == EXIT_USAGE
+        assert err == (
+            f"manualcontrol {command}: error: {folder} is a directory, not a recording file "
+            "(give a .csv, .mat or .npz file)\n"
+        )
+    assert not (tmp_path / "o").exists()
+
+
+def test_random_bytes_named_npz_are_not_a_recording(tmp_path, capsys):
+    garbage = tmp_path / "trial.npz"
+    garbage.write_bytes(np.random.default_rng(0).bytes(3000))
+    code, _, err = run(capsys, "identify", garbage, "--out", tmp_path / "o")
+    assert code == EXIT_USAGE
+    assert err == (
+        f"manualcontrol identify: error: {garbage} is not a readable .npz file, so not a "
+        "recording: its bytes are not a .npz archive (a zip of arrays, as manualcontrol and "
+        "numpy write it); it may be another format renamed .npz, or damaged\n"
+    )
+    assert "pickle" not in err
+
+
+def test_a_file_of_unknown_suffix_is_said_in_the_command_lines_words(tmp_path, capsys):
+    path = tmp_path / "trial.txt"
+    path.write_text("t,u\n0,1\n")
+    code, _, err = run(capsys, "identify", path, "--out", tmp_path / "o")
+    assert code == EXIT_USAGE
+    assert "allowed suffixes: .npz, .csv, .mat (rename the file to end in one of them)" in err
+    assert "format=" not in err
+
+
+def test_a_missing_suite_file_lists_the_builtin_suites(tmp_path, capsys, monkeypatch):
+    from manualcontrol.bench.scenarios import BUILTIN_SUITES
+
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run(capsys, "bench", "base.toml")
+    assert code == EXIT_USAGE
+    assert err == (
+        "manualcontrol bench: error: no such suite file 'base.toml' (built-in suites: "
+        f"{', '.join(BUILTIN_SUITES)})\n"
+    )
+    (tmp_path / "suites.toml").mkdir()
+    code, _, err = run(capsys, "bench", "suites.toml")
+    assert code == EXIT_USAGE and "'suites.toml' is a directory, not a suite file" in err
+    assert not (tmp_path / "results").exists()
+
+
+def test_a_driver_model_estimator_on_a_tracking_batch_says_so(tmp_path, capsys):
+    code, _, err = run(
+        capsys, "bench", "popovici2017", "--estimators", "zhao-ukf", "--out", tmp_path / "r"
+    )
+    assert code == EXIT_USAGE
+    assert err == (
+        "manualcontrol bench: error: --estimators: zhao-ukf identifies a driver keeping a car "
+        "in its lane; batch 'constant' is a compensatory tracking batch (estimators for it: "
+        "dekf, schiess-roland, rdi, rml, sigmoid-fit, joint-ukf, dual-ukf and their -cv and "
+        "-smoothed twins)\n"
+    )
+    code, _, err = run(
+        capsys, "bench", "zhao2019", "--estimators", "dekf-smoothed", "--out", tmp_path / "r"
+    )
+    assert code == EXIT_USAGE
+    assert (
+        "dekf-smoothed identifies a pilot in a tracking loop; batch 'kp-rising-ukf1' is a "
+        "lane-keeping batch (estimators for it: zhao-ukf, zhao-multi-ukf, zhao-ukf-smoothed)"
+    ) in err
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_suite_file_naming_a_misfit_estimator_says_so(tmp_path, capsys):
+    suite = tmp_path / "mixed.toml"
+    suite.write_text(
+        """
+name = "mixed"
+[[batch]]
+name = "comp"
+task = "compensatory"
+element = "SI"
+forcing = "vanderel-bw4"
+realisations = [0]
+[batch.pilot]
+model = "precision"
+parameters = { K_p = 1.5, K_v = 0.0, tau_v = 0.3, omega_nms = 10.5, zeta_nms = 0.35 }
+[batch.estimator]
+name = "zhao-multi-ukf"
+"""
+    )
+    code, _, err = run(capsys, "bench", suite, "--out", tmp_path / "r")
+    assert code == EXIT_USAGE
+    assert "estimator (zhao-multi-ukf): zhao-multi-ukf identifies a driver keeping a car" in err
+    assert "batch 'comp' is a compensatory tracking batch" in err
+
+
+def test_training_progress_before_the_first_episode_has_no_reward(capsys):
+    from manualcontrol.bench.cli import _training_report
+
+    _training_report("    1,000/100,000 steps      512 steps/s  mean reward per step n/a")
+    _training_report("   11,000/100,000 steps      530 steps/s  mean reward per step -0.0123")
+    first, later = capsys.readouterr().out.splitlines()
+    assert first == (
+        "    1,000/100,000 steps      512 steps/s  (no episode has ended yet: no mean reward)"
+    )
+    assert later.endswith("mean reward per step -0.0123")

@@ -1,0 +1,147 @@
+"""Ctrl-C: one line, exit status 130, no traceback; a benchmark resumes where it stopped."""
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+
+from manualcontrol.bench.cli import EXIT_INTERRUPTED, EXIT_OK, main
+from manualcontrol.bench.runner import SuiteInterrupted, run_suite
+from manualcontrol.bench.scenarios import parse_suite
+
+SUITE = """
+name = "long"
+[defaults]
+run_in = 2.0
+measurement_time = {seconds}
+[[batch]]
+name = "comp"
+task = "compensatory"
+element = "DI"
+forcing = "vanderel-bw4"
+realisations = [0, 1, 2, 3, 4, 5, 6, 7]
+[batch.pilot]
+model = "precision"
+parameters = {{ K_p = 0.24, K_v = 0.36, tau_v = 0.3, omega_nms = 8.0, zeta_nms = 0.45 }}
+[batch.estimator]
+name = "rml"
+model = "precision"
+ce = "DI"
+"""
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_run_suite_says_how_many_runs_it_kept(tmp_path):
+    import tomllib
+
+    suite = parse_suite(tomllib.loads(SUITE.format(seconds=10.0)))
+
+    def stop_after_three(done, total, row):
+        if done == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(SuiteInterrupted) as caught:
+        run_suite(suite, tmp_path / "r", backend="inprocess", progress=stop_after_three)
+    assert (caught.value.done, caught.value.total, caught.value.out) == (3, 8, tmp_path / "r")
+    assert isinstance(caught.value, KeyboardInterrupt)
+    assert not (tmp_path / "r" / "results.csv").exists()
+    seen = []
+    rows = run_suite(
+        suite, tmp_path / "r", backend="inprocess", progress=lambda *a: seen.append(a[:2])
+    )
+    assert seen[0] == (3, 8) and len(rows) == 8  # the three kept runs are not run again
+
+
+def test_ctrl_c_in_the_process_pool_keeps_the_runs_and_resumes(tmp_path):
+    """A real Ctrl-C to the terminal's process group: the main process and the workers."""
+    suite = tmp_path / "long.toml"
+    suite.write_text(textwrap.dedent(SUITE.format(seconds=240.0)))
+    out = tmp_path / "r"
+    command = [sys.executable, "-m", "manualcontrol.bench.cli", "bench", str(suite)]
+    command += ["--out", str(out), "--workers", "2", "--no-report", "--quiet"]
+    env = dict(os.environ, MPLBACKEND="Agg")
+    process = subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        start_new_session=True,  # its own process group, as a terminal's job
+    )
+    deadline = time.monotonic() + 240.0
+    # the first run is done in the main process; then the pool's workers run the rest
+    while not list((out / "runs").glob("*.json")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.5)
+    os.killpg(process.pid, signal.SIGINT)
+    stdout, stderr = process.communicate(timeout=120)
+    assert process.returncode == EXIT_INTERRUPTED, stderr
+    kept = len(list((out / "runs").glob("*.json")))
+    assert 1 <= kept < 8
+    assert stderr == (
+        f"manualcontrol bench: interrupted: {kept} of 8 runs kept in {out}; run the same "
+        "command again to resume\n"
+    )
+    assert "Traceback" not in stdout
+    assert not [p.name for p in (out / "runs").iterdir() if p.name.startswith(".")]
+    again = subprocess.run(command, capture_output=True, text=True, env=env, timeout=600)
+    assert again.returncode == EXIT_OK, again.stderr
+    assert again.stdout.startswith(f"resuming: {kept} of 8 runs already done (in {out})\n")
+    assert "results: " in again.stdout and "(8 runs, 0 failed)" in again.stdout
+
+
+@pytest.fixture
+def recording(tmp_path):
+    from manualcontrol.pilots import Pilot, simulate
+
+    path = tmp_path / "run.npz"
+    simulate(Pilot.typical("precision", "SI"), "SI", "vanderel-bw4", measurement_time=20.0).save(
+        path
+    )
+    return path
+
+
+def interrupt(*args, **kwargs):
+    raise KeyboardInterrupt
+
+
+def test_ctrl_c_in_identify_and_describe_is_one_line(tmp_path, capsys, monkeypatch, recording):
+    from manualcontrol.estimators.analysis import frequency, identification
+
+    monkeypatch.setattr(identification, "identify", interrupt)
+    monkeypatch.setattr(frequency, "describing_function", interrupt)
+    for command in ("identify", "describe"):
+        code, _, err = run(capsys, command, recording, "--out", tmp_path / command)
+        assert code == EXIT_INTERRUPTED
+        assert err == f"manualcontrol {command}: interrupted (Ctrl-C); nothing was written\n"
+        assert not (tmp_path / command).exists()
+
+
+def test_ctrl_c_in_train_and_evaluate_is_one_line(tmp_path, capsys, monkeypatch):
+    from manualcontrol.agents import training
+
+    monkeypatch.setattr(training, "train", interrupt)
+    code, _, err = run(capsys, "train", "--steps", "8", "--out", tmp_path / "agent")
+    assert code == EXIT_INTERRUPTED
+    assert err == "manualcontrol train: interrupted (Ctrl-C); the agent was not saved\n"
+    monkeypatch.setattr(training, "load_agent", interrupt)
+    code, _, err = run(capsys, "evaluate", tmp_path / "agent")
+    assert (code, err) == (EXIT_INTERRUPTED, "manualcontrol evaluate: interrupted (Ctrl-C)\n")
+
+
+def test_ctrl_c_in_play_is_one_line(capsys, monkeypatch):
+    import manualcontrol.human.cli as play
+
+    monkeypatch.setattr(play, "_play", interrupt)  # run_play turns it into its own line
+    code, _, err = run(capsys, "play", "--input", "keyboard")
+    assert code == EXIT_INTERRUPTED
+    assert err == "manualcontrol play: interrupted (Ctrl-C); nothing was saved\n"
