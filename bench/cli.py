@@ -1228,6 +1228,12 @@ def _cmd_play(args: argparse.Namespace) -> int:
     return run_play(args)  # prints its own errors and returns its exit code
 
 
+def _cmd_experiment(args: argparse.Namespace) -> int:
+    from manualcontrol.human.session_cli import run_session_command
+
+    return run_session_command(args)  # prints its own errors and returns its exit code
+
+
 #: Set while ``compile`` runs: a process forked then leaves Ctrl-C to this one.
 _QUIET_CHILDREN = False
 
@@ -1376,6 +1382,12 @@ def _play_arguments(parser: argparse.ArgumentParser) -> None:
     add_play_arguments(parser)
 
 
+def _experiment_arguments(parser: argparse.ArgumentParser) -> None:
+    from manualcontrol.human.session_cli import add_session_arguments
+
+    add_session_arguments(parser)
+
+
 _IDENTIFY_EXIT_CODES = (
     "Exit codes: 0 identified and written; 2 a usage or input error (the message says what "
     "to fix; nothing is written); 3 written, but the filter diverged (the traces after the "
@@ -1477,6 +1489,18 @@ def build_parser() -> argparse.ArgumentParser:
         fill=_play_arguments,
     )
     p.set_defaults(run=_cmd_play)
+
+    p = commands.add_parser(
+        "experiment",
+        help="run an experiment session with a person from a protocol file; resumable",
+        description="Run (or resume) a participant's session of an experiment protocol: "
+        "practice and measurement runs per condition in the declared order, each saved "
+        "as it ends, then a report identifying the participant (docs/experiments.md).",
+        epilog="Exit codes: 0 done, 1 aborted (finished runs kept; the same command "
+        "resumes), 2 bad protocol, flag or folder, or no input device, 130 Ctrl-C.",
+        fill=_experiment_arguments,
+    )
+    p.set_defaults(run=_cmd_experiment)
 
     p = commands.add_parser(
         "identify",
@@ -1799,6 +1823,8 @@ def _interrupted(args: argparse.Namespace) -> str:
         return "interrupted (Ctrl-C); the kernels compiled so far stay in numba's cache"
     if command == "play":
         return "interrupted (Ctrl-C); nothing was saved"
+    if command == "experiment":
+        return "interrupted (Ctrl-C); the finished runs are kept: the same command resumes"
     return "interrupted (Ctrl-C)"
 
 

@@ -112,3 +112,20 @@ def test_help_and_the_other_commands_load_nothing_of_play():
     before, after = result.stdout.splitlines()
     assert before == "[]"
     assert after == "True False"
+
+
+def test_experiment_is_a_command_that_plans_the_documented_protocol(capsys, tmp_path):
+    from pathlib import Path
+
+    text = (Path(__file__).parents[2] / "docs" / "experiments.md").read_text()
+    protocol = tmp_path / "si-di.toml"
+    protocol.write_text(text.split("```toml\n", 1)[1].split("```", 1)[0])
+    code, out, _ = run(capsys, "experiment", protocol, "--participant", "P02", "--plan")
+    assert code == EXIT_OK
+    assert "06-DI-measurement-1.npz" in out
+
+
+def test_experiment_names_a_missing_protocol_file(capsys, tmp_path):
+    code, _, err = run(capsys, "experiment", tmp_path / "nope.toml")
+    assert code == EXIT_USAGE
+    assert "nope.toml" in err
