@@ -457,7 +457,7 @@ def test_cli_time_in_milliseconds_hint_and_option(tmp_path):
     rec = load_trial(path, "--column", "t=time_ms", "--time-unit", "ms")
     assert rec.dt == 0.01 and rec.signal_names == ("t", "e", "u")
     # --dt is in seconds whatever the unit of a time column
-    np.savez(tmp_path / "no_time.npz", e=np.zeros(5), u=np.zeros(5))
+    np.savez(tmp_path / "no_time.npz", e=np.zeros(5), u=np.arange(5.0))  # a stick that moved
     assert load_trial(tmp_path / "no_time.npz", "--dt", "0.01", "--time-unit", "ms").dt == 0.01
     with pytest.raises(UsageError, match=re.escape("--dt is in seconds")):
         load_trial(tmp_path / "no_time.npz", "--dt", "10", "--time-unit", "ms")
