@@ -206,9 +206,16 @@ def check_preview_time(name: str, values: NDArray[np.float64], available: float,
     if np.any(values < 0.0):
         raise ValueError(f"{name} must be >= 0 s (a preview time), got {float(values.min())!r}")
     if np.any(values > available + 1e-12):
+        # a pursuit display shows nothing ahead: its pilot is the preview model's pursuit form
+        hint = (
+            f" (a pursuit pilot is the preview model with {name} = 0, e.g. "
+            f"Pilot.typical('preview', element, {{'{name}': 0.0}}))"
+            if available == 0.0 and task_named(task).shows_target
+            else ""
+        )
         raise ValueError(
             f"{name} must not exceed the available preview of {available:g} s in a {task} task, "
-            f"got {float(values.max())!r}"
+            f"got {float(values.max())!r}{hint}"
         )
 
 

@@ -1,4 +1,4 @@
-"""Cybernetic pilot models: structures, synthetic pilots, remnant and closed-loop simulation.
+"""Cybernetic pilot models: structures, synthetic pilots and drivers, remnant, simulation.
 
 Each public name is imported from its module when first used
 (:mod:`manualcontrol.envs._lazy`): ``Pilot`` does not load the optimal control model
@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING
 from manualcontrol.envs._lazy import lazy_exports
 
 if TYPE_CHECKING:  # what tools read; at run time each name is imported on first use
+    from manualcontrol.pilots.driver import Driver
+    from manualcontrol.pilots.driving import simulate_driving
     from manualcontrol.pilots.models import (
         MODEL_NAMES,
         GainDelayModel,
@@ -47,6 +49,7 @@ if TYPE_CHECKING:  # what tools read; at run time each name is imported on first
 __all__ = [
     "INJECTION_POINTS",
     "MODEL_NAMES",
+    "Driver",
     "GainDelayModel",
     "HumanLimitWarning",
     "LevisonRemnant",
@@ -69,6 +72,7 @@ __all__ = [
     "make_remnant",
     "remnant_power_ratio",
     "simulate",
+    "simulate_driving",
     "simulate_ocm",
     "solve_ocm",
     "typical_parameters",
@@ -77,6 +81,8 @@ __all__ = [
 __getattr__, __dir__ = lazy_exports(
     globals(),
     {
+        "manualcontrol.pilots.driver": ("Driver",),
+        "manualcontrol.pilots.driving": ("simulate_driving",),
         "manualcontrol.pilots.models": (
             "MODEL_NAMES",
             "GainDelayModel",

@@ -234,8 +234,10 @@ def test_pursuit_is_preview_without_preview():
     np.testing.assert_array_equal(recording["ft_far"], recording.ft)
     with pytest.raises(
         ValueError, match=re.escape("tau_f must not exceed the available preview of 0 s")
-    ):
+    ) as caught:
         simulate(Pilot("preview"), "SI", task="pursuit")
+    # and says which pilot flies a pursuit display
+    assert "a pursuit pilot is the preview model with tau_f = 0" in str(caught.value)
 
 
 class _NotANumber(Schedule):
