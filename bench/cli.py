@@ -604,6 +604,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from manualcontrol.estimators.analysis.fit_check import WHITENESS_LIMIT
     from manualcontrol.estimators.analysis.identification import build_estimator, identify
     from manualcontrol.estimators.members.pilot_filter import EVIDENCE
+    from manualcontrol.estimators.protocol import reporting_progress
     from manualcontrol.estimators.registry import ESTIMATORS
 
     _check_output("--out", args.out, folder=True)
@@ -647,16 +648,18 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     if not source and args.target_period is not None:  # the target's period is the forcing's
         source = {"period": args.target_period}
     try:
-        identification = identify(
-            recording,
-            estimator,
-            element=element,
-            target=target,
-            forcing=source.get("forcing"),
-            period=source.get("period"),
-            disturbance_at=args.disturbance_at,
-            name=args.estimator,
-        )
+        # the offline members take minutes on a long run: a line per step says how it goes
+        with reporting_progress(lambda line: print(f"  {line}", file=sys.stderr, flush=True)):
+            identification = identify(
+                recording,
+                estimator,
+                element=element,
+                target=target,
+                forcing=source.get("forcing"),
+                period=source.get("period"),
+                disturbance_at=args.disturbance_at,
+                name=args.estimator,
+            )
     except ValueError as error:
         if "target ahead of the samples is unknown" in str(error):
             raise UsageError(_PREVIEW_HINT) from None

@@ -28,10 +28,12 @@ turned into a smoothed one (:func:`manualcontrol.estimators.offline.smoothing.sm
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
@@ -53,6 +55,8 @@ __all__ = [
     "HealthSummary",
     "ParameterValues",
     "load_result",
+    "report_progress",
+    "reporting_progress",
     "sample_floats",
     "sample_values",
     "summarise_health",
@@ -65,6 +69,34 @@ BoolArray = NDArray[np.bool_]
 #: traces, passes, smoothing). Version 1 files (one output) still load.
 RESULT_FORMAT = "manualcontrol.estimation/2"
 _OLDER_FORMATS = ("manualcontrol.estimation/1",)
+
+#: Who hears how a long offline computation goes (a line each step); nobody by default.
+_PROGRESS: ContextVar[Callable[[str], None] | None] = ContextVar(
+    "manualcontrol_progress", default=None
+)
+
+
+def report_progress(line: str) -> None:
+    """Say how a long computation goes, to whoever :func:`reporting_progress` named.
+
+    The offline members take minutes on a long run (a cross-validation passes the run
+    ten times per scale, a schedule fit runs an optimiser per start); a library stays
+    silent by default, and the command line listens, so a person sees it is working.
+    """
+    listener = _PROGRESS.get()
+    if listener is not None:
+        listener(line)
+
+
+@contextlib.contextmanager
+def reporting_progress(listener: Callable[[str], None] | None) -> Iterator[None]:
+    """Within the block, :func:`report_progress` lines go to ``listener`` (None: nowhere)."""
+    token = _PROGRESS.set(listener)
+    try:
+        yield
+    finally:
+        _PROGRESS.reset(token)
+
 
 _FLAGS_1D = ("finite", "covariance_ok", "dropped", "diverged")
 _ARRAYS = (

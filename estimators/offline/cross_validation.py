@@ -78,7 +78,7 @@ from manualcontrol.estimators.analysis.metrics import resimulate
 from manualcontrol.estimators.members.pilot_filter import PilotFilter
 from manualcontrol.estimators.members.pilot_rules import GenericValuesWarning
 from manualcontrol.estimators.offline.smoothed_estimator import SmoothedEstimator
-from manualcontrol.estimators.protocol import EstimationResult
+from manualcontrol.estimators.protocol import EstimationResult, report_progress
 
 __all__ = [
     "DEFAULT_SCALES",
@@ -299,7 +299,11 @@ def choose_noise_scale(
 
     masks = _held_out(t, first, folds, gap)
     fold_errors = []
-    for scale in scales:
+    for index, scale in enumerate(scales):
+        report_progress(
+            f"cross-validation: Q scale {scale:g} ({index + 1} of {len(scales)}), "
+            f"{folds} held-out folds"
+        )
         variant = scaled(scale)
         per_fold = []
         for held in masks:

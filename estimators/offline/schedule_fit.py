@@ -80,7 +80,7 @@ from manualcontrol.estimators.members.pilot_rules import (
     held_by_design,
 )
 from manualcontrol.estimators.offline.output_error import fit_pilot, lower_bound, perception_signals
-from manualcontrol.estimators.protocol import EstimationResult, summarise_health
+from manualcontrol.estimators.protocol import EstimationResult, report_progress, summarise_health
 from manualcontrol.pilots.models import PilotModel, make_model
 from manualcontrol.pilots.simulation import isolated_pilot_output
 
@@ -394,7 +394,10 @@ def fit_pilot_sigmoid(
     # the centres of equal parts: one start sits mid-window
     mids = first + margin + (np.arange(starts) + 0.5) * span / starts
     best = None
-    for t_mid in mids:
+    for index, t_mid in enumerate(mids):
+        report_progress(
+            f"sigmoid fit: start {index + 1} of {len(mids)} (change at t = {t_mid:.1f} s)"
+        )
         x0 = layout.pack(constant, constant, t_mid, math.log(_INITIAL_TRANSITION * duration))
         x0 = np.clip(x0, lower + 1e-9, upper - 1e-9)
         result = scipy.optimize.least_squares(

@@ -27,6 +27,7 @@ from manualcontrol.estimators.offline.cross_validation import (
     CrossValidatedEstimator,
     choose_noise_scale,
 )
+from manualcontrol.estimators.protocol import reporting_progress
 from manualcontrol.pilots import Pilot, simulate
 from manualcontrol.pilots.remnant import LevisonRemnant
 
@@ -213,3 +214,16 @@ def test_registered_members_build_from_suite_keys():
         estimator.update({"e": 0.0, "u": 0.0})
     with pytest.raises(TypeError, match="takes forcing= and target_period="):
         estimator.estimate(short_run(), smooth=True)
+
+
+def test_a_listener_hears_each_scale_and_the_library_is_silent_without_one(capsys):
+    recording = short_run()
+    lines = []
+    with reporting_progress(lines.append):
+        choose_noise_scale(DEKF(**SETTINGS), recording, scales=(0.5, 4.0), folds=2, gap=3.0)
+    assert lines == [
+        "cross-validation: Q scale 0.5 (1 of 2), 2 held-out folds",
+        "cross-validation: Q scale 4 (2 of 2), 2 held-out folds",
+    ]
+    choose_noise_scale(DEKF(**SETTINGS), recording, scales=(0.5, 4.0), folds=2, gap=3.0)
+    assert capsys.readouterr() == ("", "")  # no listener: the library prints nothing

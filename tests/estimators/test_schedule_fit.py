@@ -10,6 +10,7 @@ from manualcontrol.envs.schedules import Sigmoid
 from manualcontrol.estimators import make_estimator
 from manualcontrol.estimators.analysis.metrics import vaf
 from manualcontrol.estimators.offline.schedule_fit import _Layout, fit_pilot_sigmoid
+from manualcontrol.estimators.protocol import reporting_progress
 from manualcontrol.pilots import Pilot, simulate
 from manualcontrol.pilots.simulation import isolated_pilot_output
 
@@ -33,9 +34,15 @@ def changing():
 
 
 def test_recovers_a_remnant_free_sigmoid_change(changing):
-    fit = fit_pilot_sigmoid(
-        changing, "precision", initial=DI_PILOT, varying=("K_p", "K_v"), starts=2
-    )
+    lines = []
+    with reporting_progress(lines.append):  # each start is said as it begins
+        fit = fit_pilot_sigmoid(
+            changing, "precision", initial=DI_PILOT, varying=("K_p", "K_v"), starts=2
+        )
+    assert [line.split(" (")[0] for line in lines] == [
+        "sigmoid fit: start 1 of 2",
+        "sigmoid fit: start 2 of 2",
+    ]
     # the least squares stop at scipy's default tolerances (ftol = xtol = 1e-8), which
     # leave errors of order 1e-4 here (VAF 99.999999 %); a wrong local optimum, or a
     # schedule read one sample off, is off by percent
