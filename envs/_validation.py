@@ -182,6 +182,35 @@ def check_action(name: str, value: Any, shape: tuple[int, ...]) -> NDArray[np.fl
     return array.astype(np.float64, copy=False)
 
 
+def step_action(action: Any, k: int, ended: str | None) -> float:
+    """The stick ``action[0]`` of an environment's ``step``, as a float.
+
+    ``k`` is the sample the step starts from (negative before ``reset``) and ``ended``
+    why the episode ended (None while it runs); either refuses the step with a
+    ``RuntimeError``. A float array of shape (1,), the common case, is read at once;
+    anything else goes through :func:`check_action`. The value is not bounded here:
+    outside the action bound, the caller clips it with :func:`clip_action`.
+    """
+    if k < 0:
+        raise RuntimeError("call reset() before step()")
+    if ended is not None:
+        raise RuntimeError(f"the episode is over ({ended}); call reset()")
+    if type(action) is np.ndarray and action.shape == (1,) and action.dtype.kind == "f":
+        return float(action[0])  # the common case, kept free of further calls
+    return float(check_action("action", action, (1,))[0])
+
+
+def clip_action(u: float, bound: float, action: Any) -> float:
+    """``u``, found outside ``[-bound, bound]``, clipped to the nearer bound.
+
+    NaN and infinities are refused (``ValueError`` showing ``action``, the value the
+    caller was given).
+    """
+    if u != u or u in (math.inf, -math.inf):
+        raise ValueError(f"action must be finite, got {action!r}")
+    return bound if u > bound else -bound
+
+
 def reject_unknown(name: str, given: Iterable[str], known: Iterable[str]) -> None:
     """Raise ``TypeError`` listing keys of ``given`` that are not in ``known``."""
     known_set = set(known)

@@ -128,14 +128,15 @@ from numpy.typing import NDArray
 
 from manualcontrol.envs._render import close_window, render_display
 from manualcontrol.envs._validation import (
-    check_action,
     check_bool,
     check_choice,
     check_int,
     check_options,
     check_positive,
     check_real,
+    clip_action,
     reject_unknown,
+    step_action,
 )
 from manualcontrol.envs.dynamics import discretize
 from manualcontrol.envs.recording import Recording
@@ -841,19 +842,10 @@ class LaneKeeping(gym.Env[FloatArray, FloatArray]):
         terminated or been truncated.
         """
         k = self._k
-        if k < 0:
-            raise RuntimeError("call reset() before step()")
-        if self._ended is not None:
-            raise RuntimeError(f"the episode is over ({self._ended}); call reset()")
-        if type(action) is np.ndarray and action.shape == (1,) and action.dtype.kind == "f":
-            u = float(action[0])  # the common case, kept free of call overhead
-        else:
-            u = float(check_action("action", action, (1,))[0])
+        u = step_action(action, k, self._ended)
         bound = self.action_bound
         if not -bound <= u <= bound:
-            if u != u or u in (math.inf, -math.inf):
-                raise ValueError(f"action must be finite, got {action!r}")
-            u = bound if u > bound else -bound
+            u = clip_action(u, bound, action)
             self._clipped += 1
         kappa = self._kappa
         perceived = self._perceived

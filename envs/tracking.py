@@ -78,13 +78,14 @@ from numpy.typing import NDArray
 
 from manualcontrol.envs._render import close_window, render_display
 from manualcontrol.envs._validation import (
-    check_action,
     check_bool,
     check_choice,
     check_duration,
     check_int,
     check_options,
     check_positive,
+    clip_action,
+    step_action,
 )
 from manualcontrol.envs.elements import ControlledElement, UnstableFirstOrder, make_element
 from manualcontrol.envs.recording import Recording
@@ -368,19 +369,10 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         terminated or been truncated.
         """
         k = self._k
-        if k < 0:
-            raise RuntimeError("call reset() before step()")
-        if self._ended is not None:
-            raise RuntimeError(f"the episode is over ({self._ended}); call reset()")
-        if type(action) is np.ndarray and action.shape == (1,) and action.dtype.kind == "f":
-            u = float(action[0])  # the common case, kept free of call overhead
-        else:
-            u = float(check_action("action", action, (1,))[0])
+        u = step_action(action, k, self._ended)
         bound = self.action_bound
         if not -bound <= u <= bound:
-            if u != u or u in (math.inf, -math.inf):
-                raise ValueError(f"action must be finite, got {action!r}")
-            u = bound if u > bound else -bound
+            u = clip_action(u, bound, action)
             self._clipped += 1
         self._u[k] = u
         x = self._x

@@ -35,11 +35,13 @@ import gymnasium as gym
 import numpy as np
 
 import manualcontrol.envs  # noqa: F401 - registers the environments
+from manualcontrol.human._arguments import number, parse_dead_zone, parse_range, whole_number
 from manualcontrol.human.devices import (
     InputDeviceError,
     JoystickInput,
     MouseInput,
     NoInputDevice,
+    draw_stick_gauge,
     joystick_count,
     load_pygame,
     make_device,
@@ -59,30 +61,6 @@ class _UsageError(Exception):
 
 
 # ---------------------------------------------------------------- arguments
-
-
-def _number(flag: str, allowed: str, check: Any) -> Any:
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"must be {allowed}, got {text!r}") from None
-        if not (math.isfinite(value) and check(value)):
-            raise argparse.ArgumentTypeError(f"must be {allowed}, got {text!r}")
-        return value
-
-    parse.__name__ = flag
-    return parse
-
-
-def _whole(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {text!r}")
-    return value
 
 
 def add_play_arguments(parser: argparse.ArgumentParser) -> None:
@@ -108,13 +86,13 @@ def add_play_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--realisation",
-        type=_whole,
+        type=whole_number,
         default=None,
         help="realisation of the forcing (default 0)",
     )
     parser.add_argument(
         "--measurement-time",
-        type=_number("--measurement-time", "a number of seconds > 0", lambda v: v > 0.0),
+        type=number("--measurement-time", "a number of seconds > 0", lambda v: v > 0.0),
         default=90.0,
         help="length of the run (s, default 90)",
     )
@@ -127,27 +105,27 @@ def add_play_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--joystick-axis",
-        type=_whole,
+        type=whole_number,
         default=0,
         help="joystick axis to read (default 0, usually the left stick's horizontal axis)",
     )
     parser.add_argument(
         "--dead-zone",
-        type=_number("--dead-zone", "a number in [0, 1)", lambda v: 0.0 <= v < 1.0),
+        type=parse_dead_zone,
         default=None,
         help="share of full deflection around the centre read as zero (default 0.05 for a "
         "joystick, 0 for mouse and keyboard)",
     )
     parser.add_argument(
         "--range",
-        type=_number("--range", "a number > 0", lambda v: v > 0.0),
+        type=parse_range,
         default=None,
         help="raw reading for full deflection: pixels from the window's centre for the "
         "mouse (default 240, 40 %% of the width), the axis value for a joystick (default 1)",
     )
     parser.add_argument(
         "--scale",
-        type=_number("--scale", "a number > 0", lambda v: v > 0.0),
+        type=number("--scale", "a number > 0", lambda v: v > 0.0),
         default=None,
         help="the task's action at full deflection (default: sized to the forcing and "
         "the element, see docs/play.md)",
@@ -287,7 +265,7 @@ def _start_screen(env: Any, device: Any, task: str, input_name: str) -> None:
     pygame.font.init()
     font = pygame.font.Font(None, 30)
     background = surface.copy()
-    width, height = surface.get_size()
+    width = surface.get_width()
     lines = [
         f"{task}: {TASK_GOALS.get(task, 'track the target')}",
         f"{HOW_TO_MOVE.get(input_name, 'move the stick')}",
@@ -315,12 +293,7 @@ def _start_screen(env: Any, device: Any, task: str, input_name: str) -> None:
             text = font.render(line, True, (235, 235, 235))
             surface.blit(text, ((width - text.get_width()) // 2, 32 + 32 * i))
         if gauge:
-            stick = device.read()
-            row = height - 30
-            pygame.draw.line(surface, (150, 150, 150), (60, row), (width - 60, row), 2)
-            pygame.draw.line(surface, (150, 150, 150), (width // 2, row - 8), (width // 2, row + 8))
-            x = width // 2 + stick * (width // 2 - 60)
-            pygame.draw.circle(surface, (80, 200, 255), (int(x), row), 7)
+            draw_stick_gauge(surface, device.read())
         pygame.display.flip()
         ticker.tick(30)
 

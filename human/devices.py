@@ -72,6 +72,7 @@ __all__ = [
     "NoInputDevice",
     "ScriptedInput",
     "default_action_scale",
+    "draw_stick_gauge",
     "joystick_count",
     "load_pygame",
     "make_device",
@@ -131,6 +132,23 @@ def load_pygame() -> Any:
             "input devices need pygame: pip install 'manualcontrol[render]'"
         ) from error
     return pygame
+
+
+def draw_stick_gauge(surface: Any, stick: float) -> None:
+    """Draw the stick's gauge along the bottom of ``surface`` (a pygame surface).
+
+    A grey bar 60 px in from each side with a tick at the centre, and a blue dot at
+    ``stick`` (``[-1, 1]``, full deflection at the bar's ends): what the start and
+    instruction screens show while the mouse or joystick is centred. The caller
+    flips the display.
+    """
+    pygame = load_pygame()
+    width, height = surface.get_size()
+    row = height - 30
+    pygame.draw.line(surface, (150, 150, 150), (60, row), (width - 60, row), 2)
+    pygame.draw.line(surface, (150, 150, 150), (width // 2, row - 8), (width // 2, row + 8))
+    x = width // 2 + stick * (width // 2 - 60)
+    pygame.draw.circle(surface, (80, 200, 255), (int(x), row), 7)
 
 
 def _check_range(value: Any) -> float:

@@ -67,7 +67,13 @@ import numpy as np
 
 from manualcontrol.envs._files import atomic_write
 from manualcontrol.envs.recording import Recording
-from manualcontrol.human.devices import DeviceAction, JoystickInput, MouseInput, load_pygame
+from manualcontrol.human.devices import (
+    DeviceAction,
+    JoystickInput,
+    MouseInput,
+    draw_stick_gauge,
+    load_pygame,
+)
 from manualcontrol.human.protocol import (
     Condition,
     PlannedRun,
@@ -376,11 +382,7 @@ class PygameScreen(Screen):
             text = self._small.render(footer, True, (170, 200, 255))
             surface.blit(text, ((width - text.get_width()) // 2, height - 70))
         if stick is not None:
-            row = height - 30
-            pygame.draw.line(surface, (150, 150, 150), (60, row), (width - 60, row), 2)
-            pygame.draw.line(surface, (150, 150, 150), (width // 2, row - 8), (width // 2, row + 8))
-            x = width // 2 + stick * (width // 2 - 60)
-            pygame.draw.circle(surface, (80, 200, 255), (int(x), row), 7)
+            draw_stick_gauge(surface, stick)
         pygame.display.flip()
 
     def _events(self, waiting: bool) -> list[Any]:

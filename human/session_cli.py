@@ -25,7 +25,6 @@ command register ``experiment``; :func:`main` runs it on its own.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import shlex
 import sys
@@ -33,6 +32,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from manualcontrol.human._arguments import parse_dead_zone, parse_range, whole_number
 from manualcontrol.human.devices import InputDeviceError, NoInputDevice, joystick_count
 
 __all__ = ["add_session_arguments", "main", "run_session_command"]
@@ -40,29 +40,6 @@ __all__ = ["add_session_arguments", "main", "run_session_command"]
 EXIT_OK, EXIT_ABORTED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 _PROGRAM = "manualcontrol experiment"
 _INPUTS = ("mouse", "keyboard", "joystick")
-
-
-def _number(allowed: str, check: Callable[[float], bool]) -> Callable[[str], float]:
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"must be {allowed}, got {text!r}") from None
-        if not (math.isfinite(value) and check(value)):
-            raise argparse.ArgumentTypeError(f"must be {allowed}, got {text!r}")
-        return value
-
-    return parse
-
-
-def _whole(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {text!r}")
-    return value
 
 
 def add_session_arguments(parser: argparse.ArgumentParser) -> None:
@@ -76,7 +53,7 @@ def add_session_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--participant-number",
-        type=_whole,
+        type=whole_number,
         default=None,
         help="row of the counterbalanced order (default: the last digits of the id, P07 -> 7)",
     )
@@ -93,18 +70,18 @@ def add_session_arguments(parser: argparse.ArgumentParser) -> None:
         help="the stick, instead of the protocol's [input] device",
     )
     parser.add_argument(
-        "--joystick-axis", type=_whole, default=None, help="joystick axis to read (default 0)"
+        "--joystick-axis", type=whole_number, default=None, help="joystick axis to read (default 0)"
     )
     parser.add_argument(
         "--dead-zone",
-        type=_number("a number in [0, 1)", lambda v: 0.0 <= v < 1.0),
+        type=parse_dead_zone,
         default=None,
         help="share of full deflection read as zero (default: the protocol's, else the "
         "device's: 0.05 joystick, 0 mouse and keyboard)",
     )
     parser.add_argument(
         "--range",
-        type=_number("a number > 0", lambda v: v > 0.0),
+        type=parse_range,
         default=None,
         help="raw reading for full deflection: mouse pixels from the centre, joystick axis "
         "value (default: the protocol's, else the device's)",
