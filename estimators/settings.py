@@ -149,6 +149,16 @@ class SettingsRecord(metaclass=_SettingsType):
         names = [item.name for item in dataclasses.fields(cls)]  # type: ignore[arg-type]
         return (*names, *(key for key in cls.flat_keys() if key not in names))
 
+    def _require_groups(self, names: tuple[str, ...]) -> None:
+        """Raise unless each named group holds its record type (the default's type)."""
+        for group in names:
+            kind = type(type(self)._default_of(group))
+            if not isinstance(getattr(self, group), kind):
+                raise TypeError(
+                    f"{group} must be a {kind.__name__} (or its fields by name), "
+                    f"got {getattr(self, group)!r}"
+                )
+
     @classmethod
     def _default_of(cls, name: str) -> Any:
         item = next(item for item in dataclasses.fields(cls) if item.name == name)  # type: ignore[arg-type]

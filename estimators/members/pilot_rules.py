@@ -487,12 +487,7 @@ class PilotFilterSettings(SettingsRecord):
                     f"{self.anticipation_time:g} s, got {limits['tau_f']!r}"
                 )
             object.__setattr__(self, "limits", limits)
-        for group, kind in (("noise", NoiseSettings), ("guard", GuardSettings)):
-            if not isinstance(getattr(self, group), kind):
-                raise TypeError(
-                    f"{group} must be a {kind.__name__} (or its fields by name), "
-                    f"got {getattr(self, group)!r}"
-                )
+        self._require_groups(("noise", "guard"))
         for which in ("P0", "Q", "P0_fraction", "Q_fraction"):
             check_names(which, getattr(self.noise, which))
         order = check_int("delay_order", self.delay_order, minimum=1)

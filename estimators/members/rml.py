@@ -410,16 +410,7 @@ class RMLSettings(PilotFilterSettings):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        for group, kind in (
-            ("remnant", RemnantSettings),
-            ("drift", DriftSettings),
-            ("bank", BankSettings),
-        ):
-            if not isinstance(getattr(self, group), kind):
-                raise TypeError(
-                    f"{group} must be a {kind.__name__} (or its fields by name), "
-                    f"got {getattr(self, group)!r}"
-                )
+        self._require_groups(("remnant", "drift", "bank"))
         r2_remnant = self.remnant.r2
         if r2_remnant is not None and r2_remnant > 0.0 and self.remnant.model == "none":
             raise ValueError(

@@ -419,16 +419,7 @@ class SchiessRolandSettings(SettingsRecord):
                         f"initial {name} = {initial[name]!r} lies outside its limits "
                         f"[{low:g}, {high:g}]"
                     )
-        for group, kind in (
-            ("noise", SchiessRolandNoiseSettings),
-            ("uncertainty", InitialUncertaintySettings),
-            ("guard", GuardSettings),
-        ):
-            if not isinstance(getattr(self, group), kind):
-                raise TypeError(
-                    f"{group} must be a {kind.__name__} (or its fields by name), "
-                    f"got {getattr(self, group)!r}"
-                )
+        self._require_groups(("noise", "uncertainty", "guard"))
 
     def estimated_names(self) -> tuple[str, ...]:
         """The estimated parameters, in :data:`PARAMETER_NAMES` order."""

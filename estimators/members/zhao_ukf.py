@@ -278,12 +278,7 @@ class ZhaoUKFSettings(SettingsRecord):
             object.__setattr__(self, "limits", _names_mapping("limits", self.limits, limit_pair))
         if self.speed is not None:
             object.__setattr__(self, "speed", check_positive("speed", self.speed))
-        for group, kind in (("noise", ZhaoNoiseSettings), ("guard", GuardSettings)):
-            if not isinstance(getattr(self, group), kind):
-                raise TypeError(
-                    f"{group} must be a {kind.__name__} (or its fields by name), "
-                    f"got {getattr(self, group)!r}"
-                )
+        self._require_groups(("noise", "guard"))
         for name in self.noise.Q_theta:
             if name not in estimated:
                 raise ValueError(f"Q_theta names {name!r}, which is not estimated")
@@ -810,12 +805,7 @@ class MultiUKFSettings(ZhaoUKFSettings):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        for group, kind in (("fusion", FusionSettings), ("fast", FastMemberSettings)):
-            if not isinstance(getattr(self, group), kind):
-                raise TypeError(
-                    f"{group} must be a {kind.__name__} (or its fields by name), "
-                    f"got {getattr(self, group)!r}"
-                )
+        self._require_groups(("fusion", "fast"))
 
     def members(self) -> tuple[ZhaoUKFSettings, ZhaoUKFSettings]:
         """The slow and the fast member's settings."""
