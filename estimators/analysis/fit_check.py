@@ -116,10 +116,15 @@ def _rounded(value: float) -> float | None:
     return round(float(value), 4) if math.isfinite(value) else None
 
 
-def second_half_values(result: EstimationResult) -> dict[str, float]:
-    """Median of every parameter's estimate over the second half of the run."""
-    half = len(result) // 2
-    return {name: _median(result.mean_of(name)[half:]) for name in result.parameter_names}
+def second_half_values(result: EstimationResult, samples: int | None = None) -> dict[str, float]:
+    """Median of every parameter's estimate over the second half of the run.
+
+    With ``samples``, of its first ``samples`` rows (the run so far, for a causal choice).
+    """
+    stop = len(result) if samples is None else samples
+    return {
+        name: _median(result.mean_of(name)[stop // 2 : stop]) for name in result.parameter_names
+    }
 
 
 def _median(values: FloatArray) -> float:

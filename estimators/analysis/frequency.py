@@ -43,6 +43,7 @@ from manualcontrol.envs.tasks import TASKS, task_named
 from manualcontrol.pilots.models import PilotModel, make_model
 
 __all__ = [
+    "DESCRIBING_METHODS",
     "DISTURBANCE_POINTS",
     "TWO_CHANNEL_TASKS",
     "DescribingFunction",
@@ -143,9 +144,19 @@ DISTURBANCE_POINTS: tuple[str, ...] = ("output", "input")
 #: signal is not a forcing line (60 dB: amplitude profiles of tracking experiments span
 #: well under 30 dB; a signal that does not repeat over the stretch leaks far above it).
 _LINE_POWER_FLOOR = 1e-6
+#: Condition number of the least-squares sinusoid basis beyond which the lines are not
+#: told apart (coefficients would be noise amplified a million-fold).
+_SINUSOID_CONDITION_LIMIT = 1e6
 #: How far (in samples) the period may be from a whole number of samples.
 _PERIOD_SAMPLE_TOLERANCE = 1e-3
 
+
+#: How :func:`describing_function` reads the lines. ``"fourier"``: the discrete Fourier
+#: coefficients over the last whole periods, each line exactly one bin (the laboratory
+#: standard). ``"least-squares"``: sinusoids at the forcing lines fitted to every sample
+#: given, any length (a run cut mid-period, the samples so far of a running trial); on
+#: whole periods the sinusoids are orthogonal and the two agree.
+DESCRIBING_METHODS: tuple[str, ...] = ("fourier", "least-squares")
 
 #: Displays on which the pilot sees the target and the output separately.
 TWO_CHANNEL_TASKS: tuple[str, ...] = tuple(name for name in TASKS if task_named(name).shows_target)
@@ -214,7 +225,8 @@ class DescribingFunction:
         Fraction of u's variance over the stretch that lies off the forcing frequencies.
     period, periods, window
         Forcing period (s), whole periods used, and the stretch ``(start, end)`` (s):
-        the last whole periods of the run, so a run-in at the start is left out.
+        the last whole periods of the run, so a run-in at the start is left out
+        (``"least-squares"``: every sample given, ``periods`` the whole periods in it).
     disturbance_at, element_given
         Where the disturbance entered; whether ``element`` came from the user.
     element_transfer_function
@@ -223,6 +235,8 @@ class DescribingFunction:
         The display (see ``task`` of :func:`describing_function`) and the Fourier
         coefficients at every forcing line (:class:`ForcingLines`), what a model is fitted
         to.
+    method
+        How the lines were read (:data:`DESCRIBING_METHODS`).
 
     """
 
@@ -247,6 +261,7 @@ class DescribingFunction:
     element_transfer_function: tuple[FloatArray, FloatArray] | None = None
     task: str = "compensatory"
     lines: ForcingLines | None = None
+    method: str = "fourier"
 
     @property
     def gain_db(self) -> FloatArray:
@@ -287,6 +302,7 @@ class DescribingFunction:
             "disturbance_at": self.disturbance_at,
             "element_given": self.element_given,
             "element_error_db_deg": [_finite_or_none(v) for v in self.element_error()],
+            "method": self.method,
         }
 
 
@@ -377,6 +393,7 @@ def describing_function(
     disturbance_at: str | None = None,
     neighbours: int = 2,
     task: str | None = None,
+    method: str = "fourier",
 ) -> DescribingFunction:
     """Measure the pilot's describing function at the forcing frequencies of a run.
 
@@ -411,13 +428,23 @@ def describing_function(
         ``U/E`` is the pilot's response to ``y``, the loop that crosses over; every line's
         coefficients, the target's too, are in ``lines`` for a two-channel fit); defaults
         to ``recording.metadata["task"]``, else compensatory.
+    method
+        ``"fourier"`` (default): the stretch is the last whole number of periods of the
+        run, each line one bin of its discrete Fourier transform. ``"least-squares"``:
+        the stretch is every sample given, of any length, and the coefficients are those
+        of sinusoids at every forcing line fitted together by least squares (the forcing
+        must be known: ``forcing`` or the metadata). Its signal-to-noise ratios read the
+        residual's spectrum beside each line, scaled by how much the fit's
+        non-orthogonal sinusoids (lines closer than one bin of a short stretch) inflate
+        the coefficient's variance; on whole periods the sinusoids are orthogonal and
+        both methods give the same coefficients.
 
-    The stretch is the last whole number of periods of the run. Raises ``ValueError``
-    naming what is missing or inconsistent.
+    Raises ``ValueError`` naming what is missing or inconsistent.
     """
     if not isinstance(recording, Recording):
         raise TypeError(f"recording must be a Recording, got {type(recording).__name__}")
     neighbours = check_int("neighbours", neighbours, minimum=1)
+    check_choice("method", method, DESCRIBING_METHODS)
     if task is None:
         task = recording.metadata.get("task", "compensatory")
     check_choice("task", task, ("compensatory", *TWO_CHANNEL_TASKS))
@@ -441,85 +468,104 @@ def describing_function(
     lines: list[tuple[int, str]] | None = None
     if forcing is not None:
         period, lines = _forcing_lines(forcing, period)
+    elif method == "least-squares":
+        raise ValueError(
+            "method='least-squares' fits sinusoids at the forcing's lines: give the forcing "
+            "(forcing=, or the recording's metadata), not only its period"
+        )
     assert period is not None  # for the type checker; both branches set it
     dt = recording.dt
     exact = period / dt
     per_period = round(exact)
-    if per_period < 4 or abs(exact - per_period) > _PERIOD_SAMPLE_TOLERANCE:
+    fourier = method == "fourier"
+    if fourier and (per_period < 4 or abs(exact - per_period) > _PERIOD_SAMPLE_TOLERANCE):
         raise ValueError(
             f"the forcing's period {period:g} s is {exact:.4f} samples at dt = {dt:g} s: it "
             "must be a whole number of samples for the Fourier coefficients to hold one "
-            "forcing line each"
+            "forcing line each (method='least-squares' needs no such period)"
         )
     count = len(recording) // per_period
-    if count < 1:
+    if fourier and count < 1:
         raise ValueError(
             f"the recording ({recording.duration:g} s) is shorter than one forcing period "
-            f"({period:g} s)"
+            f"({period:g} s); method='least-squares' reads a shorter stretch"
         )
-    first = len(recording) - count * per_period
+    first = len(recording) - count * per_period if fourier else 0
     if lines is None:
         lines = _recorded_lines(recording, per_period, first, count)
-    stretch = slice(first, first + count * per_period)
+    size = count * per_period if fourier else len(recording)
+    stretch = slice(first, first + size)
     names = ["e", "u"] + [n for n in ("y", "fd", "ft") if n in recording]
     signals = {}
     for name in names:
         values = recording[name][stretch]
         if not np.all(np.isfinite(values)):
+            where = f"the last {count} period(s)" if fourier else "the samples given"
             raise ValueError(
-                f"signal {name!r} has dropped samples (NaN) in the last {count} period(s); "
-                "fill or cut them first"
+                f"signal {name!r} has dropped samples (NaN) in {where}; fill or cut them first"
             )
         signals[name] = values
     lines = sorted(set(lines))
     harmonics = np.array([h for h, _ in lines], dtype=np.int64)
-    if harmonics.max() >= per_period // 2:
-        raise ValueError(f"a forcing line lies at or above the Nyquist frequency of dt = {dt:g} s")
     source = tuple(s for _, s in lines)
     frequencies = 2.0 * np.pi * harmonics / period
-    whole = {name: np.fft.rfft(values) for name, values in signals.items()}
-    every_bin = harmonics * count
-    all_lines = ForcingLines(
-        frequencies=frequencies,
-        source=source,
-        coefficients={name: values[every_bin] for name, values in whole.items()},
-        snr=_signal_to_noise(
-            np.abs(whole["u"]) ** 2, every_bin, set(every_bin.tolist()), neighbours
-        ),
-    )
-    if task in TWO_CHANNEL_TASKS:
-        shown = np.array([kind == "disturbance" for kind in source])
-        if not shown.any():
-            raise ValueError(
-                f"a {task} task's describing function is read at the disturbance's lines, "
-                "where the target is still, and this forcing has no disturbance"
-            )
+    if (harmonics.max() >= per_period // 2) if fourier else (frequencies.max() >= np.pi / dt):
+        raise ValueError(f"a forcing line lies at or above the Nyquist frequency of dt = {dt:g} s")
+    if fourier:
+        whole = {name: np.fft.rfft(values) for name, values in signals.items()}
+        every_bin = harmonics * count
+        all_lines = ForcingLines(
+            frequencies=frequencies,
+            source=source,
+            coefficients={name: values[every_bin] for name, values in whole.items()},
+            snr=_signal_to_noise(
+                np.abs(whole["u"]) ** 2, every_bin, set(every_bin.tolist()), neighbours
+            ),
+        )
+        shown = _shown_lines(task, source)
         harmonics, frequencies = harmonics[shown], frequencies[shown]
         source = tuple(kind for kind, keep in zip(source, shown, strict=True) if keep)
-    bins = harmonics * count
-    spectra = {name: values[bins] for name, values in whole.items()}
-    pilot = spectra["u"] / spectra["e"]
-    lines_at = set(every_bin.tolist())  # no line of either forcing counts as a neighbour
-    snr = _signal_to_noise(np.abs(whole["u"]) ** 2, bins, lines_at, neighbours)
-    snr_injected = _injected_signal_to_noise(
-        whole["u"], whole["e"], pilot, bins, lines_at, neighbours
-    )
-    if count >= 2:
-        gain_spread, phase_spread = _period_spread(signals, count, per_period, harmonics, pilot)
-    else:  # one period: the spread the remnant implies, |N/U| split over gain and phase
-        relative = 1.0 / np.sqrt(2.0 * snr_injected)
-        gain_spread = 20.0 / math.log(10.0) * relative
-        phase_spread = np.degrees(np.minimum(relative, np.pi))
-    u_power = np.abs(whole["u"][1:]) ** 2
-    at_lines = np.abs(all_lines.coefficients["u"])
-    remnant_share = 1.0 - float(at_lines @ at_lines / u_power.sum())
+        bins = harmonics * count
+        spectra = {name: values[bins] for name, values in whole.items()}
+        pilot = spectra["u"] / spectra["e"]
+        lines_at = set(every_bin.tolist())  # no line of either forcing counts as a neighbour
+        snr = _signal_to_noise(np.abs(whole["u"]) ** 2, bins, lines_at, neighbours)
+        snr_injected = _injected_signal_to_noise(
+            whole["u"], whole["e"], pilot, bins, lines_at, neighbours
+        )
+        if count >= 2:
+            gain_spread, phase_spread = _period_spread(signals, count, per_period, harmonics, pilot)
+        else:
+            gain_spread, phase_spread = _remnant_spread(snr_injected)
+        u_power = np.abs(whole["u"][1:]) ** 2
+        at_lines = np.abs(all_lines.coefficients["u"])
+        remnant_share = 1.0 - float(at_lines @ at_lines / u_power.sum())
+    else:
+        fit = _SinusoidFit(signals, dt, frequencies)
+        all_lines = ForcingLines(
+            frequencies=frequencies,
+            source=source,
+            coefficients=fit.coefficients,
+            snr=fit.signal_to_noise(np.arange(frequencies.size), None, neighbours),
+        )
+        shown = _shown_lines(task, source)
+        frequencies = frequencies[shown]
+        source = tuple(kind for kind, keep in zip(source, shown, strict=True) if keep)
+        spectra = {name: values[shown] for name, values in fit.coefficients.items()}
+        pilot = spectra["u"] / spectra["e"]
+        indices = np.flatnonzero(shown)
+        snr = fit.signal_to_noise(indices, None, neighbours)
+        snr_injected = fit.signal_to_noise(indices, pilot, neighbours)
+        gain_spread, phase_spread = _remnant_spread(snr_injected)
+        remnant_share = fit.remnant_share
     measured = _measured_element(spectra, disturbance_at)
     if element is None and recording.metadata.get("controlled_element") is not None:
         element = recording.metadata["controlled_element"]
     transfer_function = None
     if element is not None:
         plant = _as_element(element)
-        t_middle = float(recording.t[first] + 0.5 * count * period)
+        half = 0.5 * count * period if fourier else 0.5 * size * dt
+        t_middle = float(recording.t[first] + half)
         response = plant.frequency_response(frequencies, t_middle)
         transfer_function = tuple(
             np.asarray(c, dtype=np.float64).reshape(-1) for c in plant.transfer_function(t_middle)
@@ -548,13 +594,102 @@ def describing_function(
         remnant_share=remnant_share,
         period=float(period),
         periods=count,
-        window=(start, start + count * per_period * dt),
+        window=(start, start + size * dt),
         disturbance_at=disturbance_at,
         element_given=element is not None,
         element_transfer_function=transfer_function,
         task=task,
         lines=all_lines,
+        method=method,
     )
+
+
+def _shown_lines(task: str, source: tuple[str, ...]) -> NDArray[np.bool_]:
+    """The lines the describing function is read at: all, or a two-channel task's disturbance's."""
+    if task not in TWO_CHANNEL_TASKS:
+        return np.ones(len(source), dtype=np.bool_)
+    shown = np.array([kind == "disturbance" for kind in source])
+    if not shown.any():
+        raise ValueError(
+            f"a {task} task's describing function is read at the disturbance's lines, "
+            "where the target is still, and this forcing has no disturbance"
+        )
+    return shown
+
+
+def _remnant_spread(snr_injected: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The spread the remnant implies (one period): ``|N/U|`` split over gain and phase."""
+    relative = 1.0 / np.sqrt(2.0 * snr_injected)
+    gain_spread = 20.0 / math.log(10.0) * relative
+    phase_spread = np.degrees(np.minimum(relative, np.pi))
+    return gain_spread, phase_spread
+
+
+class _SinusoidFit:
+    """Sinusoids at the forcing lines fitted to signals by least squares.
+
+    ``coefficients`` are on the discrete Fourier transform's scale (``N/2`` times the
+    complex amplitude ``a - i b`` of ``a cos wt + b sin wt``, time from the stretch's
+    first sample), so on whole periods they equal the transform's bins. The residual
+    (what the sinusoids and the mean leave) is the remnant; its transform beside each
+    line is the line's noise, times the variance inflation of the line's coefficient:
+    ``N/4`` times the sum of the cosine's and sine's diagonal entries of
+    ``(X^T X)^-1`` (1 for orthogonal sinusoids, more where a short stretch leaves
+    neighbouring lines less than a bin apart).
+    """
+
+    def __init__(
+        self, signals: Mapping[str, FloatArray], dt: float, frequencies: FloatArray
+    ) -> None:
+        names = list(signals)
+        values = np.column_stack([signals[name] for name in names])
+        size, lines = values.shape[0], frequencies.size
+        phase = np.outer(np.arange(size) * dt, frequencies)
+        basis = np.hstack([np.ones((size, 1)), np.cos(phase), np.sin(phase)])
+        # the normal equations: the columns are of one scale (unit sinusoids and the
+        # mean), and a basis whose lines cannot be told apart is refused before its
+        # squared condition number matters
+        gram = basis.T @ basis
+        if size <= basis.shape[1] or np.linalg.cond(gram) > _SINUSOID_CONDITION_LIMIT**2:
+            raise ValueError(
+                f"the stretch ({size * dt:g} s) is too short to tell the {lines} forcing lines "
+                "apart by least squares; give a longer one"
+            )
+        inverse = np.linalg.inv(gram)
+        solution = inverse @ (basis.T @ values)
+        residual = values - basis @ solution
+        cosine, sine = solution[1 : 1 + lines], solution[1 + lines :]
+        self.coefficients = {
+            name: 0.5 * size * (cosine[:, j] - 1j * sine[:, j]) for j, name in enumerate(names)
+        }
+        diagonal = np.diag(inverse)
+        self.inflation = 0.25 * size * (diagonal[1 : 1 + lines] + diagonal[1 + lines :])
+        self.residual = {name: np.fft.rfft(residual[:, j]) for j, name in enumerate(names)}
+        self.bins = np.rint(frequencies * size * dt / (2.0 * np.pi)).astype(np.int64)
+        u = values[:, names.index("u")]
+        centred = u - u.mean()
+        at_lines = basis[:, 1:] @ solution[1:, names.index("u")]
+        power = float(centred @ centred)
+        self.remnant_share = 1.0 - float(at_lines @ at_lines) / power if power > 0.0 else math.nan
+
+    def signal_to_noise(
+        self, indices: NDArray[np.int64], pilot: NDArray[np.complex128] | None, neighbours: int
+    ) -> FloatArray:
+        """The power of u at each line of ``indices`` over the noise beside it.
+
+        The noise is the residual of u, or with ``pilot`` (``H_p`` at those lines) the
+        injected remnant's ``U - H_p E``, as :func:`_injected_signal_to_noise` reads it.
+        """
+        u, e = self.residual["u"], self.residual["e"]
+        lines_at = set(self.bins.tolist())
+        ratios = np.empty(indices.size)
+        for i, line in enumerate(indices):
+            near = _neighbour_bins(int(self.bins[line]), lines_at, u.size, neighbours)
+            noise_at = u[near] if pilot is None else u[near] - pilot[i] * e[near]
+            noise = float(np.mean(np.abs(noise_at) ** 2)) * self.inflation[line] if near else 0.0
+            signal = abs(self.coefficients["u"][line]) ** 2
+            ratios[i] = signal / noise if noise > 0.0 else math.inf
+        return ratios
 
 
 def _as_element(element: Any) -> ControlledElement:

@@ -75,7 +75,7 @@ from manualcontrol.envs.elements import (
     make_element,
 )
 from manualcontrol.envs.recording import Recording
-from manualcontrol.envs.signals import ForcingPair
+from manualcontrol.envs.signals import ForcingPair, Multisine
 from manualcontrol.estimators.analysis.frequency import describing_function
 from manualcontrol.estimators.members.internal_model import (
     ANTICIPATED_PARAMETER,
@@ -686,6 +686,7 @@ def run_describing_function(
     forcing: Any,
     target_period: float | None,
     what: str,
+    method: str = "fourier",
 ) -> Any:
     """The run's describing function for a filter's offline choices, on its model's display.
 
@@ -693,7 +694,7 @@ def run_describing_function(
     ForcingPair), else ``recording.metadata``, else ``target_period`` (the forcing's
     period, its lines read off the recorded signals).
     ``what``, the setting that needs it as ``name=value``, is named in the error when it
-    cannot be measured.
+    cannot be measured; ``method`` is :func:`describing_function`'s.
     """
     task = "compensatory"
     if "ft_far" in make_model(settings.model).perceptions:
@@ -706,6 +707,7 @@ def run_describing_function(
             period=target_period if pair is None else None,
             element=settings.element,
             task=recording.metadata.get("task", task),
+            method=method,
         )
     except ValueError as error:
         raise ValueError(
@@ -713,6 +715,18 @@ def run_describing_function(
             f"({error}); pass forcing= (the run's ForcingPair) or target_period= (the "
             "forcing's period, s)"
         ) from None
+
+
+def forcing_period(forcing: ForcingPair) -> float:
+    """The period (s) a forcing's multisines repeat at; ValueError where none does."""
+    periods = [
+        signal.measurement_time
+        for signal in (forcing.target, forcing.disturbance)
+        if isinstance(signal, Multisine) and signal.measurement_time is not None
+    ]
+    if not periods:
+        raise ValueError("the forcing has no periodic multisine (one with a measurement time)")
+    return float(max(periods))
 
 
 def element_type(element: Any) -> str | None:

@@ -50,7 +50,9 @@ break frequency van der El et al. measured for the element type, thesis Sec. IV-
 rad/s for ``ce="SI"``, 0.01 rad/s for ``"DI"``, otherwise Levison's 3 rad/s of Popovici
 et al.), ``remnant_injection`` (``"input"``: at the perception, ``"output"``: at the
 stick, ``"choose"``: offline, both, the pass the describing function agrees with kept,
-:meth:`RML.estimate`), ``remnant_variance`` (the remnant's initial variance as a fraction
+``"choose-causal"``: both side by side, each sample's estimate from the pass the
+describing function of the samples up to it agrees with; :meth:`RML.estimate`),
+``remnant_variance`` (the remnant's initial variance as a fraction
 of the error variance over the first window), ``learn_intensity`` (True), ``learn_break`` (False),
 ``intensity_P0``/``intensity_Q`` (the log intensity's initial variance and random-walk
 variance, a ``Q`` like the parameters', see "Sample rates" below), ``step`` (the bank's spread in
@@ -185,6 +187,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from manualcontrol.envs._validation import check_choice, check_int, check_positive
+from manualcontrol.envs.signals import ForcingPair
 from manualcontrol.estimators._pilot_core import PAPERS_DT, euler_substeps
 from manualcontrol.estimators.analysis.fit_check import (
     FAR_GAIN_DB,
@@ -204,9 +207,11 @@ from manualcontrol.estimators.members.pilot_rules import (
     NoiseSettings,
     PilotFilterSettings,
     ResolvedSettings,
+    forcing_period,
     run_describing_function,
 )
 from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
+from manualcontrol.estimators.protocol import summarise_health
 from manualcontrol.estimators.settings import SettingsRecord
 from manualcontrol.estimators.shell import output_arrays
 from manualcontrol.pilots.models import make_model
@@ -229,6 +234,14 @@ INJECTIONS: tuple[str, ...] = ("input", "output")
 #: ``remnant_injection`` that runs both points and keeps the one the describing function
 #: agrees with (offline, :meth:`RML.estimate`).
 CHOOSE_INJECTION = "choose"
+#: ``remnant_injection`` that runs both points side by side and follows, sample by
+#: sample, the one the describing function of the samples so far agrees with (causal,
+#: :meth:`RML.estimate`).
+CHOOSE_CAUSAL_INJECTION = "choose-causal"
+#: Seconds between the causal choice's decisions: often against the filters' settling
+#: (tens of seconds), rarely against the cost of a least-squares describing function of
+#: the run so far (tens of milliseconds on a few minutes at 100 Hz).
+CAUSAL_CHOICE_INTERVAL = 5.0
 #: Which pilot parameters the variance part of the score moves (module docstring).
 VARIANCE_SCORES: tuple[str, ...] = ("remnant-path", "all")
 #: Range of the log intensity around its initial value (e^12: beyond any remnant).
@@ -258,9 +271,11 @@ class RemnantSettings(SettingsRecord):
     break_frequency : float or None
         (``remnant_break``, rad/s) The filter's (initial) break; None: the one measured
         for the element type (:data:`BREAK_FREQUENCY`).
-    injection : {"input", "output", "choose"}
-        (``remnant_injection``) At the perception, at the stick, or offline both with
-        the pass the describing function agrees with kept (:meth:`RML.estimate`).
+    injection : {"input", "output", "choose", "choose-causal"}
+        (``remnant_injection``) At the perception, at the stick, offline both with the
+        pass the describing function agrees with kept, or both with the estimates
+        following, causally, the pass the describing function of the samples so far
+        agrees with (:meth:`RML.estimate`).
     variance : float
         (``remnant_variance``) Initial variance as a fraction of the first window's
         error variance.
@@ -297,7 +312,11 @@ class RemnantSettings(SettingsRecord):
             object.__setattr__(
                 self, "break_frequency", check_positive("remnant_break", self.break_frequency)
             )
-        check_choice("remnant_injection", self.injection, (*INJECTIONS, CHOOSE_INJECTION))
+        check_choice(
+            "remnant_injection",
+            self.injection,
+            (*INJECTIONS, CHOOSE_INJECTION, CHOOSE_CAUSAL_INJECTION),
+        )
         for name in ("learn_intensity", "learn_break"):
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name} must be True or False, got {getattr(self, name)!r}")
@@ -481,6 +500,65 @@ class RMLSettings(PilotFilterSettings):
 _MODELS: dict[tuple[str, bool], InternalModel] = {}
 
 
+def _joined(
+    passes: list[Any], followed: Any, settings: RMLSettings, decisions: list[dict[str, Any]]
+) -> Any:
+    """One result whose every per-sample row is that of the pass ``followed`` names.
+
+    ``followed[i]`` indexes :data:`INJECTIONS` (and ``passes``). The health summary is
+    recounted from the joined flags; a divergence counts where the pass followed then
+    diverged.
+    """
+    last = passes[int(followed[-1])]
+    rows = {}
+    for name in (
+        "mean",
+        "std",
+        "predictions",
+        "innovations",
+        "innovation_covariance",
+        "finite",
+        "covariance_ok",
+        "dropped",
+        "diverged",
+        "pinned",
+        "states",
+    ):
+        arrays = [getattr(result, name) for result in passes]
+        if any(array is None for array in arrays):
+            rows[name] = None
+            continue
+        joined = arrays[0].copy()
+        for index, array in enumerate(arrays[1:], start=1):
+            joined[followed == index] = array[followed == index]
+        rows[name] = joined
+    diverged = np.flatnonzero(rows["diverged"])
+    reason, index, stopped = "", -1, False
+    if diverged.size:
+        index = int(diverged[0])
+        source = passes[int(followed[index])]
+        reason, stopped = source.health.divergence_reason or "diverged", source.health.stopped
+    health = summarise_health(
+        last.t,
+        float(last.t[1] - last.t[0]) if len(last.t) > 1 else 0.0,
+        rows["dropped"],
+        rows["pinned"],
+        last.parameter_names,
+        reason=reason,
+        divergence_index=index,
+        stopped=stopped,
+    )
+    shares = {point: float(np.mean(followed == i)) for i, point in enumerate(INJECTIONS)}
+    record = {"chosen": INJECTIONS[int(followed[-1])], "decisions": decisions, "share": shares}
+    return dataclasses.replace(
+        last,
+        **{name: array for name, array in rows.items() if array is not None},
+        health=health,
+        smoother_inputs=None,
+        settings={**last.settings, "settings": settings.to_dict(), "remnant_injection": record},
+    )
+
+
 def _delay_free_model(model: str, pursuit: bool = False) -> InternalModel:
     """The internal model without its delays (cached): they act on the inputs.
 
@@ -542,7 +620,10 @@ class RML(PilotFilter):
         gaps are in ``result.settings["remnant_injection"]`` (``target_period=``, where no
         forcing is known, is the forcing's period).
         """
-        if self._settings.remnant.injection != CHOOSE_INJECTION:
+        injection = self._settings.remnant.injection
+        if injection == CHOOSE_CAUSAL_INJECTION:
+            return self._estimate_choosing_causally(recording, **options)
+        if injection != CHOOSE_INJECTION:
             return super().estimate(recording, **options)
         settings = self._settings
         describing = run_describing_function(
@@ -582,6 +663,75 @@ class RML(PilotFilter):
             },
         )
 
+    def _estimate_choosing_causally(self, recording: Any, **options: Any) -> Any:
+        """Both remnant points side by side; each sample's estimate from the one chosen so far.
+
+        ``remnant_injection="choose-causal"``: the choice of ``"choose"`` made online. Both
+        passes run over the recording (each a causal filter). From half a forcing period
+        on, every :data:`CAUSAL_CHOICE_INTERVAL` seconds, the describing function of the
+        samples so far is measured by least squares at the forcing lines
+        (:func:`~manualcontrol.estimators.analysis.frequency.describing_function`,
+        ``method="least-squares"``: any length, where the Fourier method needs whole
+        periods), and each pass's model (its medians over the second half of the samples
+        so far, as ``"choose"`` takes the run's second half) is scored against it as
+        ``"choose"`` scores. The estimates from that sample on are the nearer pass's,
+        until the next decision; before the first, the perception pass's (the default).
+        So every sample's estimate uses the samples up to it alone. Half a period: the
+        least-squares fit then tells lines one harmonic apart with its coefficients'
+        variance inflated by a factor under two (their sinusoids drift half a cycle
+        apart over the stretch). The decisions are in
+        ``result.settings["remnant_injection"]``; the result cannot be smoothed (its
+        trace joins two filters), a smoothed estimate takes ``"choose"``.
+        """
+        if options.get("smooth") or options.get("smoother_inputs"):
+            raise ValueError(
+                "remnant_injection='choose-causal' joins two filters' traces at the samples "
+                "the choice changes, which no smoother can run back over: for a smoothed "
+                "estimate give remnant_injection='choose' (the whole run's choice)"
+            )
+        settings = self._settings
+        forcing = options.get("forcing")
+        if forcing is None and recording.metadata.get("forcing") is not None:
+            forcing = ForcingPair.from_dict(recording.metadata["forcing"])
+        if not isinstance(forcing, ForcingPair):
+            raise ValueError(
+                "remnant_injection='choose-causal' measures the describing function of the "
+                "samples so far at the forcing's lines: give forcing= (the run's ForcingPair) "
+                "or a recording whose metadata holds it"
+            )
+        passes = [
+            self.configure(remnant_injection=point).estimate(recording, **options)
+            for point in INJECTIONS
+        ]
+        dt, size = recording.dt, len(recording)
+        first = math.ceil(0.5 * forcing_period(forcing) / dt)
+        every = max(1, round(CAUSAL_CHOICE_INTERVAL / dt))
+        followed = np.zeros(size, dtype=np.int64)  # index into INJECTIONS, the input first
+        decisions: list[dict[str, Any]] = []
+        for samples in range(first, size + 1, every):
+            describing = run_describing_function(
+                settings,
+                recording.slice_samples(0, samples),
+                forcing,
+                None,
+                f"remnant_injection={CHOOSE_CAUSAL_INJECTION!r}",
+                method="least-squares",
+            )
+            scores = []
+            for result in passes:
+                values = second_half_values(result, samples)
+                if all(math.isfinite(v) for v in values.values()):
+                    gain, phase = response_error(describing, settings.model, values)
+                    scores.append(gain / FAR_GAIN_DB + phase / FAR_PHASE_DEG)
+                else:
+                    scores.append(math.inf)
+            choice = int(np.argmin(scores))
+            point = INJECTIONS[choice]
+            if not decisions or decisions[-1]["point"] != point:
+                decisions.append({"t": float(recording.t[samples - 1]), "point": point})
+            followed[samples - 1 :] = choice
+        return _joined(passes, followed, settings, decisions)
+
     @property
     def settings(self) -> RMLSettings:
         """The frozen settings."""
@@ -589,6 +739,12 @@ class RML(PilotFilter):
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
         settings = self._settings
+        if settings.remnant.injection == CHOOSE_CAUSAL_INJECTION:
+            raise ValueError(
+                "remnant_injection='choose-causal' runs two filters and follows the one the "
+                "describing function of the samples so far agrees with: on recordings "
+                "(estimate); the step-by-step update takes 'input' or 'output'"
+            )
         if settings.remnant.injection == CHOOSE_INJECTION:
             raise ValueError(
                 "remnant_injection='choose' runs the whole recording with the remnant at the "
