@@ -671,6 +671,12 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                     "frequencies: give --forcing PRESET or --period SECONDS (the forcing "
                     "signals being in the file)"
                 ) from None
+        if "remnant_injection='choose-causal' measures" in str(error):
+            raise UsageError(
+                "--set remnant_injection=choose-causal measures the describing function of "
+                "the samples so far at the forcing's lines: give --forcing PRESET (the "
+                "forcing lines must be known; --period is not enough)"
+            ) from None
         raise
     result, check = identification.result, identification.check
     model_output = identification.model_output
@@ -748,7 +754,16 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         )
         if restarts["ended"]:
             print(f"restarts ended early: {restarts['ended']}")
-    if isinstance(injection, Mapping):
+    if isinstance(injection, Mapping) and "decisions" in injection:
+        where = {"input": "perception", "output": "stick"}
+        changes = ", ".join(
+            f"{where[d['point']]} from {d['t']:.0f} s" for d in injection["decisions"]
+        )
+        print(
+            f"remnant model, chosen causally: at the {where[injection['chosen']]} at the end "
+            f"({changes}; before the first decision, half a forcing period in, the perception)"
+        )
+    elif isinstance(injection, Mapping):
         where = {"input": "perception", "output": "stick"}
         gaps = ", ".join(
             f"at the {where[p]} "

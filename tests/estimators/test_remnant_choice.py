@@ -64,3 +64,41 @@ def test_choose_is_offline_and_needs_the_forcing(stick_remnant_run):
     bare = stick_remnant_run.with_metadata(forcing=None)
     with pytest.raises(ValueError, match="remnant_injection='choose' needs the describing"):
         estimator.estimate(bare)
+
+
+def test_causal_choice_follows_the_describing_function_of_the_samples_so_far(stick_remnant_run):
+    run = stick_remnant_run
+    estimator = RML(model="precision", element="1/s", remnant_injection="choose-causal")
+    joined = estimator.estimate(run)
+    passes = [
+        RML(model="precision", element="1/s", remnant_injection=p).estimate(run)
+        for p in ("input", "output")
+    ]
+    record = joined.settings["remnant_injection"]
+    # the stick's resonant remnant is found from the first decision, half a period in
+    assert record["chosen"] == "output"
+    assert record["decisions"][0] == {"t": pytest.approx(run.t[5999]), "point": "output"}
+    first = 6000 - 1  # the decision after 60 s of samples holds from that sample on
+    np.testing.assert_array_equal(joined.mean[:first], passes[0].mean[:first])
+    np.testing.assert_array_equal(joined.std[:first], passes[0].std[:first])
+    np.testing.assert_array_equal(joined.mean[first:], passes[1].mean[first:])
+    np.testing.assert_array_equal(joined.innovations[first:], passes[1].innovations[first:])
+    assert record["share"]["output"] == pytest.approx(1.0 - first / len(run))
+    assert joined.smoother_inputs is None
+    # causal: the run cut two thirds in gives the same estimates up to the cut
+    cut = 2 * len(run) // 3
+    shorter = estimator.estimate(run.slice_samples(0, cut))
+    np.testing.assert_array_equal(shorter.mean, joined.mean[:cut])
+
+
+def test_causal_choice_refuses_what_it_cannot_do(stick_remnant_run):
+    estimator = RML(model="precision", element="1/s", remnant_injection="choose-causal")
+    with pytest.raises(ValueError, match=re.escape("on recordings (estimate)")):
+        estimator.reset(0.01, var_u0=1.0, var_e0=1.0)
+    with pytest.raises(ValueError, match="for a smoothed estimate give remnant_injection='choose'"):
+        estimator.estimate(stick_remnant_run, smooth=True)
+    bare = stick_remnant_run.with_metadata(forcing=None)
+    with pytest.raises(ValueError, match="remnant_injection='choose-causal' measures"):
+        estimator.estimate(bare)
+    with pytest.raises(ValueError, match="remnant_injection must be one of .*'choose-causal'"):
+        RML(model="precision", remnant_injection="causal")
