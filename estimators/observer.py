@@ -126,9 +126,22 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         }
 
     def _estimated_names(self) -> tuple[str, ...]:
-        # what is estimated is resolved at reset (e.g. the SI rule holds K_v)
-        self.estimator.reset(self.env.unwrapped.dt)
+        # what is estimated is resolved at reset (e.g. the SI rule holds K_v); the env's
+        # forcing, which some estimators read at reset, is drawn at the env's own reset
+        dt = self.env.unwrapped.dt
+        names = getattr(self.estimator, "estimated_names", None)
+        if names is not None:
+            return tuple(names(dt))
+        self.estimator.reset(dt)
         return tuple(self.estimator.resolved.estimated)
+
+    def _reset_estimator(self, t0: float) -> None:
+        """Reset the estimator for an episode from ``t0``, with the forcing where it reads it."""
+        base = self.env.unwrapped
+        if getattr(self.estimator, "reads_forcing", False):
+            self.estimator.reset(base.dt, t0=t0, forcing=base.forcing)
+        else:
+            self.estimator.reset(base.dt, t0=t0)
 
     def _observe(self, observation: FloatArray) -> FloatArray:
         if not self.append_to_observation:
@@ -172,8 +185,7 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
         observation, info = self.env.reset(**kwargs)
-        base = self.env.unwrapped
-        self.estimator.reset(base.dt, t0=float(info["t"]))
+        self._reset_estimator(float(info["t"]))
         ahead = self._target_ahead()
         self._ahead = None if ahead is None else ahead.tolist()  # floats, read per step
         self._step_index = 0

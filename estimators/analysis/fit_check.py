@@ -53,6 +53,7 @@ __all__ = [
     "SETTLED_FACTOR",
     "FitCheck",
     "check_fit",
+    "column_medians",
     "limit_shares",
     "second_half_values",
     "time_at_limits",
@@ -122,9 +123,12 @@ def second_half_values(result: EstimationResult, samples: int | None = None) -> 
     With ``samples``, of its first ``samples`` rows (the run so far, for a causal choice).
     """
     stop = len(result) if samples is None else samples
-    return {
-        name: _median(result.mean_of(name)[stop // 2 : stop]) for name in result.parameter_names
-    }
+    return column_medians(result.mean[stop // 2 : stop], result.parameter_names)
+
+
+def column_medians(rows: FloatArray, names: tuple[str, ...]) -> dict[str, float]:
+    """Median of each column of ``rows`` (one per name) over its finite values."""
+    return {name: _median(rows[:, j]) for j, name in enumerate(names)}
 
 
 def _median(values: FloatArray) -> float:

@@ -222,6 +222,15 @@ class PilotFilter(FilterShell):
         """The internal model (f, g) the filter runs on."""
         return self._internal
 
+    def estimated_names(self, dt: float) -> tuple[str, ...]:
+        """The parameters a reset at ``dt`` estimates, found on a twin (this one is left as is).
+
+        The rules resolve them at reset: e.g. the single integrator's holds ``K_v``.
+        """
+        twin = self.configure()
+        twin.reset(dt)
+        return tuple(twin.resolved.estimated)
+
     @property
     def resolved(self) -> ResolvedSettings:
         """Numbers resolved at the last :meth:`reset`."""

@@ -187,11 +187,13 @@ from typing import Any, ClassVar
 import numpy as np
 
 from manualcontrol.envs._validation import check_choice, check_int, check_positive
+from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair
 from manualcontrol.estimators._pilot_core import PAPERS_DT, euler_substeps
 from manualcontrol.estimators.analysis.fit_check import (
     FAR_GAIN_DB,
     FAR_PHASE_DEG,
+    column_medians,
     second_half_values,
 )
 from manualcontrol.estimators.analysis.frequency import response_error
@@ -500,6 +502,87 @@ class RMLSettings(PilotFilterSettings):
 _MODELS: dict[tuple[str, bool], InternalModel] = {}
 
 
+class _CausalChoice:
+    """When and how ``remnant_injection="choose-causal"`` decides (:meth:`RML.estimate`).
+
+    Shared by the whole-recording and the step-by-step forms, so both decide alike:
+    :meth:`decision_counts` says after how many samples, :meth:`decide` scores each
+    pass's model (its second-half medians of the samples so far) against the
+    least-squares describing function of the signals so far and returns the index
+    (into :data:`INJECTIONS`) of the nearer; each change is kept in :attr:`decisions`.
+    """
+
+    def __init__(
+        self, settings: RMLSettings, forcing: ForcingPair, dt: float, sample_keys: tuple[str, ...]
+    ) -> None:
+        self.settings, self.forcing, self.dt = settings, forcing, dt
+        #: The signals the describing function reads: those of the samples.
+        self.recorded = tuple(n for n in ("e", "u", "y", "fd", "ft") if n in sample_keys)
+        self.first = math.ceil(0.5 * forcing_period(forcing) / dt)
+        self.every = max(1, round(CAUSAL_CHOICE_INTERVAL / dt))
+        self.decisions: list[dict[str, Any]] = []
+
+    def decision_counts(self, size: int) -> range:
+        """The numbers of samples so far after which a decision is made."""
+        return range(self.first, size + 1, self.every)
+
+    def decide(self, t: Any, signals: Mapping[str, Any], values: list[Mapping[str, float]]) -> int:
+        """The pass followed from the last of these samples on (index into INJECTIONS)."""
+        settings = self.settings
+        describing = run_describing_function(
+            settings,
+            Recording({"t": t, **signals}, dt=self.dt),
+            self.forcing,
+            None,
+            f"remnant_injection={CHOOSE_CAUSAL_INJECTION!r}",
+            method="least-squares",
+        )
+        scores = []
+        for pass_values in values:
+            if all(math.isfinite(v) for v in pass_values.values()):
+                gain, phase = response_error(describing, settings.model, pass_values)
+                scores.append(gain / FAR_GAIN_DB + phase / FAR_PHASE_DEG)
+            else:
+                scores.append(math.inf)
+        choice = int(np.argmin(scores))
+        point = INJECTIONS[choice]
+        if not self.decisions or self.decisions[-1]["point"] != point:
+            self.decisions.append({"t": float(t[-1]), "point": point})
+        return choice
+
+
+class _SteppedChoice:
+    """The step-by-step form of the causal choice: both passes stepped, one followed."""
+
+    def __init__(self, choice: _CausalChoice, passes: list[RML], t0: float) -> None:
+        self.choice, self.passes, self.t0 = choice, passes, t0
+        self.names = passes[0].parameter_names
+        self.times: list[float] = []
+        self.signals: dict[str, list[float]] = {name: [] for name in choice.recorded}
+        self.rows: list[list[list[float]]] = [[] for _ in passes]
+        self.followed = 0
+        self.next_decision = choice.first
+
+    def update(self, sample: Mapping[str, float], plain: bool) -> Any:
+        answers = [p.update_plain(sample) if plain else p.update(sample) for p in self.passes]
+        count = len(self.times) + 1
+        t = sample.get("t")
+        self.times.append(self.t0 + (count - 1) * self.choice.dt if t is None else float(t))
+        for name, values in self.signals.items():
+            values.append(float(sample[name]))
+        for rows, answer in zip(self.rows, answers, strict=True):
+            mean = answer["mean"] if plain else answer.mean
+            rows.append([mean[name] for name in self.names])
+        if count == self.next_decision:
+            values = [
+                column_medians(np.array(rows[count // 2 : count]), self.names) for rows in self.rows
+            ]
+            signals = {name: np.array(v) for name, v in self.signals.items()}
+            self.followed = self.choice.decide(np.array(self.times), signals, values)
+            self.next_decision += self.choice.every
+        return answers[self.followed]
+
+
 def _joined(
     passes: list[Any], followed: Any, settings: RMLSettings, decisions: list[dict[str, Any]]
 ) -> Any:
@@ -600,6 +683,7 @@ class RML(PilotFilter):
         super().__init__(settings, **changes)
         # the pursuit form reads ft, as the family's filters (PilotFilter.__init__) do
         self._internal = _delay_free_model(self._settings.model, self._settings.pursuit)
+        self._stepped: _SteppedChoice | None = None  # remnant_injection="choose-causal"
 
     def estimate(self, recording: Any, **options: Any) -> Any:
         """Run the filter over a recording; see :meth:`PilotFilter.estimate`.
@@ -703,34 +787,76 @@ class RML(PilotFilter):
             self.configure(remnant_injection=point).estimate(recording, **options)
             for point in INJECTIONS
         ]
-        dt, size = recording.dt, len(recording)
-        first = math.ceil(0.5 * forcing_period(forcing) / dt)
-        every = max(1, round(CAUSAL_CHOICE_INTERVAL / dt))
+        choice = _CausalChoice(settings, forcing, recording.dt, self.sample_keys)
+        if "e" in choice.recorded and "e" not in recording:
+            recording = recording.with_error_signal()
+        size = len(recording)
         followed = np.zeros(size, dtype=np.int64)  # index into INJECTIONS, the input first
-        decisions: list[dict[str, Any]] = []
-        for samples in range(first, size + 1, every):
-            describing = run_describing_function(
-                settings,
-                recording.slice_samples(0, samples),
-                forcing,
-                None,
-                f"remnant_injection={CHOOSE_CAUSAL_INJECTION!r}",
-                method="least-squares",
+        for samples in choice.decision_counts(size):
+            signals = {name: recording[name][:samples] for name in choice.recorded}
+            values = [second_half_values(result, samples) for result in passes]
+            followed[samples - 1 :] = choice.decide(recording.t[:samples], signals, values)
+        return _joined(passes, followed, settings, choice.decisions)
+
+    def reset(
+        self,
+        dt: float = 0.01,
+        *,
+        var_u0: float | None = None,
+        var_e0: float | None = None,
+        t0: float = 0.0,
+        forcing: ForcingPair | None = None,
+    ) -> None:
+        """Start from the initial belief; see :meth:`PilotFilter.reset`.
+
+        ``forcing`` (the run's ForcingPair) is read by ``remnant_injection="choose-causal"``
+        alone, which needs it: both passes are then reset, and :meth:`update` steps both
+        and answers with the one followed, deciding as :meth:`estimate` does at the same
+        samples, so the two give the same numbers.
+        """
+        self._stepped = None
+        if self._settings.remnant.injection != CHOOSE_CAUSAL_INJECTION:
+            super().reset(dt, var_u0=var_u0, var_e0=var_e0, t0=t0)
+            return
+        if not isinstance(forcing, ForcingPair):
+            raise ValueError(
+                "remnant_injection='choose-causal' measures the describing function of the "
+                "samples so far at the forcing's lines: reset needs forcing= (the run's "
+                f"ForcingPair), got {forcing!r}"
             )
-            scores = []
-            for result in passes:
-                values = second_half_values(result, samples)
-                if all(math.isfinite(v) for v in values.values()):
-                    gain, phase = response_error(describing, settings.model, values)
-                    scores.append(gain / FAR_GAIN_DB + phase / FAR_PHASE_DEG)
-                else:
-                    scores.append(math.inf)
-            choice = int(np.argmin(scores))
-            point = INJECTIONS[choice]
-            if not decisions or decisions[-1]["point"] != point:
-                decisions.append({"t": float(recording.t[samples - 1]), "point": point})
-            followed[samples - 1 :] = choice
-        return _joined(passes, followed, settings, decisions)
+        passes = [self.configure(remnant_injection=point) for point in INJECTIONS]
+        for estimator in passes:
+            estimator.reset(dt, var_u0=var_u0, var_e0=var_e0, t0=t0)
+        choice = _CausalChoice(self._settings, forcing, dt, self.sample_keys)
+        self._stepped = _SteppedChoice(choice, passes, t0)
+
+    #: :meth:`reset` takes the run's forcing (the online observer hands it over).
+    reads_forcing: ClassVar[bool] = True
+
+    def estimated_names(self, dt: float) -> tuple[str, ...]:
+        """See :meth:`PilotFilter.estimated_names`; both passes of a choice estimate alike."""
+        if self._settings.remnant.injection == CHOOSE_CAUSAL_INJECTION:
+            return self.configure(remnant_injection=INJECTIONS[0]).estimated_names(dt)
+        return super().estimated_names(dt)
+
+    @property
+    def resolved(self) -> ResolvedSettings:
+        """Numbers resolved at the last :meth:`reset` (the perception pass's when choosing)."""
+        if self._stepped is not None:
+            return self._stepped.passes[0].resolved
+        return super().resolved
+
+    def update(self, sample: Mapping[str, float]) -> Any:
+        """Consume one sample; see :meth:`PilotFilter.update` (and :meth:`reset`)."""
+        if self._stepped is not None:
+            return self._stepped.update(sample, plain=False)
+        return super().update(sample)
+
+    def update_plain(self, sample: Mapping[str, float]) -> dict[str, Any]:
+        """:meth:`update` as plain data; see :meth:`PilotFilter.update_plain`."""
+        if self._stepped is not None:
+            return self._stepped.update(sample, plain=True)
+        return super().update_plain(sample)
 
     @property
     def settings(self) -> RMLSettings:
@@ -739,12 +865,6 @@ class RML(PilotFilter):
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
         settings = self._settings
-        if settings.remnant.injection == CHOOSE_CAUSAL_INJECTION:
-            raise ValueError(
-                "remnant_injection='choose-causal' runs two filters and follows the one the "
-                "describing function of the samples so far agrees with: on recordings "
-                "(estimate); the step-by-step update takes 'input' or 'output'"
-            )
         if settings.remnant.injection == CHOOSE_INJECTION:
             raise ValueError(
                 "remnant_injection='choose' runs the whole recording with the remnant at the "

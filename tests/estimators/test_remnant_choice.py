@@ -11,6 +11,7 @@ import warnings
 import numpy as np
 import pytest
 
+from manualcontrol.envs.signals import ForcingPair
 from manualcontrol.estimators import RML
 from manualcontrol.estimators.analysis.fit_check import second_half_values
 from manualcontrol.pilots import Pilot, make_model, simulate
@@ -93,12 +94,78 @@ def test_causal_choice_follows_the_describing_function_of_the_samples_so_far(sti
 
 def test_causal_choice_refuses_what_it_cannot_do(stick_remnant_run):
     estimator = RML(model="precision", element="1/s", remnant_injection="choose-causal")
-    with pytest.raises(ValueError, match=re.escape("on recordings (estimate)")):
-        estimator.reset(0.01, var_u0=1.0, var_e0=1.0)
     with pytest.raises(ValueError, match="for a smoothed estimate give remnant_injection='choose'"):
         estimator.estimate(stick_remnant_run, smooth=True)
     bare = stick_remnant_run.with_metadata(forcing=None)
     with pytest.raises(ValueError, match="remnant_injection='choose-causal' measures"):
         estimator.estimate(bare)
-    with pytest.raises(ValueError, match="remnant_injection must be one of .*'choose-causal'"):
+    with pytest.raises(ValueError, match=r"remnant_injection must be one of .*'choose-causal'"):
         RML(model="precision", remnant_injection="causal")
+
+
+def _stepped(estimator, recording, **reset):
+    """Means of ``estimator.update`` over the recording's samples, after ``reset``."""
+    estimator.reset(recording.dt, t0=float(recording.t[0]), **reset)
+    keys = estimator.sample_keys
+    columns = [recording[key] for key in keys]
+    means = []
+    for i, t in enumerate(recording.t):
+        estimate = estimator.update(
+            {"t": t, **{k: c[i] for k, c in zip(keys, columns, strict=True)}}
+        )
+        means.append([estimate.mean[name] for name in estimator.parameter_names])
+    return np.array(means)
+
+
+def test_causal_choice_stepped_equals_the_recordings_estimate(stick_remnant_run):
+    run = stick_remnant_run.slice_samples(0, 9000)  # 90 s: decisions from 60 s on
+    estimator = RML(model="precision", element="1/s", remnant_injection="choose-causal")
+    whole = estimator.estimate(run)
+    window = slice(0, round(estimator.settings.noise.window / run.dt) + 1)
+    variances = dict(var_u0=float(np.var(run["u"][window])), var_e0=float(np.var(run["e"][window])))
+    forcing = ForcingPair.from_dict(run.metadata["forcing"])
+    np.testing.assert_array_equal(
+        _stepped(estimator, run, forcing=forcing, **variances), whole.mean
+    )
+    assert whole.settings["remnant_injection"]["decisions"][0]["point"] == "output"
+    with pytest.raises(ValueError, match="reset needs forcing="):
+        estimator.reset(0.01)
+
+
+def test_causal_choice_online_in_an_env(stick_remnant_run):
+    # the observer hands the env's forcing to reset; both passes run, the one followed
+    # answers, as update() does on the episode's samples
+    import gymnasium as gym
+
+    import manualcontrol.envs  # noqa: F401
+    from manualcontrol.estimators.observer import EstimatorObserver
+
+    settings = dict(
+        model="precision",
+        element="1/s",
+        remnant_injection="choose-causal",
+        initial_variance="causal",
+        initial={"K_p": 2.0},
+    )
+    inner = gym.make(
+        "ManualControl/CompensatoryTracking-v0",
+        controlled_element="1/s",
+        forcing="popovici2017",  # a 90-s period: decisions from 45 s on
+        run_in=5.0,
+        measurement_time=55.0,
+    )
+    env = EstimatorObserver(inner, RML(**settings))
+    observation, _ = env.reset(seed=0)
+    pilot = Pilot("precision", TRUTH, remnant=ZaalRemnant(injection="output", P_r=0.3))
+    pilot.reset(seed=3, env=env)
+    means, done = [], False
+    while not done:
+        observation, _, terminated, truncated, info = env.step(pilot.act(observation))
+        means.append([info["estimates"]["mean"][name] for name in env.estimator.parameter_names])
+        done = terminated or truncated
+    recording = env.unwrapped.recording(include_run_in=True)
+    forcing = env.unwrapped.forcing
+    np.testing.assert_array_equal(
+        np.array(means), _stepped(RML(**settings), recording, forcing=forcing)
+    )
+    assert len(env.estimator._stepped.choice.decisions) >= 1
