@@ -829,9 +829,11 @@ def _cmd_describe(args: argparse.Namespace) -> int:
             element=element,
             disturbance_at=args.disturbance_at,
             task=args.task,
+            method=args.method,
         )
     except ValueError as error:
         text = cli_words(str(error), "describe").replace("disturbance_at", "--disturbance-at")
+        text = text.replace("method='least-squares'", "--method least-squares")
         raise UsageError(text) from None
     from manualcontrol.envs.tasks import task_named
     from manualcontrol.pilots.models import MODEL_NAMES, make_model
@@ -861,11 +863,17 @@ def _cmd_describe(args: argparse.Namespace) -> int:
             "the pilot's response to y); the model is fitted to every line's U from the "
             "target and y"
         )
+    if describing.method == "least-squares":
+        stretch = (
+            f"over every sample, {end - start:.2f} s (the forcing repeats every "
+            f"{describing.period:g} s), by least squares"
+        )
+    else:
+        stretch = f"over {describing.periods} period{plural} of {describing.period:g} s"
     print(
         f"describing function at {describing.frequencies.size} forcing frequencies ({sets}) "
-        f"over {describing.periods} period{plural} of {describing.period:g} s "
-        f"(t = {start:.2f} to {end:.2f} s); remnant: {100 * describing.remnant_share:.0f} % "
-        "of u's variance off the forcing frequencies"
+        f"{stretch} (t = {start:.2f} to {end:.2f} s); remnant: "
+        f"{100 * describing.remnant_share:.0f} % of u's variance off the forcing frequencies"
     )
     print("  omega [rad/s]  |H_p| [dB]  phase [deg]  SNR(u)  SNR(remnant injected)  forcing")
     for w, g, ph, snr, injected, kind in zip(
@@ -1592,6 +1600,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="the display (default: the recording's, else compensatory); on a pursuit or "
         "preview display the pilot sees the target and y, and the table shows the "
         "disturbance's lines, where the target is still",
+    )
+    p.add_argument(
+        "--method",
+        choices=("fourier", "least-squares"),
+        default="fourier",
+        help="fourier (default): Fourier coefficients over the last whole forcing periods; "
+        "least-squares: sinusoids at the forcing lines fitted to every sample, for a trial "
+        "shorter than a period or cut mid-period (needs --forcing)",
     )
     p.add_argument(
         "--model",

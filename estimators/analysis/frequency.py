@@ -432,8 +432,9 @@ def describing_function(
         ``"fourier"`` (default): the stretch is the last whole number of periods of the
         run, each line one bin of its discrete Fourier transform. ``"least-squares"``:
         the stretch is every sample given, of any length, and the coefficients are those
-        of sinusoids at every forcing line fitted together by least squares (the forcing
-        must be known: ``forcing`` or the metadata). Its signal-to-noise ratios read the
+        of sinusoids at every forcing line fitted together by least squares (the lines
+        from ``forcing`` or the metadata, or with ``period`` read off a recording of at
+        least one period). Its signal-to-noise ratios read the
         residual's spectrum beside each line, scaled by how much the fit's
         non-orthogonal sinusoids (lines closer than one bin of a short stretch) inflate
         the coefficient's variance; on whole periods the sinusoids are orthogonal and
@@ -468,11 +469,6 @@ def describing_function(
     lines: list[tuple[int, str]] | None = None
     if forcing is not None:
         period, lines = _forcing_lines(forcing, period)
-    elif method == "least-squares":
-        raise ValueError(
-            "method='least-squares' fits sinusoids at the forcing's lines: give the forcing "
-            "(forcing=, or the recording's metadata), not only its period"
-        )
     assert period is not None  # for the type checker; both branches set it
     dt = recording.dt
     exact = period / dt
@@ -490,9 +486,16 @@ def describing_function(
             f"the recording ({recording.duration:g} s) is shorter than one forcing period "
             f"({period:g} s); method='least-squares' reads a shorter stretch"
         )
+    if lines is None and count < 1:
+        raise ValueError(
+            f"method='least-squares' on a recording shorter than the period ({period:g} s) "
+            "cannot read the forcing's lines off the recorded ft and fd: give the forcing "
+            "(forcing=, or the recording's metadata)"
+        )
     first = len(recording) - count * per_period if fourier else 0
     if lines is None:
-        lines = _recorded_lines(recording, per_period, first, count)
+        # the lines from the last whole periods, as the Fourier method reads them
+        lines = _recorded_lines(recording, per_period, len(recording) - count * per_period, count)
     size = count * per_period if fourier else len(recording)
     stretch = slice(first, first + size)
     names = ["e", "u"] + [n for n in ("y", "fd", "ft") if n in recording]

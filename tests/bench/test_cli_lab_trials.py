@@ -18,6 +18,7 @@ from manualcontrol.pilots import Pilot, simulate
 
 LAB_COLUMNS = ["--column", "u=stick", "--column", "y=output", "--column", "ft=target"]
 LAB_COLUMNS += ["--column", "fd=disturbance"]
+HUMAN_SI = dict(K_p=3.0, K_v=0.0, tau_v=0.28, omega_nms=11.0, zeta_nms=0.6)
 
 
 def run(capsys, *argv):
@@ -40,7 +41,7 @@ def trial(tmp_path_factory):
         warnings.simplefilter("ignore")  # K_p 3: above thesis Table I, where humans put it
         pilot = Pilot(
             "precision",
-            dict(K_p=3.0, K_v=0.0, tau_v=0.28, omega_nms=11.0, zeta_nms=0.6),
+            HUMAN_SI,
             remnant="vertregt2020-SI",
         )
         recording = simulate(
@@ -259,3 +260,65 @@ def test_identify_is_the_library_function_the_command_prints(trial, tmp_path, ca
         build_estimator("no-such")
     with pytest.raises(ValueError, match="model names the pilot structure"):
         build_estimator("rdi", model="precision")
+
+
+def test_describe_by_least_squares_reads_a_trial_cut_mid_period(trial, tmp_path, capsys):
+    whole = tmp_path / "whole"
+    code, out, err = run(
+        capsys, "describe", str(trial), *LAB_COLUMNS, "--element", "1/s",
+        "--disturbance-at", "input", "--period", "120", "--method", "least-squares",
+        "--out", str(whole),
+    )  # fmt: skip
+    assert code == EXIT_OK, err
+    assert "over every sample, 120.00 s (the forcing repeats every 120 s), by least squares" in out
+    summary = json.loads((whole / "summary.json").read_text())["describing_function"]
+    assert summary["method"] == "least-squares"
+    assert 2.0 < summary["crossover_frequency"] < 4.5
+    # 90 s of the trial: the Fourier method needs a whole period, least squares does not
+    cut = tmp_path / "cut.csv"
+    lines = trial.read_text().splitlines()
+    cut.write_text("\n".join(lines[: 1 + 90 * 60]) + "\n")
+    code, _, err = run(
+        capsys, "describe", str(cut), *LAB_COLUMNS, "--element", "1/s", "--disturbance-at",
+        "input", "--forcing", "vanderel-bw4", "--out", str(tmp_path / "f"),
+    )  # fmt: skip
+    assert code == EXIT_USAGE and "shorter than one forcing period" in err
+    assert "--method least-squares reads a shorter stretch" in err
+    code, out, err = run(
+        capsys, "describe", str(cut), *LAB_COLUMNS, "--element", "1/s", "--disturbance-at",
+        "input", "--period", "120", "--method", "least-squares", "--out", str(tmp_path / "p"),
+    )  # fmt: skip
+    assert code == EXIT_USAGE
+    assert "--method least-squares on a recording shorter than the period" in err
+
+
+def test_identify_chooses_the_remnant_model_causally(tmp_path, capsys):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # K_p 3: above thesis Table I, where humans put it
+        recording = simulate(
+            Pilot("precision", HUMAN_SI, remnant="vertregt2020-SI"),
+            parse_element("1/s"),
+            "vanderel-bw4",
+            measurement_time=120.0,
+            seed=3,
+        )
+    path = recording.save(tmp_path / "run.npz")
+    out_dir = tmp_path / "o"
+    code, out, err = run(
+        capsys, "identify", str(path), "--element", "1/s", "--estimator", "rml",
+        "--set", "remnant_injection=choose-causal", "--out", str(out_dir),
+    )  # fmt: skip
+    assert code == EXIT_OK, err
+    assert "remnant model, chosen causally: at the " in out
+    assert "before the first decision, half a forcing period in, the perception" in out
+    record = json.loads((out_dir / "summary.json").read_text())["remnant_injection"]
+    assert record["decisions"][0]["t"] == pytest.approx(60.0, abs=0.02)
+    assert sum(record["share"].values()) == pytest.approx(1.0)
+    bare = recording.with_metadata(forcing=None).save(tmp_path / "bare.npz")
+    code, _, err = run(
+        capsys, "identify", str(bare), "--element", "1/s", "--estimator", "rml",
+        "--set", "remnant_injection=choose-causal", "--out", str(tmp_path / "b"),
+    )  # fmt: skip
+    assert code == EXIT_USAGE
+    assert "--set remnant_injection=choose-causal measures the describing function" in err
+    assert not (tmp_path / "b" / "summary.json").exists()

@@ -99,8 +99,11 @@ def test_bad_inputs_are_named(clean_run):
     with pytest.raises(ValueError, match="method must be one of 'fourier', 'least-squares'"):
         describing_function(clean_run, method="lsq")
     bare = clean_run.with_metadata(forcing=None)
-    with pytest.raises(ValueError, match=re.escape("method='least-squares' fits sinusoids")):
-        describing_function(bare, period=120.0, method="least-squares")
+    # with the period alone the lines are read off the recorded forcing signals
+    read_off = describing_function(bare, period=120.0, method="least-squares")
+    np.testing.assert_allclose(read_off.pilot, describing_function(clean_run).pilot, rtol=1e-9)
+    with pytest.raises(ValueError, match=re.escape("cannot read the forcing's lines off")):
+        describing_function(bare.slice_samples(0, 6000), period=120.0, method="least-squares")
     tiny = clean_run.slice_samples(0, 200)  # 2 s: lines 1/120 Hz apart cannot be told apart
     with pytest.raises(ValueError, match=r"stretch \(2 s\) is too short"):
         describing_function(tiny, method="least-squares")
