@@ -45,6 +45,7 @@ from manualcontrol.estimators.analysis.human_likeness import (
     reference_pilot,
 )
 from manualcontrol.estimators.offline.output_error import OfflineFit, fit_pilot
+from manualcontrol.estimators.protocol import report_progress
 from manualcontrol.pilots import Pilot
 
 __all__ = ["REFERENCE_PILOTS", "Evaluation", "evaluate", "fly", "write_report"]
@@ -187,6 +188,7 @@ def evaluate(
         **dict(env_overrides or {}),
     }
     env = _make_env(agent, not deterministic, overrides)
+    report_progress(f"evaluate: flying the agent over one forcing period after {run_in:g} s")
     fly(agent, env, seed)
     whole = env.unwrapped.recording(include_run_in=True)
     recording = whole.slice_time(0.0)
@@ -195,7 +197,9 @@ def evaluate(
     response = forcing_frequency_response(recording)
     display = TASKS_BY_NAME.get(agent.config.task)  # None on lane keeping: no tracking display
     model = "preview" if display is None else display.pilot_model
+    report_progress(f"evaluate: fitting the {model} model (output error)")
     identified = fit_pilot(recording, model)
+    report_progress("evaluate: identifying with the DEKF")
     dekf = _dekf_identification(whole, model, agent.config)
     element = agent.config.env_kwargs.get("controlled_element", "SI")
     values = reference if reference is not None else reference_pilot(element)
@@ -204,10 +208,12 @@ def evaluate(
     if display is not None and display.shows_error_only:
         if values is not None:
             # the bare task: no limitation wrappers between the pilot and the display
+            report_progress("evaluate: flying the typical precision pilot for reference")
             base = gym.make(TASK_IDS[agent.config.task], **{**agent.config.env_kwargs, **overrides})
             reference_recording = fly(Pilot("precision", dict(values)), base, seed)
             base.close()
             reference_rms = float(np.sqrt(np.mean(reference_recording.e**2)))
+        report_progress("evaluate: measuring human-likeness")
         human = human_likeness(recording, reference=reference)
     return Evaluation(
         rms,
@@ -293,6 +299,7 @@ def write_report(
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    report_progress(f"evaluate: writing the report and its plots in {folder}")
     summary = evaluation.summary()
     atomic_write(folder / "evaluation.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
     response = evaluation.frequency_response

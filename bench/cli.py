@@ -649,7 +649,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         source = {"period": args.target_period}
     try:
         # the offline members take minutes on a long run: a line per step says how it goes
-        with reporting_progress(lambda line: print(f"  {line}", file=sys.stderr, flush=True)):
+        with reporting_progress(_progress_line):
             identification = identify(
                 recording,
                 estimator,
@@ -1110,7 +1110,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     failed = sum(row.get("status") != "ok" for row in rows)
     print(f"results: {out / 'results.csv'} ({len(rows)} runs, {failed} failed)")
     if not args.no_report:
-        print(f"report:  {write_report(suite, rows, out)}")
+        from manualcontrol.estimators.protocol import reporting_progress
+
+        with reporting_progress(None if args.quiet else _progress_line):
+            print(f"report:  {write_report(suite, rows, out)}")
     return EXIT_OK if not failed else EXIT_RUNS_FAILED
 
 
@@ -1215,15 +1218,22 @@ def _recipe_config(args: argparse.Namespace) -> Any:
     return config
 
 
+def _progress_line(line: str) -> None:
+    """How a long computation goes: a line to stderr, indented under the command's own."""
+    print(f"  {line}", file=sys.stderr, flush=True)
+
+
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     from manualcontrol.agents.evaluation import evaluate, write_report
     from manualcontrol.agents.training import load_agent
+    from manualcontrol.estimators.protocol import reporting_progress
 
     if args.out is not None:
         _check_output("--out", args.out, folder=True)
     agent = load_agent(args.agent, trust_pickle=args.trust_pickle)
-    evaluation = evaluate(agent, seed=args.seed, deterministic=args.deterministic)
-    path = write_report(evaluation, args.out or Path(args.agent) / "evaluation")
+    with reporting_progress(_progress_line):
+        evaluation = evaluate(agent, seed=args.seed, deterministic=args.deterministic)
+        path = write_report(evaluation, args.out or Path(args.agent) / "evaluation")
     summary = evaluation.summary()
     noise = "on" if evaluation.noise else "off (--deterministic)"
     print(f"RMS error {summary['rms_error']:.4f} (wrappers' noise {noise})")

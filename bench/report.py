@@ -23,6 +23,7 @@ from manualcontrol.bench.papers import section_writer
 from manualcontrol.bench.scenarios import Suite, scenario_from_dict
 from manualcontrol.envs._files import atomic_path, atomic_write
 from manualcontrol.envs.recording import Recording
+from manualcontrol.estimators.protocol import report_progress
 from manualcontrol.pilots.models import MODEL_NAMES, make_model
 
 __all__ = [
@@ -908,10 +909,10 @@ def _write_report(suite: Suite, rows: Sequence[Mapping[str, Any]], out: Path) ->
         *VAF_DEFINITIONS,
         "",
     ]
-    for batch in suite.batches:
+    drawn = [batch for batch in suite.batches if summarise(rows, batch.name)["runs"]]
+    for number, batch in enumerate(drawn, start=1):
+        report_progress(f"report: batch {number} of {len(drawn)}, {batch.name}")
         summary = summarise(rows, batch.name)
-        if not summary["runs"]:
-            continue
         reference = dict(batch.reference)
         source = reference.get("source", "")
         present = {row.get("estimator") for row in rows if row.get("batch") == batch.name}

@@ -124,6 +124,11 @@ def test_bench_runs_a_suite_file(tmp_path, capsys):
     )
     assert code == EXIT_OK
     assert "(1 runs, 0 failed)" in out and (tmp_path / "r" / "report.md").is_file()
+    # without --quiet the report's drawing says how it goes, a line per batch
+    code, _, err = run(
+        capsys, "bench", str(suite), "--out", str(tmp_path / "s"), "--backend", "inprocess"
+    )
+    assert code == EXIT_OK and "report: batch 1 of 1, " in err
 
 
 def test_bench_with_failing_runs_exits_3(tmp_path, capsys, monkeypatch):
@@ -215,8 +220,10 @@ def test_train_and_evaluate_commands(tmp_path, capsys):
     assert code == EXIT_OK and scheduled["wrappers"][0]["delay"]["kind"] == "ramp"
     assert scheduled["observation_noise_ratio"] == 0.01
     assert scheduled["effort_rate_weight"] == 0.05 and scheduled["history_length"] == 3
-    code, out, _ = run(capsys, "evaluate", str(agent), "--out", str(tmp_path / "eval"))
+    code, out, err = run(capsys, "evaluate", str(agent), "--out", str(tmp_path / "eval"))
     assert code == EXIT_OK and "RMS error" in out
+    for stage in ("flying the agent", "identifying with the DEKF", "writing the report"):
+        assert f"evaluate: {stage}" in err  # a line per stage of a minute's work
     assert (tmp_path / "eval" / "evaluation.md").is_file()
 
 
