@@ -569,9 +569,7 @@ def _target_source(args: argparse.Namespace) -> dict[str, Any]:
     if args.forcing is not None and args.target_period is not None:
         raise UsageError("give --forcing or --target-period, not both")
     if args.forcing is not None:
-        from manualcontrol.envs.signals import forcing_preset
-
-        return {"forcing": forcing_preset(args.forcing, args.realisation)}
+        return {"forcing": _forcing_of_flag(args)}
     if args.target_period is not None:
         return {"target_period": args.target_period}
     if getattr(args, "period", None) is not None:  # the forcing repeats: so does the target
@@ -994,12 +992,66 @@ def _trial_forcing(args: argparse.Namespace) -> dict[str, Any]:
     if args.forcing is not None and args.period is not None:
         raise UsageError("give --forcing or --period, not both")
     if args.forcing is not None:
-        from manualcontrol.envs.signals import forcing_preset
-
-        return {"forcing": forcing_preset(args.forcing, args.realisation)}
+        return {"forcing": _forcing_of_flag(args)}
     if args.period is not None:
         return {"period": args.period}
     return {}
+
+
+#: What a forcing file holds, for the messages about one.
+_FORCING_FILE_FORM = (
+    'JSON {"target": {"frequencies": [rad/s], "amplitudes": [...], "phases": [rad], '
+    '"measurement_time": s}, "disturbance": {the same}} (either may be left out; a '
+    'recording\'s metadata["forcing"] is one)'
+)
+
+
+def _forcing_of_flag(args: argparse.Namespace) -> Any:
+    """``--forcing``: a preset (with ``--realisation``) or a forcing file (.json)."""
+    from manualcontrol.envs.signals import forcing_preset
+
+    if str(args.forcing).endswith(".json"):
+        if args.realisation != 0:
+            raise UsageError(
+                f"--realisation {args.realisation} picks a preset's realisation; "
+                f"--forcing {args.forcing} is a file, which holds one forcing"
+            )
+        return _forcing_file(Path(args.forcing))
+    try:
+        return forcing_preset(args.forcing, args.realisation)
+    except ValueError as error:
+        if str(error).startswith("realisation"):
+            raise UsageError(f"--realisation: {error}") from None
+        raise UsageError(
+            f"--forcing: {error}; or a forcing file (.json) of the multisines the trial used"
+        ) from None
+
+
+def _forcing_file(path: Path) -> Any:
+    """The forcing a lab's experiment used, from a JSON file (:data:`_FORCING_FILE_FORM`)."""
+    import json
+
+    from manualcontrol.envs.signals import ForcingPair
+
+    if not path.is_file():
+        raise UsageError(f"--forcing {path}: no such file; a forcing file is {_FORCING_FILE_FORM}")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise UsageError(f"--forcing {path}: not valid JSON ({error})") from None
+    if not isinstance(data, dict):
+        raise UsageError(f"--forcing {path}: a forcing file is {_FORCING_FILE_FORM}")
+    data.setdefault("kind", "forcing_pair")
+    data.setdefault("name", path.stem)
+    for key in ("target", "disturbance"):
+        if isinstance(data.get(key), dict):
+            data[key] = {"kind": "multisine", **data[key]}
+    try:
+        return ForcingPair.from_dict(data)
+    except (TypeError, ValueError, KeyError) as error:
+        raise UsageError(
+            f"--forcing {path}: {error}; a forcing file is {_FORCING_FILE_FORM}"
+        ) from None
 
 
 def _print_frequency_check(check: Any) -> None:
@@ -1364,8 +1416,9 @@ def _add_trial_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--forcing",
         default=None,
-        help="forcing preset the trial was run with: its frequencies (the describing "
-        "function) and the target ahead a preview fit reads",
+        help="forcing the trial was run with, a preset or a .json file of its multisines "
+        "(frequencies in rad/s, amplitudes, phases, measurement_time): its frequencies (the "
+        "describing function) and the target ahead a preview fit reads",
     )
     p.add_argument("--realisation", type=int, default=0, help="realisation of --forcing")
     p.add_argument(

@@ -322,3 +322,45 @@ def test_identify_chooses_the_remnant_model_causally(tmp_path, capsys):
     assert code == EXIT_USAGE
     assert "--set remnant_injection=choose-causal measures the describing function" in err
     assert not (tmp_path / "b" / "summary.json").exists()
+
+
+def test_a_forcing_file_gives_the_lab_forcing_lines(trial, tmp_path, capsys):
+    # a lab's own multisine, not a preset: the causal remnant choice needs its lines
+    disturbance = forcing_preset("vanderel-bw4").disturbance.to_dict()
+    del disturbance["kind"]  # a lab writes the numbers only
+    path = tmp_path / "forcing.json"
+    path.write_text(json.dumps({"disturbance": disturbance}))
+    out_dir = tmp_path / "o"
+    code, out, err = run(
+        capsys, "identify", str(trial), *LAB_COLUMNS, "--element", "1/s", "--disturbance-at",
+        "input", "--forcing", str(path), "--estimator", "rml",
+        "--set", "remnant_injection=choose-causal", "--out", str(out_dir),
+    )  # fmt: skip
+    assert code == EXIT_OK, err
+    assert "remnant model, chosen causally" in out
+    assert "frequency domain: the identified model (second-half medians) misses" in out
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (None, "no such file; a forcing file is JSON"),
+        ("{not json", "not valid JSON"),
+        ("[1, 2]", 'a forcing file is JSON {"target": {"frequencies"'),
+        ('{"target": {"frequencies": [1.0]}}', "a forcing file is JSON"),
+        ('{"target": {"frequencies": [1.0], "amplitudes": [1.0], "phases": [0.0]}, "x": 1}',
+         "unknown"),
+    ],
+)  # fmt: skip
+def test_forcing_file_bad_inputs(trial, tmp_path, capsys, content, message):
+    path = tmp_path / "forcing.json"
+    if content is not None:
+        path.write_text(content)
+    out_dir = tmp_path / "o"
+    code, _, err = run(
+        capsys, "describe", str(trial), *LAB_COLUMNS, "--element", "1/s",
+        "--forcing", str(path), "--out", str(out_dir),
+    )  # fmt: skip
+    assert code == EXIT_USAGE
+    assert f"--forcing {path}" in err and message in err
+    assert not (out_dir / "summary.json").exists()
