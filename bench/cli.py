@@ -832,6 +832,8 @@ def _cmd_describe(args: argparse.Namespace) -> int:
     except ValueError as error:
         text = cli_words(str(error), "describe").replace("disturbance_at", "--disturbance-at")
         text = text.replace("method='least-squares'", "--method least-squares")
+        if "shorter than one forcing period" in text:
+            text += "; --method least-squares reads a shorter stretch"
         raise UsageError(text) from None
     from manualcontrol.envs.tasks import task_named
     from manualcontrol.pilots.models import MODEL_NAMES, make_model

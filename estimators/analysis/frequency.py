@@ -484,7 +484,7 @@ def describing_function(
     if fourier and count < 1:
         raise ValueError(
             f"the recording ({recording.duration:g} s) is shorter than one forcing period "
-            f"({period:g} s); method='least-squares' reads a shorter stretch"
+            f"({period:g} s)"
         )
     if lines is None and count < 1:
         raise ValueError(
