@@ -613,16 +613,24 @@ class PilotFilter(FilterShell):
     def _pass(
         self, recording: Recording, signals: Mapping[str, FloatArray], store: bool
     ) -> EstimationResult:
-        """One filter pass over ``recording`` from a fresh reset (filtered)."""
+        """One filter pass over ``recording`` from a fresh reset (filtered).
+
+        The reset gets the first window's variances where the start reads them: the
+        papers' ``initial_variance="first-window"``, or Popovici's generic ``K_p0`` (eq.
+        27) where ``initial`` has no ``K_p``. A causal start given its ``K_p`` gets none,
+        as online, so the run equals the same filter stepped sample by sample.
+        """
         dt = recording.dt
-        n_window = round(self._settings.noise.window / dt)
-        first = slice(0, n_window + 1)
-        variances = []
-        for name in ("u", "e"):
-            window = signals[name][first]
-            with np.errstate(invalid="ignore"):
-                finite = np.any(np.isfinite(window))
-                variances.append(float(np.nanvar(window)) if finite else 0.0)
+        settings = self._settings
+        variances: list[float | None] = [None, None]
+        if settings.noise.initial_variance == "first-window" or "K_p" not in settings.initial:
+            n_window = round(settings.noise.window / dt)
+            first = slice(0, n_window + 1)
+            for i, name in enumerate(("u", "e")):
+                window = signals[name][first]
+                with np.errstate(invalid="ignore"):
+                    finite = np.any(np.isfinite(window))
+                    variances[i] = float(np.nanvar(window)) if finite else 0.0
         self.reset(dt, var_u0=variances[0], var_e0=variances[1], t0=float(recording.t[0]))
         n = len(recording)
         inputs = np.ascontiguousarray(

@@ -67,6 +67,33 @@ def test_online_estimates_equal_the_offline_estimate_of_the_episode(case):
         np.testing.assert_array_equal(online, offline.mean_of(name), err_msg=name)
 
 
+def test_a_causal_rml_online_equals_its_estimate_of_the_episode():
+    # estimate() hands a causal start no first-window variances, as the observer's reset
+    # has none: the RML's start reads them, so the two would differ from the first sample
+    from manualcontrol.estimators import RML
+
+    settings = dict(model="precision", initial_variance="causal", initial={"K_p": 1.0})
+    inner = gym.make(
+        "ManualControl/CompensatoryTracking-v0",
+        controlled_element="popovici2017",
+        run_in=2.0,
+        measurement_time=20.0,
+    )
+    env = EstimatorObserver(inner, RML(**settings))
+    observation, _ = env.reset(seed=0)
+    pilot = Pilot("precision", remnant="popovici2017")
+    pilot.reset(seed=3, env=env)
+    means, done = [], False
+    while not done:
+        observation, _, terminated, truncated, info = env.step(pilot.act(observation))
+        means.append(info["estimates"]["mean"])
+        done = terminated or truncated
+    offline = RML(**settings).estimate(env.unwrapped.recording(include_run_in=True))
+    for name in offline.parameter_names:
+        online = np.array([mean[name] for mean in means])
+        np.testing.assert_array_equal(online, offline.mean_of(name), err_msg=name)
+
+
 def test_appended_estimates_and_info():
     env, _, observation, info = fly("compensatory", append=True)
     estimated = ("K_p", "K_v", "tau_v", "omega_nms", "zeta_nms")
