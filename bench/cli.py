@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import inspect
 import json
 import math
 import os
@@ -96,6 +97,54 @@ _FLAGS: dict[str, str] = {
     "time_column": "--column t=COLUMN",
     "task": "--task",
 }
+
+#: Per command, the library's names a message may start with and the flag that sets
+#: each: the message is then led by the flag (``dt must be > 0`` is ``--dt``'s).
+_LEADING_NAMES: dict[str, tuple[tuple[str, str], ...]] = {
+    "simulate": (
+        ("pilot model", "--model"),
+        ("forcing preset", "--forcing"),
+        ("remnant", "--remnant"),
+        ("task", "--task"),
+        ("loop", "--loop"),
+        ("controlled element", "--element"),
+        ("element", "--element"),
+        ("realisation", "--realisation"),
+        ("available_preview", "--available-preview"),
+        ("measurement_time", "--measurement-time"),
+        ("run_in", "--run-in"),
+        ("delay_order", "--delay-order"),
+        ("disturbance_at", "--disturbance-at"),
+        ("pilot parameter", "--param"),
+    ),
+    "train": (
+        ("total_timesteps", "--steps"),
+        ("n_envs", "--envs"),
+        ("delay", "--delay"),
+        ("omega_nms", "--neuromuscular"),
+        ("zeta_nms", "--neuromuscular"),
+        ("power_ratio", "--motor-noise"),
+        ("task", "--task"),
+        ("checkpoint_every", "--checkpoint-every"),
+        ("algorithm_kwargs", "--algorithm-option"),
+        ("observation_noise_ratio", "--observation-noise"),
+        ("effort_rate_weight", "--effort-rate-weight"),
+    ),
+    "bench": (("estimators", "--estimators"),),
+    "identify": (("pilot model", "--model"), ("target_period", "--target-period")),
+    "describe": (("pilot model", "--model"),),
+}
+
+
+def _led_by_flag(text: str, command: str) -> str:
+    """``text`` led by the flag of the name it starts with (:data:`_LEADING_NAMES`)."""
+    if re.match(r"^\w+Model has no parameter", text) and command == "simulate":
+        return f"--param: {text}"
+    for name, flag in _LEADING_NAMES.get(command, ()):
+        if re.match(rf"^{re.escape(name)}\b", text):
+            return f"{flag}: {text}"
+    return text
+
 
 #: Estimator settings the library's messages name (``identify --set NAME=VALUE``).
 _SETTINGS = (
@@ -251,12 +300,19 @@ def _assignments(items: Sequence[str] | None, what: str) -> dict[str, Any]:
     refused, saying where it broke, instead of arriving as a string that a setting then
     calls "not a mapping".
     """
-    out = {}
+    out, given = {}, {}
     for item in items or ():
         if "=" not in item:
             raise UsageError(f"{what} must look like NAME=VALUE, got {item!r}")
         name, text = item.split("=", 1)
         name = name.strip()
+        if not name:
+            raise UsageError(f"{what} must look like NAME=VALUE, got {item!r} (no name)")
+        if name in out:
+            raise UsageError(
+                f"{what} {name}= is given twice ({given[name]!r} and {item!r}): give it once"
+            )
+        given[name] = item
         if text.strip()[:1] in ("{", "["):
             try:
                 json.loads(text)
@@ -295,11 +351,28 @@ def _schedule(text: Any) -> Any:
     builders = {"sigmoid": Sigmoid, "sine": Sine, "ramp": Ramp, "step": Step}
     if kind not in builders or not arguments:
         raise UsageError(
-            f"a parameter value must be a number or KIND:ARGS with KIND one of "
+            f"a parameter value must be a finite number or KIND:ARGS with KIND one of "
             f"{', '.join(builders)}, got {text!r}"
         )
+    builder = builders[kind]
+    names = [
+        name
+        for name, parameter in inspect.signature(builder).parameters.items()
+        if parameter.default is inspect.Parameter.empty
+    ]
     try:
-        return builders[kind](*(float(a) for a in arguments.split(",")))
+        numbers = [float(a) for a in arguments.split(",")]
+    except ValueError:
+        raise UsageError(
+            f"bad {kind} schedule {text!r}: give {len(names)} numbers ({', '.join(names)})"
+        ) from None
+    if len(numbers) != len(names):
+        raise UsageError(
+            f"bad {kind} schedule {text!r}: give {len(names)} numbers ({', '.join(names)}), "
+            f"got {len(numbers)}"
+        )
+    try:
+        return builder(*numbers)
     except (TypeError, ValueError) as error:
         raise UsageError(f"bad {kind} schedule {text!r}: {error}") from None
 
@@ -344,6 +417,25 @@ def _cmd_estimators(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _warn_of_aliasing(recording: Any, dt: float) -> None:
+    """Warn where the forcing has lines at or above the Nyquist frequency of ``dt``."""
+    from manualcontrol.envs.signals import ForcingPair, Multisine
+
+    known = recording.metadata.get("forcing")
+    if known is None:
+        return
+    pair = ForcingPair.from_dict(known)
+    signals = [s for s in (pair.target, pair.disturbance) if isinstance(s, Multisine)]
+    highest = max((float(np.max(s.frequencies)) for s in signals), default=0.0)
+    if highest >= math.pi / dt:
+        print(
+            f"manualcontrol simulate: warning: the forcing has lines up to {highest:.3g} rad/s, "
+            f"at or above the Nyquist frequency pi/dt = {math.pi / dt:.3g} rad/s of --dt {dt:g}: "
+            "they alias onto lower frequencies; use a smaller --dt",
+            file=sys.stderr,
+        )
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
     import warnings
 
@@ -353,9 +445,14 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     _check_output("--out", args.out, folder=False)
     if args.plot is not None:
         _check_output("--plot", args.plot, folder=False)
-    parameters = {
-        name: _schedule(value) for name, value in _assignments(args.param, "--param").items()
-    }
+        if Path(args.plot).suffix.lower() != ".png":
+            raise UsageError(f"--plot {args.plot}: the drawing is a PNG; name it FILE.png")
+    parameters = {}
+    for name, value in _assignments(args.param, "--param").items():
+        try:
+            parameters[name] = _schedule(value)
+        except UsageError as error:
+            raise UsageError(f"--param {name}=: {error}") from None
     # unset parameters take typical values for the element: a stable loop by default
     pilot = Pilot.typical(
         args.model, args.element, parameters, remnant=args.remnant, delay_order=args.delay_order
@@ -366,6 +463,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     for warning in caught:
         if issubclass(warning.category, UnstableLoopWarning):
             print(f"manualcontrol simulate: warning: {warning.message}", file=sys.stderr)
+    _warn_of_aliasing(recording, args.dt)
     figure = None
     if args.plot:
         from manualcontrol.bench.report import plot_recording
@@ -416,12 +514,31 @@ def _load_trial(args: argparse.Namespace) -> Any:
     like milliseconds are worded with the options that fix them (``--column``,
     ``--resample``, ``--time-unit``, ``--dt``).
     """
-    from manualcontrol.envs.recording import MissingColumnError, NonUniformTimeError, Recording
+    from manualcontrol.envs.recording import (
+        SIGNAL_NAMES,
+        MissingColumnError,
+        NonUniformTimeError,
+        Recording,
+    )
 
     columns = _assignments(args.column, "--column")
     for name, value in columns.items():
         if not isinstance(value, str):
             columns[name] = str(value)  # a numeric column name such as 2
+        if name not in SIGNAL_NAMES:
+            raise UsageError(
+                f"--column {name}={columns[name]}: {name!r} is no signal; --column maps a "
+                f"signal ({', '.join(SIGNAL_NAMES)}) to the file's column, SIGNAL=COLUMN"
+            )
+        if not columns[name]:
+            raise UsageError(f"--column {name}=: give the file's column name after '='")
+    read_twice = sorted({c for c in columns.values() if list(columns.values()).count(c) > 1})
+    if read_twice:
+        signals = [n for n, c in columns.items() if c == read_twice[0]]
+        raise UsageError(
+            f"--column: the file's column {read_twice[0]!r} is given for {' and '.join(signals)}; "
+            "each signal reads its own column"
+        )
     try:
         recording = Recording.load(
             args.recording,
@@ -483,6 +600,8 @@ def _held_result(out: Path) -> str | None:
     """What result ``out`` holds, in words (``"a dekf identification"``), or None."""
     summary = out / "summary.json"
     if not summary.is_file():
+        if (out / "results.csv").is_file() or (out / "runs").is_dir():
+            return "a benchmark's results (bench)"
         return None
     try:
         data = json.loads(summary.read_text(encoding="utf-8"))
@@ -609,7 +728,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     out = Path(args.out)
     _check_result_folder(out, f"a {args.estimator} identification", args.overwrite)
     recording = _load_trial(args)
-    source = _trial_forcing(args)  # --forcing and --period together: said before any work
+    source = _trial_forcing(args, recording)  # --forcing with --period: said before any work
     element = _trial_element(recording, args)  # an unreadable --element: in its own words
     settings = _settings(args.set)
     if args.estimator not in ESTIMATORS:
@@ -813,12 +932,25 @@ def _cmd_describe(args: argparse.Namespace) -> int:
     out = Path(args.out)
     _check_result_folder(out, "a describing-function measurement (describe)", args.overwrite)
     recording = _load_trial(args)
-    source = _trial_forcing(args)
+    source = _trial_forcing(args, recording)
     element = _trial_element(recording, args)
     fixed = _assignments(args.fix, "--fix")
+    from manualcontrol.estimators.analysis.frequency import FIT_BOUNDS
+
     for name, value in fixed.items():
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise UsageError(f"--fix {name}= needs a number, got {value!r}")
+        low, high = FIT_BOUNDS.get(name, (-math.inf, math.inf))
+        if not low <= value <= high:
+            raise UsageError(
+                f"--fix {name}={value:g} lies outside the range a fit allows, [{low:g}, {high:g}]"
+            )
+    known_task = recording.metadata.get("task")
+    if args.task is not None and known_task is not None and args.task != known_task:
+        raise UsageError(
+            f"--task {args.task} contradicts the recording, a {known_task} run: leave --task "
+            "out to read it from the recording"
+        )
     try:
         describing = describing_function(
             recording,
@@ -840,8 +972,13 @@ def _cmd_describe(args: argparse.Namespace) -> int:
 
     display = task_named(describing.task)
     model = args.model or display.pilot_model
-    if model not in MODEL_NAMES:
-        raise UsageError(f"--model must be one of {', '.join(MODEL_NAMES)}, got {model!r}")
+    fitted = ("precision", "preview", "gain-delay")  # their parameters have fit bounds
+    if model not in fitted:
+        known = "" if model in MODEL_NAMES else " (no such model)"
+        raise UsageError(
+            f"--model must be one of {', '.join(fitted)}, the models a describing function is "
+            f"fitted with, got {model!r}{known}"
+        )
     names = make_model(model).parameter_names
     for name in fixed:
         if name not in names:
@@ -989,10 +1126,33 @@ def _trial_element(recording: Any, args: argparse.Namespace) -> Any:
     return make_element(known) if known is not None else None
 
 
-def _trial_forcing(args: argparse.Namespace) -> dict[str, Any]:
-    """The forcing lines' source: ``--forcing`` (a preset) or ``--period``."""
+def _trial_forcing(args: argparse.Namespace, recording: Any = None) -> dict[str, Any]:
+    """The forcing lines' source: ``--forcing`` (a preset or file) or ``--period``.
+
+    A ``--period`` the recording's own forcing contradicts is refused, as is a
+    ``--realisation`` without the ``--forcing`` it picks from.
+    """
     if args.forcing is not None and args.period is not None:
         raise UsageError("give --forcing or --period, not both")
+    if args.forcing is None and args.realisation != 0:
+        raise UsageError(
+            f"--realisation {args.realisation} picks a realisation of --forcing PRESET, and "
+            "no --forcing is given"
+        )
+    known = None if recording is None else recording.metadata.get("forcing")
+    if args.period is not None and known is not None:
+        from manualcontrol.envs.signals import ForcingPair
+        from manualcontrol.estimators.members.pilot_rules import forcing_period
+
+        try:
+            period = forcing_period(ForcingPair.from_dict(known))
+        except (TypeError, ValueError):
+            period = None
+        if period is not None and abs(period - args.period) > 1e-6 * period:
+            raise UsageError(
+                f"--period {args.period:g} contradicts the recording's forcing, which repeats "
+                f"every {period:g} s: leave --period out to use it"
+            )
     if args.forcing is not None:
         return {"forcing": _forcing_of_flag(args)}
     if args.period is not None:
@@ -1219,7 +1379,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         text = str(error)
         for name, (flag, _) in {**fields, "history_length": ("--history", None)}.items():
             text = text.replace(name, flag)
-        raise UsageError(text) from None
+        raise UsageError(_led_by_flag(text, "train")) from None
     agent = train(config, args.out, report=report)
     print(f"saved agent to {agent.path} (config.json, policy.pt, model.zip)")
     return EXIT_OK
@@ -1378,6 +1538,28 @@ def positive_int(text: str) -> int:
     return value
 
 
+def _count(text: str) -> int:
+    """A whole number >= 0 (a seed, an index)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
+def _nonnegative_float(text: str) -> float:
+    """A finite number >= 0 (a duration that may be none)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}") from None
+    if not (value >= 0.0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
+    return value
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -1528,9 +1710,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--delay-order",
-        type=int,
+        type=positive_int,
         default=None,
-        help="Padé order of the pilot delay (default exact)",
+        help="Padé order of the pilot delay, 1 to 12 (default exact)",
     )
     p.add_argument(
         "--element",
@@ -1546,19 +1728,27 @@ def build_parser() -> argparse.ArgumentParser:
         help="where the forcing's disturbance enters: added to the element's output "
         "(default) or to its input, driving the element (a force on the stick, a gust)",
     )
-    p.add_argument("--realisation", type=int, default=0, help="forcing realisation index")
+    p.add_argument("--realisation", type=_count, default=0, help="forcing realisation index")
     p.add_argument(
         "--task", default=None, help="compensatory, pursuit or preview (default: the model's)"
     )
     p.add_argument(
-        "--available-preview", type=float, default=None, help="preview shown (s), preview tasks"
+        "--available-preview",
+        type=_nonnegative_float,
+        default=None,
+        help="preview shown (s), preview tasks",
     )
-    p.add_argument("--dt", type=float, default=0.01, help="sample time (s)")
-    p.add_argument("--run-in", type=float, default=60.0, help="run-in simulated and cut (s)")
+    p.add_argument("--dt", type=_positive_float, default=0.01, help="sample time (s)")
     p.add_argument(
-        "--measurement-time", type=float, default=None, help="measured time (s), default T_m"
+        "--run-in", type=_nonnegative_float, default=60.0, help="run-in simulated and cut (s)"
     )
-    p.add_argument("--seed", type=int, default=0, help="remnant seed")
+    p.add_argument(
+        "--measurement-time",
+        type=_positive_float,
+        default=None,
+        help="measured time (s), default T_m",
+    )
+    p.add_argument("--seed", type=_count, default=0, help="remnant seed")
     p.add_argument("--loop", default="continuous", help="continuous or sampled")
     p.add_argument(
         "--allow-unstable",
@@ -1758,7 +1948,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--neuromuscular",
-        type=float,
+        type=_positive_float,
         nargs=2,
         metavar=("OMEGA", "ZETA"),
         default=None,
@@ -1787,7 +1977,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--history",
-        type=int,
+        type=positive_int,
         default=1,
         metavar="N",
         help="observations the policy sees side by side (N dt seconds of memory: a policy "
@@ -1802,11 +1992,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--algorithm", default="sac", choices=("sac", "ppo"), help="RL algorithm")
     p.add_argument(
         "--steps",
-        type=int,
+        type=positive_int,
         default=None,
         help="environment steps (default 100000, or the recipe's)",
     )
-    p.add_argument("--envs", type=int, default=1, help="parallel environments")
+    p.add_argument("--envs", type=positive_int, default=1, help="parallel environments")
     p.add_argument(
         "--algorithm-option",
         action="append",
@@ -1815,14 +2005,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--net-arch",
-        type=int,
+        type=positive_int,
         nargs="+",
         metavar="UNITS",
         default=None,
         help="hidden layer sizes of the policy (and value) networks, e.g. 64 64",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed")
-    p.add_argument("--checkpoint-every", type=int, default=None, help="save weights every N steps")
+    p.add_argument("--seed", type=_count, default=0, help="seed")
+    p.add_argument(
+        "--checkpoint-every", type=positive_int, default=None, help="save weights every N steps"
+    )
     p.add_argument("--out", type=Path, required=True, help="output folder for the agent")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(run=_cmd_train)
@@ -1893,7 +2085,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         message = error.args[0] if isinstance(error, KeyError) and error.args else error
         if not isinstance(error, UsageError):  # the library's words, not yet the flags'
-            message = cli_words(str(message), args.command)
+            message = _led_by_flag(cli_words(str(message), args.command), args.command)
         print(f"manualcontrol {args.command}: error: {message}", file=sys.stderr)
         return EXIT_USAGE
 

@@ -597,6 +597,12 @@ def _check_extras(merged: Mapping[str, Any], open_loop: bool) -> dict[str, Any]:
 
 def parse_suite(data: Mapping[str, Any], source: str = "<table>") -> Suite:
     """Validate a suite given as a (TOML-parsed) table; every message names the key."""
+    if not data:
+        raise suite_error(
+            source,
+            "the file holds no suite: it needs name = ..., and at least one [[batch]] table "
+            "(see a built-in suite: `manualcontrol suites`)",
+        )
     unknown = sorted(set(data) - {"name", "description", "defaults", "batch"})
     if unknown:
         raise suite_error(

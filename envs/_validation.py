@@ -73,20 +73,37 @@ def check_range(
     return value
 
 
+#: The most samples a duration may hold: a day at 1 kHz, 0.8 GB a signal.
+MAX_SAMPLES = 10**8
+
+
 def check_duration(name: str, value: float, dt: float) -> float:
-    """A duration that holds at least one sample of ``dt`` (both already checked > 0)."""
-    if round(value / dt) < 1:
+    """A duration of at least one sample of ``dt`` and at most :data:`MAX_SAMPLES`.
+
+    Both are already checked > 0; a ``dt`` longer than the duration is refused, as is a
+    duration whose arrays would not fit in a computer's memory.
+    """
+    if value < dt * (1.0 - 1e-9):
         raise ValueError(f"{name} must hold at least one sample (dt = {dt:g} s), got {value!r} s")
+    if value / dt > MAX_SAMPLES:
+        raise ValueError(
+            f"{name} = {value:g} s holds {value / dt:.3g} samples of dt = {dt:g} s, more than "
+            f"the {MAX_SAMPLES:.0e} a run is built for (each signal 8 bytes a sample)"
+        )
     return value
 
 
-def check_int(name: str, value: Any, *, minimum: int | None = None) -> int:
-    """Return ``value`` as an int (bools rejected), at least ``minimum`` when given."""
+def check_int(
+    name: str, value: Any, *, minimum: int | None = None, maximum: int | None = None
+) -> int:
+    """Return ``value`` as an int (bools rejected), within ``[minimum, maximum]`` when given."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise TypeError(f"{name} must be an integer, got {_describe(value)}")
     value = int(value)
     if minimum is not None and value < minimum:
         raise ValueError(f"{name} must be >= {minimum}, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"{name} must be <= {maximum}, got {value!r}")
     return value
 
 

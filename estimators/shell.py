@@ -38,6 +38,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
+from manualcontrol.envs._validation import check_bool
 from manualcontrol.estimators import _pilot_core as core
 from manualcontrol.estimators.filters import monitor
 from manualcontrol.estimators.offline.smoothing import smooth as smooth_result
@@ -416,6 +417,6 @@ class FilterShell:
     @staticmethod
     def _finish(result: EstimationResult, smooth: bool) -> EstimationResult:
         """``result``, fixed-interval smoothed when ``smooth``."""
-        if smooth:
+        if check_bool("smooth", smooth):
             return smooth_result(result)
         return result

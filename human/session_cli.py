@@ -190,6 +190,13 @@ def _command(
     # scipy): imported when the command runs, so that ``--help`` stays light
     from manualcontrol.human.protocol import ProtocolError, check_participant, load_protocol
 
+    if args.plan and args.report_only:
+        raise _UsageError(
+            "--plan prints the runs to come and --report-only writes the report of those "
+            "done: give one of them"
+        )
+    if args.out is not None and Path(args.out).exists() and not Path(args.out).is_dir():
+        raise _UsageError(f"--out {args.out}: a file, not a folder; give a folder for the session")
     try:
         protocol = load_protocol(args.protocol)
     except ProtocolError as error:

@@ -70,6 +70,12 @@ def check_parameter_values(
         )
 
 
+#: The highest Padé order of the pilot's delay: at 12 the highest coefficient of the
+#: polynomial (``12! / 24!`` of the first, thesis eq. 4) reaches double precision's
+#: 1e-16, so a higher order adds nothing a float can hold.
+MAX_DELAY_ORDER = 12
+
+
 @dataclass(frozen=True)
 class PilotSpec:
     """A pilot's model structure, parameter values or schedules, remnant and delay mode.
@@ -105,7 +111,9 @@ class PilotSpec:
         object.__setattr__(self, "remnant", make_remnant(self.remnant))
         if self.delay_order is not None:
             object.__setattr__(
-                self, "delay_order", check_int("delay_order", self.delay_order, minimum=1)
+                self,
+                "delay_order",
+                check_int("delay_order", self.delay_order, minimum=1, maximum=MAX_DELAY_ORDER),
             )
         for name, schedule in schedules.items():
             if schedule.is_constant:

@@ -56,6 +56,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from manualcontrol.envs._validation import (
+    check_bool,
     check_positive,
     check_real,
 )
@@ -478,6 +479,8 @@ class PilotFilter(FilterShell):
         returns the one the likelihood keeps (module docstring, "Restarts"); this
         filter's own state afterwards is the first pass's.
         """
+        check_bool("smooth", smooth)
+        check_bool("smoother_inputs", smoother_inputs)
         if self._settings.start == "describing-function":
             return self._started_from_describing_function(
                 recording,

@@ -78,6 +78,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from manualcontrol.envs._validation import (
+    check_bool,
     check_int,
     check_positive,
     check_real,
@@ -583,7 +584,7 @@ class RDI(FilterShell):
             raise ValueError(f"the recording must have at least 2 samples, got {len(recording)}")
         self.check_length(len(recording), recording.dt)
         self.reset(recording.dt, t0=float(recording.t[0]))
-        smooth = self._settings.smooth if smooth is None else bool(smooth)
+        smooth = self._settings.smooth if smooth is None else check_bool("smooth", smooth)
         store = bool(smoother_inputs or smooth)
         out = self._new_output(len(recording), store=store)
         core.rdi_run(*self._records, r, y, out)

@@ -180,7 +180,6 @@ def test_bench_with_failing_runs_exits_3(tmp_path, capsys, monkeypatch):
         (["train", "--observation-noise", "-0.1", "--out", "a"], "--observation-noise"),
         (["train", "--effort-rate-weight", "ramp:1", "--out", "a"], "--effort-rate-weight:"),
         (["train", "--delay", "wobble:0.2", "--out", "a"], "--delay: a parameter value must"),
-        (["train", "--history", "0", "--out", "a"], "--history must be"),
     ],
 )
 def test_user_errors_exit_2_with_a_message_and_no_traceback(

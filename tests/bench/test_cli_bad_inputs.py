@@ -325,3 +325,85 @@ def test_training_progress_before_the_first_episode_has_no_reward(capsys):
         "    1,000/100,000 steps      512 steps/s  (no episode has ended yet: no mean reward)"
     )
     assert later.endswith("mean reward per step -0.0123")
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--dt", "0"], "argument --dt: must be a finite number > 0, got '0'"),
+        (["--dt", "nan"], "argument --dt: must be a finite number > 0, got 'nan'"),
+        (["--measurement-time", "-20"], "argument --measurement-time: must be a finite number"),
+        (["--run-in", "-5"], "argument --run-in: must be a finite number >= 0, got '-5'"),
+        (["--seed", "-1"], "argument --seed: must be >= 0, got -1"),
+        (["--delay-order", "200"], "--delay-order: delay_order must be <= 12, got 200"),
+        (["--realisation", "99"], "--realisation: realisation must lie in [0, 9]"),
+        (["--measurement-time", "1e9"], "--measurement-time: measurement_time = 1e+09 s holds"),
+        (["--measurement-time", "20", "--dt", "30"], "--measurement-time: measurement_time must"),
+        (["--model", "precison"], "--model: pilot model must be one of 'precision'"),
+        (["--forcing", "vanderel-bw5"], "--forcing: forcing preset must be one of"),
+        (["--task", "pursuite"], "--task: task must be one of 'compensatory'"),
+        (["--loop", "discrete"], "--loop: loop must be one of 'continuous', 'sampled'"),
+        (["--element", "1/(s"], "--element: controlled element must be one of"),
+        (["--param", "Kp=1.5"], "--param: PrecisionModel has no parameter(s) 'Kp'"),
+        (["--param", "K_p=high"], "--param K_p=: a parameter value must be a finite number"),
+        (["--param", "K_p=sigmoid:1.3,1.8"], "give 4 numbers (start, end, t_mid, transition_time)"),
+        (["--param", "K_p=1", "--param", "K_p=2"], "--param K_p= is given twice"),
+    ],
+)
+def test_simulate_bad_inputs_name_their_flag(tmp_path, capsys, extra, message):
+    out = tmp_path / "s.npz"
+    code, _, err = run(capsys, "simulate", "--measurement-time", "5", *extra, "--out", out)
+    assert code == EXIT_USAGE and message in err, err
+    assert "Traceback" not in err and not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--steps", "0"], "argument --steps: must be >= 1, got 0"),
+        (["--envs", "0"], "argument --envs: must be >= 1, got 0"),
+        (["--net-arch", "0"], "argument --net-arch: must be >= 1, got 0"),
+        (["--neuromuscular", "0", "0.3"], "argument --neuromuscular: must be a finite number > 0"),
+        (["--checkpoint-every", "-1"], "argument --checkpoint-every: must be >= 1, got -1"),
+        (["--motor-noise", "-0.1"], "--motor-noise: power_ratio must lie in [0, 1)"),
+        (["--delay", "-0.2"], "--delay: delay must lie in [0, 2]"),
+        (["--delay", "ramp:0.2,0.3"], "give 4 numbers (start, end, t_start, t_end), got 2"),
+        (["--task", "compensatroy"], "--task: task must be one of 'compensatory'"),
+    ],
+)
+def test_train_bad_inputs_name_their_flag(tmp_path, capsys, extra, message):
+    out = tmp_path / "agent"
+    code, _, err = run(capsys, "train", "--steps", "8", *extra, "--out", out)
+    assert code == EXIT_USAGE and message in err, err
+    assert not out.exists()
+
+
+def test_identify_and_describe_refuse_contradictions(tmp_path, capsys, long_run):
+    recording = long_run
+    cases = [
+        (["--column", "u=stick", "--column", "y=stick"], "the file's column 'stick' is given"),
+        (["--column", "stick=u"], "--column stick=u: 'stick' is no signal"),
+        (["--realisation", "2"], "--realisation 2 picks a realisation of --forcing PRESET"),
+        (["--period", "60"], "--period 60 contradicts the recording's forcing, which repeats"),
+    ]
+    for extra, message in cases:
+        for command in ("identify", "describe"):
+            out = tmp_path / f"{command}-out"
+            code, _, err = run(capsys, command, recording, *extra, "--out", out)
+            assert code == EXIT_USAGE and message in err, (command, extra, err)
+            assert not out.exists()
+    bench = tmp_path / "bench-results"
+    bench.mkdir()
+    (bench / "results.csv").write_text("suite\n")
+    code, _, err = run(capsys, "describe", recording, "--out", bench)
+    assert code == EXIT_USAGE and "the folder holds a benchmark's results (bench)" in err
+    fix = ("--fix", "tau_v=-0.2")
+    code, _, err = run(capsys, "describe", recording, *fix, "--out", tmp_path / "f")
+    assert code == EXIT_USAGE and "--fix tau_v=-0.2 lies outside the range" in err
+    code, _, err = run(capsys, "describe", recording, "--task", "preview", "--out", tmp_path / "t")
+    assert code == EXIT_USAGE and "--task preview contradicts the recording" in err
+    code, _, err = run(
+        capsys, "describe", recording, "--model", "schiess-roland", "--method", "least-squares",
+        "--out", tmp_path / "m",
+    )  # fmt: skip
+    assert code == EXIT_USAGE and "--model must be one of precision, preview, gain-delay" in err

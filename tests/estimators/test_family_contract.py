@@ -166,6 +166,13 @@ def test_estimate_returns_the_whole_run_under_the_members_name(name):
     assert np.isfinite(result.final()[result.estimated[0]])
 
 
+@pytest.mark.parametrize("name", [n for n in ONLINE if n != "zhao-multi-ukf"])  # no smoother
+def test_estimate_refuses_a_smooth_that_is_not_a_bool(name):
+    # bool("no") is True: a string would silently smooth
+    with pytest.raises(TypeError, match="smooth must be True or False, got 'no'"):
+        build(name).estimate(recording_for(name), smooth="no")
+
+
 @pytest.mark.parametrize("name", ONLINE)
 def test_update_replays_estimate_bit_for_bit(name):
     recording = recording_for(name)

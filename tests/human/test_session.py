@@ -536,6 +536,12 @@ def test_the_command_refuses_bad_protocols_and_flags(tmp_path, capsys):
     )
     assert main([str(good), "--dead-zone", "2"]) == 2
     assert "argument --dead-zone: must be a number in [0, 1), got '2'" in capsys.readouterr().err
+    assert command(good, "--participant", "P1", "--plan", "--report-only") == 2
+    assert "give one of them" in capsys.readouterr().err
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    assert command(good, "--participant", "P1", "--out", str(blocker)) == 2
+    assert f"--out {blocker}: a file, not a folder" in capsys.readouterr().err
 
 
 def test_the_command_says_no_joystick_before_any_window(tmp_path, capsys, no_joystick, pygame):
