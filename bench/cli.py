@@ -1293,6 +1293,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         suite = suite.with_estimators(names)
     out = Path(args.out or f"results/{suite.name}{'-quick' if args.quick else ''}")
     _check_output("--out", out, folder=True)
+    held = _held_result(out)
+    if held is not None and not held.startswith("a benchmark's"):
+        raise UsageError(
+            f"--out {out}: the folder holds {held} (its summary.json); a benchmark's results "
+            "go in a folder of their own: give another --out folder"
+        )
     total = len(suite.scenarios(args.quick))
     bar = _progress(total, f"{suite.name}", args.quiet)
 

@@ -397,6 +397,12 @@ def test_identify_and_describe_refuse_contradictions(tmp_path, capsys, long_run)
     (bench / "results.csv").write_text("suite\n")
     code, _, err = run(capsys, "describe", recording, "--out", bench)
     assert code == EXIT_USAGE and "the folder holds a benchmark's results (bench)" in err
+    identified = tmp_path / "identified"
+    identified.mkdir()
+    (identified / "summary.json").write_text('{"estimator": "rml"}')
+    code, _, err = run(capsys, "bench", "popovici2017", "--quick", "--out", identified)
+    assert code == EXIT_USAGE and "the folder holds a rml identification" in err
+    assert sorted(p.name for p in identified.iterdir()) == ["summary.json"]
     fix = ("--fix", "tau_v=-0.2")
     code, _, err = run(capsys, "describe", recording, *fix, "--out", tmp_path / "f")
     assert code == EXIT_USAGE and "--fix tau_v=-0.2 lies outside the range" in err
