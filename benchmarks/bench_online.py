@@ -9,7 +9,8 @@ process, so other load on the machine does not count), after one warm-up episode
 - env + pilot: a cybernetic pilot acting (``pilot.act`` then ``env.step``);
 - wrappers: ActionDelay (0.125 s, queue observed), MotorNoise (30 %) and
   NeuromuscularFilter each around the env, the pilot acting;
-- env + pilot + observer: ``EstimatorObserver`` with a causal DEKF around the env;
+- env + pilot + observer: ``EstimatorObserver`` with a causal DEKF around the env,
+  reporting dicts each step (the default), arrays, or nothing (``estimates_in_info``);
 - DEKF.update alone, fed the samples of a recorded episode, beside ``estimate()`` of
   the same recording per sample: the issue asks ``update`` within 2x of that;
 - what ``update`` is made of: the compiled one-sample step called through the entry
@@ -194,6 +195,15 @@ def main():
                 repeats,
             ),
         }
+        for form in ("arrays", "none"):  # the thin path: no per-step dicts
+            rows[f"env + pilot + observer(DEKF), {form}"] = per_step(
+                lambda t=task, s=settings, f=form: EstimatorObserver(
+                    make_env(t, steps), DEKF(**s), estimates_in_info=f
+                ),
+                pilot_factory,
+                steps,
+                repeats,
+            )
         costs = dekf_costs(task, steps, repeats)
         rows.update(costs)
         update, batch = costs["DEKF.update alone"], costs["DEKF.estimate, per sample"]
@@ -206,6 +216,9 @@ def main():
         for name, (median, best) in rows.items():
             print(f"  {name:40s} {median * 1e6:8.2f} {best * 1e6:8.2f}   {0.01 / best:8.0f}x")
         print(f"  DEKF.update / estimate per sample (minima) {update[1] / batch[1]:8.1f}x")
+        alone = rows["env + pilot"][0]
+        for name in [n for n in rows if n.startswith("env + pilot + observer(DEKF)")]:
+            print(f"  env + pilot over {name} (medians) {alone / rows[name][0]:8.2f}x")
 
 
 if __name__ == "__main__":

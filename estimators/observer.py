@@ -16,6 +16,13 @@ or a person. After every step ``info["estimates"]`` holds the current estimate:
 All are plain dicts, lists and floats, new at every step, so ``info`` pickles (a
 vector env in subprocesses) and a vector env stacks them per key.
 
+Building them costs about as much as the filter's own step, so ``estimates_in_info``
+chooses what a step reports: ``"dicts"`` (the default, as above), ``"arrays"`` (``t``
+and copies of ``mean`` and ``std`` as arrays, columns in :attr:`EstimatorObserver.
+parameter_names` order), or ``"none"`` (nothing; :meth:`EstimatorObserver.
+last_estimate` builds the dicts of the last step on request). The estimates are the
+same in every form, bit for bit.
+
 With ``append_to_observation=True`` the means of the estimated parameters are
 appended to the observation (in the estimator's order; the initial values before the
 first sample), the observation space extended accordingly.
@@ -38,10 +45,14 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
+from manualcontrol.envs._validation import check_choice
 from manualcontrol.envs.tracking import TrackingEnv
 from manualcontrol.estimators.protocol import ParameterValues
 
-__all__ = ["EstimatorObserver"]
+__all__ = ["ESTIMATE_FORMS", "EstimatorObserver"]
+
+#: What ``info["estimates"]`` holds each step (module docstring).
+ESTIMATE_FORMS: tuple[str, ...] = ("dicts", "arrays", "none")
 
 FloatArray = NDArray[np.float64]
 
@@ -63,11 +74,26 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         causal start.
     append_to_observation
         Append the estimated parameters' means to the observation.
+    estimates_in_info
+        What each step's ``info["estimates"]`` holds: ``"dicts"``, ``"arrays"`` or
+        ``"none"`` (:data:`ESTIMATE_FORMS`, module docstring).
     """
 
-    def __init__(self, env: gym.Env, estimator: Any, append_to_observation: bool = False) -> None:
+    def __init__(
+        self,
+        env: gym.Env,
+        estimator: Any,
+        append_to_observation: bool = False,
+        estimates_in_info: str = "dicts",
+    ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
-            self, estimator=estimator, append_to_observation=append_to_observation
+            self,
+            estimator=estimator,
+            append_to_observation=append_to_observation,
+            estimates_in_info=estimates_in_info,
+        )
+        self.estimates_in_info = check_choice(
+            "estimates_in_info", estimates_in_info, ESTIMATE_FORMS
         )
         gym.Wrapper.__init__(self, env)
         if not isinstance(env.unwrapped, TrackingEnv):
@@ -100,8 +126,14 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._display_keys = tuple(key for key in keys if key in ("e", "y", "ft"))
         self._anticipation = float(getattr(settings, "anticipation_time", None) or 0.0)
         self._estimated = self._estimated_names()
-        # the family's members build these dicts from their output row directly
+        # the family's members build these dicts from their output row directly, or
+        # leave the estimate in the row until asked (update_quiet, latest)
         self._update_plain = getattr(estimator, "update_plain", None)
+        self._update_quiet = getattr(estimator, "update_quiet", None)
+        #: The columns of the ``"arrays"`` form: the estimator's parameters.
+        self.parameter_names = tuple(estimator.parameter_names)
+        self._columns = {name: j for j, name in enumerate(self.parameter_names)}
+        self._t = None
         if self.append_to_observation:
             low = np.full(len(self._estimated), -np.inf)
             box = env.observation_space
@@ -146,9 +178,12 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def _observe(self, observation: FloatArray) -> FloatArray:
         if not self.append_to_observation:
             return observation
-        if self._last is None:  # before the first sample: the initial values
+        if self._t is None:  # before the first sample: the initial values
             initial = self.estimator.resolved.initial
             means = [initial[name] for name in self._estimated]
+        elif self._last is None:  # the estimate left in the filter's row
+            row = self._latest()[0]
+            means = [float(row[self._columns[name]]) for name in self._estimated]
         else:
             means = [self._last["mean"][name] for name in self._estimated]
         return np.concatenate([observation, np.asarray(means, dtype=np.float64)])
@@ -191,18 +226,48 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._step_index = 0
         self._pending = self._display(info)
         self._last = None
+        self._t = None
         return self._observe(observation), info
+
+    def last_estimate(self) -> dict[str, Any] | None:
+        """The last step's estimate as the ``"dicts"`` form reports it; None before one."""
+        if self._t is None:
+            return None
+        if self._last is None:
+            self._last = self.estimator.latest_plain(self._t)
+        return self._last
+
+    def _latest(self) -> tuple[FloatArray, FloatArray]:
+        """Means and standard deviations after the last step (views where the filter has them)."""
+        if self._last is not None:
+            mean, std = self._last["mean"], self._last["std"]
+            return (
+                np.array([mean[n] for n in self.parameter_names]),
+                np.array([std[n] for n in self.parameter_names]),
+            )
+        return self.estimator.latest()
 
     def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
         observation, reward, terminated, truncated, info = self.env.step(action)
         sample = self._pending
         sample["u"] = float(info["u"])
-        plain = self._update_plain
-        if plain is None:
-            self._last = self._as_plain(self.estimator.update(sample))
-        else:
-            self._last = plain(sample)
+        quiet = self._update_quiet
+        if self.estimates_in_info == "dicts" or quiet is None:
+            plain = self._update_plain
+            if plain is None:
+                self._last = self._as_plain(self.estimator.update(sample))
+            else:
+                self._last = plain(sample)
+            self._t = self._last["t"]
+        else:  # the thin path: the estimate stays in the filter's row until asked
+            self._t = quiet(sample)
+            self._last = None
         self._step_index += 1
         self._pending = self._display(info)
-        info["estimates"] = self._last  # the env's info is a new dict every step
+        # the env's info is a new dict every step
+        if self.estimates_in_info == "dicts":
+            info["estimates"] = self._last
+        elif self.estimates_in_info == "arrays":
+            mean, std = self._latest()
+            info["estimates"] = {"t": self._t, "mean": mean.copy(), "std": std.copy()}
         return self._observe(observation), reward, terminated, truncated, info

@@ -251,6 +251,28 @@ class FilterShell:
         """
         return self._estimate_of_row(self._consume(sample))
 
+    def update_quiet(self, sample: Mapping[str, float]) -> float:
+        """:meth:`update` without building its answer; the sample's time.
+
+        The estimate stays in the filter's output row: :meth:`latest` gives views of its
+        means and standard deviations, :meth:`latest_plain` the dicts of
+        :meth:`update_plain`, each built only when asked (the online observer's thin
+        path: no per-step dicts).
+        """
+        return self._consume(sample)
+
+    def latest(self) -> tuple[FloatArray, FloatArray]:
+        """Views of the means and standard deviations after the last sample.
+
+        Columns in :attr:`parameter_names` order; the next sample overwrites them (copy
+        what is kept).
+        """
+        return self._row.mean[0], self._row.std[0]
+
+    def latest_plain(self, t: float) -> dict[str, Any]:
+        """The last sample's estimate as :meth:`update_plain` gives it (``t`` its time)."""
+        return self._plain_of_row(t)
+
     def update_plain(self, sample: Mapping[str, float]) -> dict[str, Any]:
         """:meth:`update` as plain data: the online observer's report of the estimate.
 
@@ -259,7 +281,9 @@ class FilterShell:
         a step): ``t``, ``mean``, ``std``, ``innovation``, ``innovation_variance``,
         ``prediction`` (of the primary output) and ``health``.
         """
-        t = self._consume(sample)
+        return self._plain_of_row(self._consume(sample))
+
+    def _plain_of_row(self, t: float) -> dict[str, Any]:
         row = self._row
         columns = self._columns
         prediction, innovation, variance = self._primary_of_row()

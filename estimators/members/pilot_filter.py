@@ -379,9 +379,8 @@ class PilotFilter(FilterShell):
         """
         return self._estimate_of_row(self._consume(sample))
 
-    def update_plain(self, sample: Mapping[str, float]) -> dict[str, Any]:
-        """:meth:`update` as plain data (see the shell's); from the row views set at reset."""
-        t = self._consume(sample)
+    def _plain_of_row(self, t: float) -> dict[str, Any]:
+        """:meth:`update_plain`'s answer (see the shell's), from the row views set at reset."""
         mean, std, scalar, flag, pinned = self._row_views
         health = self._health_of_row(flag, pinned)
         prediction, innovation, variance = scalar.tolist()

@@ -563,16 +563,28 @@ class _SteppedChoice:
         self.followed = 0
         self.next_decision = choice.first
 
-    def update(self, sample: Mapping[str, float], plain: bool) -> Any:
-        answers = [p.update_plain(sample) if plain else p.update(sample) for p in self.passes]
+    def update(self, sample: Mapping[str, float], form: str) -> Any:
+        """Step both passes; return the followed one's answer in ``form``.
+
+        ``"estimate"``: an Estimate; ``"plain"``: its plain dicts; ``"quiet"``: the
+        sample's time, the estimate left in the passes' rows.
+        """
+        if form == "quiet":
+            answers = [p.update_quiet(sample) for p in self.passes]
+            means = [p.latest()[0].tolist() for p in self.passes]
+        else:
+            plain = form == "plain"
+            answers = [p.update_plain(sample) if plain else p.update(sample) for p in self.passes]
+            means = [
+                [(a["mean"] if plain else a.mean)[name] for name in self.names] for a in answers
+            ]
         count = len(self.times) + 1
         t = sample.get("t")
         self.times.append(self.t0 + (count - 1) * self.choice.dt if t is None else float(t))
         for name, values in self.signals.items():
             values.append(float(sample[name]))
-        for rows, answer in zip(self.rows, answers, strict=True):
-            mean = answer["mean"] if plain else answer.mean
-            rows.append([mean[name] for name in self.names])
+        for rows, mean in zip(self.rows, means, strict=True):
+            rows.append(mean)
         if count == self.next_decision:
             values = [
                 column_medians(np.array(rows[count // 2 : count]), self.names) for rows in self.rows
@@ -849,14 +861,32 @@ class RML(PilotFilter):
     def update(self, sample: Mapping[str, float]) -> Any:
         """Consume one sample; see :meth:`PilotFilter.update` (and :meth:`reset`)."""
         if self._stepped is not None:
-            return self._stepped.update(sample, plain=False)
+            return self._stepped.update(sample, "estimate")
         return super().update(sample)
 
     def update_plain(self, sample: Mapping[str, float]) -> dict[str, Any]:
         """:meth:`update` as plain data; see :meth:`PilotFilter.update_plain`."""
         if self._stepped is not None:
-            return self._stepped.update(sample, plain=True)
+            return self._stepped.update(sample, "plain")
         return super().update_plain(sample)
+
+    def update_quiet(self, sample: Mapping[str, float]) -> float:
+        """:meth:`update` without its answer; see :meth:`PilotFilter.update_quiet`."""
+        if self._stepped is not None:
+            return self._stepped.update(sample, "quiet")
+        return super().update_quiet(sample)
+
+    def latest(self) -> tuple[Any, Any]:
+        """Views of the last estimate (the followed pass's when choosing); see the shell's."""
+        if self._stepped is not None:
+            return self._stepped.passes[self._stepped.followed].latest()
+        return super().latest()
+
+    def latest_plain(self, t: float) -> dict[str, Any]:
+        """The last estimate's plain dicts (the followed pass's when choosing)."""
+        if self._stepped is not None:
+            return self._stepped.passes[self._stepped.followed].latest_plain(t)
+        return super().latest_plain(t)
 
     @property
     def settings(self) -> RMLSettings:

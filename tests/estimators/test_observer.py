@@ -218,3 +218,61 @@ def test_observer_needs_a_causal_estimator():
     # restarts pass the whole recording again: nothing an online observer can do
     with pytest.raises(ValueError, match=re.escape("configure it with restarts=0, got restarts=1")):
         EstimatorObserver(env, DEKF(**CASES["compensatory"][3], restarts=1))
+
+
+@pytest.mark.parametrize("estimator", ["dekf", "rml-choosing"])
+def test_the_thin_forms_report_the_same_estimates(estimator):
+    # "arrays" and "none" leave the estimate in the filter's row (no per-step dicts):
+    # the same numbers as the dicts, bit for bit, the appended observation included
+    from manualcontrol.estimators import RML
+
+    task, element, pilot, settings = CASES["compensatory"]
+
+    def make():
+        if estimator == "dekf":
+            return DEKF(**settings)
+        return RML(**settings, remnant_injection="choose-causal")
+
+    runs = {}
+    for form in ("dicts", "arrays", "none"):
+        env = EstimatorObserver(
+            gym.make(
+                f"ManualControl/{task}Tracking-v0",
+                controlled_element=element,
+                forcing="popovici2017",  # a 90-s period: the choice decides from 45 s on
+                run_in=0.0,
+                measurement_time=50.0,
+            ),
+            make(),
+            append_to_observation=True,
+            estimates_in_info=form,
+        )
+        observation, _ = env.reset(seed=1)
+        pilot.reset(seed=2, env=env)
+        width = env.env.observation_space.shape[0]
+        observations, reports, done = [], [], False
+        while not done:
+            observation, _, terminated, truncated, info = env.step(pilot.act(observation[:width]))
+            observations.append(observation)
+            reports.append(info.get("estimates"))
+            done = terminated or truncated
+        runs[form] = (np.array(observations), reports, env.last_estimate())
+    dicts, arrays, none = runs["dicts"], runs["arrays"], runs["none"]
+    np.testing.assert_array_equal(arrays[0], dicts[0])
+    np.testing.assert_array_equal(none[0], dicts[0])
+    names = tuple(dicts[1][0]["mean"])
+    for plain, array in zip(dicts[1], arrays[1], strict=True):
+        assert array["t"] == plain["t"]
+        np.testing.assert_array_equal(array["mean"], [plain["mean"][n] for n in names])
+        np.testing.assert_array_equal(array["std"], [plain["std"][n] for n in names])
+    assert all(report is None for report in none[1])
+    assert none[2] == dicts[2] == dicts[1][-1]
+
+
+def test_an_unknown_estimates_form_is_refused():
+    with pytest.raises(ValueError, match="estimates_in_info must be one of 'dicts', 'arrays'"):
+        EstimatorObserver(
+            gym.make("ManualControl/CompensatoryTracking-v0"),
+            DEKF(**CASES["compensatory"][3]),
+            estimates_in_info="lists",
+        )
