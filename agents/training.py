@@ -386,6 +386,19 @@ def train(
         )
     except TypeError as error:
         vec_env.close()
+        import inspect
+
+        accepted = [
+            name
+            for name in inspect.signature(_algorithm_class(config.algorithm)).parameters
+            if name not in ("policy", "env", "self", "seed", "verbose", "policy_kwargs")
+        ]
+        unknown = sorted(set(config.algorithm_kwargs) - set(accepted))
+        if unknown:
+            raise ValueError(
+                f"algorithm_kwargs: {config.algorithm.upper()} takes no option "
+                f"{', '.join(map(repr, unknown))}; its options: {', '.join(accepted)}"
+            ) from error
         raise ValueError(
             f"algorithm_kwargs {dict(config.algorithm_kwargs)!r} or policy_kwargs "
             f"{dict(config.policy_kwargs)!r} not accepted by {config.algorithm.upper()}: "

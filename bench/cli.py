@@ -131,8 +131,13 @@ _LEADING_NAMES: dict[str, tuple[tuple[str, str], ...]] = {
         ("effort_rate_weight", "--effort-rate-weight"),
     ),
     "bench": (("estimators", "--estimators"),),
-    "identify": (("pilot model", "--model"), ("target_period", "--target-period")),
-    "describe": (("pilot model", "--model"),),
+    "identify": (
+        ("pilot model", "--model"),
+        ("model", "--model"),
+        ("target_period", "--target-period"),
+        ("band", "--set cv_band"),
+    ),
+    "describe": (("pilot model", "--model"), ("model", "--model")),
 }
 
 
@@ -338,6 +343,11 @@ def _settings(items: Sequence[str] | None) -> dict[str, Any]:
         value = settings.get(key)
         if isinstance(value, str):
             settings[key] = tuple(name.strip() for name in value.split(",") if name.strip())
+        if key in settings and settings[key] in ("", (), []):
+            raise UsageError(
+                f"--set {key}= names no parameter: give names (e.g. {key}=K_p,tau_v), or leave "
+                "it out for the model's rules"
+            )
     return settings
 
 
@@ -552,9 +562,23 @@ def _load_trial(args: argparse.Namespace) -> Any:
         raise UsageError(error.explain(f"--column {error.name}=COLUMN")) from None
     except NonUniformTimeError as error:
         raise UsageError(error.explain("pass --resample")) from None
+    except ValueError as error:
+        given = f"dt={args.dt!r} contradicts the time column"
+        if args.dt is not None and given in str(error):
+            text = str(error).replace(given, f"--dt {args.dt:g} contradicts the time column")
+            raise UsageError(text.replace("leave dt= out", "leave --dt out")) from None
+        raise
+    if args.time_unit == "ms" and recording.dt < 1e-3:
+        raise UsageError(
+            f"{args.recording}: with --time-unit ms the sample time is {recording.dt:g} s "
+            f"({1.0 / recording.dt:.3g} Hz): the time column looks like seconds; leave "
+            "--time-unit out"
+        )
     if recording.dt >= 1.0:
         if args.time_unit == "ms":
             hint = "--time-unit ms divides the file's time column by 1000; --dt is in seconds"
+        elif args.dt is not None:
+            hint = f"--dt {args.dt:g} is the sample time in seconds (a rate of 100 Hz is --dt 0.01)"
         elif 1.0 <= recording.dt <= 100.0:
             hint = (
                 "the time column looks like milliseconds: pass --time-unit ms; if there is "
@@ -761,7 +785,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                 f"--set {names}: the {unknown.group(1)} estimator has no such setting; its "
                 f"settings: {known}"
             )
-        raise UsageError(cli_words(text, "identify")) from None
+        raise UsageError(_led_by_flag(cli_words(text, "identify"), "identify")) from None
     if not source and args.target_period is not None:  # the target's period is the forcing's
         source = {"period": args.target_period}
     try:
@@ -840,7 +864,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             for name, value in truth["nrmse"].items()
         )
         print(f"against the simulation's true parameters (over the whole run): NRMSE {errors}")
-    _print_frequency_check(check)
+    _print_frequency_check(check, args.period)
     if chosen is not None:
         errors = ", ".join(
             f"x{scale:g} {error:.4f}"
@@ -1216,10 +1240,13 @@ def _forcing_file(path: Path) -> Any:
         ) from None
 
 
-def _print_frequency_check(check: Any) -> None:
+def _print_frequency_check(check: Any, period: float | None = None) -> None:
     frequency = check.frequency
     if frequency is None:
-        print(f"frequency domain: {cli_words(check.frequency_note, 'identify')}")
+        note = cli_words(check.frequency_note, "identify")
+        if period is not None and "forcing period" in note:
+            note += f" (the period given by --period {period:g})"
+        print(f"frequency domain: {note}")
         return
     best = (
         f"{frequency['best_gain_error_db']:.1f} dB, {frequency['best_phase_error_deg']:.0f} deg"

@@ -292,7 +292,10 @@ class Suite:
             raise SuiteError("estimators must name at least one estimator")
         unknown = [name for name in names if name not in ESTIMATORS]
         if unknown:
-            raise SuiteError(f"unknown estimator(s) {unknown}; the family: {', '.join(ESTIMATORS)}")
+            raise SuiteError(
+                f"estimators names no estimator of the family: {', '.join(unknown)} (the "
+                f"family: {', '.join(ESTIMATORS)})"
+            )
         if len(set(names)) != len(names):
             raise SuiteError(f"estimators names one twice: {names}")
         batches = []

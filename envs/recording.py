@@ -1479,6 +1479,18 @@ def _infer_dt(path: Path, t: FloatArray, column: str) -> float:
     return rounded if _first_time_deviation(t, rounded) is None else step
 
 
+def _check_time_order(path: Path, column: str, t: FloatArray) -> None:
+    """Refuse time stamps that go back or repeat: rows out of order, not a clock's jitter."""
+    back = np.flatnonzero(np.diff(t) <= 0.0)
+    if back.size:
+        i = int(back[0])
+        raise ValueError(
+            f"{path}: the time column {column!r} must increase, but t[{i + 1}]="
+            f"{float(t[i + 1])!r} follows t[{i}]={float(t[i])!r} ({back.size} such step(s)): "
+            "rows out of order or repeated; sort or mend them"
+        )
+
+
 def _check_time_step(path: Path, column: str, dt: float) -> None:
     """Refuse a time column whose step reads as milliseconds, when no unit was given."""
     low, high = _MILLISECOND_STEPS
@@ -1642,9 +1654,18 @@ def _assemble(
                 f"{reference!r} has length {first.shape[0]}"
             )
 
+    if first.shape[0] == 0:
+        raise ValueError(
+            f"{path} has no samples: its columns ({', '.join(c for c, _ in everything)}) hold "
+            "no rows of numbers"
+        )
     per_second = _PER_SECOND[options.time_unit or "s"]
+    dt_source = "dt="
     if dt is None and "dt" in table.header:
         dt = table.header["dt"] / per_second  # the file's entry, in the file's time unit
+        dt_source = "the file's dt entry"
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"{path}: the file's dt entry must be a number > 0, got {dt!r}")
     if ignored and not literal:
         metadata["ignored_columns"] = ignored
     if "t" not in signals:
@@ -1664,6 +1685,22 @@ def _assemble(
             dt = _infer_dt(path, stamps, column)
             if options.time_unit is None and not literal:
                 _check_time_step(path, column, dt)
+        _check_time_order(path, column, stamps)
+        if dt_given and stamps.shape[0] > 1:
+            own = float((stamps[-1] - stamps[0]) / (stamps.shape[0] - 1))
+            index = np.arange(stamps.shape[0])
+            off_given = np.abs(stamps - (stamps[0] + index * dt)).max() > _GRID_TOLERANCE * dt
+            on_own = np.abs(stamps - (stamps[0] + index * own)).max() <= _GRID_TOLERANCE * own
+            if off_given and on_own:
+                given, remedy = (
+                    (f"dt={dt!r}", "leave dt= out")
+                    if dt_source == "dt="
+                    else (f"the file's dt entry {dt!r} s", "mend or remove the entry")
+                )
+                raise ValueError(
+                    f"{path}: {given} contradicts the time column {column!r}, which steps "
+                    f"uniformly by {own:.6g} s: {remedy} (the column gives the sample time)"
+                )
         t, dt, resampled = _on_grid(path, column, stamps, dt, dt_given, options.resample)
         if resampled is None:
             signals = {**signals, "t": t}

@@ -544,7 +544,13 @@ def describing_function(
         at_lines = np.abs(all_lines.coefficients["u"])
         remnant_share = 1.0 - float(at_lines @ at_lines / u_power.sum())
     else:
-        fit = _SinusoidFit(signals, dt, frequencies)
+        try:
+            fit = _SinusoidFit(signals, dt, frequencies)
+        except ValueError as error:
+            raise ValueError(
+                f"{error}: half the forcing's period ({0.5 * period:g} s) tells lines one "
+                "harmonic apart"
+            ) from None
         all_lines = ForcingLines(
             frequencies=frequencies,
             source=source,
@@ -656,7 +662,7 @@ class _SinusoidFit:
         if size <= basis.shape[1] or np.linalg.cond(gram) > _SINUSOID_CONDITION_LIMIT**2:
             raise ValueError(
                 f"the stretch ({size * dt:g} s) is too short to tell the {lines} forcing lines "
-                "apart by least squares; give a longer one"
+                "apart by least squares"
             )
         inverse = np.linalg.inv(gram)
         solution = inverse @ (basis.T @ values)

@@ -444,10 +444,6 @@ class PilotFilterSettings(SettingsRecord):
                 )
             estimated = tuple(self.estimated)
             check_names("estimated", estimated)
-            if not estimated:
-                raise ValueError(
-                    "estimated must name at least one parameter (None: the model's rules), got none"
-                )
             if len(set(estimated)) != len(estimated):
                 raise ValueError(f"estimated names a parameter twice: {estimated}")
             object.__setattr__(self, "estimated", estimated)

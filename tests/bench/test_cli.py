@@ -175,7 +175,8 @@ def test_bench_with_failing_runs_exits_3(tmp_path, capsys, monkeypatch):
         (["train", "--hide-queue", "--out", "a"], "--hide-queue needs an action delay"),
         (
             ["train", "--algorithm", "ppo", "--algorithm-option", "n_step=64", "--out", "a"],
-            "algorithm_kwargs {'n_step': 64} or policy_kwargs {} not accepted by PPO",
+            "--algorithm-option: algorithm_kwargs: PPO takes no option 'n_step'; its options: "
+            "learning_rate, n_steps,",
         ),
         (["train", "--observation-noise", "-0.1", "--out", "a"], "--observation-noise"),
         (["train", "--effort-rate-weight", "ramp:1", "--out", "a"], "--effort-rate-weight:"),

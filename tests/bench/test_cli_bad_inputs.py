@@ -413,3 +413,35 @@ def test_identify_and_describe_refuse_contradictions(tmp_path, capsys, long_run)
         "--out", tmp_path / "m",
     )  # fmt: skip
     assert code == EXIT_USAGE and "--model must be one of precision, preview, gain-delay" in err
+
+
+def test_lab_file_time_mistakes_are_named_in_flags(tmp_path, capsys, long_run):
+    t = np.arange(3000) * 0.01
+    table = np.column_stack([t, np.sin(t), np.cos(t)])
+    timed = tmp_path / "timed.csv"
+    np.savetxt(timed, table, delimiter=",", header="t,e,u", comments="", fmt="%.6f")
+    untimed = tmp_path / "untimed.csv"
+    np.savetxt(untimed, table[:, 1:], delimiter=",", header="e,u", comments="", fmt="%.6f")
+    cases = [
+        ([timed, "--dt", "0.02"], "--dt 0.02 contradicts the time column 't', which steps"),
+        ([timed, "--time-unit", "ms"], "with --time-unit ms the sample time is 1e-05 s"),
+        ([untimed, "--dt", "100"], "--dt 100 is the sample time in seconds"),
+        ([long_run, "--set", "estimated="], "--set estimated= names no parameter"),
+        ([long_run, "--model", "previw"], "--model: model must be one of 'precision'"),
+        (
+            [long_run, "--estimator", "rml-cv", "--set", "cv_band=[5, 1]"],
+            "--set cv_band: band must satisfy 0 < low < high",
+        ),
+    ]
+    for argv, message in cases:
+        out = tmp_path / "out"
+        code, _, err = run(capsys, "identify", *argv, "--out", out)
+        assert code == EXIT_USAGE and message in err, (argv, err)
+        assert not out.exists()
+    # describe's stretch too short for least squares says how long a stretch tells the lines
+    short = tmp_path / "short.npz"
+    assert run(capsys, "simulate", "--out", short, "--measurement-time", "20")[0] == EXIT_OK
+    method = ("--method", "least-squares")
+    code, _, err = run(capsys, "describe", short, *method, "--out", tmp_path / "d")
+    assert code == EXIT_USAGE
+    assert "half the forcing's period (60 s) tells lines one harmonic apart" in err

@@ -321,14 +321,29 @@ def test_resample_leaves_uniform_files_alone(tmp_path):
     assert load_recording(path, resample=True, require=["u"]) == Recording.load(path)
 
 
-def test_resample_needs_increasing_time_stamps(tmp_path):
+def test_time_stamps_that_go_back_or_repeat_are_refused_as_such(tmp_path):
+    # rows out of order are not a clock's jitter: resampling would not mend them
     path = write_lines(tmp_path / "back.csv", ["t,u", "0,0", "0.02,1", "0.01,2", "0.05,3"])
     message = (
-        f"{path}: cannot resample: the time column 't' must increase, but t[2]=0.01 follows "
-        "t[1]=0.02"
+        f"{path}: the time column 't' must increase, but t[2]=0.01 follows t[1]=0.02 (1 such "
+        "step(s)): rows out of order or repeated; sort or mend them"
     )
+    for resample in (False, True):
+        with pytest.raises(ValueError, match=re.escape(message)):
+            Recording.load(path, resample=resample)
+    repeated = write_lines(tmp_path / "dup.csv", ["t,u", "0,0", "0.01,1", "0.01,2", "0.02,3"])
+    with pytest.raises(ValueError, match=re.escape("t[2]=0.01 follows t[1]=0.01")):
+        Recording.load(repeated)
+
+
+def test_a_dt_that_contradicts_the_time_column_is_named(tmp_path):
+    path = write_lines(tmp_path / "tagged.csv", ["# dt: 0.02", "t,u", "0,0", "0.01,1", "0.02,2"])
+    message = f"{path}: the file's dt entry 0.02 s contradicts the time column 't'"
     with pytest.raises(ValueError, match=re.escape(message)):
-        Recording.load(path, resample=True)
+        Recording.load(path)
+    empty = write_lines(tmp_path / "empty.csv", ["t,u"])
+    with pytest.raises(ValueError, match=re.escape(f"{empty} has no samples: its columns")):
+        Recording.load(empty)
 
 
 def test_time_column_must_be_finite_with_a_given_dt(tmp_path):

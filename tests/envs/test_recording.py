@@ -746,7 +746,7 @@ def test_explicit_dt_overrides_the_file_and_is_checked(tmp_path):
     with pytest.raises(
         ValueError,
         match=re.escape(
-            f"{path}: t is not uniformly sampled at dt=0.02, first deviation at index 1"
+            f"{path}: dt=0.02 contradicts the time column 't', which steps uniformly by 0.01 s"
         ),
     ):
         Recording.load(path, dt=0.02)
