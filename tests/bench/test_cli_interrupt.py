@@ -61,6 +61,10 @@ def test_run_suite_says_how_many_runs_it_kept(tmp_path):
     assert seen[0] == (3, 8) and len(rows) == 8  # the three kept runs are not run again
 
 
+def _ctrl_c_live() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_in_the_process_pool_keeps_the_runs_and_resumes(tmp_path):
     """A real Ctrl-C to the terminal's process group: the main process and the workers."""
     suite = tmp_path / "long.toml"
@@ -76,6 +80,9 @@ def test_ctrl_c_in_the_process_pool_keeps_the_runs_and_resumes(tmp_path):
         text=True,
         env=env,
         start_new_session=True,  # its own process group, as a terminal's job
+        # a terminal's job takes Ctrl-C; pytest run in the background of a shell without
+        # job control inherits SIGINT ignored, and so would the command
+        preexec_fn=_ctrl_c_live,
     )
     deadline = time.monotonic() + 240.0
     # the first run is done in the main process; then the pool's workers run the rest
