@@ -1572,14 +1572,10 @@ def positive_int(text: str) -> int:
 
 
 def _count(text: str) -> int:
-    """A whole number >= 0 (a seed, an index)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
+    """A whole number >= 0 (a seed, an index), read as the play commands read one."""
+    from manualcontrol.human._arguments import whole_number
+
+    return whole_number(text)
 
 
 def _nonnegative_float(text: str) -> float:

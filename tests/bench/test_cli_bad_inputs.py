@@ -334,7 +334,7 @@ def test_training_progress_before_the_first_episode_has_no_reward(capsys):
         (["--dt", "nan"], "argument --dt: must be a finite number > 0, got 'nan'"),
         (["--measurement-time", "-20"], "argument --measurement-time: must be a finite number"),
         (["--run-in", "-5"], "argument --run-in: must be a finite number >= 0, got '-5'"),
-        (["--seed", "-1"], "argument --seed: must be >= 0, got -1"),
+        (["--seed", "-1"], "argument --seed: must be a whole number >= 0, got '-1'"),
         (["--delay-order", "200"], "--delay-order: delay_order must be <= 12, got 200"),
         (["--realisation", "99"], "--realisation: realisation must lie in [0, 9]"),
         (["--measurement-time", "1e9"], "--measurement-time: measurement_time = 1e+09 s holds"),
