@@ -289,6 +289,22 @@ def make_env(config: TrainingConfig, *, noise: bool = True, **overrides: Any) ->
         raise
 
 
+def _algorithm_options(algorithm: str) -> list[str]:
+    """The keyword options the algorithm's constructor takes from a user.
+
+    Its public keywords, less those the training sets itself (the policy, the env, the
+    seed, verbosity, the policy's keywords) and the private ones (``_init_setup_model``).
+    """
+    import inspect
+
+    return [
+        name
+        for name in inspect.signature(_algorithm_class(algorithm)).parameters
+        if not name.startswith("_")
+        and name not in ("policy", "env", "self", "seed", "verbose", "policy_kwargs")
+    ]
+
+
 def _algorithm_class(name: str) -> type:
     from stable_baselines3 import PPO, SAC
 
@@ -374,6 +390,13 @@ def train(
     from stable_baselines3.common.env_util import make_vec_env
 
     output = Path(output)
+    accepted = _algorithm_options(config.algorithm)
+    unknown = sorted(set(config.algorithm_kwargs) - set(accepted))
+    if unknown:
+        raise ValueError(
+            f"algorithm_kwargs: {config.algorithm.upper()} takes no option "
+            f"{', '.join(map(repr, unknown))}; its options: {', '.join(accepted)}"
+        )
     vec_env = make_vec_env(lambda: make_env(config), n_envs=config.n_envs, seed=config.seed)
     try:
         model = _algorithm_class(config.algorithm)(
@@ -386,19 +409,6 @@ def train(
         )
     except TypeError as error:
         vec_env.close()
-        import inspect
-
-        accepted = [
-            name
-            for name in inspect.signature(_algorithm_class(config.algorithm)).parameters
-            if name not in ("policy", "env", "self", "seed", "verbose", "policy_kwargs")
-        ]
-        unknown = sorted(set(config.algorithm_kwargs) - set(accepted))
-        if unknown:
-            raise ValueError(
-                f"algorithm_kwargs: {config.algorithm.upper()} takes no option "
-                f"{', '.join(map(repr, unknown))}; its options: {', '.join(accepted)}"
-            ) from error
         raise ValueError(
             f"algorithm_kwargs {dict(config.algorithm_kwargs)!r} or policy_kwargs "
             f"{dict(config.policy_kwargs)!r} not accepted by {config.algorithm.upper()}: "

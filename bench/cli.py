@@ -453,6 +453,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from manualcontrol.pilots.stability import UnstableLoopWarning
 
     _check_output("--out", args.out, folder=False)
+    if Path(args.out).exists() and not args.overwrite:
+        # a lab's recording may sit there: a simulation replaces it only when told to
+        raise UsageError(
+            f"--out {args.out}: the file exists; give another name, or pass --overwrite to "
+            "replace it"
+        )
     if args.plot is not None:
         _check_output("--plot", args.plot, folder=False)
         if Path(args.plot).suffix.lower() != ".png":
@@ -563,6 +569,9 @@ def _load_trial(args: argparse.Namespace) -> Any:
     except NonUniformTimeError as error:
         raise UsageError(error.explain("pass --resample")) from None
     except ValueError as error:
+        if "is in more than one variable" in str(error):
+            text = re.sub(r"columns=\{'(\w+)': '([^']+)'\}", r"--column \1=\2", str(error))
+            raise UsageError(text) from None
         given = f"dt={args.dt!r} contradicts the time column"
         if args.dt is not None and given in str(error):
             text = str(error).replace(given, f"--dt {args.dt:g} contradicts the time column")
@@ -1786,6 +1795,7 @@ def build_parser() -> argparse.ArgumentParser:
         "metadata) instead of refusing it",
     )
     p.add_argument("--out", required=True, type=Path, help="recording file (.npz, .csv or .mat)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing file at --out")
     p.add_argument("--plot", type=Path, default=None, help="also draw the run to this PNG")
     p.set_defaults(run=_cmd_simulate)
 

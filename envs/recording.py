@@ -1045,6 +1045,9 @@ class _FileTable:
     fetch: Callable[[str], np.ndarray]
     header: dict[str, Any]
     sources: dict[str, str | None] = field(default_factory=dict)
+    #: A plain name more than one variable offers (``u`` of ``a.u`` and ``b.u``), and the
+    #: columns it would stand for: which one is meant, only the user can say.
+    ambiguous: dict[str, list[str]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -1205,19 +1208,32 @@ def _read_mat(path: Path) -> _FileTable:
         raise ValueError(f"{path} is not a readable .mat file: {error}") from error
     contents: dict[str, np.ndarray] = {}
     sources: dict[str, str | None] = {}
+    offered_by: dict[str, str] = {}
+    ambiguous: dict[str, list[str]] = {}
     for name, value in variables.items():
         if name.startswith("__") or not isinstance(value, np.ndarray):
             continue
         columns, aliases = _mat_columns(name, value)
-        contents.update(columns)  # a later variable takes a name over, as before
-        for key in columns:
+        for key, column in columns.items():
+            meant = aliases.get(key) or key
+            if key in offered_by and offered_by[key] != name:
+                # two variables offer the name (two structs' u): neither is taken for it
+                ambiguous.setdefault(key, [sources.get(key) or key]).append(meant)
+                contents.pop(key, None)
+                sources.pop(key, None)
+                continue
+            if key in ambiguous:
+                ambiguous[key].append(meant)
+                continue
+            offered_by[key] = name
+            contents[key] = column
             if key in aliases:
                 sources[key] = aliases[key]
             else:
                 sources.pop(key, None)
     names = list(contents)
     header = _split_header(names, contents.__getitem__)
-    return _FileTable(names, contents.__getitem__, header, sources)
+    return _FileTable(names, contents.__getitem__, header, sources, ambiguous)
 
 
 def _mat_columns(
@@ -1614,6 +1630,14 @@ def _assemble(
     for name in SIGNAL_NAMES:
         if name not in signal_columns:
             candidates = (name,) if literal else FILE_ALIASES[name]
+            clash = [c for c in candidates if c in table.ambiguous]
+            if clash:
+                meant = table.ambiguous[clash[0]]
+                raise ValueError(
+                    f"{path}: signal {name!r} ({clash[0]!r}) is in more than one variable "
+                    f"({', '.join(meant)}): say which, e.g. columns={{'{name}': "
+                    f"'{meant[0]}'}}"
+                )
             found = _find_column(candidates, table.names, used, ignore_case=not literal)
             if found is not None:
                 signal_columns[name] = found

@@ -445,3 +445,25 @@ def test_lab_file_time_mistakes_are_named_in_flags(tmp_path, capsys, long_run):
     code, _, err = run(capsys, "describe", short, *method, "--out", tmp_path / "d")
     assert code == EXIT_USAGE
     assert "half the forcing's period (60 s) tells lines one harmonic apart" in err
+
+
+def test_simulate_replaces_a_file_only_when_told(tmp_path, capsys):
+    out = tmp_path / "lab.npz"
+    out.write_bytes(b"a lab's recording")
+    argv = ("simulate", "--measurement-time", "5", "--out", out)
+    code, _, err = run(capsys, *argv)
+    assert code == EXIT_USAGE and f"--out {out}: the file exists" in err
+    assert out.read_bytes() == b"a lab's recording"
+    assert run(capsys, *argv, "--overwrite")[0] == EXIT_OK
+    assert len(Recording.load(out)) == 500
+
+
+def test_a_private_algorithm_option_is_refused_before_anything_is_written(tmp_path, capsys):
+    out = tmp_path / "agent"
+    code, _, err = run(
+        capsys, "train", "--steps", "8", "--algorithm-option", "_init_setup_model=false",
+        "--out", out,
+    )  # fmt: skip
+    assert code == EXIT_USAGE and "SAC takes no option '_init_setup_model'" in err
+    assert "_init_setup_model" not in err.split("its options:")[1]
+    assert not out.exists()

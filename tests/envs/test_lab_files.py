@@ -476,3 +476,15 @@ def test_cli_time_in_milliseconds_hint_and_option(tmp_path):
     assert load_trial(tmp_path / "no_time.npz", "--dt", "0.01", "--time-unit", "ms").dt == 0.01
     with pytest.raises(UsageError, match=re.escape("--dt is in seconds")):
         load_trial(tmp_path / "no_time.npz", "--dt", "10", "--time-unit", "ms")
+
+
+def test_two_structs_offering_one_signal_are_not_guessed_between(tmp_path):
+    # a lab's file with two trials side by side: which u is meant only the user can say
+    path = tmp_path / "two.mat"
+    t = np.arange(100) * 0.01
+    scipy.io.savemat(path, {"a": {"t": t, "u": np.sin(t)}, "b": {"t": t, "u": np.cos(t)}})
+    message = f"{path}: signal 't' ('t') is in more than one variable (a.t, b.t): say which"
+    with pytest.raises(ValueError, match=re.escape(message)):
+        Recording.load(path)
+    chosen = Recording.load(path, columns={"t": "b.t", "u": "b.u"})
+    np.testing.assert_array_equal(chosen.u, np.cos(t))
