@@ -629,12 +629,16 @@ def _load_trial(args: argparse.Namespace) -> Any:
 # ---------------------------------------------------------- result folders
 
 
+#: What :func:`_held_result` calls a benchmark's results folder.
+_BENCH_RESULT = "a benchmark's results (bench)"
+
+
 def _held_result(out: Path) -> str | None:
     """What result ``out`` holds, in words (``"a dekf identification"``), or None."""
     summary = out / "summary.json"
     if not summary.is_file():
         if (out / "results.csv").is_file() or (out / "runs").is_dir():
-            return "a benchmark's results (bench)"
+            return _BENCH_RESULT
         return None
     try:
         data = json.loads(summary.read_text(encoding="utf-8"))
@@ -1330,7 +1334,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     out = Path(args.out or f"results/{suite.name}{'-quick' if args.quick else ''}")
     _check_output("--out", out, folder=True)
     held = _held_result(out)
-    if held is not None and not held.startswith("a benchmark's"):
+    if held is not None and held != _BENCH_RESULT:
         raise UsageError(
             f"--out {out}: the folder holds {held} (its summary.json); a benchmark's results "
             "go in a folder of their own: give another --out folder"
