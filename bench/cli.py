@@ -408,13 +408,16 @@ def _limitation(flag: str, text: str | None) -> Any:
 
 
 def _cmd_suites(args: argparse.Namespace) -> int:
-    from manualcontrol.bench.scenarios import BUILTIN_SUITES, describe, load_suite
+    from manualcontrol.bench.listing import builtin_suite_names, outline, read_builtin_suite
 
-    for name in BUILTIN_SUITES:
-        suite = load_suite(name)
-        full, quick = suite.scenarios(), suite.scenarios(quick=True)
+    for name in builtin_suite_names():
+        suite = outline(read_builtin_suite(name))
+        batches = ", ".join(f"{batch}: {count}" for batch, count in suite.runs.items())
         print(f"{name}: {suite.description}")
-        print(f"    {len(full)} runs ({describe(full)}); --quick: {len(quick)} runs")
+        print(
+            f"    {sum(suite.runs.values())} runs ({batches}); "
+            f"--quick: {sum(suite.quick_runs.values())} runs"
+        )
     return EXIT_OK
 
 

@@ -84,7 +84,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import importlib.resources
 import json
 import sys
 from collections.abc import Mapping, Sequence
@@ -101,6 +100,7 @@ from manualcontrol.bench.batches import (
     suite_error,
 )
 from manualcontrol.bench.driving import build_driver, parse_lane_keeping_batch
+from manualcontrol.bench.listing import builtin_suite_names, read_builtin_suite
 from manualcontrol.envs._validation import (
     check_choice,
     check_duration,
@@ -132,7 +132,6 @@ else:  # pragma: no cover - exercised on Python 3.10 only
 
 __all__ = ["BUILTIN_SUITES", "Batch", "Scenario", "Suite", "SuiteError", "load_suite"]
 
-_SUITE_FOLDER = "suites"
 _BATCH_KEYS = {
     "name",
     "task",
@@ -639,25 +638,15 @@ def parse_suite(data: Mapping[str, Any], source: str = "<table>") -> Suite:
     return Suite(name, description, batches, source)
 
 
-def _builtin_names() -> tuple[str, ...]:
-    folder = importlib.resources.files("manualcontrol.bench").joinpath(_SUITE_FOLDER)
-    return tuple(
-        sorted(p.name[: -len(".toml")] for p in folder.iterdir() if p.name.endswith(".toml"))
-    )
-
-
 #: Names of the suites shipped with the package.
-BUILTIN_SUITES: tuple[str, ...] = _builtin_names()
+BUILTIN_SUITES: tuple[str, ...] = builtin_suite_names()
 
 
 def load_suite(spec: str | Path) -> Suite:
     """A built-in suite by name, or a suite file (``.toml``) by path."""
     path = Path(spec)
     if isinstance(spec, str) and spec in BUILTIN_SUITES:
-        resource = importlib.resources.files("manualcontrol.bench").joinpath(
-            _SUITE_FOLDER, f"{spec}.toml"
-        )
-        return parse_suite(tomllib.loads(resource.read_text()), f"suite {spec}")
+        return parse_suite(read_builtin_suite(spec), f"suite {spec}")
     if not path.is_file():
         raise SuiteError(
             f"suite must be a built-in name ({', '.join(BUILTIN_SUITES)}) or a .toml file, "
@@ -673,11 +662,3 @@ def load_suite(spec: str | Path) -> Suite:
 def scenario_from_dict(data: Mapping[str, Any]) -> Scenario:
     """Inverse of :meth:`Scenario.to_dict`."""
     return Scenario(**dict(data))
-
-
-def describe(scenarios: Sequence[Scenario]) -> str:
-    """One line per batch: its size."""
-    counts: dict[str, int] = {}
-    for scenario in scenarios:
-        counts[scenario.batch] = counts.get(scenario.batch, 0) + 1
-    return ", ".join(f"{name}: {count}" for name, count in counts.items())

@@ -142,11 +142,16 @@ def test_the_command_line_loads_what_each_command_uses():
         with contextlib.redirect_stdout(io.StringIO()):
             main(["estimators"])
         print(sorted(modules()))
+        with contextlib.redirect_stdout(io.StringIO()):
+            main(["suites"])
+        print(sorted(modules()), "manualcontrol.bench.scenarios" in sys.modules)
         """
     )
-    after_help, after_estimators = out.splitlines()
+    after_help, after_estimators, after_suites = out.splitlines()
     assert after_help == "[]"
     assert after_estimators == "[]"
+    # a listing reads the suite files; it builds no pilot, estimator or environment
+    assert after_suites == "[] False"
 
 
 @pytest.mark.parametrize("first", ["manualcontrol.envs", "manualcontrol.estimators"])

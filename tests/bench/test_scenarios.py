@@ -36,6 +36,20 @@ def write(tmp_path, text):
     return path
 
 
+@pytest.mark.parametrize("name", BUILTIN_SUITES)
+def test_the_listing_counts_the_runs_the_validated_suite_expands(name):
+    from collections import Counter
+
+    from manualcontrol.bench.listing import outline, read_builtin_suite
+
+    suite, listed = load_suite(name), outline(read_builtin_suite(name))
+    assert (listed.name, listed.description) == (suite.name, suite.description)
+    for quick, counts in ((False, listed.runs), (True, listed.quick_runs)):
+        expanded = Counter(scenario.batch for scenario in suite.scenarios(quick=quick))
+        assert counts == dict(expanded)
+        assert list(counts) == [batch.name for batch in suite.batches]
+
+
 def test_builtin_suites_have_the_papers_batch_sizes():
     assert set(BUILTIN_SUITES) >= {
         "popovici2017",
