@@ -769,7 +769,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     _check_result_folder(out, f"a {args.estimator} identification", args.overwrite)
     recording = _load_trial(args)
     source = _trial_forcing(args, recording)  # --forcing with --period: said before any work
-    element = _trial_element(recording, args)  # an unreadable --element: in its own words
+    # an unreadable --element: in its own words
+    element = _trial_element(recording, args, "identify")
     settings = _settings(args.set)
     if args.estimator not in ESTIMATORS:
         raise UsageError(
@@ -973,7 +974,7 @@ def _cmd_describe(args: argparse.Namespace) -> int:
     _check_result_folder(out, "a describing-function measurement (describe)", args.overwrite)
     recording = _load_trial(args)
     source = _trial_forcing(args, recording)
-    element = _trial_element(recording, args)
+    element = _trial_element(recording, args, "describe")
     fixed = _assignments(args.fix, "--fix")
     from manualcontrol.estimators.analysis.frequency import FIT_BOUNDS
 
@@ -1153,17 +1154,38 @@ def _rounded(value: float) -> float | None:
     return round(float(value), 4) if math.isfinite(value) else None
 
 
-def _trial_element(recording: Any, args: argparse.Namespace) -> Any:
-    """The controlled element: ``--element``, else the recording's own, else None."""
+def _trial_element(recording: Any, args: argparse.Namespace, command: str) -> Any:
+    """The controlled element: ``--element``, else the recording's own, else None.
+
+    An ``--element`` whose response differs from the one the recording names (a
+    simulated or played run states its element) is used, as asked, with a warning
+    first: every result after it (an unstable loop, a poor fit) then reads as what
+    it is, the element given against the one flown.
+    """
     from manualcontrol.envs.elements import make_element, parse_element
 
-    if args.element is not None:
-        try:
-            return parse_element(args.element)
-        except ValueError as error:
-            raise UsageError(f"--element: {error}") from None
     known = recording.metadata.get("controlled_element")
-    return make_element(known) if known is not None else None
+    if args.element is None:
+        return make_element(known) if known is not None else None
+    try:
+        element = parse_element(args.element)
+    except ValueError as error:
+        raise UsageError(f"--element: {error}") from None
+    if known is not None:
+        try:
+            flown = make_element(known)
+        except (TypeError, ValueError, KeyError):
+            return element  # an unreadable stored element: nothing to hold the flag against
+        omega = np.geomspace(0.1, 20.0, 9)  # the band tracking forcings cover
+        given, recorded = element.frequency_response(omega), flown.frequency_response(omega)
+        if not np.allclose(given, recorded, rtol=1e-6, atol=0.0):
+            print(
+                f"manualcontrol {command}: warning: --element {args.element} "
+                f"({element.describe()}) differs from the element the recording was flown "
+                f"with ({flown.describe()}); the identification uses --element",
+                file=sys.stderr,
+            )
+    return element
 
 
 def _trial_forcing(args: argparse.Namespace, recording: Any = None) -> dict[str, Any]:

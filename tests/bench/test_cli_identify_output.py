@@ -167,6 +167,26 @@ def test_a_still_stick_is_named_before_any_estimator_runs(simulation, tmp_path, 
         assert not (tmp_path / command).exists()
 
 
+def test_an_element_other_than_the_one_flown_is_said_before_the_results(
+    simulation, tmp_path, capsys
+):
+    short = ("--method", "least-squares")  # the 60-s run is half a forcing period
+    code, _, err = run(
+        capsys, "describe", simulation, *short, "--element", "DI", "--out", tmp_path / "other"
+    )
+    first = err.splitlines()[0]
+    assert first == (
+        "manualcontrol describe: warning: --element DI (DoubleIntegrator(K=5)) differs from "
+        "the element the recording was flown with (Integrator(K=1.5)); the identification "
+        "uses --element"
+    )
+    # the same element written otherwise is the element flown: no warning
+    code, _, err = run(
+        capsys, "describe", simulation, *short, "--element", "1.5/s", "--out", tmp_path / "same"
+    )
+    assert code == EXIT_OK and "differs from the element" not in err
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
