@@ -608,7 +608,17 @@ class ObservationNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
     ``std``: an absolute standard deviation, the same for every observed value (in
     the units of the observation).
 
-    Give one of the two. The noise is drawn per sample and per value, independently;
+    Give one of the two. ``omega_r`` (rad/s, optional) passes the noise through the
+    first-order low-pass ``omega_r/(s + omega_r)`` (discretised exactly: a first-order
+    autoregression per value) instead of leaving it white: its power below ``omega_r``,
+    where the tracking loop lives, is the white noise's (``V`` per rad/s), its variance
+    ``V omega_r / 2`` rather than ``V / dt``. Why: the OCM's pilot removes the white
+    noise's power far above the loop's band with its Kalman filter, and only the power
+    in band degrades its tracking; a memoryless policy cannot filter, so white noise at
+    the OCM's level swamps each sample it sees (``1.8 std`` at 100 Hz), where the
+    band-limited noise poses the in-band part alone.
+
+    The noise is drawn per sample and per value, independently;
     it perturbs what this wrapper's inner environment shows, so put it innermost
     (directly on the environment) to perturb the display only, not the agent's own
     commands or limb state appended by other wrappers. ``info["observation_noise"]``
@@ -623,6 +633,8 @@ class ObservationNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         ``std`` is not given: a number or a schedule.
     std
         Absolute standard deviation, ``>= 0``: a number or a schedule.
+    omega_r
+        Break frequency of the noise's low-pass, rad/s, ``> 0``; None (default): white.
     """
 
     WINDOW = 5.0  # s: the variance of each signal over its recent past, as MotorNoise's
@@ -633,8 +645,9 @@ class ObservationNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         *,
         ratio: float | Schedule | None = None,
         std: float | Schedule | None = None,
+        omega_r: float | None = None,
     ) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, ratio=ratio, std=std)
+        gym.utils.RecordConstructorArgs.__init__(self, ratio=ratio, std=std, omega_r=omega_r)
         gym.Wrapper.__init__(self, env)
         if ratio is not None and std is not None:
             raise ValueError(
@@ -658,6 +671,11 @@ class ObservationNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         )
         self._noise = np.zeros(space.shape[0])
         self._dt = _dt(env)
+        self.omega_r = None if omega_r is None else check_positive("omega_r", omega_r)
+        # the low-pass's exact step: n_k = phi n_(k-1) + w_k, var(w_k) = (1 - phi^2) var(n)
+        self._phi = 0.0 if omega_r is None else math.exp(-self.omega_r * self._dt)
+        # the noise's variance per unit of white intensity: 1/dt white, omega_r/2 filtered
+        self._bandwidth = 1.0 / self._dt if omega_r is None else 0.5 * self.omega_r
         self._k = 0
         self._rng = np.random.default_rng()
 
@@ -667,8 +685,14 @@ class ObservationNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
             scale: float | FloatArray = level
         else:
             variance = self._variance.push(np.asarray(observation, np.float64))
-            scale = np.sqrt(math.pi * level * variance / self._dt)
-        self._noise = scale * self._rng.standard_normal(observation.shape)
+            scale = np.sqrt(math.pi * level * variance * self._bandwidth)
+        draw = scale * self._rng.standard_normal(observation.shape)
+        if self.omega_r is None:
+            self._noise = draw
+        elif self._k == 0:
+            self._noise = draw  # the filter's state starts in its stationary spread
+        else:
+            self._noise = self._phi * self._noise + math.sqrt(1.0 - self._phi**2) * draw
         return observation + self._noise
 
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102

@@ -174,6 +174,58 @@ def test_absolute_observation_noise_keeps_its_std():
     assert np.std(noise[3000:]) == pytest.approx(0.1, rel=0.05)
 
 
+def test_band_limited_observation_noise_keeps_the_white_noise_power_in_band():
+    omega_r = 10.0
+    white = ObservationNoise(base("Pursuit", measurement_time=600.0), std=0.1)
+    band = ObservationNoise(base("Pursuit", measurement_time=600.0), std=0.1, omega_r=omega_r)
+    n = 60000
+    spectra = {}
+    for name, env in (("white", white), ("band", band)):
+        observations, _, infos = run(env, np.zeros(n), seed=5)
+        noise = observations[1:, 0] - np.array([info["ft"] for info in infos[1:]])
+        # std keeps its meaning: the noise's standard deviation (60,000 correlated
+        # samples, about 950 independent ones at 10 rad/s: 2.3 %; 10 % is four)
+        assert np.std(noise) == pytest.approx(0.1, rel=0.1), name
+        segments = noise[: n // 100 * 100].reshape(100, -1)
+        power = np.mean(np.abs(np.fft.rfft(segments, axis=1)) ** 2, axis=0) * DT / segments.shape[1]
+        omega = 2 * np.pi * np.fft.rfftfreq(segments.shape[1], DT)
+        spectra[name] = (omega, power)
+        if name == "band":
+            # the exact step's autocorrelation at one sample is exp(-omega_r dt)
+            lag_one = np.corrcoef(noise[:-1], noise[1:])[0, 1]
+            assert lag_one == pytest.approx(np.exp(-omega_r * DT), abs=0.01)
+    omega, white_power = spectra["white"]
+    band_power = spectra["band"][1]
+    low = (omega > 0) & (omega < 2.0)
+    # at the same std the densities are var dt (white) and 2 var / omega_r (first order,
+    # V omega_r / 2 = var): the band-limited noise puts 2 / (omega_r dt) = 20 times more
+    # of its power in band
+    expected = 2.0 / (omega_r * DT)
+    # 100 segments averaged, 2-3 bins below 2 rad/s: about 6 %; 20 % is three
+    assert np.mean(band_power[low]) / np.mean(white_power[low]) == pytest.approx(expected, rel=0.2)
+    high = omega > 100.0
+    assert np.mean(band_power[high]) < 0.1 * np.mean(white_power[high])
+
+
+def test_band_limited_ocm_noise_has_the_white_noise_intensity_in_band():
+    # ratio mode: the same intensity pi rho var(y) below omega_r, its variance omega_r/2 of it
+    ratio, omega_r = 0.01, 10.0
+    env = ObservationNoise(base(measurement_time=120.0), ratio=ratio, omega_r=omega_r)
+    n = 12000
+    commands = 0.5 * np.sin(np.arange(n) * DT * 1.3)
+    observations, _, infos = run(env, commands, seed=7)
+    clean = np.array([info["e"] for info in infos])
+    noise = np.array([0.0] + [info["observation_noise"][0] for info in infos[1:]])
+    np.testing.assert_array_equal(observations[:, 0], clean + noise)
+    variance = _window_variance(clean)[: n + 1]
+    t = env.unwrapped.times[: n + 1]
+    part = t >= 5.0
+    # the noise's variance over the signal's: pi rho omega_r / 2 (0.157), not pi rho / dt
+    # (3.1); 115 s with a 0.1-s correlation time hold ~1,150 independent values: 4 %
+    measured = np.mean(noise[part] ** 2) / np.mean(variance[part])
+    assert measured == pytest.approx(np.pi * ratio * omega_r / 2.0, rel=0.15)
+
+
 def test_motor_noise_follows_a_doubling_power_ratio():
     ratio = Step(before=0.15, after=0.3, t_step=60.0)
     env = MotorNoise(base(measurement_time=120.0), power_ratio=ratio, omega_r=30.0)
@@ -306,6 +358,11 @@ def test_full_stack_with_schedules_passes_check_env():
             lambda: ObservationNoise(base(), ratio=0.01, std=0.1),
             ValueError,
             "give ObservationNoise a ratio (scaled to the signal) or a std (absolute), not both",
+        ),
+        (
+            lambda: ObservationNoise(base(), ratio=0.01, omega_r=0.0),
+            ValueError,
+            "omega_r must be > 0, got 0.0",
         ),
         (
             lambda: ObservationNoise(base(), 0.05),
