@@ -48,7 +48,17 @@ from manualcontrol.estimators.offline.output_error import OfflineFit, fit_pilot
 from manualcontrol.estimators.protocol import report_progress
 from manualcontrol.pilots import Pilot
 
-__all__ = ["REFERENCE_PILOTS", "Evaluation", "evaluate", "fly", "write_report"]
+__all__ = [
+    "LANE_KEEPING_ROADS",
+    "REFERENCE_PILOTS",
+    "Evaluation",
+    "LaneKeepingEvaluation",
+    "evaluate",
+    "evaluate_lane_keeping",
+    "fly",
+    "write_lane_keeping_report",
+    "write_report",
+]
 
 #: Typical precision-model pilots of the thesis's elements (Table 6.1: SI values of Sim 2
 #: without preview, DI values of Sim 8), as :func:`~manualcontrol.estimators.
@@ -378,5 +388,176 @@ def write_report(
             "![human-likeness](human_likeness.png)",
             "",
         ]
+    atomic_write(folder / "evaluation.md", lambda p: p.write_text("\n".join(lines)))
+    return folder / "evaluation.md"
+
+
+# ------------------------------------------------------------------- lane keeping
+
+#: Seeds of the roads a lane-keeping agent is evaluated on: random roads no training
+#: run starts from (training resets its environments with seeds from 0 up).
+LANE_KEEPING_ROADS: tuple[int, ...] = (1000, 1001, 1002, 1003, 1004)
+
+
+@dataclass(frozen=True)
+class LaneKeepingEvaluation:
+    """A lane-keeping agent beside the cybernetic driver on the same random roads.
+
+    Per road (``roads``, the seeds of :meth:`~manualcontrol.envs.driving.Road.random`):
+    the RMS and largest lateral offset of the agent and of the driver
+    (:class:`~manualcontrol.pilots.driver.Driver`, Table 2's values, no remnant) over
+    the whole road, and whether the agent left its lane (the run goes on to the end of
+    the road, so every road is scored whole). ``recording`` is the agent's first road.
+    """
+
+    roads: tuple[int, ...]
+    rms_offset: tuple[float, ...]
+    max_offset: tuple[float, ...]
+    driver_rms_offset: tuple[float, ...]
+    driver_max_offset: tuple[float, ...]
+    left_lane: tuple[bool, ...]
+    lane_limit: float
+    recording: Recording
+    driver_recording: Recording
+    config: Any = None
+
+    @property
+    def rms_ratio(self) -> float:
+        """The agent's RMS offset over the driver's, the roads' offsets pooled."""
+        agent = math.sqrt(float(np.mean(np.square(self.rms_offset))))
+        driver = math.sqrt(float(np.mean(np.square(self.driver_rms_offset))))
+        return agent / driver
+
+    def summary(self) -> dict[str, Any]:
+        """Plain numbers for tables and JSON."""
+        return {
+            "task": "lane-keeping",
+            "roads": list(self.roads),
+            "rms_offset": list(self.rms_offset),
+            "max_offset": list(self.max_offset),
+            "driver_rms_offset": list(self.driver_rms_offset),
+            "driver_max_offset": list(self.driver_max_offset),
+            "left_lane": list(self.left_lane),
+            "lane_limit": self.lane_limit,
+            "rms_ratio": self.rms_ratio,
+        }
+
+    def lines(self) -> list[str]:
+        """The table printed by ``manualcontrol evaluate``."""
+        out = ["road  agent RMS (m)  agent max (m)  driver RMS (m)  driver max (m)  left lane"]
+        for road, rms, top, d_rms, d_top, left in zip(
+            self.roads,
+            self.rms_offset,
+            self.max_offset,
+            self.driver_rms_offset,
+            self.driver_max_offset,
+            self.left_lane,
+            strict=True,
+        ):
+            out.append(
+                f"{road:4d}  {rms:13.4f}  {top:13.4f}  {d_rms:14.4f}  {d_top:14.4f}  "
+                f"{'yes' if left else 'no'}"
+            )
+        kept = sum(not left for left in self.left_lane)
+        out.append(
+            f"kept the lane on {kept} of {len(self.roads)} roads (half-width left for the car: "
+            f"{self.lane_limit:.2f} m); RMS offset {self.rms_ratio:.2f} times the driver's"
+        )
+        return out
+
+
+def evaluate_lane_keeping(
+    agent: TrainedAgent, *, roads: tuple[int, ...] = LANE_KEEPING_ROADS
+) -> LaneKeepingEvaluation:
+    """Drive the agent and the cybernetic driver over the same random roads, whole.
+
+    The agent drives through its own wrappers (its delay, scales) with loss-of-control
+    termination off, so a departure is counted and the road still scored to its end;
+    the driver drives the bare task with the agent's steering.
+    """
+    from manualcontrol.pilots.driver import Driver
+
+    if agent.config.task != "lane-keeping":
+        raise ValueError(
+            f"evaluate_lane_keeping takes a lane-keeping agent, got task {agent.config.task!r}"
+        )
+    if not roads:
+        raise ValueError("roads must name at least one road seed")
+    overrides = {"road": "random", "measurement_time": None, "loss_of_control": False}
+    steering = agent.config.env_kwargs.get("steering", "torque")
+    rms, top, d_rms, d_top, left = [], [], [], [], []
+    first = first_driver = None
+    lane_limit = math.nan
+    for road in roads:
+        report_progress(f"evaluate: the agent and the driver on random road {road}")
+        env = make_env(agent.config, **overrides)
+        recording = fly(agent, env, road)
+        lane_limit = float(env.unwrapped.lane_limit)
+        env.close()
+        bare = gym.make(TASK_IDS["lane-keeping"], steering=steering, **overrides)
+        driven = fly(Driver(), bare, road)
+        bare.close()
+        offset, driver_offset = np.asarray(recording["y_L"]), np.asarray(driven["y_L"])
+        rms.append(float(np.sqrt(np.mean(offset**2))))
+        top.append(float(np.max(np.abs(offset))))
+        d_rms.append(float(np.sqrt(np.mean(driver_offset**2))))
+        d_top.append(float(np.max(np.abs(driver_offset))))
+        left.append(bool(top[-1] > lane_limit))
+        if first is None:
+            first, first_driver = recording, driven
+    return LaneKeepingEvaluation(
+        tuple(roads),
+        tuple(rms),
+        tuple(top),
+        tuple(d_rms),
+        tuple(d_top),
+        tuple(left),
+        lane_limit,
+        first,
+        first_driver,
+        agent.config,
+    )
+
+
+def write_lane_keeping_report(evaluation: LaneKeepingEvaluation, folder: str | Path) -> Path:
+    """Write ``evaluation.md``, ``evaluation.json`` and ``lane_offset.png`` into ``folder``."""
+    import json
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    report_progress(f"evaluate: writing the report and its plot in {folder}")
+    summary = evaluation.summary()
+    atomic_write(folder / "evaluation.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
+    fig, axis = plt.subplots(figsize=(8, 3.5))
+    for recording, label in (
+        (evaluation.recording, "agent"),
+        (evaluation.driver_recording, "cybernetic driver"),
+    ):
+        axis.plot(recording.t, recording["y_L"], lw=0.9, label=label)
+    for sign in (1.0, -1.0):
+        axis.axhline(sign * evaluation.lane_limit, color="tab:red", lw=0.8)
+    axis.set_xlabel("time [s]")
+    axis.set_ylabel("lateral offset y_L [m]")
+    axis.set_title(f"random road {evaluation.roads[0]}; red: where the car leaves its lane")
+    axis.legend(loc="upper right")
+    fig.tight_layout()
+    with atomic_path(folder / "lane_offset.png") as temporary:
+        fig.savefig(temporary, dpi=110, format="png")
+    plt.close(fig)
+    lines = [
+        "# Lane-keeping agent evaluation",
+        "",
+        "```",
+        *evaluation.lines(),
+        "```",
+        "",
+        "![lateral offset](lane_offset.png)",
+        "",
+    ]
     atomic_write(folder / "evaluation.md", lambda p: p.write_text("\n".join(lines)))
     return folder / "evaluation.md"

@@ -1516,6 +1516,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if args.out is not None:
         _check_output("--out", args.out, folder=True)
     agent = load_agent(args.agent, trust_pickle=args.trust_pickle)
+    if agent.config.task == "lane-keeping":
+        return _evaluate_lane_keeping(agent, args)
     with reporting_progress(_progress_line):
         evaluation = evaluate(agent, seed=args.seed, deterministic=args.deterministic)
         path = write_report(evaluation, args.out or Path(args.agent) / "evaluation")
@@ -1539,6 +1541,28 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         print(
             f"manualcontrol evaluate: warning: implausible identification: {flag}", file=sys.stderr
         )
+    print(f"report: {path}")
+    return EXIT_OK
+
+
+def _evaluate_lane_keeping(agent: Any, args: argparse.Namespace) -> int:
+    """A lane-keeping agent beside the cybernetic driver on the evaluation roads."""
+    from manualcontrol.agents.evaluation import (
+        LANE_KEEPING_ROADS,
+        evaluate_lane_keeping,
+        write_lane_keeping_report,
+    )
+    from manualcontrol.estimators.protocol import reporting_progress
+
+    # --seed picks the first of five consecutive roads; --deterministic is moot (the
+    # recipes' lane-keeping agents carry no noise wrapper)
+    first = LANE_KEEPING_ROADS[0] + args.seed
+    roads = tuple(range(first, first + len(LANE_KEEPING_ROADS)))
+    with reporting_progress(_progress_line):
+        evaluation = evaluate_lane_keeping(agent, roads=roads)
+        path = write_lane_keeping_report(evaluation, args.out or Path(args.agent) / "evaluation")
+    for line in evaluation.lines():
+        print(line)
     print(f"report: {path}")
     return EXIT_OK
 
@@ -2092,7 +2116,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--out", type=Path, default=None, help="report folder (default AGENT/evaluation)"
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the evaluation run")
+    p.add_argument(
+        "--seed",
+        type=_count,
+        default=0,
+        help="seed of the evaluation run (lane keeping: the roads are random roads "
+        "1000 + SEED to 1004 + SEED, each beside the cybernetic driver)",
+    )
     p.add_argument(
         "--deterministic",
         action="store_const",

@@ -11,26 +11,82 @@ from manualcontrol.agents.recipes import (
     human_problem,
     optimal_control_effort_weight,
     recipe,
+    typical_stick_rms,
 )
 from manualcontrol.agents.training import make_env
 from manualcontrol.agents.wrappers import ObservationScale
 from manualcontrol.bench.cli import main
+from manualcontrol.estimators.analysis.human_likeness import reference_pilot
 
 
 @pytest.mark.parametrize("element", ["1/s", "1/s^2", "1/(s(s+1))"])
-def test_the_human_problem_builds_its_environment_with_the_human_limitations(element):
+def test_the_human_problem_imposes_the_typical_pilots_own_limitations(element):
     config = human_problem(element, seed=3)
     assert config.seed == 3 and config.algorithm == "ppo"
-    kinds = [spec["kind"] for spec in config.limitations]
-    # every recipe acts through a perceptual delay the agent cannot see
-    assert kinds[0] == "action_delay" or "action_delay" in kinds
-    delay = next(spec for spec in config.limitations if spec["kind"] == "action_delay")
-    assert delay["delay"] == 0.2 and delay["observe_queue"] is False
-    assert "effort_cost" in kinds and "motor_noise" in kinds and "observation_noise" in kinds
+    typical = reference_pilot(element)
+    specs = {spec["kind"]: spec for spec in config.limitations}
+    # the agent acts through the typical pilot's delay, its queue hidden, and limb
+    assert specs["action_delay"] == {
+        "kind": "action_delay",
+        "delay": typical["tau_v"],
+        "observe_queue": False,
+    }
+    assert specs["neuromuscular"]["omega_nms"] == typical["omega_nms"]
+    assert specs["neuromuscular"]["zeta_nms"] == typical["zeta_nms"]
+    # the OCM's -20 dB, band-limited where the limb stops passing it, innermost
+    assert config.limitations[0] == {
+        "kind": "observation_noise",
+        "ratio": 0.01,
+        "omega_r": typical["omega_nms"],
+    }
+    assert "effort_cost" in specs and "motor_noise" in specs
+    assert config.env_kwargs["forcing"] == "popovici2017"
+    assert config.env_kwargs["action_bound"] == pytest.approx(4 * typical_stick_rms(element))
     env = make_env(config)
     observation, _ = env.reset(seed=0)
     assert env.observation_space.contains(observation)
     env.close()
+
+
+@pytest.mark.parametrize("element", ["1/s", "1/s^2", "1/(s(s+1))"])
+def test_the_typical_stick_is_the_simulated_typical_pilots(element):
+    from manualcontrol.agents.evaluation import fly
+    from manualcontrol.pilots import Pilot
+
+    env = gym.make(
+        "ManualControl/CompensatoryTracking-v0",
+        controlled_element=element,
+        forcing="popovici2017",
+        run_in=30.0,
+    )
+    recording = fly(Pilot("precision", reference_pilot(element)), env, 0)
+    # one whole 90-s period after a 30-s run-in: the steady state at the lines, which the
+    # Parseval sum computes without simulating; the simulation's zero-order hold (half a
+    # sample of extra lag, felt most by the least damped loop, the double integrator's:
+    # 2.2 %) and the run-in's leftovers stay under 3 %
+    simulated = float(np.sqrt(np.mean(np.asarray(recording.u) ** 2)))
+    assert typical_stick_rms(element) == pytest.approx(simulated, rel=0.03)
+
+
+def test_the_optimal_control_models_optimum_on_the_recipes_forcing_is_human():
+    # an agent becomes what its problem's optimum is: on the recipe's forcing the OCM's
+    # crossover, phase margin and effective delay are inside the human ranges
+    from manualcontrol.estimators.analysis.human_likeness import HUMAN_RANGES
+    from manualcontrol.pilots import solve_ocm
+
+    for element, kind in (("1/s", "integrator"), ("1/s^2", "double_integrator")):
+        tau_v = reference_pilot(element)["tau_v"]  # the recipe's delay
+        crossover, margin, delay = solve_ocm(element, "popovici2017", tau_v=tau_v).crossover()
+        ranges = HUMAN_RANGES[kind]
+        for name, value in (
+            ("crossover_frequency", crossover),
+            ("phase_margin", margin),
+            ("effective_delay", delay),
+        ):
+            assert ranges[name].low <= value <= ranges[name].high, (element, name, value)
+    # where the wide-band forcing's is not: too much phase margin on 1/s
+    _, margin, _ = solve_ocm("1/s", "vanderel-bw4", tau_v=0.26).crossover()
+    assert margin > HUMAN_RANGES["integrator"]["phase_margin"].high
 
 
 def test_a_recipe_takes_a_seed_and_a_length_and_rejects_unknown_names():
@@ -73,7 +129,8 @@ def test_the_train_command_trains_a_recipe(tmp_path):
     config = json.loads((out / "config.json").read_text())
     assert config["seed"] == 2 and config["total_timesteps"] == 64
     assert config["env_kwargs"]["controlled_element"] == "1/s"
-    weight = optimal_control_effort_weight("1/s", "vanderel-bw4", 5.0)
+    bound = config["env_kwargs"]["action_bound"]
+    weight = optimal_control_effort_weight("1/s", "popovici2017", bound)
     assert config["effort_rate_weight"] == pytest.approx(weight, rel=1e-12)
 
 
