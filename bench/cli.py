@@ -1486,10 +1486,10 @@ _RECIPE_SETS = {
 
 
 def _recipe_config(args: argparse.Namespace) -> Any:
-    from manualcontrol.agents.recipes import RECIPE_ELEMENTS, recipe
+    from manualcontrol.agents.recipes import RECIPES, recipe
 
-    if args.recipe not in RECIPE_ELEMENTS:
-        names = ", ".join(RECIPE_ELEMENTS)
+    if args.recipe not in RECIPES:
+        names = ", ".join(RECIPES)
         raise UsageError(f"--recipe must be one of {names}, got {args.recipe!r}")
     given = [flag for flag, (name, unset) in _RECIPE_SETS.items() if getattr(args, name) != unset]
     if given:
@@ -2010,10 +2010,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--recipe",
         default=None,
         metavar="NAME",
-        help="a measured training recipe (si: compensatory tracking of 1/s with a human's "
-        "delay, neuromuscular system, motor and observation noise and effort "
-        "cost); takes --seed, --steps and --checkpoint-every, "
-        "nothing else that sets the training",
+        help="a measured training recipe (si: compensatory tracking of 1/s with the typical "
+        "pilot's delay and neuromuscular system, motor and observation noise and effort "
+        "cost; lane-angle, lane-torque: lane keeping on random roads with a driver's "
+        "delay, steering the wheel's angle or its torque); takes --seed, --steps and "
+        "--checkpoint-every, nothing else that sets the training",
     )
     p.add_argument(
         "--task", default="compensatory", help="compensatory, pursuit, preview or lane-keeping"

@@ -116,7 +116,11 @@ def test_the_train_command_refuses_flags_a_recipe_sets(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "--recipe si sets the training itself; drop --delay" in err
     code = main(["train", "--recipe", "hover", "--out", str(tmp_path / "a")])
-    assert code == 2 and "--recipe must be one of si, got 'hover'" in capsys.readouterr().err
+    assert (
+        code == 2
+        and "--recipe must be one of si, lane-angle, lane-torque, got 'hover'"
+        in capsys.readouterr().err
+    )
     assert not (tmp_path / "a").exists()
 
 
@@ -146,3 +150,63 @@ def test_the_optimal_control_effort_weight_poses_the_ocms_trade_off_in_reward_un
     assert solve_ocm("1/s", "vanderel-bw4", g=g).tau_nms == pytest.approx(0.1, rel=1e-6)
     # a double integrator needs more stick rate for the same error: a smaller weight
     assert optimal_control_effort_weight("1/s^2", "vanderel-bw4", 5.0) < weight / 3
+
+
+@pytest.mark.parametrize("steering", ["angle", "torque"])
+def test_the_lane_keeping_recipe_scales_to_the_driver_and_hides_its_delay(steering):
+    from manualcontrol.agents.recipes import LANE_KEEPING_DELAY, driver_statistics
+
+    config = recipe(f"lane-{steering}", seed=1)
+    assert config.task == "lane-keeping" and config.seed == 1
+    assert config.env_kwargs["steering"] == steering and config.env_kwargs["road"] == "random"
+    scale, action_rms = driver_statistics(steering)
+    assert config.env_kwargs["action_bound"] == pytest.approx(4 * action_rms)
+    assert config.policy_kwargs["log_std_init"] == pytest.approx(np.log(action_rms))
+    assert config.wrappers[0] == {
+        "kind": "action_delay",
+        "delay": LANE_KEEPING_DELAY,
+        "observe_queue": False,
+    }
+    assert config.wrappers[1] == {"kind": "observation_scale", "scale": scale}
+    # on another road the driver's observations, so scaled, are of order one: the policy
+    # sees numbers a network learns from, the rates included
+    env = gym.make(
+        "ManualControl/LaneKeeping-v0",
+        road="random",
+        steering=steering,
+        include_rates=True,
+        measurement_time=60.0,
+    )
+    from manualcontrol.pilots.driver import Driver
+
+    observation, _ = env.reset(seed=7)
+    driver = Driver()
+    driver.reset(7, env=env)
+    seen, done = [], False
+    while not done:
+        observation, _, terminated, truncated, _ = env.step(driver.act(observation))
+        seen.append(observation / np.asarray(scale))
+        done = terminated or truncated
+    env.close()
+    rms = np.sqrt(np.mean(np.square(seen), axis=0))
+    assert np.all((rms > 0.25) & (rms < 4.0)), rms
+
+
+def test_driver_statistics_are_the_drivers_own_rms():
+    from manualcontrol.agents.evaluation import fly
+    from manualcontrol.agents.recipes import driver_statistics
+    from manualcontrol.pilots.driver import Driver
+
+    scale, action_rms = driver_statistics("angle")
+    env = gym.make(
+        "ManualControl/LaneKeeping-v0",
+        road="random",
+        steering="angle",
+        include_rates=True,
+        measurement_time=120.0,
+    )
+    recording = fly(Driver(), env, 0)
+    # the recording holds the applied steering angle and the observed angles
+    assert action_rms == pytest.approx(np.sqrt(np.mean(recording["delta_d"] ** 2)), rel=0.02)
+    assert scale[0] == pytest.approx(np.sqrt(np.mean(recording["theta_far"] ** 2)), rel=0.02)
+    assert scale[1] == pytest.approx(np.sqrt(np.mean(recording["theta_near"] ** 2)), rel=0.02)
