@@ -194,7 +194,7 @@ def driver_statistics(steering: str) -> tuple[list[float], float]:
 
     The driver (:class:`~manualcontrol.pilots.driver.Driver`, Zhao et al.'s Table 2
     values, no remnant) keeps the lane of random road 0 for 120 s with ``steering``;
-    the observation has its rates (``include_rates``). The lane-keeping recipes scale
+    the observation is the env's four values, no rates. The lane-keeping recipes scale
     the agent's observations and actions by these: the policy sees numbers of order
     one and explores on the scale a driver steers on.
     """
@@ -206,7 +206,6 @@ def driver_statistics(steering: str) -> tuple[list[float], float]:
         "ManualControl/LaneKeeping-v0",
         road="random",
         steering=steering,
-        include_rates=True,
         measurement_time=120.0,
     )
     driver = Driver()
@@ -236,7 +235,10 @@ def lane_keeping_problem(
 
     * Random roads (:meth:`~manualcontrol.envs.driving.Road.random`), 30-s episodes,
       the bounded reward on the lateral offset with loss of control at a lane
-      departure (the env's defaults), the rates observed.
+      departure (the env's defaults); the four observed values without their rates
+      (scaled to the driver's RMS, the backward differences of the held curvature's
+      far-point angle spike where the road's segments meet, and an agent that saw
+      them so scaled left the lane on every road).
     * A perceptual delay of :data:`LANE_KEEPING_DELAY`, its queue hidden.
     * Observations divided by the cybernetic driver's RMS of each
       (:func:`driver_statistics`; :class:`~manualcontrol.agents.wrappers.
@@ -257,7 +259,6 @@ def lane_keeping_problem(
             "road": "random",
             "steering": steering,
             "action_bound": _STICK_ROOM * action_rms,
-            "include_rates": True,
             "loss_of_control": True,
             "measurement_time": 30.0,
         },

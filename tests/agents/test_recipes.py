@@ -169,13 +169,9 @@ def test_the_lane_keeping_recipe_scales_to_the_driver_and_hides_its_delay(steeri
     }
     assert config.wrappers[1] == {"kind": "observation_scale", "scale": scale}
     # on another road the driver's observations, so scaled, are of order one: the policy
-    # sees numbers a network learns from, the rates included
+    # sees numbers a network learns from
     env = gym.make(
-        "ManualControl/LaneKeeping-v0",
-        road="random",
-        steering=steering,
-        include_rates=True,
-        measurement_time=60.0,
+        "ManualControl/LaneKeeping-v0", road="random", steering=steering, measurement_time=60.0
     )
     from manualcontrol.pilots.driver import Driver
 
@@ -199,11 +195,7 @@ def test_driver_statistics_are_the_drivers_own_rms():
 
     scale, action_rms = driver_statistics("angle")
     env = gym.make(
-        "ManualControl/LaneKeeping-v0",
-        road="random",
-        steering="angle",
-        include_rates=True,
-        measurement_time=120.0,
+        "ManualControl/LaneKeeping-v0", road="random", steering="angle", measurement_time=120.0
     )
     recording = fly(Driver(), env, 0)
     # the recording holds the applied steering angle and the observed angles
