@@ -286,6 +286,28 @@ def optimal_control_reference(config: Any) -> Any:
     return pilot
 
 
+def _pyplot() -> Any:
+    """The pyplot of matplotlib on the file-only Agg backend (reports draw to PNG, headless)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _start_report(evaluation: Any, folder: str | Path) -> tuple[Path, dict[str, Any]]:
+    """Create the report folder and write ``evaluation.json``; the folder and the summary."""
+    import json
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    report_progress(f"evaluate: writing the report and its plots in {folder}")
+    summary = evaluation.summary()
+    atomic_write(folder / "evaluation.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
+    return folder, summary
+
+
 def write_report(
     evaluation: Evaluation,
     folder: str | Path,
@@ -300,18 +322,8 @@ def write_report(
     typical pilot, and each of ``models``: a label and a callable giving a pilot's
     ``Y_p(j omega)`` at frequencies in rad/s, e.g. an OCM pilot's ``frequency_response``).
     """
-    import json
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    report_progress(f"evaluate: writing the report and its plots in {folder}")
-    summary = evaluation.summary()
-    atomic_write(folder / "evaluation.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
+    plt = _pyplot()
+    folder, summary = _start_report(evaluation, folder)
     response = evaluation.frequency_response
     fig, (magnitude, phase) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     magnitude.loglog(response.frequencies, np.abs(response.open_loop), "o-", label="open loop Y/E")
@@ -521,18 +533,8 @@ def evaluate_lane_keeping(
 
 def write_lane_keeping_report(evaluation: LaneKeepingEvaluation, folder: str | Path) -> Path:
     """Write ``evaluation.md``, ``evaluation.json`` and ``lane_offset.png`` into ``folder``."""
-    import json
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    report_progress(f"evaluate: writing the report and its plot in {folder}")
-    summary = evaluation.summary()
-    atomic_write(folder / "evaluation.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
+    plt = _pyplot()
+    folder, _ = _start_report(evaluation, folder)
     fig, axis = plt.subplots(figsize=(8, 3.5))
     for recording, label in (
         (evaluation.recording, "agent"),

@@ -145,15 +145,21 @@ def _window_variance(values, size=500):
     return np.array([np.var(values[max(0, k - size + 1) : k + 1]) for k in range(len(values))])
 
 
-def test_observation_noise_follows_a_doubling_ratio_of_the_signal_variance():
-    ratio = Step(before=0.01, after=0.02, t_step=60.0)  # -20 dB, then -17 dB
-    env = ObservationNoise(base(measurement_time=120.0), ratio=ratio)
-    n = 12000
+def _sine_run(env, n):
+    """A slow sine on the stick for ``n`` steps: the observations, the clean error, the noise."""
     commands = 0.5 * np.sin(np.arange(n) * DT * 1.3)
     observations, _, infos = run(env, commands, seed=7)
     clean = np.array([info["e"] for info in infos])
     noise = np.array([0.0] + [info["observation_noise"][0] for info in infos[1:]])
     np.testing.assert_array_equal(observations[:, 0], clean + noise)
+    return observations, clean, noise
+
+
+def test_observation_noise_follows_a_doubling_ratio_of_the_signal_variance():
+    ratio = Step(before=0.01, after=0.02, t_step=60.0)  # -20 dB, then -17 dB
+    env = ObservationNoise(base(measurement_time=120.0), ratio=ratio)
+    n = 12000
+    observations, clean, noise = _sine_run(env, n)
     assert observations[0, 0] == clean[0]  # nothing to scale to yet
     # the OCM's intensity pi rho var per sample is the variance pi rho var / dt, so
     # noise^2 dt / (pi var) has the mean rho; noise^2 / (its variance) is chi-square(1):
@@ -212,11 +218,7 @@ def test_band_limited_ocm_noise_has_the_white_noise_intensity_in_band():
     ratio, omega_r = 0.01, 10.0
     env = ObservationNoise(base(measurement_time=120.0), ratio=ratio, omega_r=omega_r)
     n = 12000
-    commands = 0.5 * np.sin(np.arange(n) * DT * 1.3)
-    observations, _, infos = run(env, commands, seed=7)
-    clean = np.array([info["e"] for info in infos])
-    noise = np.array([0.0] + [info["observation_noise"][0] for info in infos[1:]])
-    np.testing.assert_array_equal(observations[:, 0], clean + noise)
+    _, clean, noise = _sine_run(env, n)
     variance = _window_variance(clean)[: n + 1]
     t = env.unwrapped.times[: n + 1]
     part = t >= 5.0
