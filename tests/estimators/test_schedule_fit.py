@@ -13,6 +13,7 @@ from manualcontrol.estimators.offline.schedule_fit import _Layout, fit_pilot_sig
 from manualcontrol.estimators.protocol import reporting_progress
 from manualcontrol.pilots import Pilot, simulate
 from manualcontrol.pilots.simulation import isolated_pilot_output
+from manualcontrol.pilots.spec import HumanLimitWarning
 
 DI_PILOT = dict(K_p=0.24, K_v=0.36, tau_v=0.3, omega_nms=8.0, zeta_nms=0.45)
 K_P = Sigmoid(0.24, 0.40, 22.0, 6.0)
@@ -257,14 +258,16 @@ def test_the_familys_limits_bound_the_fit_and_pinned_values_are_reported(changin
     # ce="SI" holds the parameters the filters hold there, and takes Table I
     si = make_estimator({"name": "sigmoid-fit", "ce": "SI", "starts": 1})
     assert "K_v" not in si.settings["estimated"]
-    single = simulate(
-        Pilot("precision", {"K_p": K_P, "K_v": 0.0}),
-        "SI",
-        "vanderel-bw4",
-        loop="sampled",
-        run_in=10.0,
-        measurement_time=30.0,
-    )
+    # the DI pilot's gain on SI, a low loop gain the pilot rightly warns about
+    with pytest.warns(HumanLimitWarning, match="outside the gains humans use"):
+        single = simulate(
+            Pilot("precision", {"K_p": K_P, "K_v": 0.0}),
+            "SI",
+            "vanderel-bw4",
+            loop="sampled",
+            run_in=10.0,
+            measurement_time=30.0,
+        )
     held = si.estimate(single)
     assert np.all(held.mean[:, list(held.parameter_names).index("K_v")] == 0.0)
     assert held.settings["sigmoid"]["end"]["K_p"] == pytest.approx(0.40, rel=1e-2)
