@@ -418,8 +418,8 @@ class LaneKeepingEvaluation:
     Per road (``roads``, the seeds of :meth:`~manualcontrol.envs.driving.Road.random`):
     the RMS and largest lateral offset of the agent and of the driver
     (:class:`~manualcontrol.pilots.driver.Driver`, Table 2's values, no remnant) over
-    the whole road, and whether the agent left its lane (the run goes on to the end of
-    the road, so every road is scored whole). ``recording`` is the agent's first road.
+    the whole road (the run goes on to the end of the road after a lane departure, so
+    every road is scored whole). ``recording`` is the agent's first road.
     """
 
     roads: tuple[int, ...]
@@ -427,11 +427,14 @@ class LaneKeepingEvaluation:
     max_offset: tuple[float, ...]
     driver_rms_offset: tuple[float, ...]
     driver_max_offset: tuple[float, ...]
-    left_lane: tuple[bool, ...]
     lane_limit: float
     recording: Recording
     driver_recording: Recording
-    config: Any = None
+
+    @property
+    def left_lane(self) -> tuple[bool, ...]:
+        """Per road, whether the agent's car left its lane (the env's loss of control)."""
+        return tuple(top > self.lane_limit for top in self.max_offset)
 
     @property
     def rms_ratio(self) -> float:
@@ -497,37 +500,27 @@ def evaluate_lane_keeping(
         raise ValueError("roads must name at least one road seed")
     overrides = {"road": "random", "measurement_time": None, "loss_of_control": False}
     steering = agent.config.env_kwargs.get("steering", "torque")
-    rms, top, d_rms, d_top, left = [], [], [], [], []
-    first = first_driver = None
+    agents, drivers = [], []
     lane_limit = math.nan
     for road in roads:
         report_progress(f"evaluate: the agent and the driver on random road {road}")
         env = make_env(agent.config, **overrides)
-        recording = fly(agent, env, road)
+        agents.append(fly(agent, env, road))
         lane_limit = float(env.unwrapped.lane_limit)
         env.close()
         bare = gym.make(TASK_IDS["lane-keeping"], steering=steering, **overrides)
-        driven = fly(Driver(), bare, road)
+        drivers.append(fly(Driver(), bare, road))
         bare.close()
-        offset, driver_offset = np.asarray(recording["y_L"]), np.asarray(driven["y_L"])
-        rms.append(float(np.sqrt(np.mean(offset**2))))
-        top.append(float(np.max(np.abs(offset))))
-        d_rms.append(float(np.sqrt(np.mean(driver_offset**2))))
-        d_top.append(float(np.max(np.abs(driver_offset))))
-        left.append(bool(top[-1] > lane_limit))
-        if first is None:
-            first, first_driver = recording, driven
+
+    def offsets(recordings: list[Recording]) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        values = [np.asarray(recording["y_L"]) for recording in recordings]
+        return (
+            tuple(float(np.sqrt(np.mean(v**2))) for v in values),
+            tuple(float(np.max(np.abs(v))) for v in values),
+        )
+
     return LaneKeepingEvaluation(
-        tuple(roads),
-        tuple(rms),
-        tuple(top),
-        tuple(d_rms),
-        tuple(d_top),
-        tuple(left),
-        lane_limit,
-        first,
-        first_driver,
-        agent.config,
+        tuple(roads), *offsets(agents), *offsets(drivers), lane_limit, agents[0], drivers[0]
     )
 
 

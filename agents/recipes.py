@@ -182,7 +182,6 @@ def _tracking(element: str) -> dict[str, Any]:
         "wrappers": human_limitations(element),
         "effort_rate_weight": optimal_control_effort_weight(element, _FORCING, bound),
         "algorithm": "ppo",
-        "total_timesteps": 1_200_000,
         "n_envs": 8,
         "algorithm_kwargs": _PPO,
         "policy_kwargs": {"net_arch": [64, 64]},
@@ -286,14 +285,7 @@ RECIPES: tuple[str, ...] = (*RECIPE_ELEMENTS, *RECIPE_STEERING)
 def recipe(name: str, *, seed: int = 0, total_timesteps: int | None = None) -> TrainingConfig:
     """The training configuration of recipe ``name`` (:data:`RECIPES`) with ``seed``."""
     check_choice("recipe", name, RECIPES)
+    length = {} if total_timesteps is None else {"total_timesteps": total_timesteps}
     if name in RECIPE_STEERING:
-        return lane_keeping_problem(
-            RECIPE_STEERING[name],
-            seed=seed,
-            total_timesteps=1_000_000 if total_timesteps is None else total_timesteps,
-        )
-    return human_problem(
-        RECIPE_ELEMENTS[name],
-        seed=seed,
-        total_timesteps=1_200_000 if total_timesteps is None else total_timesteps,
-    )
+        return lane_keeping_problem(RECIPE_STEERING[name], seed=seed, **length)
+    return human_problem(RECIPE_ELEMENTS[name], seed=seed, **length)

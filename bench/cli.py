@@ -1556,8 +1556,7 @@ def _evaluate_lane_keeping(agent: Any, args: argparse.Namespace) -> int:
 
     # --seed picks the first of five consecutive roads; --deterministic is moot (the
     # recipes' lane-keeping agents carry no noise wrapper)
-    first = LANE_KEEPING_ROADS[0] + args.seed
-    roads = tuple(range(first, first + len(LANE_KEEPING_ROADS)))
+    roads = tuple(road + args.seed for road in LANE_KEEPING_ROADS)
     with reporting_progress(_progress_line):
         evaluation = evaluate_lane_keeping(agent, roads=roads)
         path = write_lane_keeping_report(evaluation, args.out or Path(args.agent) / "evaluation")
