@@ -482,13 +482,18 @@ class LaneKeepingEvaluation:
 
 
 def evaluate_lane_keeping(
-    agent: TrainedAgent, *, roads: tuple[int, ...] = LANE_KEEPING_ROADS
+    agent: TrainedAgent,
+    *,
+    roads: tuple[int, ...] = LANE_KEEPING_ROADS,
+    deterministic: bool | None = None,
 ) -> LaneKeepingEvaluation:
     """Drive the agent and the cybernetic driver over the same random roads, whole.
 
-    The agent drives through its own wrappers (its delay, scales) with loss-of-control
-    termination off, so a departure is counted and the road still scored to its end;
-    the driver drives the bare task with the agent's steering.
+    The agent drives through its own wrappers (its delay, scales, noise) with
+    loss-of-control termination off, so a departure is counted and the road still
+    scored to its end; the driver drives the bare task with the agent's steering.
+    ``deterministic`` as in :func:`evaluate`: True silences the wrappers' noise; None
+    follows the agent's configuration.
     """
     from manualcontrol.pilots.driver import Driver
 
@@ -498,13 +503,17 @@ def evaluate_lane_keeping(
         )
     if not roads:
         raise ValueError("roads must name at least one road seed")
+    if deterministic is None:
+        deterministic = bool(getattr(agent.config, "deterministic", False))
+    if deterministic not in (True, False):
+        raise TypeError(f"deterministic must be True, False or None, got {deterministic!r}")
     overrides = {"road": "random", "measurement_time": None, "loss_of_control": False}
     steering = agent.config.env_kwargs.get("steering", "torque")
     agents, drivers = [], []
     lane_limit = math.nan
     for road in roads:
         report_progress(f"evaluate: the agent and the driver on random road {road}")
-        env = make_env(agent.config, **overrides)
+        env = _make_env(agent, not deterministic, overrides)
         agents.append(fly(agent, env, road))
         lane_limit = float(env.unwrapped.lane_limit)
         env.close()

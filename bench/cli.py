@@ -1554,11 +1554,10 @@ def _evaluate_lane_keeping(agent: Any, args: argparse.Namespace) -> int:
     )
     from manualcontrol.estimators.protocol import reporting_progress
 
-    # --seed picks the first of five consecutive roads; --deterministic is moot (the
-    # recipes' lane-keeping agents carry no noise wrapper)
+    # --seed shifts the five roads
     roads = tuple(road + args.seed for road in LANE_KEEPING_ROADS)
     with reporting_progress(_progress_line):
-        evaluation = evaluate_lane_keeping(agent, roads=roads)
+        evaluation = evaluate_lane_keeping(agent, roads=roads, deterministic=args.deterministic)
         path = write_lane_keeping_report(evaluation, args.out or Path(args.agent) / "evaluation")
     for line in evaluation.lines():
         print(line)

@@ -79,3 +79,22 @@ def test_a_tracking_agent_is_refused(agent):
         evaluate_lane_keeping(tracking)
     with pytest.raises(ValueError, match="roads must name at least one road seed"):
         evaluate_lane_keeping(trained, roads=())
+
+
+def test_the_wrappers_noise_is_on_unless_deterministic(agent):
+    import dataclasses
+
+    trained, _ = agent
+    noisy_config = dataclasses.replace(
+        trained.config,
+        wrappers=(*trained.config.wrappers, {"kind": "motor_noise", "power_ratio": 0.3}),
+    )
+    noisy = dataclasses.replace(trained, config=noisy_config)
+    bare = evaluate_lane_keeping(trained, roads=(1000,))
+    silenced = evaluate_lane_keeping(noisy, roads=(1000,), deterministic=True)
+    heard = evaluate_lane_keeping(noisy, roads=(1000,))
+    # the motor noise, silenced, leaves the agent's own run; on, it moves the car
+    assert silenced.rms_offset == bare.rms_offset
+    assert heard.rms_offset != bare.rms_offset
+    with pytest.raises(TypeError, match="deterministic must be True, False or None"):
+        evaluate_lane_keeping(trained, roads=(1000,), deterministic="yes")
