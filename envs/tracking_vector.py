@@ -141,6 +141,29 @@ class TrackingVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
         self._clipped = np.zeros(n, dtype=bool)
         return self._observe(), self._infos()
 
+    @property
+    def times(self) -> FloatArray:
+        """Time of every observation of an episode, as the single environment's ``times``."""
+        return self.template.times
+
+    @property
+    def realisations(self) -> NDArray[np.int64]:
+        """The forcing realisation each copy flies now (a copy; after :meth:`reset`)."""
+        return self._realisation.copy()
+
+    @property
+    def realisation_count(self) -> int:
+        """How many forcing realisations the copies draw from."""
+        return int(self._ft.shape[0])
+
+    def forcing_of(self, realisation: int) -> Any:
+        """The :class:`~manualcontrol.envs.signals.ForcingPair` of one realisation."""
+        template = self.template
+        realisation = template.check_realisation(realisation)
+        return (
+            forcing_preset(template._preset, realisation) if template._preset else template._forcing
+        )
+
     def _start_output(self, rows: NDArray[np.int64]) -> FloatArray:
         """``y`` at rest for copies on these forcing rows (as the single environment)."""
         if self._disturbance_at_input:
@@ -186,8 +209,7 @@ class TrackingVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
             x = np.einsum("nij,nj->ni", phi, self._x) + self._gamma[k] * drive[:, None]
             y_next = np.einsum("ni,ni->n", self._c[k + 1], x) + self._d[k + 1] * drive
         else:
-            x = self._x @ self._phi.T + drive[:, None] * self._gamma
-            y_next = x @ self._c + self._d * drive
+            x, y_next = self._advance_constant(drive)
         k = k + 1
         self._previous = {"e": self._e, "ft": self._ft[self._realisation, k - 1], "y": self._y}
         y = y_next if self._disturbance_at_input else y_next + self._fd[rows, k]
@@ -227,6 +249,26 @@ class TrackingVectorEnv(VectorEnv[FloatArray, FloatArray, FloatArray]):
             truncated[done] = False
         self._done = terminated | truncated
         return self._observe(), reward, terminated, truncated, self._infos()
+
+    def _advance_constant(self, drive: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The states and output after one step of a constant element, every copy at once.
+
+        The single environment's sums, term by term in the same order (a matrix product
+        would sum in another and differ in the last bits), so each copy's signals equal
+        its single environment's bit for bit.
+        """
+        x = self._x
+        phi, gamma, c = self._phi, self._gamma, self._c
+        advanced = np.empty_like(x)
+        for i in range(x.shape[1]):
+            acc = 0.0
+            for j in range(x.shape[1]):
+                acc = acc + phi[i, j] * x[:, j]
+            advanced[:, i] = acc + gamma[i] * drive
+        acc = 0.0
+        for j in range(x.shape[1]):
+            acc = acc + c[j] * advanced[:, j]
+        return advanced, acc + self._d * drive
 
     def _observe(self) -> FloatArray:
         template = self.template

@@ -49,7 +49,10 @@ from manualcontrol.envs._validation import check_choice
 from manualcontrol.envs.tracking import TrackingEnv
 from manualcontrol.estimators.protocol import ParameterValues
 
-__all__ = ["ESTIMATE_FORMS", "EstimatorObserver"]
+__all__ = ["ESTIMATE_FORMS", "ONLINE_SAMPLE_KEYS", "EstimatorObserver", "check_online_estimator"]
+
+#: The samples a tracking environment gives an online estimator (module docstring).
+ONLINE_SAMPLE_KEYS: tuple[str, ...] = ("e", "u", "y", "ft", "ft_ahead")
 
 #: What ``info["estimates"]`` holds each step (module docstring).
 ESTIMATE_FORMS: tuple[str, ...] = ("dicts", "arrays", "none")
@@ -60,6 +63,35 @@ FloatArray = NDArray[np.float64]
 def _plain(values: Mapping[str, float]) -> dict[str, float]:
     """A plain dict of an estimate's values (at once for the filters' row snapshots)."""
     return values.as_dict() if isinstance(values, ParameterValues) else dict(values)
+
+
+def check_online_estimator(estimator: Any) -> tuple[str, ...]:
+    """The sample keys of an estimator an environment can feed online, or raise.
+
+    Online, nothing of the run is known at reset: the estimator must start causally
+    (``initial_variance="causal"``) and make no restarts (a second pass over the whole
+    recording), and read only what a tracking display and stick give.
+    """
+    settings = getattr(estimator, "settings", None)
+    # only the filters on pilot models (their noise group) can start on a first window
+    noise = getattr(settings, "noise", None)
+    if getattr(noise, "initial_variance", "causal") != "causal":
+        raise ValueError(
+            "estimator must start causally online: configure it with "
+            "initial_variance='causal' (and initial K_p), got "
+            f"initial_variance={noise.initial_variance!r}"
+        )
+    if getattr(settings, "restarts", 0):
+        raise ValueError(
+            "restarts pass a whole recording again (estimate, offline); an observer "
+            f"runs the filter online: configure it with restarts=0, got "
+            f"restarts={settings.restarts!r}"
+        )
+    keys = tuple(estimator.sample_keys)
+    unknown = sorted(set(keys) - set(ONLINE_SAMPLE_KEYS))
+    if unknown:
+        raise ValueError(f"the environment cannot supply the estimator's samples {unknown}")
+    return keys
 
 
 class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -101,27 +133,10 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 "env must be a manualcontrol tracking environment, "
                 f"got {type(env.unwrapped).__name__}"
             )
-        settings = getattr(estimator, "settings", None)
-        # only the filters on pilot models (their noise group) can start on a first window
-        noise = getattr(settings, "noise", None)
-        if getattr(noise, "initial_variance", "causal") != "causal":
-            raise ValueError(
-                "estimator must start causally online: configure it with "
-                "initial_variance='causal' (and initial K_p), got "
-                f"initial_variance={noise.initial_variance!r}"
-            )
-        if getattr(settings, "restarts", 0):
-            raise ValueError(
-                "restarts pass a whole recording again (estimate, offline); an observer "
-                f"runs the filter online: configure it with restarts=0, got "
-                f"restarts={settings.restarts!r}"
-            )
+        keys = check_online_estimator(estimator)
         self.estimator = estimator
         self.append_to_observation = bool(append_to_observation)
-        keys = tuple(estimator.sample_keys)
-        unknown = sorted(set(keys) - {"e", "u", "y", "ft", "ft_ahead"})
-        if unknown:
-            raise ValueError(f"the environment cannot supply the estimator's samples {unknown}")
+        settings = getattr(estimator, "settings", None)
         self._keys = keys
         self._display_keys = tuple(key for key in keys if key in ("e", "y", "ft"))
         self._anticipation = float(getattr(settings, "anticipation_time", None) or 0.0)

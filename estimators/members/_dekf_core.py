@@ -3,8 +3,9 @@
 Pure numerics on small records (namedtuples of arrays):
 :func:`dekf_step` advances a :data:`DEKFBelief` by one sample and writes that
 sample's estimate into row ``row`` of a :data:`DEKFOutput`; :func:`dekf_run` loops it
-over a recording. The online ``DEKF.update`` and the batch ``DEKF.estimate`` both call
-:func:`dekf_step`, so they give identical numbers. The covariance algebra (Joseph
+over a recording, and :func:`dekf_step_many` steps a stack of filters on one sample
+each. The online ``DEKF.update``, the batch ``DEKF.estimate`` and the batched online
+path all call :func:`dekf_step`, so they give identical numbers. The covariance algebra (Joseph
 correction, symmetrisation, health checks, windowed variances, pin tracking) is the
 family's shared code in :mod:`manualcontrol.estimators.filters`.
 
@@ -62,6 +63,7 @@ from manualcontrol.estimators._pilot_core import (
     report_frozen,
     report_row,
 )
+from manualcontrol.estimators.filters.batch import take
 from manualcontrol.estimators.filters.kalman import clamp, joseph_correct
 from manualcontrol.estimators.filters.linalg import symmetrise
 from manualcontrol.estimators.filters.monitor import belief_health
@@ -381,3 +383,28 @@ def dekf_run(model, config, belief, monitor, report, scratch, inputs, u, e, out)
     """:func:`dekf_step` over every sample; ``inputs`` has shape ``(n, n_inputs)``."""
     for k in range(u.shape[0]):
         dekf_step(model, config, belief, monitor, report, scratch, inputs[k], u[k], e[k], k, out)
+
+
+@numba.njit(cache=True, _nrt=False)
+def dekf_step_many(model, config, belief, monitor, report, scratch, inputs, u, e, active, out):
+    """:func:`dekf_step` on every filter of a stack whose ``active[i]`` is set.
+
+    The records are stacked (:func:`~manualcontrol.estimators.filters.batch.stack_records`):
+    filter ``i`` reads and writes row ``i`` of each, its sample is ``inputs[i], u[i],
+    e[i]`` and its estimate goes to row 0 of its one-row output.
+    """
+    for i in range(u.shape[0]):
+        if active[i]:
+            dekf_step(
+                take(model, i),
+                take(config, i),
+                take(belief, i),
+                take(monitor, i),
+                take(report, i),
+                take(scratch, i),
+                inputs[i],
+                u[i],
+                e[i],
+                0,
+                take(out, i),
+            )

@@ -80,6 +80,7 @@ from manualcontrol.estimators._pilot_core import (
     report_frozen,
     report_row,
 )
+from manualcontrol.estimators.filters.batch import take
 from manualcontrol.estimators.filters.kalman import joseph_correct, predict_covariance
 from manualcontrol.estimators.filters.linalg import cholesky, cholesky_solve_rows, symmetrise
 from manualcontrol.estimators.filters.monitor import belief_health, window_variance
@@ -615,3 +616,27 @@ def bank_run(model, config, lines, belief, monitor, report, s, inputs, u, e, out
     """:func:`bank_step` over every sample."""
     for k in range(u.shape[0]):
         bank_step(model, config, lines, belief, monitor, report, s, inputs[k], u[k], e[k], k, out)
+
+
+@numba.njit(cache=True, _nrt=False)
+def bank_step_many(model, config, lines, belief, monitor, report, s, inputs, u, e, active, out):
+    """:func:`bank_step` on every filter bank of a stack whose ``active[i]`` is set.
+
+    See :func:`~manualcontrol.estimators.members._dekf_core.dekf_step_many`.
+    """
+    for i in range(u.shape[0]):
+        if active[i]:
+            bank_step(
+                take(model, i),
+                take(config, i),
+                take(lines, i),
+                take(belief, i),
+                take(monitor, i),
+                take(report, i),
+                take(s, i),
+                inputs[i],
+                u[i],
+                e[i],
+                0,
+                take(out, i),
+            )

@@ -72,6 +72,7 @@ from manualcontrol.estimators._pilot_core import (
     report_frozen,
     report_row,
 )
+from manualcontrol.estimators.filters.batch import take
 from manualcontrol.estimators.filters.kalman import clamp
 from manualcontrol.estimators.filters.monitor import belief_health
 from manualcontrol.estimators.filters.smoothers import store_belief
@@ -313,6 +314,29 @@ def joint_run(model, config, belief, monitor, report, scratch, inputs, u, e, out
     """:func:`joint_step` over every sample."""
     for k in range(u.shape[0]):
         joint_step(model, config, belief, monitor, report, scratch, inputs[k], u[k], e[k], k, out)
+
+
+@numba.njit(cache=True, _nrt=False)
+def joint_step_many(model, config, belief, monitor, report, scratch, inputs, u, e, active, out):
+    """:func:`joint_step` on every filter of a stack whose ``active[i]`` is set.
+
+    See :func:`~manualcontrol.estimators.members._dekf_core.dekf_step_many`.
+    """
+    for i in range(u.shape[0]):
+        if active[i]:
+            joint_step(
+                take(model, i),
+                take(config, i),
+                take(belief, i),
+                take(monitor, i),
+                take(report, i),
+                take(scratch, i),
+                inputs[i],
+                u[i],
+                e[i],
+                0,
+                take(out, i),
+            )
 
 
 # ------------------------------------------------------------------------- dual
@@ -639,3 +663,29 @@ def dual_run(model, config, belief, monitor, report, scratch, theta, inputs, u, 
         dual_step(
             model, config, belief, monitor, report, scratch, theta, inputs[k], u[k], e[k], k, out
         )
+
+
+@numba.njit(cache=True, _nrt=False)
+def dual_step_many(
+    model, config, belief, monitor, report, scratch, theta, inputs, u, e, active, out
+):
+    """:func:`dual_step` on every filter of a stack whose ``active[i]`` is set.
+
+    See :func:`~manualcontrol.estimators.members._dekf_core.dekf_step_many`.
+    """
+    for i in range(u.shape[0]):
+        if active[i]:
+            dual_step(
+                take(model, i),
+                take(config, i),
+                take(belief, i),
+                take(monitor, i),
+                take(report, i),
+                take(scratch, i),
+                take(theta, i),
+                inputs[i],
+                u[i],
+                e[i],
+                0,
+                take(out, i),
+            )

@@ -160,6 +160,7 @@ class DEKF(PilotFilter):
     name = "dekf"
     settings_type = DEKFSettings
     _step_kernel = staticmethod(core.dekf_step)
+    _step_many_kernel = staticmethod(core.dekf_step_many)
 
     @property
     def settings(self) -> DEKFSettings:

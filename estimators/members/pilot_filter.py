@@ -184,6 +184,9 @@ class PilotFilter(FilterShell):
     #: The compiled one-sample kernel, ``kernel(*records, inputs, u, e, row, out)``
     #: (a ``staticmethod``: numba's dispatchers bind to instances like functions).
     _step_kernel: ClassVar[Any] = None
+    #: The same step over a stack of filters (:class:`~manualcontrol.estimators.batch.
+    #: FilterBatch`), ``kernel(*stacked_records, inputs, u, e, active, stacked_out)``.
+    _step_many_kernel: ClassVar[Any] = None
 
     def __init__(self, settings: PilotFilterSettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
@@ -352,6 +355,10 @@ class PilotFilter(FilterShell):
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
         raise NotImplementedError
+
+    def _batch_state(self) -> tuple[tuple, Any]:
+        """The records and one-row output a batched kernel stacks (after :meth:`reset`)."""
+        return self._require_reset(), self._row
 
     def _new_output(self, n: int, store: bool) -> Any:
         raise NotImplementedError

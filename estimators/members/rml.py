@@ -690,6 +690,7 @@ class RML(PilotFilter):
     name: ClassVar[str] = "rml"
     settings_type = RMLSettings
     _step_kernel = staticmethod(core.bank_step)
+    _step_many_kernel = staticmethod(core.bank_step_many)
 
     def __init__(self, settings: RMLSettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
@@ -841,6 +842,16 @@ class RML(PilotFilter):
             estimator.reset(dt, var_u0=var_u0, var_e0=var_e0, t0=t0)
         choice = _CausalChoice(self._settings, forcing, dt, self.sample_keys)
         self._stepped = _SteppedChoice(choice, passes, t0)
+
+    def batchable(self) -> str:
+        """Why a batch (``FilterBatch``) cannot step this filter; '' where it can."""
+        if self._settings.remnant.injection == CHOOSE_CAUSAL_INJECTION:
+            return (
+                "remnant_injection='choose-causal' decides between two passes in Python "
+                "every few seconds and is not batched; give remnant_injection='input' or "
+                "'output', or step it one stream at a time (an EstimatorObserver per env)"
+            )
+        return ""
 
     #: :meth:`reset` takes the run's forcing (the online observer hands it over).
     reads_forcing: ClassVar[bool] = True

@@ -255,6 +255,7 @@ class JointUKF(_UnscentedPilotFilter):
     name = "joint-ukf"
     settings_type = UKFSettings
     _step_kernel = staticmethod(core.joint_step)
+    _step_many_kernel = staticmethod(core.joint_step_many)
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
         internal = self._internal
@@ -291,6 +292,7 @@ class DualUKF(_UnscentedPilotFilter):
     name = "dual-ukf"
     settings_type = DualUKFSettings
     _step_kernel = staticmethod(core.dual_step)
+    _step_many_kernel = staticmethod(core.dual_step_many)
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
         internal = self._internal

@@ -1,0 +1,193 @@
+"""One online estimator run on many sample streams at once, one compiled call per sample.
+
+:class:`FilterBatch` holds ``n`` filters of one member with the same settings as one
+stack of records (:mod:`~manualcontrol.estimators.filters.batch`) and steps all of them
+on one sample each with the member's batched kernel (``_step_many_kernel``: its
+one-sample step in a compiled loop over the stack). Filter ``i`` gives exactly the
+numbers a single estimator of the same settings, reset alike and fed stream ``i``,
+gives, bit for bit: the step it runs is the same compiled function on the same types.
+
+It is what :class:`~manualcontrol.estimators.vector_observer.VectorEstimatorObserver`
+steps inside a vector environment; it serves anyone with many streams in step (a
+batch of recordings of one length, many simulated pilots).
+
+The members with a batched kernel are the filters on pilot models: the DEKF, the joint
+and dual UKFs and the RML filter bank (not its causal choice between two remnant
+injections, which decides in Python every few seconds).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from manualcontrol.envs._validation import check_int
+from manualcontrol.estimators.filters.batch import put_record, stack_records
+
+__all__ = ["FilterBatch", "batched_members"]
+
+FloatArray = NDArray[np.float64]
+
+
+def batched_members() -> tuple[str, ...]:
+    """Names of the members :class:`FilterBatch` can step (for messages)."""
+    return ("dekf", "joint-ukf", "dual-ukf", "rml")
+
+
+class FilterBatch:
+    """``n`` copies of an online ``estimator``, stepped together (module docstring).
+
+    Parameters
+    ----------
+    estimator
+        The member whose settings every copy takes (it is not stepped itself; a fresh
+        one of the same settings is built). It must start causally: online, no first
+        window of data is known at reset.
+    n
+        Number of copies.
+    """
+
+    def __init__(self, estimator: Any, n: int) -> None:
+        self.n = check_int("n", n, minimum=1)
+        kernel = getattr(type(estimator), "_step_many_kernel", None)
+        if kernel is None:
+            raise ValueError(
+                f"estimator {getattr(estimator, 'name', type(estimator).__name__)!r} has no "
+                f"batched step; the batched members are {', '.join(batched_members())} "
+                "(step others one per stream: an EstimatorObserver per environment)"
+            )
+        batchable = getattr(estimator, "batchable", None)
+        if batchable is not None:
+            reason = batchable()
+            if reason:
+                raise ValueError(reason)
+        self._template = estimator.configure()
+        self._kernel = kernel
+        self._entry: Any = None
+        self._records: Any = None
+        self._out: Any = None
+        self._initial: Any = None
+        keys = tuple(self._template.sample_keys)
+        self.sample_keys = keys
+        self._input_names = tuple(self._template.internal_model.input_names)
+        self._u_at, self._e_at = keys.index("u"), keys.index("e")
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Columns of :meth:`latest`'s arrays."""
+        return tuple(self._template.parameter_names)
+
+    @property
+    def estimator(self) -> Any:
+        """The reset template every copy starts from (never stepped)."""
+        return self._template
+
+    def estimated_names(self) -> tuple[str, ...]:
+        """The parameters estimated (resolved at :meth:`reset`)."""
+        return tuple(self._template.resolved.estimated)
+
+    def reset(self, dt: float) -> None:
+        """Start every copy from the initial belief (as ``estimator.reset(dt)``)."""
+        template = self._template
+        template.reset(dt)
+        records, row = template._batch_state()
+        self._initial = (records, row)
+        self._records = stack_records(records, self.n)
+        self._out = stack_records(row, self.n)
+        self._entry = None
+        self._inputs = np.zeros((self.n, len(self._input_names)))
+        self._all = np.ones(self.n, dtype=np.bool_)
+
+    def reset_copies(self, copies: Sequence[int] | NDArray[np.bool_]) -> None:
+        """Start the given copies (indices, or a mask over the copies) afresh.
+
+        The initial belief does not depend on the time of the first sample, so a copy
+        restarted mid-run is the copy a fresh reset gives.
+        """
+        self._require_reset()
+        records, row = self._initial
+        for i in np.flatnonzero(np.asarray(copies)) if _is_mask(copies) else copies:
+            put_record(self._records, records, int(i))
+            put_record(self._out, row, int(i))
+
+    def _require_reset(self) -> None:
+        if self._records is None:
+            raise RuntimeError("the FilterBatch has not been reset; call reset(dt) first")
+
+    def step(
+        self,
+        signals: Mapping[str, FloatArray],
+        active: NDArray[np.bool_] | None = None,
+    ) -> None:
+        """Feed copy ``i`` the ``i``-th value of every signal in :attr:`sample_keys`.
+
+        ``signals`` maps each key to an array of ``n`` floats (NaN in ``u`` or an input
+        marks a dropped sample, as in ``update``). Copies where ``active`` is False are
+        not stepped (their estimate stays). The estimates are then in :meth:`latest`.
+        """
+        self._require_reset()
+        inputs = self._inputs
+        for j, name in enumerate(self._input_names):
+            inputs[:, j] = signals[name]
+        u = np.ascontiguousarray(signals["u"], dtype=np.float64)
+        e = np.ascontiguousarray(signals["e"], dtype=np.float64)
+        if u.shape != (self.n,) or e.shape != (self.n,):
+            raise ValueError(
+                f"signals must hold {self.n} values each (one per copy), "
+                f"got u {u.shape} and e {e.shape}"
+            )
+        active = self._all if active is None else np.asarray(active, dtype=np.bool_)
+        arguments = (*self._records, inputs, u, e, active, self._out)
+        if self._entry is None:  # numba's dispatcher types every argument; once is enough
+            self._kernel(*arguments)
+            types = tuple(self._kernel.typeof_pyval(argument) for argument in arguments)
+            self._entry = self._kernel.overloads[types].entry_point
+        else:
+            self._entry(*arguments)
+
+    def latest(self) -> tuple[FloatArray, FloatArray]:
+        """Views of every copy's means and standard deviations, ``(n, p)`` each.
+
+        Columns in :attr:`parameter_names` order; the next step overwrites them.
+        """
+        self._require_reset()
+        return self._out.mean[:, 0], self._out.std[:, 0]
+
+    def latest_scalars(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Views of every copy's prediction, innovation and its variance, ``(n,)`` each."""
+        self._require_reset()
+        scalar = self._out.scalar[:, 0]
+        return scalar[:, 0], scalar[:, 1], scalar[:, 2]
+
+    def latest_flags(self) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+        """Views of every copy's health flags and pinned parameters.
+
+        Flags ``(n, 4)``: finite, covariance ok, dropped, diverged; pinned ``(n, p)``.
+        """
+        self._require_reset()
+        return self._out.flag[:, 0, :4], self._out.pinned[:, 0]
+
+    def latest_plain(self, i: int, t: float) -> dict[str, Any]:
+        """Copy ``i``'s last estimate as a single filter's ``update_plain`` gives it."""
+        self._require_reset()
+        i = check_int("i", i, minimum=0, maximum=self.n - 1)
+        out = self._out
+        names = self.parameter_names
+        prediction, innovation, variance = out.scalar[i, 0].tolist()
+        health = self._template._health_of_row(out.flag[i, 0], out.pinned[i, 0])
+        return {
+            "t": t,
+            "mean": dict(zip(names, out.mean[i, 0].tolist(), strict=True)),
+            "std": dict(zip(names, out.std[i, 0].tolist(), strict=True)),
+            "innovation": innovation,
+            "innovation_variance": variance,
+            "prediction": prediction,
+            "health": health.as_dict(),
+        }
+
+
+def _is_mask(copies: Any) -> bool:
+    return isinstance(copies, np.ndarray) and copies.dtype == np.bool_
