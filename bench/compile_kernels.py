@@ -12,7 +12,9 @@ What runs, each job in its own process (the longest first): short simulations of
 every tracking task and of the lane-keeping driver, a few steps of each registered
 environment and of the native vector envs, and every registered estimator's
 ``estimate`` (smoothed where it can be) and ``update`` on a short recording of the kind
-it reads: the pilot filters on the precision and the preview model. Nothing is
+it reads, and the batched step of those that have one
+(:class:`~manualcontrol.estimators.batch.FilterBatch`): the pilot filters on the
+precision and the preview model. Nothing is
 written but numba's cache; a job that fails is reported and the rest go on (its
 kernels then compile at first use, as without this step).
 
@@ -126,6 +128,15 @@ def _estimator(name: str, settings: dict[str, Any] | None = None) -> None:
     estimator.reset(recording.dt, **reset)
     for k in range(3):
         estimator.update({key: float(signals[key][k]) for key in keys})
+    if getattr(type(estimator), "_step_many_kernel", None) is not None:
+        from manualcontrol.estimators.batch import FilterBatch
+
+        # the batched step the vector observer calls, for a causal start as online
+        causal = estimator.configure(initial_variance="causal", initial={"K_p": 1.0})
+        batch = FilterBatch(causal, 2)
+        batch.reset(recording.dt)
+        for k in range(3):
+            batch.step({key: np.full(2, signals[key][k]) for key in keys})
 
 
 def _pilot_filter_on_preview(name: str) -> Callable[[], None]:
