@@ -43,7 +43,11 @@ The human's problem, as the optimal control model poses it
 * The bounded reward with loss-of-control termination (a positive reward, so ending an
   episode never pays while the policy is poor).
 
-PPO with eight environments, a 64-64 network, 1.2 million steps.
+PPO with eight environments, a 64-64 network, 1.2 million steps. On the double
+integrator and ``1/(s(s+1))`` (recipes ``di`` and ``lag``) PPO starts from the typical
+pilot's equaliser (:attr:`~manualcontrol.agents.training.TrainingConfig.warm_start`):
+from its random policy it settles on a low-gain drift (0.3-0.4 rad/s crossover) and
+never finds the lead these elements need.
 """
 
 from __future__ import annotations
@@ -61,6 +65,7 @@ __all__ = [
     "RECIPES",
     "RECIPE_ELEMENTS",
     "RECIPE_STEERING",
+    "RECIPE_WARM_STARTS",
     "driver_statistics",
     "human_limitations",
     "human_problem",
@@ -157,12 +162,24 @@ def human_limitations(element: str) -> tuple[dict[str, Any], ...]:
 
 
 def human_problem(
-    element: str, *, seed: int = 0, total_timesteps: int = 1_200_000
+    element: str,
+    *,
+    seed: int = 0,
+    total_timesteps: int = 1_200_000,
+    warm_start: str = "none",
 ) -> TrainingConfig:
-    """Compensatory tracking of ``element`` posed as the human's problem (module docstring)."""
+    """Compensatory tracking of ``element`` posed as the human's problem (module docstring).
+
+    ``warm_start="typical-pilot"`` starts from the typical pilot's equaliser
+    (:attr:`~manualcontrol.agents.training.TrainingConfig.warm_start`).
+    """
     check_int("seed", seed, minimum=0)
     check_int("total_timesteps", total_timesteps, minimum=1)
-    return TrainingConfig(seed=seed, **{**_tracking(element), "total_timesteps": total_timesteps})
+    return TrainingConfig(
+        seed=seed,
+        warm_start=warm_start,
+        **{**_tracking(element), "total_timesteps": total_timesteps},
+    )
 
 
 def _tracking(element: str) -> dict[str, Any]:
@@ -275,7 +292,10 @@ def lane_keeping_problem(
 
 
 #: The compensatory-tracking recipes by name: the element whose human problem each trains.
-RECIPE_ELEMENTS: dict[str, str] = {"si": "1/s"}
+RECIPE_ELEMENTS: dict[str, str] = {"si": "1/s", "di": "1/s^2", "lag": "1/(s(s+1))"}
+#: The recipes that start from the typical pilot's equaliser (``warm_start``): on these
+#: elements PPO from its random policy finds no loop.
+RECIPE_WARM_STARTS: frozenset[str] = frozenset({"di", "lag"})
 #: The lane-keeping recipes by name: the steering each trains.
 RECIPE_STEERING: dict[str, str] = {"lane-angle": "angle", "lane-torque": "torque"}
 #: Every recipe's name.
@@ -288,4 +308,5 @@ def recipe(name: str, *, seed: int = 0, total_timesteps: int | None = None) -> T
     length = {} if total_timesteps is None else {"total_timesteps": total_timesteps}
     if name in RECIPE_STEERING:
         return lane_keeping_problem(RECIPE_STEERING[name], seed=seed, **length)
-    return human_problem(RECIPE_ELEMENTS[name], seed=seed, **length)
+    warm_start = "typical-pilot" if name in RECIPE_WARM_STARTS else "none"
+    return human_problem(RECIPE_ELEMENTS[name], seed=seed, warm_start=warm_start, **length)

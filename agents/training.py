@@ -23,6 +23,17 @@ on the display scaled to each signal's variance, the OCM's -20 dB is 0.01),
 ``history_length`` (the last observations side by side, a memory a feed-forward
 policy adapts with). :attr:`TrainingConfig.limitations` lists the whole stack.
 
+A typical pilot's start
+-----------------------
+``warm_start="typical-pilot"`` starts PPO or SAC from a policy whose mean action is the
+typical precision pilot's equaliser on the element, ``u = K_p e + K_v e_dot``
+(:func:`~manualcontrol.estimators.analysis.human_likeness.reference_pilot`; the
+delay and neuromuscular system are the wrappers'), fitted by least squares on the
+states that law visits through the agent's own wrappers (:func:`clone_typical_pilot`).
+On the double integrator and ``1/(s(s+1))`` PPO from random weights finds no loop in
+millions of steps (a stick that waits out a low-gain drift scores better early than
+one that learns the lead); started from a human's loop, it keeps one and reshapes it.
+
 Evaluation
 ----------
 A trained agent acts with its policy's mean action: stable-baselines3's exploration
@@ -68,8 +79,10 @@ from manualcontrol.envs.schedules import Schedule
 __all__ = [
     "ALGORITHMS",
     "TASK_IDS",
+    "WARM_STARTS",
     "TrainedAgent",
     "TrainingConfig",
+    "clone_typical_pilot",
     "load_agent",
     "make_env",
     "train",
@@ -78,6 +91,10 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 
 ALGORITHMS: tuple[str, ...] = ("ppo", "sac")
+#: How a training's policy starts (:attr:`TrainingConfig.warm_start`).
+WARM_STARTS: tuple[str, ...] = ("none", "typical-pilot")
+#: Wrappers that change what the policy observes: a cloned law reads the display itself.
+_OBSERVATION_WRAPPERS = ("observation_history", "observation_scale")
 TASK_IDS: dict[str, str] = {
     "compensatory": "ManualControl/CompensatoryTracking-v0",
     "pursuit": "ManualControl/PursuitTracking-v0",
@@ -125,6 +142,11 @@ class TrainingConfig:
     deterministic
         Evaluate without the wrappers' noise (False, default: the noise stays on and
         makes the trial-to-trial variability; see the module docstring).
+    warm_start
+        ``"none"`` (default: the algorithm's random initial policy) or
+        ``"typical-pilot"`` (:data:`WARM_STARTS`; the module docstring): compensatory
+        tracking with ``include_rates=True`` of an element with a typical pilot, the
+        observation ``(e, e_dot)`` as the display shows it.
 
     Each limitation is given once: a field above that is on and a ``wrappers`` entry of
     the same kind raise. Schedules are saved in ``config.json`` as their dicts
@@ -146,6 +168,7 @@ class TrainingConfig:
     effort_rate_weight: float | Schedule = 0.0
     history_length: int = 1
     deterministic: bool = False
+    warm_start: str = "none"
 
     def __post_init__(self) -> None:
         check_choice("task", self.task, tuple(TASK_IDS))
@@ -184,6 +207,9 @@ class TrainingConfig:
                 "history_length and a wrappers entry of kind 'observation_history' both set "
                 "the observation history: give it once"
             )
+        check_choice("warm_start", self.warm_start, WARM_STARTS)
+        if self.warm_start == "typical-pilot":
+            _check_typical_pilot_start(self)
         # fail now, not after hours: the environment and wrappers must build
         make_env(self).close()
 
@@ -269,6 +295,107 @@ def _silenced(spec: Mapping[str, Any]) -> dict[str, Any]:
     for name in [name for name in levels if name in spec] or levels[:1]:
         spec[name] = 0.0
     return spec
+
+
+def _check_typical_pilot_start(config: TrainingConfig) -> None:
+    """Raise unless the typical pilot's equaliser can be read off the observation."""
+    from manualcontrol.estimators.analysis.human_likeness import reference_pilot
+
+    where = "warm_start='typical-pilot'"
+    if config.algorithm != "ppo":
+        raise ValueError(
+            f"{where} fits a Gaussian policy's mean (PPO's): algorithm must be 'ppo', got "
+            f"{config.algorithm!r}"
+        )
+    if config.task != "compensatory":
+        raise ValueError(
+            f"{where} clones the precision pilot on the error display: task must be "
+            f"'compensatory', got {config.task!r}"
+        )
+    if not config.env_kwargs.get("include_rates", False):
+        raise ValueError(
+            f"{where} reads e and e_dot from the observation: give env_kwargs include_rates=True"
+        )
+    kinds = [
+        spec.get("kind") for spec in config.wrappers if spec.get("kind") in _OBSERVATION_WRAPPERS
+    ]
+    if config.history_length > 1 or kinds:
+        raise ValueError(
+            f"{where} reads (e, e_dot) as the display shows them: no observation history "
+            f"or scaling, got history_length={config.history_length}"
+            + (f" and wrappers {kinds}" if kinds else "")
+        )
+    element = config.env_kwargs.get("controlled_element", "SI")
+    if reference_pilot(element) is None:
+        raise ValueError(
+            f"{where}: element {element!r} has no typical pilot (K/s, K/s^2 and K/(s(s+b)) have)"
+        )
+
+
+def typical_pilot_law(config: TrainingConfig) -> Callable[[FloatArray], FloatArray]:
+    """The typical precision pilot's equaliser on ``(..., [e, e_dot])``, clipped to the stick."""
+    from manualcontrol.estimators.analysis.human_likeness import reference_pilot
+
+    values = reference_pilot(config.env_kwargs.get("controlled_element", "SI"))
+    env = make_env(config)
+    bound = env.unwrapped.action_bound
+    env.close()
+    K_p, K_v = values["K_p"], values["K_v"]
+
+    def law(observation: FloatArray) -> FloatArray:
+        observation = np.asarray(observation, dtype=np.float64)
+        return np.clip(K_p * observation[..., 0:1] + K_v * observation[..., 1:2], -bound, bound)
+
+    return law
+
+
+def clone_typical_pilot(
+    policy: Any, config: TrainingConfig, *, episodes: int = 20, iterations: int = 3000
+) -> dict[str, float]:
+    """Fit ``policy``'s mean action to the typical pilot's equaliser; its fit figures.
+
+    The states are those the law visits through the configuration's own wrappers (its
+    observation noise, delay, neuromuscular system and motor noise), ``episodes``
+    episodes seeded from ``config.seed``; the fit is ``iterations`` Adam steps of 256
+    states on the squared difference of the means (the exploration's spread is left as
+    the policy has it). Returns the states used, the law's RMS action on them and the
+    fit's RMS residual.
+    """
+    import torch
+
+    law = typical_pilot_law(config)
+    env = make_env(config)
+    observations: list[FloatArray] = []
+    try:
+        for episode in range(episodes):
+            observation, _ = env.reset(seed=10_000 * config.seed + episode)
+            done = False
+            while not done:
+                observations.append(np.asarray(observation, dtype=np.float64))
+                observation, _, terminated, truncated, _ = env.step(law(observation))
+                done = terminated or truncated
+    finally:
+        env.close()
+    states = np.array(observations)
+    targets = law(states)
+    x = torch.as_tensor(states, dtype=torch.float32)
+    y = torch.as_tensor(targets, dtype=torch.float32)
+    rng = np.random.default_rng(config.seed)
+    optimiser = torch.optim.Adam(policy.parameters(), lr=1e-3)
+    for _ in range(iterations):
+        batch = torch.as_tensor(rng.integers(0, len(states), 256))
+        mean = policy.get_distribution(x[batch]).distribution.mean
+        loss = torch.mean((mean - y[batch]) ** 2)
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+    with torch.no_grad():
+        residual = policy.get_distribution(x).distribution.mean - y
+    return {
+        "states": float(len(states)),
+        "law_rms": float(np.sqrt(np.mean(targets**2))),
+        "residual_rms": float(torch.sqrt(torch.mean(residual**2))),
+    }
 
 
 def make_env(config: TrainingConfig, *, noise: bool = True, **overrides: Any) -> gym.Env:
@@ -419,6 +546,14 @@ def train(
     atomic_write(
         output / "config.json", lambda p: p.write_text(json.dumps(config.to_dict(), indent=2))
     )
+    if config.warm_start == "typical-pilot":
+        fit = clone_typical_pilot(model.policy, config)
+        if report is not None:
+            report(
+                f"warm start: the typical pilot's equaliser fitted on {fit['states']:,.0f} "
+                f"states, residual RMS {fit['residual_rms']:.3g} of the law's "
+                f"{fit['law_rms']:.3g}"
+            )
     callbacks = []
     if report is not None:
         callbacks.append(_progress_callback(config.total_timesteps, report, report_every))

@@ -2010,7 +2010,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME",
         help="a measured training recipe (si: compensatory tracking of 1/s with the typical "
         "pilot's delay and neuromuscular system, motor and observation noise and effort "
-        "cost; lane-angle, lane-torque: lane keeping on random roads with a driver's "
+        "cost; di, lag: the same on 1/s^2 and 1/(s(s+1)), started from the typical "
+        "pilot's equaliser; lane-angle, lane-torque: lane keeping on random roads with a driver's "
         "delay, steering the wheel's angle or its torque); takes --seed, --steps and "
         "--checkpoint-every, nothing else that sets the training",
     )

@@ -13,6 +13,9 @@ roads no training run starts from, each beside the cybernetic driver).
 ``--jobs 2`` trains two agents at a time with one torch thread each (each then has one
 of the two cores: its training time is an upper bound on the time with both).
 
+Elements in ``--warm-start`` (default: the double integrator and ``1/(s(s+1))``, the
+recipes ``di`` and ``lag``) start from the typical pilot's equaliser.
+
 Run: .venv/bin/python benchmarks/train_recipes.py [--elements 1/s 1/s^2 "1/(s(s+1))"]
      [--lane-keeping angle torque] [--seeds 0 1 2]
      [--jobs 2] [--out results/recipes] [--markdown docs/surrogates.md] [--steps N]
@@ -28,7 +31,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 
-def run_tracking(element: str, seed: int, out: str, steps: int | None) -> dict:
+def run_tracking(element: str, seed: int, out: str, steps: int | None, warm: bool) -> dict:
     import torch
 
     torch.set_num_threads(1)
@@ -37,12 +40,17 @@ def run_tracking(element: str, seed: int, out: str, steps: int | None) -> dict:
     from manualcontrol.agents.training import train
 
     config = human_problem(
-        element, seed=seed, **({} if steps is None else {"total_timesteps": steps})
+        element,
+        seed=seed,
+        warm_start="typical-pilot" if warm else "none",
+        **({} if steps is None else {"total_timesteps": steps}),
     )
     folder = element.replace("/", "_").replace("(", "").replace(")", "").replace("^", "")
+    folder += "-warm" if warm else ""
     start = time.perf_counter()
     agent = train(config, Path(out) / f"{folder}-seed{seed}", report=None)
     row = {"element": element, "seed": seed, "train_s": round(time.perf_counter() - start)}
+    row["start"] = config.warm_start
     human = evaluate(agent, seed=0).human
     row.update({k: round(float(v), 3) for k, v in human.figures().items()})
     row["outside"] = list(human.verdict.outside)
@@ -51,7 +59,7 @@ def run_tracking(element: str, seed: int, out: str, steps: int | None) -> dict:
     return row
 
 
-def run_lane_keeping(steering: str, seed: int, out: str, steps: int | None) -> dict:
+def run_lane_keeping(steering: str, seed: int, out: str, steps: int | None, warm: bool) -> dict:
     import torch
 
     torch.set_num_threads(1)
@@ -98,8 +106,12 @@ def markdown(rows: list[dict], command: str) -> str:
         "margin deg, effective delay s): what the agent would become if it learned the",
         "problem's optimum.",
         "",
-        "| element | seed | train (s) | " + " | ".join(FIGURES) + " | OCM |",
-        "| --- | --- | --- | " + " | ".join("---" for _ in FIGURES) + " | --- |",
+        "`start` is `none` for PPO from its random policy, `typical-pilot` for PPO",
+        "started from the typical pilot's equaliser (`warm_start`; the recipes `di` and",
+        "`lag`).",
+        "",
+        "| element | start | seed | train (s) | " + " | ".join(FIGURES) + " | OCM |",
+        "| --- | --- | --- | --- | " + " | ".join("---" for _ in FIGURES) + " | --- |",
     ]
     for row in tracking:
         cells = []
@@ -109,9 +121,8 @@ def markdown(rows: list[dict], command: str) -> str:
             cells.append(text + (" *" if name in row["outside"] else ""))
         ocm = " / ".join(f"{v:g}" for v in row.get("ocm", [])) or "-"
         lines.append(
-            f"| {row['element']} | {row['seed']} | {row['train_s']} | "
-            + " | ".join(cells)
-            + f" | {ocm} |"
+            f"| {row['element']} | {row.get('start', 'none')} | {row['seed']} | "
+            f"{row['train_s']} | " + " | ".join(cells) + f" | {ocm} |"
         )
     if lanes:
         lines += [
@@ -146,20 +157,37 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=None, help="training length (a quick check)")
     parser.add_argument("--out", default="results/recipes")
     parser.add_argument("--markdown", default=None, help="write the results page here")
-    parser.add_argument("--table", default=None, help="recipes.json of an earlier run")
+    parser.add_argument(
+        "--warm-start",
+        nargs="*",
+        default=["1/(s(s+1))", "1/s^2"],
+        help="elements trained from the typical pilot's equaliser (the recipes di and lag)",
+    )
+    parser.add_argument(
+        "--table", nargs="+", default=None, help="recipes.json of earlier runs (joined)"
+    )
     args = parser.parse_args()
     command = "benchmarks/train_recipes.py"
     if args.table is not None:
-        rows = json.loads(Path(args.table).read_text())
+        rows = [row for table in args.table for row in json.loads(Path(table).read_text())]
         Path(args.markdown).write_text(markdown(rows, command))
         return
-    jobs = [(run_tracking, element, seed) for element in args.elements for seed in args.seeds]
+    jobs = [
+        (run_tracking, element, seed, element in args.warm_start)
+        for element in args.elements
+        for seed in args.seeds
+    ]
     jobs += [
-        (run_lane_keeping, steering, seed) for steering in args.lane_keeping for seed in args.seeds
+        (run_lane_keeping, steering, seed, False)
+        for steering in args.lane_keeping
+        for seed in args.seeds
     ]
     rows = []
     with ProcessPoolExecutor(args.jobs) as pool:
-        futures = [pool.submit(job, name, seed, args.out, args.steps) for job, name, seed in jobs]
+        futures = [
+            pool.submit(job, name, seed, args.out, args.steps, warm)
+            for job, name, seed, warm in jobs
+        ]
         for future in futures:
             rows.append(future.result())
             print(json.dumps(rows[-1]), flush=True)
