@@ -118,7 +118,7 @@ def test_the_train_command_refuses_flags_a_recipe_sets(tmp_path, capsys):
     code = main(["train", "--recipe", "hover", "--out", str(tmp_path / "a")])
     assert (
         code == 2
-        and "--recipe must be one of si, lane-angle, lane-torque, got 'hover'"
+        and "--recipe must be one of si, di, lag, lane-angle, lane-torque, got 'hover'"
         in capsys.readouterr().err
     )
     assert not (tmp_path / "a").exists()

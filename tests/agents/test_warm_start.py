@@ -1,0 +1,115 @@
+"""A typical pilot's start: PPO's policy begins as the typical pilot's equaliser."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import torch
+from stable_baselines3 import PPO
+
+from manualcontrol.agents.recipes import RECIPE_ELEMENTS, human_problem, recipe
+from manualcontrol.agents.training import (
+    TrainingConfig,
+    clone_typical_pilot,
+    make_env,
+    train,
+    typical_pilot_law,
+)
+from manualcontrol.estimators.analysis.human_likeness import reference_pilot
+
+
+def short(config, seconds=5.0):
+    """The same problem with short episodes, so that a test visits many of them."""
+    kwargs = {**config.env_kwargs, "measurement_time": seconds}
+    return dataclasses.replace(config, env_kwargs=kwargs)
+
+
+def states_of(config, law, seed):
+    """Observations the law visits through the configuration's wrappers (another seed)."""
+    env = make_env(config)
+    observation, _ = env.reset(seed=seed)
+    seen, done = [], False
+    while not done:
+        seen.append(observation)
+        observation, _, terminated, truncated, _ = env.step(law(observation))
+        done = terminated or truncated
+    env.close()
+    return np.array(seen)
+
+
+def policy_mean(policy, states):
+    """The policy's mean action on states (a copy: the policy reuses its distribution)."""
+    with torch.no_grad():
+        distribution = policy.get_distribution(torch.as_tensor(states, dtype=torch.float32))
+        return distribution.distribution.mean.numpy().copy()
+
+
+@pytest.mark.parametrize("element", ["1/s^2", "1/(s(s+1))"])
+def test_the_cloned_policy_acts_as_the_typical_pilots_equaliser(element):
+    config = short(human_problem(element, warm_start="typical-pilot"))
+    law = typical_pilot_law(config)
+    typical = reference_pilot(element)
+    # the law is the precision model's equaliser K_p e + K_v e_dot on the display
+    np.testing.assert_allclose(
+        law(np.array([0.1, -0.2])), [typical["K_p"] * 0.1 - typical["K_v"] * 0.2]
+    )
+    model = PPO("MlpPolicy", make_env(config), seed=0, policy_kwargs={"net_arch": [64, 64]})
+    held_out = states_of(config, law, seed=99)
+    before = policy_mean(model.policy, held_out)
+    fit = clone_typical_pilot(model.policy, config, episodes=6, iterations=1500)
+    assert fit["residual_rms"] < 0.05 * fit["law_rms"]
+    target = law(held_out)
+    error = np.sqrt(np.mean((policy_mean(model.policy, held_out) - target) ** 2))
+    untrained = np.sqrt(np.mean((before - target) ** 2))
+    # on states of an episode it was not fitted on: within 10 % of the law's RMS, where
+    # the random policy missed it by about all of it
+    rms = np.sqrt(np.mean(target**2))
+    assert error < 0.1 * rms < untrained
+
+
+def test_training_from_the_typical_pilot_says_so_and_saves_the_start(tmp_path):
+    config = dataclasses.replace(
+        short(recipe("lag", total_timesteps=64)), algorithm_kwargs={"n_steps": 64}
+    )
+    assert config.warm_start == "typical-pilot"
+    lines = []
+    agent = train(config, tmp_path / "agent", report=lines.append, report_every=10**9)
+    assert lines[0].startswith("warm start: the typical pilot's equaliser fitted on")
+    saved = json.loads((tmp_path / "agent" / "config.json").read_text())
+    assert saved["warm_start"] == "typical-pilot"
+    # after one short PPO update the agent still acts about as the law does
+    law = typical_pilot_law(config)
+    states = states_of(config, law, seed=5)[::25]
+    actions = np.array([agent.act(state)[0] for state in states])
+    target = law(states)[:, 0]
+    assert np.corrcoef(actions, target)[0, 1] > 0.9
+
+
+def test_the_recipes_start_where_ppo_finds_a_loop_alone():
+    assert set(RECIPE_ELEMENTS) >= {"si", "di", "lag"}
+    assert recipe("si").warm_start == "none"
+    assert recipe("di").warm_start == "typical-pilot"
+    assert recipe("lag", seed=2) == human_problem("1/(s(s+1))", seed=2, warm_start="typical-pilot")
+
+
+def test_a_start_the_observation_cannot_carry_is_refused():
+    base = human_problem("1/s^2")
+    with pytest.raises(ValueError, match="warm_start must be one of"):
+        dataclasses.replace(base, warm_start="expert")
+    for change, message in (
+        ({"algorithm": "sac", "algorithm_kwargs": {}}, "algorithm must be 'ppo', got 'sac'"),
+        ({"history_length": 3}, "no observation history or scaling, got history_length=3"),
+        (
+            {"env_kwargs": {**base.env_kwargs, "include_rates": False}},
+            "give env_kwargs include_rates=True",
+        ),
+        (
+            {"env_kwargs": {**base.env_kwargs, "controlled_element": "gain"}},
+            "element 'gain' has no typical pilot",
+        ),
+    ):
+        with pytest.raises(ValueError, match=message):
+            dataclasses.replace(base, warm_start="typical-pilot", **change)
+    with pytest.raises(ValueError, match="task must be 'compensatory', got 'lane-keeping'"):
+        TrainingConfig(task="lane-keeping", algorithm="ppo", warm_start="typical-pilot")
