@@ -129,6 +129,12 @@ class FilterBatch:
         not stepped (their estimate stays). The estimates are then in :meth:`latest`.
         """
         self._require_reset()
+        missing = [key for key in self.sample_keys if key not in signals]
+        if missing:
+            raise ValueError(
+                f"signals lack {', '.join(map(repr, missing))}; the batch needs "
+                f"{', '.join(map(repr, self.sample_keys))}"
+            )
         inputs = self._inputs
         for j, name in enumerate(self._input_names):
             inputs[:, j] = signals[name]
@@ -139,6 +145,10 @@ class FilterBatch:
                 f"signals must hold {self.n} values each (one per copy), "
                 f"got u {u.shape} and e {e.shape}"
             )
+        for name, values in (("u", u), ("e", e), *zip(self._input_names, inputs.T, strict=True)):
+            if np.isinf(values).any():  # NaN marks a dropped sample; inf is a mistake
+                copies = np.flatnonzero(np.isinf(values)).tolist()
+                raise ValueError(f"signal {name!r} is infinite for copies {copies}")
         active = self._all if active is None else np.asarray(active, dtype=np.bool_)
         arguments = (*self._records, inputs, u, e, active, self._out)
         if self._entry is None:  # numba's dispatcher types every argument; once is enough

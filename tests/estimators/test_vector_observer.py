@@ -211,3 +211,7 @@ def test_bad_inputs_are_named():
     batch.reset(0.01)
     with pytest.raises(ValueError, match=r"signals must hold 2 values each .* got u \(3,\)"):
         batch.step({"e": np.zeros(2), "u": np.zeros(3)})
+    with pytest.raises(ValueError, match="signals lack 'u'; the batch needs 'e', 'u'"):
+        batch.step({"e": np.zeros(2)})
+    with pytest.raises(ValueError, match=r"signal 'e' is infinite for copies \[1\]"):
+        batch.step({"e": np.array([0.0, np.inf]), "u": np.zeros(2)})
