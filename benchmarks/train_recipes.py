@@ -59,6 +59,41 @@ def run_tracking(element: str, seed: int, out: str, steps: int | None, warm: boo
     return row
 
 
+def run_law(element: str, seed: int, out: str, steps: int | None, warm: bool) -> dict:
+    """The typical pilot's equaliser itself, flown through the problem's wrappers, untrained.
+
+    What the warm start begins from, measured as an agent is: the figures the problem's
+    noise alone gives the typical pilot's loop.
+    """
+    import numpy as np
+
+    from manualcontrol.agents.evaluation import evaluate, optimal_control_reference
+    from manualcontrol.agents.recipes import human_problem
+    from manualcontrol.agents.training import typical_pilot_law
+
+    del seed, out, steps, warm
+    config = human_problem(element, warm_start="typical-pilot")
+    law = typical_pilot_law(config)
+
+    class LawAgent:
+        def __init__(self) -> None:
+            self.config, self.path = config, None
+
+        def reset(self, seed=None, *, env=None) -> None:
+            del seed, env
+
+        def act(self, observation):
+            return law(np.asarray(observation)).reshape(1)
+
+    human = evaluate(LawAgent(), seed=0).human
+    row = {"element": element, "seed": "-", "train_s": "-", "start": "law, untrained"}
+    row.update({k: round(float(v), 3) for k, v in human.figures().items()})
+    row["outside"] = list(human.verdict.outside)
+    crossover, margin, delay = optimal_control_reference(config).crossover()
+    row["ocm"] = [round(crossover, 2), round(margin, 1), round(delay, 3)]
+    return row
+
+
 def run_lane_keeping(steering: str, seed: int, out: str, steps: int | None, warm: bool) -> dict:
     import torch
 
@@ -89,6 +124,14 @@ def markdown(rows: list[dict], command: str) -> str:
     from manualcontrol.estimators.analysis.human_likeness import FIGURES
 
     tracking = [row for row in rows if "element" in row]
+    elements = list(dict.fromkeys(row["element"] for row in tracking))
+    tracking.sort(
+        key=lambda row: (
+            elements.index(row["element"]),
+            ["law, untrained", "none", "typical-pilot"].index(row.get("start", "none")),
+            str(row["seed"]),
+        )
+    )
     lanes = [row for row in rows if "steering" in row]
     lines = [
         "# Surrogate operators: what the human's problem trains",
@@ -108,7 +151,9 @@ def markdown(rows: list[dict], command: str) -> str:
         "",
         "`start` is `none` for PPO from its random policy, `typical-pilot` for PPO",
         "started from the typical pilot's equaliser (`warm_start`; the recipes `di` and",
-        "`lag`).",
+        "`lag`); `law, untrained` is that equaliser itself flown through the same",
+        "wrappers, no training: what the problem's noise alone makes of the typical",
+        "pilot's loop.",
         "",
         "| element | start | seed | train (s) | " + " | ".join(FIGURES) + " | OCM |",
         "| --- | --- | --- | --- | " + " | ".join("---" for _ in FIGURES) + " | --- |",
@@ -164,6 +209,12 @@ def main() -> None:
         help="elements trained from the typical pilot's equaliser (the recipes di and lag)",
     )
     parser.add_argument(
+        "--laws",
+        nargs="*",
+        default=["1/s", "1/(s(s+1))", "1/s^2"],
+        help="elements whose typical pilot's equaliser is measured untrained beside them",
+    )
+    parser.add_argument(
         "--table", nargs="+", default=None, help="recipes.json of earlier runs (joined)"
     )
     args = parser.parse_args()
@@ -177,6 +228,7 @@ def main() -> None:
         for element in args.elements
         for seed in args.seeds
     ]
+    jobs += [(run_law, element, 0, False) for element in args.laws]
     jobs += [
         (run_lane_keeping, steering, seed, False)
         for steering in args.lane_keeping
