@@ -1444,11 +1444,20 @@ def _cmd_train(args: argparse.Namespace) -> int:
             policy_kwargs={} if args.net_arch is None else {"net_arch": list(args.net_arch)},
             history_length=args.history,
             deterministic=args.deterministic_evaluation,
+            warm_start=args.warm_start,
             **{name: _limitation(flag, text) for name, (flag, text) in fields.items()},
         )
     except ValueError as error:
         text = str(error)
-        for name, (flag, _) in {**fields, "history_length": ("--history", None)}.items():
+        renamed = {
+            **fields,
+            "history_length": ("--history", None),
+            "warm_start=": ("--warm-start ", None),
+            "warm_start": ("--warm-start", None),
+            "env_kwargs include_rates=True": ("--env include_rates=true", None),
+            "algorithm must be": ("--algorithm must be", None),
+        }
+        for name, (flag, _) in renamed.items():
             text = text.replace(name, flag)
         raise UsageError(_led_by_flag(text, "train")) from None
     agent = train(config, args.out, report=report)
@@ -1478,6 +1487,7 @@ _RECIPE_SETS = {
     "--effort-rate-weight": ("effort_rate_weight", None),
     "--history": ("history", 1),
     "--deterministic-evaluation": ("deterministic_evaluation", False),
+    "--warm-start": ("warm_start", "none"),
     "--algorithm": ("algorithm", "sac"),
     "--envs": ("envs", 1),
     "--algorithm-option": ("algorithm_option", None),
@@ -2008,10 +2018,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--recipe",
         default=None,
         metavar="NAME",
-        help="a measured training recipe (si: compensatory tracking of 1/s with the typical "
-        "pilot's delay and neuromuscular system, motor and observation noise and effort "
-        "cost; di, lag: the same on 1/s^2 and 1/(s(s+1)), started from the typical "
-        "pilot's equaliser; lane-angle, lane-torque: lane keeping on random roads with a driver's "
+        help="a measured training recipe (si, di, lag: compensatory tracking of 1/s, 1/s^2, "
+        "1/(s(s+1)) with the typical pilot's delay and neuromuscular system, motor and "
+        "observation noise and effort cost, PPO started from the typical pilot's "
+        "equaliser; lane-angle, lane-torque: lane keeping on random roads with a driver's "
         "delay, steering the wheel's angle or its torque); takes --seed, --steps and "
         "--checkpoint-every, nothing else that sets the training",
     )
@@ -2080,6 +2090,14 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="evaluate this agent without the wrappers' noise by default (by default the "
         "noise stays on and makes the trial-to-trial variability)",
+    )
+    p.add_argument(
+        "--warm-start",
+        default="none",
+        choices=("none", "typical-pilot"),
+        help="how the policy starts: none (the algorithm's random weights, default) or "
+        "typical-pilot (PPO's mean fitted to the typical precision pilot's equaliser "
+        "K_p e + K_v e_dot; compensatory tracking with --env include_rates=true)",
     )
     p.add_argument("--algorithm", default="sac", choices=("sac", "ppo"), help="RL algorithm")
     p.add_argument(

@@ -86,11 +86,11 @@ def test_training_from_the_typical_pilot_says_so_and_saves_the_start(tmp_path):
     assert np.corrcoef(actions, target)[0, 1] > 0.9
 
 
-def test_the_recipes_start_where_ppo_finds_a_loop_alone():
-    assert set(RECIPE_ELEMENTS) >= {"si", "di", "lag"}
-    assert recipe("si").warm_start == "none"
-    assert recipe("di").warm_start == "typical-pilot"
-    assert recipe("lag", seed=2) == human_problem("1/(s(s+1))", seed=2, warm_start="typical-pilot")
+def test_every_tracking_recipe_starts_from_the_typical_pilot():
+    assert set(RECIPE_ELEMENTS) == {"si", "di", "lag"}
+    for name, element in RECIPE_ELEMENTS.items():
+        assert recipe(name, seed=2) == human_problem(element, seed=2, warm_start="typical-pilot")
+    assert human_problem("1/s").warm_start == "none"  # the problem itself starts at random
 
 
 def test_a_start_the_observation_cannot_carry_is_refused():
@@ -113,3 +113,16 @@ def test_a_start_the_observation_cannot_carry_is_refused():
             dataclasses.replace(base, warm_start="typical-pilot", **change)
     with pytest.raises(ValueError, match="task must be 'compensatory', got 'lane-keeping'"):
         TrainingConfig(task="lane-keeping", algorithm="ppo", warm_start="typical-pilot")
+
+
+def test_the_train_command_names_its_flags_when_a_start_cannot_be_made(tmp_path, capsys):
+    from manualcontrol.bench.cli import main
+
+    out = tmp_path / "agent"
+    for flags, message in (
+        ([], "--algorithm must be 'ppo', got 'sac'"),
+        (["--algorithm", "ppo"], "give --env include_rates=true"),
+    ):
+        code = main(["train", "--warm-start", "typical-pilot", *flags, "--out", str(out)])
+        assert code == 2 and message in capsys.readouterr().err
+    assert not out.exists()
