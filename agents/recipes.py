@@ -25,9 +25,16 @@ The human's problem, as the optimal control model poses it
   (:func:`~manualcontrol.estimators.analysis.human_likeness.reference_pilot`, the pilot
   the agent's RMS error is compared with), the delay's queue hidden from the agent (it
   must act through it as a human does, not read its own pending commands).
-* **Motor noise**, Levison-filtered with the 10-rad/s break the thesis measured for
-  humans on 1/s, half the stick's power: the remnant, drawn by the wrapper, so it stays
-  on in evaluation and varies from trial to trial.
+* **Motor noise at the OCM's level**, -25 dB of the stick's power (Kleinman, Baron &
+  Levison 1970; ``power_ratio`` 0.0032), Levison-filtered with the 10-rad/s break the
+  thesis measured for humans on 1/s, drawn by the wrapper, so it stays on in evaluation
+  and varies from trial to trial. With the observation noise below it is the OCM's
+  whole remnant source: the remnant a human shows comes out of the loop, not on top of
+  it. An earlier form of this problem added half the stick's power as motor remnant on
+  top of the observation noise, which counts the remnant twice: the typical pilot's own
+  equaliser flown through it measured 60-67 % remnant and 1.3-2.6 times its RMS error
+  on every element (outside the human 10-40 % and 0.8-1.25), where through this one it
+  measures 14-21 % and 1.04-1.17 (``docs/surrogates.md``).
 * **Observation noise at the OCM's level** (``rho`` 0.01, -20 dB), band-limited at the
   neuromuscular break frequency (:class:`~manualcontrol.agents.wrappers.
   ObservationNoise` ``omega_r``): the in-band noise the OCM's pilot is left with after
@@ -79,7 +86,9 @@ __all__ = [
 ]
 
 _FORCING = "popovici2017"
-_MOTOR_NOISE = {"kind": "motor_noise", "power_ratio": 0.5, "omega_r": 10.0}
+#: The OCM's motor noise ratio (Kleinman, Baron & Levison 1970: -25 dB of the control's
+#: power), with the thesis's 10-rad/s remnant break on 1/s.
+_MOTOR_NOISE = {"kind": "motor_noise", "power_ratio": 0.0032, "omega_r": 10.0}
 #: The OCM's observation noise ratio (Kleinman, Baron & Levison 1970: -20 dB).
 _OBSERVATION_NOISE_RATIO = 0.01
 #: The action bound in RMS sticks of the typical pilot (a Gaussian stick passes 4 sigma
