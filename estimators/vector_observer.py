@@ -12,7 +12,9 @@ Each copy's estimates are those an :class:`~manualcontrol.estimators.observer.
 EstimatorObserver` gives around a single environment with the same arguments and seed
 ``seed + i`` (the batched environment seeds its copies so), bit for bit: the samples
 are the same (the displayed error, output and target ahead of step ``k`` seen before
-the action, and the stick applied), and so is the step that reads them.
+the action, and the stick applied), and so is the step that reads them. (With a
+time-varying element the batched environment's signals agree with the single one's to
+about 1e-12, not bit for bit: it sums each copy's matrix product in another order.)
 
 The batched environment resets a copy the step after its episode ended (next-step
 autoreset) and ignores that step's action; the observer then restarts that copy's
