@@ -195,7 +195,12 @@ def human_problem(
 
 
 def _tracking(element: str) -> dict[str, Any]:
-    bound = _STICK_ROOM * typical_stick_rms(element)
+    stick = typical_stick_rms(element)
+    bound = _STICK_ROOM * stick
+    # PPO explores with the motor noise's spread at the typical stick (the human's only
+    # exploration is its remnant)
+    ratio = _MOTOR_NOISE["power_ratio"]
+    exploration = math.sqrt(ratio / (1.0 - ratio)) * stick
     return {
         "task": "compensatory",
         "env_kwargs": {
@@ -213,7 +218,7 @@ def _tracking(element: str) -> dict[str, Any]:
         "algorithm": "ppo",
         "n_envs": 8,
         "algorithm_kwargs": _PPO,
-        "policy_kwargs": {"net_arch": [64, 64]},
+        "policy_kwargs": {"net_arch": [64, 64], "log_std_init": math.log(exploration)},
     }
 
 

@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -352,49 +353,90 @@ def typical_pilot_law(config: TrainingConfig) -> Callable[[FloatArray], FloatArr
 def clone_typical_pilot(
     policy: Any, config: TrainingConfig, *, episodes: int = 20, iterations: int = 3000
 ) -> dict[str, float]:
-    """Fit ``policy``'s mean action to the typical pilot's equaliser; its fit figures.
+    """Fit ``policy`` to the typical pilot's equaliser and its critic to the law's returns.
 
     The states are those the law visits through the configuration's own wrappers (its
     observation noise, delay, neuromuscular system and motor noise), ``episodes``
-    episodes seeded from ``config.seed``; the fit is ``iterations`` Adam steps of 256
-    states on the squared difference of the means (the exploration's spread is left as
-    the policy has it). Returns the states used, the law's RMS action on them and the
-    fit's RMS residual.
+    episodes seeded from ``config.seed``. The fit is ``iterations`` Adam steps of 256
+    states on the squared difference of the policy's mean and the law's action (the
+    exploration's spread is left as the policy has it) plus the squared difference of
+    the value estimate and the law's discounted return from the state (the algorithm's
+    ``gamma``), divided by the returns' variance so that both terms weigh alike. The
+    critic is fitted because PPO's first updates weigh the actions by advantages from
+    it: a random critic's advantages are noise, and its first updates undo the start.
+    States within five horizons ``1/(1 - gamma)`` of an episode's truncation are left
+    out of the value fit (their returns are cut short). Returns the states used, the
+    law's RMS action on them and the fit's RMS residual.
     """
     import torch
 
+    gamma = float(config.algorithm_kwargs.get("gamma", 0.99))
+    tail = math.ceil(5.0 / (1.0 - gamma))
     law = typical_pilot_law(config)
     env = make_env(config)
     observations: list[FloatArray] = []
+    returns: list[FloatArray] = []
+    valued: list[NDArray[np.bool_]] = []
     try:
         for episode in range(episodes):
             observation, _ = env.reset(seed=10_000 * config.seed + episode)
-            done = False
+            rewards, done, terminated = [], False, False
             while not done:
                 observations.append(np.asarray(observation, dtype=np.float64))
-                observation, _, terminated, truncated, _ = env.step(law(observation))
+                observation, reward, terminated, truncated, _ = env.step(law(observation))
+                rewards.append(float(reward))
                 done = terminated or truncated
+            discounted = np.zeros(len(rewards))
+            following = 0.0
+            for k in range(len(rewards) - 1, -1, -1):
+                following = rewards[k] + gamma * following
+                discounted[k] = following
+            exact = np.ones(len(rewards), dtype=np.bool_)
+            if not terminated:
+                exact[max(0, len(rewards) - tail) :] = False
+            returns.append(discounted)
+            valued.append(exact)
     finally:
         env.close()
+    value_at = np.flatnonzero(np.concatenate(valued))
+    if len(value_at) == 0:
+        raise ValueError(
+            f"warm_start='typical-pilot' fits the critic on returns the episode does not cut "
+            f"short: episodes must last over {tail} steps (5 horizons 1/(1 - gamma) at "
+            f"gamma {gamma:g}), the longest here lasted {max(map(len, valued))}"
+        )
     states = np.array(observations)
     targets = law(states)
     x = torch.as_tensor(states, dtype=torch.float32)
     y = torch.as_tensor(targets, dtype=torch.float32)
+    value_target = torch.as_tensor(np.concatenate(returns), dtype=torch.float32)
+    value_scale = float(np.var(np.concatenate(returns)[value_at])) or 1.0
+    # the returns' level in the value head's bias first: Adam's steps of 1e-3 would take
+    # tens of thousands of iterations to climb to it
+    with torch.no_grad():
+        policy.value_net.bias.fill_(float(np.mean(np.concatenate(returns)[value_at])))
     rng = np.random.default_rng(config.seed)
     optimiser = torch.optim.Adam(policy.parameters(), lr=1e-3)
     for _ in range(iterations):
         batch = torch.as_tensor(rng.integers(0, len(states), 256))
         mean = policy.get_distribution(x[batch]).distribution.mean
-        loss = torch.mean((mean - y[batch]) ** 2)
+        actor_loss = torch.mean((mean - y[batch]) ** 2)
+        at = torch.as_tensor(rng.choice(value_at, 256))
+        value = policy.predict_values(x[at]).squeeze(-1)
+        critic_loss = torch.mean((value - value_target[at]) ** 2) / value_scale
+        loss = actor_loss + critic_loss
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
     with torch.no_grad():
         residual = policy.get_distribution(x).distribution.mean - y
+        at = torch.as_tensor(value_at)
+        value_residual = policy.predict_values(x[at]).squeeze(-1) - value_target[at]
     return {
         "states": float(len(states)),
         "law_rms": float(np.sqrt(np.mean(targets**2))),
         "residual_rms": float(torch.sqrt(torch.mean(residual**2))),
+        "value_explained": float(1.0 - torch.mean(value_residual**2) / value_scale),
     }
 
 
@@ -552,7 +594,8 @@ def train(
             report(
                 f"warm start: the typical pilot's equaliser fitted on {fit['states']:,.0f} "
                 f"states, residual RMS {fit['residual_rms']:.3g} of the law's "
-                f"{fit['law_rms']:.3g}"
+                f"{fit['law_rms']:.3g}; the critic explains {fit['value_explained']:.0%} of "
+                "the law's returns"
             )
     callbacks = []
     if report is not None:
