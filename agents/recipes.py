@@ -51,13 +51,17 @@ The human's problem, as the optimal control model poses it
   episode never pays while the policy is poor).
 
 PPO with eight environments, a 64-64 network, 1.2 million steps, started from the
-typical pilot's equaliser (:attr:`~manualcontrol.agents.training.TrainingConfig.
-warm_start`; the recipes ``si``, ``di`` and ``lag``). From its random policy, PPO on
-the double integrator and ``1/(s(s+1))`` settles on a low-gain drift (0.3-0.4 rad/s
-crossover) and never finds the lead these elements need; on ``1/s`` it finds a loop
-but a cautious one (70-88 deg of phase margin over three seeds, where the start from
-the typical pilot gave 53-74 deg and one agent human in every figure;
-``docs/surrogates.md``).
+typical pilot's equaliser and a critic fitted to its returns
+(:attr:`~manualcontrol.agents.training.TrainingConfig.warm_start`; the recipes ``si``,
+``di`` and ``lag``), exploring with the motor noise's spread at the typical stick
+(``log_std_init``: the human's only exploration is its remnant). From its random
+policy, PPO on the double integrator and ``1/(s(s+1))`` settles on a low-gain drift
+(0.3-0.4 rad/s crossover) and never finds the lead these elements need. With PPO's
+default exploration (a standard deviation of one stick unit, white), training from the
+typical pilot lost the loop on ``1/s`` (0.3-0.4 rad/s, four seeds of four) once the
+motor noise was the OCM's. Where the agents stand against the human ranges, and
+against the typical pilot's own loop flown through the same problem:
+``docs/surrogates.md``.
 """
 
 from __future__ import annotations

@@ -25,14 +25,15 @@ policy adapts with). :attr:`TrainingConfig.limitations` lists the whole stack.
 
 A typical pilot's start
 -----------------------
-``warm_start="typical-pilot"`` starts PPO or SAC from a policy whose mean action is the
+``warm_start="typical-pilot"`` starts PPO from a policy whose mean action is the
 typical precision pilot's equaliser on the element, ``u = K_p e + K_v e_dot``
 (:func:`~manualcontrol.estimators.analysis.human_likeness.reference_pilot`; the
 delay and neuromuscular system are the wrappers'), fitted by least squares on the
-states that law visits through the agent's own wrappers (:func:`clone_typical_pilot`).
-On the double integrator and ``1/(s(s+1))`` PPO from random weights finds no loop in
-millions of steps (a stick that waits out a low-gain drift scores better early than
-one that learns the lead); started from a human's loop, it keeps one and reshapes it.
+states that law visits through the agent's own wrappers, and from a critic fitted to
+that law's returns (:func:`clone_typical_pilot`). On the double integrator and
+``1/(s(s+1))`` PPO from random weights finds no loop in millions of steps (a stick
+that waits out a low-gain drift scores better early than one that learns the lead);
+started from a human's loop, it keeps one and reshapes it.
 
 Evaluation
 ----------
