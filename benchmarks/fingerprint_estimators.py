@@ -207,9 +207,9 @@ def main(argv: list[str] | None = None) -> int:
         return 1 if changed or missing or added else 0
     if not args.out:
         parser.error("give --out FILE (or --compare BEFORE AFTER)")
-    from manualcontrol.bench.scenarios import _builtin_names
+    from manualcontrol.bench.scenarios import BUILTIN_SUITES
 
-    names = args.suites.split(",") if args.suites else list(_builtin_names())
+    names = args.suites.split(",") if args.suites else list(BUILTIN_SUITES)
     into: dict[str, str] = {}
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         for part in pool.map(_suite_fingerprints, names):
