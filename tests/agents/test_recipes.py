@@ -41,7 +41,11 @@ def test_the_human_problem_imposes_the_typical_pilots_own_limitations(element):
     }
     assert "effort_cost" in specs
     # the OCM's -25 dB motor noise: with the observation noise, its whole remnant source
-    assert specs["motor_noise"]["power_ratio"] == pytest.approx(10**-2.5, rel=0.02)
+    ratio = specs["motor_noise"]["power_ratio"]
+    assert ratio == pytest.approx(10**-2.5, rel=0.02)
+    # PPO explores with that noise's spread at the typical stick, not a whole stick unit
+    spread = np.sqrt(ratio / (1 - ratio)) * typical_stick_rms(element)
+    assert np.exp(config.policy_kwargs["log_std_init"]) == pytest.approx(spread)
     assert config.env_kwargs["forcing"] == "popovici2017"
     assert config.env_kwargs["action_bound"] == pytest.approx(4 * typical_stick_rms(element))
     env = make_env(config)
