@@ -84,6 +84,7 @@ __all__ = [
     "WARM_STARTS",
     "TrainedAgent",
     "TrainingConfig",
+    "TypicalPilotAgent",
     "clone_typical_pilot",
     "load_agent",
     "make_env",
@@ -349,6 +350,29 @@ def typical_pilot_law(config: TrainingConfig) -> Callable[[FloatArray], FloatArr
         return np.clip(K_p * observation[..., 0:1] + K_v * observation[..., 1:2], -bound, bound)
 
     return law
+
+
+class TypicalPilotAgent:
+    """The typical pilot's equaliser acting as an agent: what a warm start begins from.
+
+    Flown through the configuration's wrappers and evaluated as a trained agent is
+    (:func:`~manualcontrol.agents.evaluation.evaluate`), it measures what the problem
+    alone makes of the typical pilot's loop. ``reset``/``act`` as :class:`TrainedAgent`.
+    """
+
+    path: Path | None = None
+
+    def __init__(self, config: TrainingConfig) -> None:
+        self.config = config
+        self._law = typical_pilot_law(config)
+
+    def reset(self, seed: int | None = None, *, env: gym.Env | None = None) -> None:
+        """Nothing to reset: the law is memoryless."""
+        del seed, env
+
+    def act(self, observation: FloatArray) -> FloatArray:
+        """The law's action for one observation, shape ``(1,)``."""
+        return self._law(np.asarray(observation, dtype=np.float64)).reshape(1)
 
 
 def clone_typical_pilot(

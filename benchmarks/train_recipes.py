@@ -65,27 +65,13 @@ def run_law(element: str, seed: int, out: str, steps: int | None, warm: bool) ->
     What the warm start begins from, measured as an agent is: the figures the problem's
     noise alone gives the typical pilot's loop.
     """
-    import numpy as np
-
     from manualcontrol.agents.evaluation import evaluate, optimal_control_reference
     from manualcontrol.agents.recipes import human_problem
-    from manualcontrol.agents.training import typical_pilot_law
+    from manualcontrol.agents.training import TypicalPilotAgent
 
     del seed, out, steps, warm
     config = human_problem(element, warm_start="typical-pilot")
-    law = typical_pilot_law(config)
-
-    class LawAgent:
-        def __init__(self) -> None:
-            self.config, self.path = config, None
-
-        def reset(self, seed=None, *, env=None) -> None:
-            del seed, env
-
-        def act(self, observation):
-            return law(np.asarray(observation)).reshape(1)
-
-    human = evaluate(LawAgent(), seed=0).human
+    human = evaluate(TypicalPilotAgent(config), seed=0).human
     row = {"element": element, "seed": "-", "train_s": "-", "start": "law, untrained"}
     row.update({k: round(float(v), 3) for k, v in human.figures().items()})
     row["outside"] = list(human.verdict.outside)

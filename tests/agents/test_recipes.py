@@ -217,23 +217,9 @@ def test_the_typical_pilots_own_loop_is_human_through_the_human_problem():
     top of the observation noise) gave this same loop 67 % remnant and 2.6 times its RMS
     error."""
     from manualcontrol.agents.evaluation import evaluate
-    from manualcontrol.agents.training import typical_pilot_law
+    from manualcontrol.agents.training import TypicalPilotAgent
 
     config = human_problem("1/s^2", warm_start="typical-pilot")
-    law = typical_pilot_law(config)
-
-    class LawAgent:
-        path = None
-
-        def __init__(self):
-            self.config = config
-
-        def reset(self, seed=None, *, env=None):
-            pass
-
-        def act(self, observation):
-            return law(np.asarray(observation)).reshape(1)
-
-    human = evaluate(LawAgent(), seed=0).human
+    human = evaluate(TypicalPilotAgent(config), seed=0).human
     assert human.verdict.outside == (), human.figures()
     assert 0.1 <= human.figures()["remnant_fraction"] <= 0.4
