@@ -32,6 +32,7 @@ import numpy as np
 
 from manualcontrol.agents.training import TASK_IDS, TrainedAgent, make_env
 from manualcontrol.envs._files import atomic_path, atomic_write
+from manualcontrol.envs._validation import check_int
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.tasks import TASKS_BY_NAME
 from manualcontrol.estimators.analysis.frequency import (
@@ -87,6 +88,7 @@ class Evaluation:
     human: HumanLikeness | None = None
     noise: bool = True
     config: Any = None
+    periods: int = 1
 
     def summary(self) -> dict[str, Any]:
         """Plain numbers for tables and JSON."""
@@ -105,6 +107,7 @@ class Evaluation:
             "dekf": dict(self.dekf),
             "limitations": [dict(limit) for limit in self.limitations],
             "noise": self.noise,
+            "periods": self.periods,
             "human_likeness": None if self.human is None else self.human.to_dict(),
             "implausible": implausible(
                 self.identified.model,
@@ -173,16 +176,22 @@ def evaluate(
     env_overrides: Mapping[str, Any] | None = None,
     reference: Mapping[str, float] | None = None,
     deterministic: bool | None = None,
+    periods: int = 1,
 ) -> Evaluation:
-    """Run the agent over one full forcing period and identify it.
+    """Run the agent over ``periods`` whole forcing periods and identify it.
 
-    The environment is the agent's own (configuration, wrappers), over the full
-    measurement time of the forcing (for the frequency response) after ``run_in``
-    seconds, with loss-of-control termination off so that a poor agent is still
-    measured over the whole period. ``reference`` overrides the typical precision pilot
-    of the agent's element (:func:`~manualcontrol.estimators.analysis.human_likeness.
-    reference_pilot`; an element without one, e.g. a pure gain, needs one given), in the
-    RMS comparison here and in the human-likeness ratio.
+    The environment is the agent's own (configuration, wrappers), over ``periods``
+    times the measurement time of the forcing (for the frequency response) after
+    ``run_in`` seconds, with loss-of-control termination off so that a poor agent is
+    still measured over the whole run. With several periods the describing function
+    and the human-likeness figures read the Fourier coefficients of every period
+    together, as a laboratory averages a participant's repeated runs of one condition
+    (the periodic forcing repeats exactly and the remnant does not, so the remnant's
+    variance in each line's estimate falls with the number of periods).
+    ``reference`` overrides the typical precision pilot of the agent's element
+    (:func:`~manualcontrol.estimators.analysis.human_likeness.reference_pilot`; an
+    element without one, e.g. a pure gain, needs one given), in the RMS comparison here
+    and in the human-likeness ratio.
     ``deterministic`` True runs without the wrappers' noise; None (default) follows the
     agent's configuration (``TrainingConfig.deterministic``, where it has one), whose
     default keeps the noise on.
@@ -191,6 +200,12 @@ def evaluate(
         deterministic = bool(getattr(agent.config, "deterministic", False))
     if deterministic not in (True, False):
         raise TypeError(f"deterministic must be True, False or None, got {deterministic!r}")
+    periods = check_int("periods", periods, minimum=1)
+    if periods > 1 and (env_overrides or {}).get("measurement_time") is not None:
+        raise ValueError(
+            "give periods or env_overrides['measurement_time'], not both: periods "
+            f"({periods}) measures over that many forcing periods"
+        )
     overrides = {
         "measurement_time": None,
         "run_in": run_in,
@@ -198,7 +213,13 @@ def evaluate(
         **dict(env_overrides or {}),
     }
     env = _make_env(agent, not deterministic, overrides)
-    report_progress(f"evaluate: flying the agent over one forcing period after {run_in:g} s")
+    if periods > 1:
+        # the forcing's period is what the env measures over by default
+        overrides["measurement_time"] = periods * env.unwrapped.measurement_time
+        env.close()
+        env = _make_env(agent, not deterministic, overrides)
+    span = "one forcing period" if periods == 1 else f"{periods} forcing periods"
+    report_progress(f"evaluate: flying the agent over {span} after {run_in:g} s")
     fly(agent, env, seed)
     whole = env.unwrapped.recording(include_run_in=True)
     recording = whole.slice_time(0.0)
@@ -236,6 +257,7 @@ def evaluate(
         human,
         not deterministic,
         agent.config,
+        periods,
     )
 
 
@@ -357,6 +379,7 @@ def write_report(
         "# Agent evaluation",
         "",
         f"- wrappers' noise: {'on' if evaluation.noise else 'off (deterministic run)'}",
+        f"- measured over {evaluation.periods} forcing period(s)",
         f"- RMS tracking error: {summary['rms_error']:.4f}",
     ]
     if summary["reference_rms_error"] is not None:

@@ -1529,7 +1529,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     if agent.config.task == "lane-keeping":
         return _evaluate_lane_keeping(agent, args)
     with reporting_progress(_progress_line):
-        evaluation = evaluate(agent, seed=args.seed, deterministic=args.deterministic)
+        evaluation = evaluate(
+            agent, seed=args.seed, deterministic=args.deterministic, periods=args.periods
+        )
         path = write_report(evaluation, args.out or Path(args.agent) / "evaluation")
     summary = evaluation.summary()
     noise = "on" if evaluation.noise else "off (--deterministic)"
@@ -2148,6 +2150,14 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="run without the wrappers' observation and motor noise (default: as the agent "
         "was configured, noise on); a noise-free run has no remnant, which no human shows",
+    )
+    p.add_argument(
+        "--periods",
+        type=positive_int,
+        default=1,
+        help="forcing periods to fly and measure over (default 1); the describing function "
+        "reads them together, as a laboratory averages a participant's repeated runs "
+        "(tracking only)",
     )
     p.add_argument(
         "--trust-pickle",

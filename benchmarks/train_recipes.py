@@ -19,6 +19,11 @@ recipes ``di`` and ``lag``) start from the typical pilot's equaliser.
 Run: .venv/bin/python benchmarks/train_recipes.py [--elements 1/s 1/s^2 "1/(s(s+1))"]
      [--lane-keeping angle torque] [--seeds 0 1 2]
      [--jobs 2] [--out results/recipes] [--markdown docs/surrogates.md] [--steps N]
+     [--periods N] [--existing]
+
+``--periods N`` evaluates each tracking agent over N forcing periods read together (a
+laboratory's average over repeated runs); ``--existing`` re-evaluates the tracking agents
+already in ``--out`` without training them again.
 
 ``--markdown`` writes the tables as a results page; ``--table results/recipes/recipes.json``
 writes it from an earlier run's figures without training.
@@ -31,13 +36,15 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 
-def run_tracking(element: str, seed: int, out: str, steps: int | None, warm: bool) -> dict:
+def run_tracking(
+    element: str, seed: int, out: str, steps: int | None, warm: bool, periods: int, existing: bool
+) -> dict:
     import torch
 
     torch.set_num_threads(1)
     from manualcontrol.agents.evaluation import evaluate, optimal_control_reference
     from manualcontrol.agents.recipes import human_problem
-    from manualcontrol.agents.training import train
+    from manualcontrol.agents.training import load_agent, train
 
     config = human_problem(
         element,
@@ -48,10 +55,15 @@ def run_tracking(element: str, seed: int, out: str, steps: int | None, warm: boo
     folder = element.replace("/", "_").replace("(", "").replace(")", "").replace("^", "")
     folder += "-warm" if warm else ""
     start = time.perf_counter()
-    agent = train(config, Path(out) / f"{folder}-seed{seed}", report=None)
-    row = {"element": element, "seed": seed, "train_s": round(time.perf_counter() - start)}
+    if existing:
+        agent = load_agent(Path(out) / f"{folder}-seed{seed}")
+        train_s = "-"
+    else:
+        agent = train(config, Path(out) / f"{folder}-seed{seed}", report=None)
+        train_s = round(time.perf_counter() - start)
+    row = {"element": element, "seed": seed, "train_s": train_s, "periods": periods}
     row["start"] = config.warm_start
-    human = evaluate(agent, seed=0).human
+    human = evaluate(agent, seed=0, periods=periods).human
     row.update({k: round(float(v), 3) for k, v in human.figures().items()})
     row["outside"] = list(human.verdict.outside)
     crossover, margin, delay = optimal_control_reference(config).crossover()
@@ -59,7 +71,9 @@ def run_tracking(element: str, seed: int, out: str, steps: int | None, warm: boo
     return row
 
 
-def run_law(element: str, seed: int, out: str, steps: int | None, warm: bool) -> dict:
+def run_law(
+    element: str, seed: int, out: str, steps: int | None, warm: bool, periods: int, existing: bool
+) -> dict:
     """The typical pilot's equaliser itself, flown through the problem's wrappers, untrained.
 
     What the warm start begins from, measured as an agent is: the figures the problem's
@@ -69,10 +83,11 @@ def run_law(element: str, seed: int, out: str, steps: int | None, warm: bool) ->
     from manualcontrol.agents.recipes import human_problem
     from manualcontrol.agents.training import TypicalPilotAgent
 
-    del seed, out, steps, warm
+    del seed, out, steps, warm, existing
     config = human_problem(element, warm_start="typical-pilot")
-    human = evaluate(TypicalPilotAgent(config), seed=0).human
+    human = evaluate(TypicalPilotAgent(config), seed=0, periods=periods).human
     row = {"element": element, "seed": "-", "train_s": "-", "start": "law, untrained"}
+    row["periods"] = periods
     row.update({k: round(float(v), 3) for k, v in human.figures().items()})
     row["outside"] = list(human.verdict.outside)
     crossover, margin, delay = optimal_control_reference(config).crossover()
@@ -80,7 +95,9 @@ def run_law(element: str, seed: int, out: str, steps: int | None, warm: bool) ->
     return row
 
 
-def run_lane_keeping(steering: str, seed: int, out: str, steps: int | None, warm: bool) -> dict:
+def run_lane_keeping(
+    steering: str, seed: int, out: str, steps: int | None, warm: bool, periods: int, existing: bool
+) -> dict:
     import torch
 
     torch.set_num_threads(1)
@@ -119,6 +136,9 @@ def markdown(rows: list[dict], command: str) -> str:
         )
     )
     lanes = [row for row in rows if "steering" in row]
+    periods = sorted({row.get("periods", 1) for row in tracking})
+    span = " or ".join(str(n) for n in periods)
+    span = "one forcing period" if periods == [1] else f"{span} forcing periods"
     lines = [
         "# Surrogate operators: what the human's problem trains",
         "",
@@ -129,8 +149,10 @@ def markdown(rows: list[dict], command: str) -> str:
         "The human's problem (`agents/recipes.py`, `human_problem`; the recipes `si`,",
         "`di` and `lag` are it on 1/s, 1/s^2 and 1/(s(s+1)) with start `typical-pilot`)",
         "trained on each element with each seed (one torch thread per training, two",
-        "at a time on two cores), then evaluated over one forcing period with the",
-        "wrappers' noise on (`manualcontrol evaluate`). A figure outside the human range",
+        f"at a time on two cores), then evaluated over {span} with the",
+        "wrappers' noise on (`manualcontrol evaluate --periods`; several periods are",
+        "read together, as a laboratory averages a participant's repeated runs). A",
+        "figure outside the human range",
         "of `manualcontrol.estimators.analysis.human_likeness` is marked `*`. `OCM` is the",
         "optimal control model's optimum on the same problem (crossover rad/s, phase",
         "margin deg, effective delay s): what the agent would become if it learned the",
@@ -204,6 +226,18 @@ def main() -> None:
     parser.add_argument(
         "--table", nargs="+", default=None, help="recipes.json of earlier runs (joined)"
     )
+    parser.add_argument(
+        "--periods",
+        type=int,
+        default=1,
+        help="forcing periods each tracking evaluation flies and measures over",
+    )
+    parser.add_argument(
+        "--existing",
+        action="store_true",
+        help="evaluate the tracking agents already trained in --out instead of training; "
+        "their training times are taken from --out's recipes.json",
+    )
     args = parser.parse_args()
     command = "benchmarks/train_recipes.py"
     if args.table is not None:
@@ -216,22 +250,31 @@ def main() -> None:
         for seed in args.seeds
     ]
     jobs += [(run_law, element, 0, False) for element in args.laws]
-    jobs += [
-        (run_lane_keeping, steering, seed, False)
-        for steering in args.lane_keeping
-        for seed in args.seeds
-    ]
+    if not args.existing:  # lane-keeping agents are trained, never re-read
+        jobs += [
+            (run_lane_keeping, steering, seed, False)
+            for steering in args.lane_keeping
+            for seed in args.seeds
+        ]
     rows = []
     with ProcessPoolExecutor(args.jobs) as pool:
         futures = [
-            pool.submit(job, name, seed, args.out, args.steps, warm)
+            pool.submit(job, name, seed, args.out, args.steps, warm, args.periods, args.existing)
             for job, name, seed, warm in jobs
         ]
         for future in futures:
             rows.append(future.result())
             print(json.dumps(rows[-1]), flush=True)
+    table = Path(args.out) / "recipes.json"
+    if args.existing and table.exists():
+        earlier = json.loads(table.read_text())
+        trained = {(r.get("element"), r["seed"]): r["train_s"] for r in earlier}
+        for row in rows:
+            if row.get("train_s") == "-" and (row.get("element"), row["seed"]) in trained:
+                row["train_s"] = trained[row.get("element"), row["seed"]]
+        table = Path(args.out) / f"recipes-periods{args.periods}.json"
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    (Path(args.out) / "recipes.json").write_text(json.dumps(rows, indent=2))
+    table.write_text(json.dumps(rows, indent=2))
     if args.markdown is not None:
         Path(args.markdown).write_text(markdown(rows, command))
 

@@ -152,6 +152,39 @@ def test_evaluation_covers_the_whole_period_despite_loss_of_control(trained):
     assert evaluation.recording.duration == pytest.approx(81.92)
 
 
+def test_evaluation_over_several_periods_reads_them_together(trained):
+    """Three periods measured as one: each forcing line is the mean of its three periods."""
+    from manualcontrol.envs.signals import ForcingPair
+
+    _, agent, _, _ = trained
+    evaluation = evaluate(agent, run_in=2.0, periods=3)
+    recording = evaluation.recording
+    assert recording.duration == pytest.approx(3 * 81.92)
+    assert evaluation.summary()["periods"] == 3 and evaluation.human.describing.periods == 3
+    # independent: each period's own Fourier coefficients, averaged over the periods
+    n = len(recording.u) // 3
+    target = ForcingPair.from_dict(recording.metadata["forcing"]).target
+    lines = np.asarray(target.harmonics, dtype=int)
+    u = np.fft.rfft(recording.u.reshape(3, n), axis=1).mean(axis=0)[lines]
+    e = np.fft.rfft(recording.e.reshape(3, n), axis=1).mean(axis=0)[lines]
+    np.testing.assert_allclose(evaluation.frequency_response.pilot, u / e, rtol=1e-9)
+    describing = evaluation.human.describing
+    at_target = np.array([source == "target" for source in describing.source])
+    np.testing.assert_allclose(describing.pilot[at_target], u / e, rtol=1e-9)
+
+
+def test_evaluation_periods_must_be_whole_and_not_fight_a_measurement_time(trained, capsys):
+    from manualcontrol.bench.cli import EXIT_USAGE, main
+
+    _, agent, folder, _ = trained
+    with pytest.raises(ValueError, match="periods must be >= 1, got 0"):
+        evaluate(agent, periods=0)
+    with pytest.raises(ValueError, match="give periods or env_overrides"):
+        evaluate(agent, periods=2, env_overrides={"measurement_time": 10.0})
+    assert main(["evaluate", str(folder), "--periods", "0"]) == EXIT_USAGE
+    assert "argument --periods: must be >= 1, got 0" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(
     ("kwargs", "error", "message"),
     [
