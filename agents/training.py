@@ -149,7 +149,8 @@ class TrainingConfig:
         ``"none"`` (default: the algorithm's random initial policy) or
         ``"typical-pilot"`` (:data:`WARM_STARTS`; the module docstring): compensatory
         tracking with ``include_rates=True`` of an element with a typical pilot, the
-        observation ``(e, e_dot)`` as the display shows it.
+        observation ``(e, e_dot)`` as the display shows it (with ``history_length``,
+        the law reads the newest frame and the policy starts from it with a memory).
 
     Each limitation is given once: a field above that is on and a ``wrappers`` entry of
     the same kind raise. Schedules are saved in ``config.json`` as their dicts
@@ -322,11 +323,14 @@ def _check_typical_pilot_start(config: TrainingConfig) -> None:
     kinds = [
         spec.get("kind") for spec in config.wrappers if spec.get("kind") in _OBSERVATION_WRAPPERS
     ]
-    if config.history_length > 1 or kinds:
+    if kinds:
+        # history_length stacks the frames outermost, newest first, so the law reads the
+        # newest (e, e_dot) where one frame has them; a history or a scaling among the
+        # wrappers can sit anywhere and change what those entries hold
         raise ValueError(
             f"{where} reads (e, e_dot) as the display shows them: no observation history "
-            f"or scaling, got history_length={config.history_length}"
-            + (f" and wrappers {kinds}" if kinds else "")
+            f"or scaling among the wrappers (give history_length instead of a history), "
+            f"got wrappers {kinds}"
         )
     element = config.env_kwargs.get("controlled_element", "SI")
     if reference_pilot(element) is None:
@@ -336,7 +340,11 @@ def _check_typical_pilot_start(config: TrainingConfig) -> None:
 
 
 def typical_pilot_law(config: TrainingConfig) -> Callable[[FloatArray], FloatArray]:
-    """The typical precision pilot's equaliser on ``(..., [e, e_dot])``, clipped to the stick."""
+    """The typical precision pilot's equaliser on ``(..., [e, e_dot])``, clipped to the stick.
+
+    With ``history_length`` > 1 the observation is the frames newest first
+    (:class:`~manualcontrol.agents.wrappers.ObservationHistory`): the law reads the newest.
+    """
     from manualcontrol.estimators.analysis.human_likeness import reference_pilot
 
     values = reference_pilot(config.env_kwargs.get("controlled_element", "SI"))

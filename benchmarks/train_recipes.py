@@ -133,6 +133,7 @@ def markdown(rows: list[dict], command: str) -> str:
             elements.index(row["element"]),
             ["law, untrained", "none", "typical-pilot"].index(row.get("start", "none")),
             str(row["seed"]),
+            row.get("periods", 1),
         )
     )
     lanes = [row for row in rows if "steering" in row]
@@ -164,8 +165,8 @@ def markdown(rows: list[dict], command: str) -> str:
         "wrappers, no training: what the problem's noise alone makes of the typical",
         "pilot's loop.",
         "",
-        "| element | start | seed | train (s) | " + " | ".join(FIGURES) + " | OCM |",
-        "| --- | --- | --- | --- | " + " | ".join("---" for _ in FIGURES) + " | --- |",
+        "| element | start | seed | train (s) | periods | " + " | ".join(FIGURES) + " | OCM |",
+        "| --- | --- | --- | --- | --- | " + " | ".join("---" for _ in FIGURES) + " | --- |",
     ]
     for row in tracking:
         cells = []
@@ -176,7 +177,7 @@ def markdown(rows: list[dict], command: str) -> str:
         ocm = " / ".join(f"{v:g}" for v in row.get("ocm", [])) or "-"
         lines.append(
             f"| {row['element']} | {row.get('start', 'none')} | {row['seed']} | "
-            f"{row['train_s']} | " + " | ".join(cells) + f" | {ocm} |"
+            f"{row['train_s']} | {row.get('periods', 1)} | " + " | ".join(cells) + f" | {ocm} |"
         )
     if lanes:
         lines += [

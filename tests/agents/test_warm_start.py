@@ -70,6 +70,25 @@ def test_the_cloned_policy_acts_as_the_typical_pilots_equaliser(element):
     assert error < 0.1 * rms < untrained
 
 
+def test_a_start_with_a_history_acts_on_the_newest_frame():
+    """With a memory, the start is still the law: on the newest (e, e_dot) of the window."""
+    single = short(human_problem("1/s", warm_start="typical-pilot"))
+    config = dataclasses.replace(single, history_length=4)
+    law = typical_pilot_law(config)
+    frame = make_env(single).observation_space.shape[0]
+    assert make_env(config).observation_space.shape == (4 * frame,)
+    held_out = states_of(config, law, seed=99)
+    # newest first: the law's action is the one it takes on the newest frame alone
+    np.testing.assert_array_equal(law(held_out), law(held_out[:, :frame]))
+    assert not np.array_equal(law(held_out), law(held_out[:, frame : 2 * frame]))
+    model = PPO("MlpPolicy", make_env(config), seed=0, policy_kwargs={"net_arch": [64, 64]})
+    fit = clone_typical_pilot(model.policy, config, episodes=4, iterations=1500)
+    assert fit["residual_rms"] < 0.05 * fit["law_rms"]
+    target = law(held_out)
+    error = np.sqrt(np.mean((policy_mean(model.policy, held_out) - target) ** 2))
+    assert error < 0.1 * np.sqrt(np.mean(target**2))
+
+
 def test_training_from_the_typical_pilot_says_so_and_saves_the_start(tmp_path):
     config = dataclasses.replace(
         short(recipe("lag", total_timesteps=64)), algorithm_kwargs={"n_steps": 64}
@@ -108,7 +127,10 @@ def test_a_start_the_observation_cannot_carry_is_refused():
         dataclasses.replace(base, warm_start="expert")
     for change, message in (
         ({"algorithm": "sac", "algorithm_kwargs": {}}, "algorithm must be 'ppo', got 'sac'"),
-        ({"history_length": 3}, "no observation history or scaling, got history_length=3"),
+        (
+            {"wrappers": (*base.wrappers, {"kind": "observation_history", "length": 3})},
+            "give history_length instead of a history",
+        ),
         (
             {"env_kwargs": {**base.env_kwargs, "include_rates": False}},
             "give env_kwargs include_rates=True",
