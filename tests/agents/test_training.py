@@ -153,20 +153,20 @@ def test_evaluation_covers_the_whole_period_despite_loss_of_control(trained):
 
 
 def test_evaluation_over_several_periods_reads_them_together(trained):
-    """Three periods measured as one: each forcing line is the mean of its three periods."""
+    """Two periods measured as one: each forcing line is the mean of its two periods."""
     from manualcontrol.envs.signals import ForcingPair
 
     _, agent, _, _ = trained
-    evaluation = evaluate(agent, run_in=2.0, periods=3)
+    evaluation = evaluate(agent, run_in=2.0, periods=2)
     recording = evaluation.recording
-    assert recording.duration == pytest.approx(3 * 81.92)
-    assert evaluation.summary()["periods"] == 3 and evaluation.human.describing.periods == 3
+    assert recording.duration == pytest.approx(2 * 81.92)
+    assert evaluation.summary()["periods"] == 2 and evaluation.human.describing.periods == 2
     # independent: each period's own Fourier coefficients, averaged over the periods
-    n = len(recording.u) // 3
+    n = len(recording.u) // 2
     target = ForcingPair.from_dict(recording.metadata["forcing"]).target
     lines = np.asarray(target.harmonics, dtype=int)
-    u = np.fft.rfft(recording.u.reshape(3, n), axis=1).mean(axis=0)[lines]
-    e = np.fft.rfft(recording.e.reshape(3, n), axis=1).mean(axis=0)[lines]
+    u = np.fft.rfft(recording.u.reshape(2, n), axis=1).mean(axis=0)[lines]
+    e = np.fft.rfft(recording.e.reshape(2, n), axis=1).mean(axis=0)[lines]
     np.testing.assert_allclose(evaluation.frequency_response.pilot, u / e, rtol=1e-9)
     describing = evaluation.human.describing
     at_target = np.array([source == "target" for source in describing.source])
