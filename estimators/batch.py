@@ -100,6 +100,7 @@ class FilterBatch:
         self._entry = None
         self._inputs = np.zeros((self.n, len(self._input_names)))
         self._all = np.ones(self.n, dtype=np.bool_)
+        self._rows = np.arange(self.n, dtype=np.int64)
 
     def reset_copies(self, copies: Sequence[int] | NDArray[np.bool_]) -> None:
         """Start the given copies (indices, or a mask over the copies) afresh.
@@ -150,7 +151,7 @@ class FilterBatch:
                 copies = np.flatnonzero(np.isinf(values)).tolist()
                 raise ValueError(f"signal {name!r} is infinite for copies {copies}")
         active = self._all if active is None else np.asarray(active, dtype=np.bool_)
-        arguments = (*self._records, inputs, u, e, active, self._out)
+        arguments = (*self._records, inputs, u, e, active, self._rows, self._out)
         if self._entry is None:  # numba's dispatcher types every argument; once is enough
             self._kernel(*arguments)
             types = tuple(self._kernel.typeof_pyval(argument) for argument in arguments)

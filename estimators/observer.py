@@ -23,6 +23,16 @@ parameter_names` order), or ``"none"`` (nothing; :meth:`EstimatorObserver.
 last_estimate` builds the dicts of the last step on request). The estimates are the
 same in every form, bit for bit.
 
+With ``"none"`` (and nothing appended to the observation), nobody reads an estimate
+between steps unless they ask, so the observer keeps the samples (a row of floats a
+step) and steps the filter through them in one compiled call when an estimate is read
+(:meth:`EstimatorObserver.last_estimate`, :attr:`EstimatorObserver.estimator`), at the
+end of an episode, or every :data:`BLOCK_SAMPLES` samples
+(:meth:`~manualcontrol.estimators.members.pilot_filter.PilotFilter.update_block`, for
+members with a batched step). What is read is what stepping every sample would have
+given, bit for bit; the loop pays for the filter's arithmetic and not for entering
+compiled code each step.
+
 With ``append_to_observation=True`` the means of the estimated parameters are
 appended to the observation (in the estimator's order; the initial values before the
 first sample), the observation space extended accordingly.
@@ -49,13 +59,24 @@ from manualcontrol.envs._validation import check_choice
 from manualcontrol.envs.tracking import TrackingEnv
 from manualcontrol.estimators.protocol import ParameterValues
 
-__all__ = ["ESTIMATE_FORMS", "ONLINE_SAMPLE_KEYS", "EstimatorObserver", "check_online_estimator"]
+__all__ = [
+    "BLOCK_SAMPLES",
+    "ESTIMATE_FORMS",
+    "ONLINE_SAMPLE_KEYS",
+    "EstimatorObserver",
+    "check_online_estimator",
+]
 
 #: The samples a tracking environment gives an online estimator (module docstring).
 ONLINE_SAMPLE_KEYS: tuple[str, ...] = ("e", "u", "y", "ft", "ft_ahead")
 
 #: What ``info["estimates"]`` holds each step (module docstring).
 ESTIMATE_FORMS: tuple[str, ...] = ("dicts", "arrays", "none")
+
+#: Samples the ``"none"`` form keeps at most before stepping the filter through them
+#: (module docstring): enough that entering compiled code costs little a sample, few
+#: enough that the rows stay in cache.
+BLOCK_SAMPLES = 256
 
 FloatArray = NDArray[np.float64]
 
@@ -134,7 +155,8 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 f"got {type(env.unwrapped).__name__}"
             )
         keys = check_online_estimator(estimator)
-        self.estimator = estimator
+        self._estimator = estimator
+        self._kept = 0
         self.append_to_observation = bool(append_to_observation)
         settings = getattr(estimator, "settings", None)
         self._keys = keys
@@ -159,6 +181,36 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._pending: dict[str, float] = {}
         self._ahead: list[float] | None = None
         self._step_index = 0
+        # the "none" form's kept samples: one row a step, columns in the estimator's
+        # sample_keys order (module docstring)
+        self._block: FloatArray | None = None
+        if (
+            self.estimates_in_info == "none"
+            and not self.append_to_observation
+            and hasattr(estimator, "update_block")
+            and getattr(type(estimator), "_step_many_kernel", None) is not None
+            and not (estimator.batchable() if hasattr(estimator, "batchable") else "")
+        ):
+            order = tuple(estimator.sample_keys)
+            self._block = np.empty((BLOCK_SAMPLES, len(order)))
+            self._block_columns = tuple(order.index(key) for key in self._display_keys)
+            self._block_u = order.index("u")
+            self._block_ahead = order.index("ft_ahead") if "ft_ahead" in order else -1
+        self._kept_t = 0.0
+
+    @property
+    def estimator(self) -> Any:
+        """The online estimator, stepped through every sample so far."""
+        self._step_kept()
+        return self._estimator
+
+    def _step_kept(self) -> None:
+        """Step the filter through the kept samples (the ``"none"`` form's block)."""
+        if self._kept:
+            kept, self._kept = self._kept, 0
+            self._estimator.update_block(self._block[:kept], t=self._t)
+            if kept < BLOCK_SAMPLES:  # the next sample's display, kept already, leads again
+                self._block[0] = self._block[kept]
 
     @staticmethod
     def _as_plain(estimate: Any) -> dict[str, Any]:
@@ -242,7 +294,18 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._pending = self._display(info)
         self._last = None
         self._t = None
+        if self._block is not None:
+            self._keep_display(info)
         return self._observe(observation), info
+
+    def _keep_display(self, info: dict[str, Any]) -> None:
+        """Write the display of ``info`` into the next kept row (the sample's first half)."""
+        row = self._block[self._kept]
+        for column, key in zip(self._block_columns, self._display_keys, strict=True):
+            row[column] = info[key]
+        if self._block_ahead >= 0:
+            row[self._block_ahead] = self._ahead[self._step_index]
+        self._kept_t = float(info["t"])
 
     def last_estimate(self) -> dict[str, Any] | None:
         """The last step's estimate as the ``"dicts"`` form reports it; None before one."""
@@ -264,6 +327,17 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
         observation, reward, terminated, truncated, info = self.env.step(action)
+        if self._block is not None:  # keep the sample; the filter steps when read
+            self._block[self._kept, self._block_u] = info["u"]
+            self._t = self._kept_t
+            self._last = None
+            self._kept += 1
+            self._step_index += 1
+            if self._kept == BLOCK_SAMPLES or terminated or truncated:
+                self._step_kept()
+            if not (terminated or truncated):
+                self._keep_display(info)
+            return observation, reward, terminated, truncated, info
         sample = self._pending
         sample["u"] = float(info["u"])
         quiet = self._update_quiet

@@ -32,7 +32,7 @@ import numpy as np
 from numba.core import types
 from numba.extending import overload
 
-__all__ = ["put_record", "stack_records", "take"]
+__all__ = ["put_record", "stack_of_one", "stack_records", "take"]
 
 
 def _is_record(value: Any) -> bool:
@@ -61,6 +61,25 @@ def stack_records(record: Any, n: int) -> Any:
         return value
 
     return stacked(record)
+
+
+def stack_of_one(record: Any) -> Any:
+    """One filter's ``record`` as a stack of one: views ``a[np.newaxis]`` of its own arrays.
+
+    Of the types :func:`stack_records` gives (C-contiguous, one more axis), so the
+    batched loops step it; stepping the stack steps the filter itself, in place. A
+    batched loop fed a block of samples with every row index 0 runs the one filter
+    through them in order, in one compiled call.
+    """
+    if _is_record(record):
+        return type(record)(*(stack_of_one(field) for field in record))
+    if isinstance(record, tuple):
+        return tuple(stack_of_one(field) for field in record)
+    if isinstance(record, np.ndarray):
+        if not record.flags.c_contiguous:
+            raise ValueError("stack_of_one needs C-contiguous arrays, as the filters keep them")
+        return record[np.newaxis]
+    return record
 
 
 def put_record(stack: Any, record: Any, i: int) -> None:

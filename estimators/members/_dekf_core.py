@@ -386,25 +386,31 @@ def dekf_run(model, config, belief, monitor, report, scratch, inputs, u, e, out)
 
 
 @numba.njit(cache=True, _nrt=False)
-def dekf_step_many(model, config, belief, monitor, report, scratch, inputs, u, e, active, out):
-    """:func:`dekf_step` on every filter of a stack whose ``active[i]`` is set.
+def dekf_step_many(
+    model, config, belief, monitor, report, scratch, inputs, u, e, active, rows, out
+):
+    """:func:`dekf_step` on sample ``i`` wherever ``active[i]`` is set, in order.
 
     The records are stacked (:func:`~manualcontrol.estimators.filters.batch.stack_records`):
-    filter ``i`` reads and writes row ``i`` of each, its sample is ``inputs[i], u[i],
-    e[i]`` and its estimate goes to row 0 of its one-row output.
+    sample ``i`` (``inputs[i], u[i], e[i]``) steps the filter in row ``rows[i]`` of
+    each, whose estimate goes to row 0 of its one-row output. Many filters on one
+    sample each: ``rows = arange(n)``. One filter on a block of samples, in time order:
+    ``rows`` all zero on a stack of one
+    (:func:`~manualcontrol.estimators.filters.batch.stack_of_one`).
     """
     for i in range(u.shape[0]):
         if active[i]:
+            r = rows[i]
             dekf_step(
-                take(model, i),
-                take(config, i),
-                take(belief, i),
-                take(monitor, i),
-                take(report, i),
-                take(scratch, i),
+                take(model, r),
+                take(config, r),
+                take(belief, r),
+                take(monitor, r),
+                take(report, r),
+                take(scratch, r),
                 inputs[i],
                 u[i],
                 e[i],
                 0,
-                take(out, i),
+                take(out, r),
             )

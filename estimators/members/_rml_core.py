@@ -619,24 +619,27 @@ def bank_run(model, config, lines, belief, monitor, report, s, inputs, u, e, out
 
 
 @numba.njit(cache=True, _nrt=False)
-def bank_step_many(model, config, lines, belief, monitor, report, s, inputs, u, e, active, out):
+def bank_step_many(
+    model, config, lines, belief, monitor, report, s, inputs, u, e, active, rows, out
+):
     """:func:`bank_step` on every filter bank of a stack whose ``active[i]`` is set.
 
     See :func:`~manualcontrol.estimators.members._dekf_core.dekf_step_many`.
     """
     for i in range(u.shape[0]):
         if active[i]:
+            r = rows[i]
             bank_step(
-                take(model, i),
-                take(config, i),
-                take(lines, i),
-                take(belief, i),
-                take(monitor, i),
-                take(report, i),
-                take(s, i),
+                take(model, r),
+                take(config, r),
+                take(lines, r),
+                take(belief, r),
+                take(monitor, r),
+                take(report, r),
+                take(s, r),
                 inputs[i],
                 u[i],
                 e[i],
                 0,
-                take(out, i),
+                take(out, r),
             )

@@ -317,25 +317,28 @@ def joint_run(model, config, belief, monitor, report, scratch, inputs, u, e, out
 
 
 @numba.njit(cache=True, _nrt=False)
-def joint_step_many(model, config, belief, monitor, report, scratch, inputs, u, e, active, out):
+def joint_step_many(
+    model, config, belief, monitor, report, scratch, inputs, u, e, active, rows, out
+):
     """:func:`joint_step` on every filter of a stack whose ``active[i]`` is set.
 
     See :func:`~manualcontrol.estimators.members._dekf_core.dekf_step_many`.
     """
     for i in range(u.shape[0]):
         if active[i]:
+            r = rows[i]
             joint_step(
-                take(model, i),
-                take(config, i),
-                take(belief, i),
-                take(monitor, i),
-                take(report, i),
-                take(scratch, i),
+                take(model, r),
+                take(config, r),
+                take(belief, r),
+                take(monitor, r),
+                take(report, r),
+                take(scratch, r),
                 inputs[i],
                 u[i],
                 e[i],
                 0,
-                take(out, i),
+                take(out, r),
             )
 
 
@@ -667,7 +670,7 @@ def dual_run(model, config, belief, monitor, report, scratch, theta, inputs, u, 
 
 @numba.njit(cache=True, _nrt=False)
 def dual_step_many(
-    model, config, belief, monitor, report, scratch, theta, inputs, u, e, active, out
+    model, config, belief, monitor, report, scratch, theta, inputs, u, e, active, rows, out
 ):
     """:func:`dual_step` on every filter of a stack whose ``active[i]`` is set.
 
@@ -675,17 +678,18 @@ def dual_step_many(
     """
     for i in range(u.shape[0]):
         if active[i]:
+            r = rows[i]
             dual_step(
-                take(model, i),
-                take(config, i),
-                take(belief, i),
-                take(monitor, i),
-                take(report, i),
-                take(scratch, i),
-                take(theta, i),
+                take(model, r),
+                take(config, r),
+                take(belief, r),
+                take(monitor, r),
+                take(report, r),
+                take(scratch, r),
+                take(theta, r),
                 inputs[i],
                 u[i],
                 e[i],
                 0,
-                take(out, i),
+                take(out, r),
             )

@@ -185,7 +185,8 @@ class PilotFilter(FilterShell):
     #: (a ``staticmethod``: numba's dispatchers bind to instances like functions).
     _step_kernel: ClassVar[Any] = None
     #: The same step over a stack of filters (:class:`~manualcontrol.estimators.batch.
-    #: FilterBatch`), ``kernel(*stacked_records, inputs, u, e, active, stacked_out)``.
+    #: FilterBatch`), ``kernel(*stacked_records, inputs, u, e, active, rows, stacked_out)``;
+    #: also this filter's :meth:`update_block` (a stack of one, every row 0).
     _step_many_kernel: ClassVar[Any] = None
 
     def __init__(self, settings: PilotFilterSettings | None = None, **changes: Any) -> None:
@@ -213,6 +214,8 @@ class PilotFilter(FilterShell):
         self._direct = type(self)._step is PilotFilter._step
         self._common: CommonArrays | None = None
         self._resolved: ResolvedSettings | None = None
+        # update_block's (records, row, their stack of one, compiled entry) of this reset
+        self._block: tuple[Any, Any, Any, Any] | None = None
 
     # ----------------------------------------------------------------- access
 
@@ -420,6 +423,67 @@ class PilotFilter(FilterShell):
         t = self._t0 + self._k * self._dt if t is None else float(t)
         self._k += 1
         return t
+
+    def update_block(self, values: FloatArray, t: float | None = None) -> float:
+        """Consume a block of samples in one compiled call; return the last one's time.
+
+        ``values`` is ``(k, len(sample_keys))``, columns in :attr:`sample_keys` order,
+        rows in time order (NaN in ``u`` or an input marks a dropped sample, as in
+        :meth:`update`); ``t`` the last sample's time (default: from the reset's ``t0``
+        and ``dt``). Each sample goes through the compiled step :meth:`update` calls, in
+        order, by the batched loop on this filter's own records as a stack of one
+        (:func:`~manualcontrol.estimators.filters.batch.stack_of_one`): the numbers of
+        ``k`` calls of :meth:`update`, bit for bit, with one entry into compiled code
+        instead of ``k``. The estimate after the last sample is in the row
+        (:meth:`latest`, :meth:`latest_plain`). The online observer feeds it the samples
+        nobody read an estimate between.
+        """
+        from manualcontrol.estimators.filters.batch import stack_of_one
+
+        records = self._require_reset()
+        kernel = type(self)._step_many_kernel
+        reason = self.batchable() if hasattr(self, "batchable") else ""
+        if kernel is None or reason:
+            raise ValueError(
+                f"{type(self).__name__} cannot step a block of samples in one call: "
+                + (reason or "it has no batched step")
+            )
+        values = np.asarray(values, dtype=np.float64)
+        keys = self._sample_keys
+        if values.ndim != 2 or values.shape[1] != len(keys):
+            raise ValueError(
+                f"values must be (k, {len(keys)}): one column per sample key "
+                f"{', '.join(map(repr, keys))}, got shape {values.shape}"
+            )
+        infinite = np.isinf(values)
+        if infinite.any():  # NaN marks a dropped sample; inf is a mistake
+            row, column = np.argwhere(infinite)[0]
+            raise ValueError(f"sample {int(row)} of the block has {keys[column]} infinite")
+        k = len(values)
+        if k:
+            block = self._block
+            if block is None or block[0] is not records or block[1] is not self._row:
+                block = (records, self._row, stack_of_one((records, self._row)), None)
+            stacked, out = block[2]
+            n_inputs = len(self._inputs)
+            arguments = (
+                *stacked,
+                np.ascontiguousarray(values[:, :n_inputs]),
+                np.ascontiguousarray(values[:, self._u_at]),
+                np.ascontiguousarray(values[:, self._e_at]),
+                np.ones(k, dtype=np.bool_),
+                np.zeros(k, dtype=np.int64),
+                out,
+            )
+            if block[3] is None:  # numba's dispatcher types every argument; once is enough
+                kernel(*arguments)
+                types = tuple(kernel.typeof_pyval(argument) for argument in arguments)
+                block = (*block[:3], kernel.overloads[types].entry_point)
+            else:
+                block[3](*arguments)
+            self._block = block
+        self._k += k
+        return self._t0 + (self._k - 1) * self._dt if t is None else float(t)
 
     # -------------------------------------------------------------- estimate
 

@@ -269,6 +269,61 @@ def test_the_thin_forms_report_the_same_estimates(estimator):
     assert none[2] == dicts[2] == dicts[1][-1]
 
 
+@pytest.mark.parametrize("case", ["compensatory", "preview", "rml-input"])
+def test_the_none_form_steps_kept_samples_when_read_and_equals_the_dicts(case):
+    """Read mid-block, at the block's edge, after it, at the episode's end, in two episodes.
+
+    The "none" form keeps the samples and steps the filter through them when an
+    estimate is read: every read equals the "dicts" report of that step, bit for bit.
+    """
+    from manualcontrol.estimators import RML
+    from manualcontrol.estimators.observer import BLOCK_SAMPLES
+
+    task, element, pilot, settings = CASES["preview" if case == "preview" else "compensatory"]
+
+    def make():
+        if case == "rml-input":
+            return RML(**settings, remnant_injection="input")
+        return DEKF(**settings)
+
+    reads = {3, BLOCK_SAMPLES - 1, BLOCK_SAMPLES, BLOCK_SAMPLES + 1, 600}
+    runs = {}
+    for form in ("dicts", "none"):
+        env = EstimatorObserver(
+            gym.make(
+                f"ManualControl/{task}Tracking-v0",
+                controlled_element=element,
+                run_in=1.0,
+                measurement_time=6.0,
+            ),
+            make(),
+            estimates_in_info=form,
+        )
+        if form == "none":
+            assert env._block is not None  # the kept-samples path, not a step per sample
+        width = env.observation_space.shape[0]
+        seen = []
+        for episode in range(2):
+            observation, _ = env.reset(seed=episode)
+            pilot.reset(seed=3 + episode, env=env)
+            done, k = False, 0
+            while not done:
+                observation, _, terminated, truncated, _ = env.step(pilot.act(observation[:width]))
+                k += 1
+                done = terminated or truncated
+                if k in reads or done:
+                    seen.append(env.last_estimate())
+            # the estimator itself is up to date when handed out
+            seen.append(env.estimator.latest()[0].copy())
+        runs[form] = seen
+    assert len(runs["none"]) == len(runs["dicts"]) == 2 * (len(reads) + 2)
+    for kept, stepped in zip(runs["none"], runs["dicts"], strict=True):
+        if isinstance(kept, dict):
+            assert kept == stepped
+        else:
+            np.testing.assert_array_equal(kept, stepped)
+
+
 def test_an_unknown_estimates_form_is_refused():
     with pytest.raises(ValueError, match="estimates_in_info must be one of 'dicts', 'arrays'"):
         EstimatorObserver(
