@@ -11,6 +11,8 @@ process, so other load on the machine does not count), after one warm-up episode
   NeuromuscularFilter each around the env, the pilot acting;
 - env + pilot + observer: ``EstimatorObserver`` with a causal DEKF around the env,
   reporting dicts each step (the default), arrays, or nothing (``estimates_in_info``);
+- the same observer with a causal RML (input remnant), dicts and nothing, beside the
+  RML's own cost per sample inside ``estimate()``;
 - DEKF.update alone, fed the samples of a recorded episode, beside ``estimate()`` of
   the same recording per sample: the issue asks ``update`` within 2x of that;
 - what ``update`` is made of: the compiled one-sample step called through the entry
@@ -31,7 +33,7 @@ import numpy as np
 
 import manualcontrol.envs  # noqa: F401
 from manualcontrol.agents.wrappers import ActionDelay, MotorNoise, NeuromuscularFilter
-from manualcontrol.estimators import DEKF
+from manualcontrol.estimators import DEKF, RML
 from manualcontrol.estimators.observer import EstimatorObserver
 from manualcontrol.estimators.protocol import sample_floats
 from manualcontrol.pilots import Pilot
@@ -93,6 +95,31 @@ def per_step(make, pilot_factory, steps, repeats, width=None):
     pilot = None if pilot_factory is None else pilot_factory()
     episode(env, pilot, min(steps, 200), width)  # warm-up: compile / load kernels
     return summary([episode(env, pilot, steps, width) for _ in range(repeats)], steps)
+
+
+def recorded_episode(task, steps):
+    """An episode of the task's pilot, recorded (the samples the observer would feed)."""
+    _, pilot_factory, _ = TASKS[task]
+    env = make_env(task, steps)
+    pilot = pilot_factory()
+    observation, _ = env.reset(seed=0)
+    pilot.reset(seed=1, env=env)
+    for _ in range(steps):
+        observation, *_ = env.step(pilot.act(observation))
+    return env.unwrapped.recording(include_run_in=True)
+
+
+def estimate_cost(task, estimator, steps, repeats):
+    """Per-sample CPU of ``estimator.estimate()`` on a recorded episode."""
+    recording = recorded_episode(task, steps)
+
+    def run():
+        start = time.process_time()
+        estimator.estimate(recording)
+        return time.process_time() - start
+
+    run()
+    return summary([run() for _ in range(repeats)], len(recording))
 
 
 def dekf_costs(task, steps, repeats):
@@ -204,6 +231,18 @@ def main():
                 steps,
                 repeats,
             )
+        # the RML (a bank of filters, each sample some 20x the DEKF's arithmetic), causal
+        rml = {**settings, "remnant_injection": "input"}
+        for form in ("dicts", "none"):
+            rows[f"env + pilot + observer(RML), {form}"] = per_step(
+                lambda t=task, s=rml, f=form: EstimatorObserver(
+                    make_env(t, steps), RML(**s), estimates_in_info=f
+                ),
+                pilot_factory,
+                steps,
+                repeats,
+            )
+        rows["RML.estimate, per sample"] = estimate_cost(task, RML(**rml), steps, repeats)
         costs = dekf_costs(task, steps, repeats)
         rows.update(costs)
         update, batch = costs["DEKF.update alone"], costs["DEKF.estimate, per sample"]
@@ -217,7 +256,7 @@ def main():
             print(f"  {name:40s} {median * 1e6:8.2f} {best * 1e6:8.2f}   {0.01 / best:8.0f}x")
         print(f"  DEKF.update / estimate per sample (minima) {update[1] / batch[1]:8.1f}x")
         alone = rows["env + pilot"][0]
-        for name in [n for n in rows if n.startswith("env + pilot + observer(DEKF)")]:
+        for name in [n for n in rows if n.startswith("env + pilot + observer(")]:
             print(f"  env + pilot over {name} (medians) {alone / rows[name][0]:8.2f}x")
 
 
