@@ -124,14 +124,8 @@ def estimate_cost(task, estimator, steps, repeats):
 
 def dekf_costs(task, steps, repeats):
     """Per-sample CPU of DEKF.update over a recorded episode and of estimate()."""
-    _, pilot_factory, settings = TASKS[task]
-    env = make_env(task, steps)
-    pilot = pilot_factory()
-    observation, _ = env.reset(seed=0)
-    pilot.reset(seed=1, env=env)
-    for _ in range(steps):
-        observation, *_ = env.step(pilot.act(observation))
-    recording = env.unwrapped.recording(include_run_in=True)
+    settings = TASKS[task][2]
+    recording = recorded_episode(task, steps)
     estimator = DEKF(**settings)
     samples = estimator.signals(recording)
     keys = estimator.sample_keys
