@@ -181,21 +181,19 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._pending: dict[str, float] = {}
         self._ahead: list[float] | None = None
         self._step_index = 0
-        # the "none" form's kept samples: one row a step, columns in the estimator's
-        # sample_keys order (module docstring)
-        self._block: FloatArray | None = None
-        if (
+        # the "none" form's kept samples (module docstring), flat in the estimator's
+        # sample_keys order, u last: a float appended per value is the cheapest keeping
+        order = tuple(getattr(estimator, "sample_keys", ()))
+        self._keeps = (
             self.estimates_in_info == "none"
             and not self.append_to_observation
             and hasattr(estimator, "update_block")
             and getattr(type(estimator), "_step_many_kernel", None) is not None
             and not (estimator.batchable() if hasattr(estimator, "batchable") else "")
-        ):
-            order = tuple(estimator.sample_keys)
-            self._block = np.empty((BLOCK_SAMPLES, len(order)))
-            self._block_columns = tuple(order.index(key) for key in self._display_keys)
-            self._block_u = order.index("u")
-            self._block_ahead = order.index("ft_ahead") if "ft_ahead" in order else -1
+            and order[-1:] == ("u",)
+        )
+        self._kept_keys = order[:-1]  # what the display gives, read before the action
+        self._kept_values: list[float] = []
         self._kept_t = 0.0
 
     @property
@@ -208,9 +206,12 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """Step the filter through the kept samples (the ``"none"`` form's block)."""
         if self._kept:
             kept, self._kept = self._kept, 0
-            self._estimator.update_block(self._block[:kept], t=self._t)
-            if kept < BLOCK_SAMPLES:  # the next sample's display, kept already, leads again
-                self._block[0] = self._block[kept]
+            width = len(self._kept_keys) + 1
+            values = self._kept_values
+            # after the last whole sample: the next sample's display, kept already
+            self._kept_values = values[kept * width :]
+            block = np.array(values[: kept * width], dtype=np.float64).reshape(kept, width)
+            self._estimator.update_block(block, t=self._t)
 
     @staticmethod
     def _as_plain(estimate: Any) -> dict[str, Any]:
@@ -287,6 +288,7 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
         observation, info = self.env.reset(**kwargs)
+        self._kept, self._kept_values = 0, []  # an episode left unfinished: its samples go
         self._reset_estimator(float(info["t"]))
         ahead = self._target_ahead()
         self._ahead = None if ahead is None else ahead.tolist()  # floats, read per step
@@ -294,17 +296,15 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._pending = self._display(info)
         self._last = None
         self._t = None
-        if self._block is not None:
+        if self._keeps:
             self._keep_display(info)
         return self._observe(observation), info
 
     def _keep_display(self, info: dict[str, Any]) -> None:
-        """Write the display of ``info`` into the next kept row (the sample's first half)."""
-        row = self._block[self._kept]
-        for column, key in zip(self._block_columns, self._display_keys, strict=True):
-            row[column] = info[key]
-        if self._block_ahead >= 0:
-            row[self._block_ahead] = self._ahead[self._step_index]
+        """Keep what ``info`` displays: the next sample, but for its stick ``u``."""
+        values = self._kept_values
+        for key in self._kept_keys:
+            values.append(self._ahead[self._step_index] if key == "ft_ahead" else info[key])
         self._kept_t = float(info["t"])
 
     def last_estimate(self) -> dict[str, Any] | None:
@@ -327,8 +327,8 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
         observation, reward, terminated, truncated, info = self.env.step(action)
-        if self._block is not None:  # keep the sample; the filter steps when read
-            self._block[self._kept, self._block_u] = info["u"]
+        if self._keeps:  # keep the sample; the filter steps when read
+            self._kept_values.append(info["u"])
             self._t = self._kept_t
             self._last = None
             self._kept += 1

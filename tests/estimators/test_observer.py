@@ -300,7 +300,7 @@ def test_the_none_form_steps_kept_samples_when_read_and_equals_the_dicts(case):
             estimates_in_info=form,
         )
         if form == "none":
-            assert env._block is not None  # the kept-samples path, not a step per sample
+            assert env._keeps  # the kept-samples path, not a step per sample
         width = env.observation_space.shape[0]
         seen = []
         for episode in range(2):
