@@ -24,8 +24,8 @@ last_estimate` builds the dicts of the last step on request). The estimates are 
 same in every form, bit for bit.
 
 With ``"none"`` (and nothing appended to the observation), nobody reads an estimate
-between steps unless they ask, so the observer keeps the samples (a row of floats a
-step) and steps the filter through them in one compiled call when an estimate is read
+between steps unless they ask, so the observer keeps the samples (their floats in a
+list) and steps the filter through them in one compiled call when an estimate is read
 (:meth:`EstimatorObserver.last_estimate`, :attr:`EstimatorObserver.estimator`), at the
 end of an episode, or every :data:`BLOCK_SAMPLES` samples
 (:meth:`~manualcontrol.estimators.members.pilot_filter.PilotFilter.update_block`, for
@@ -75,7 +75,7 @@ ESTIMATE_FORMS: tuple[str, ...] = ("dicts", "arrays", "none")
 
 #: Samples the ``"none"`` form keeps at most before stepping the filter through them
 #: (module docstring): enough that entering compiled code costs little a sample, few
-#: enough that the rows stay in cache.
+#: enough that the kept block stays small and in cache.
 BLOCK_SAMPLES = 256
 
 FloatArray = NDArray[np.float64]
@@ -304,7 +304,7 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """Keep what ``info`` displays: the next sample, but for its stick ``u``."""
         values = self._kept_values
         for key in self._kept_keys:
-            values.append(self._ahead[self._step_index] if key == "ft_ahead" else info[key])
+            values.append(self._ahead[self._step_index] if key == "ft_ahead" else float(info[key]))
         self._kept_t = float(info["t"])
 
     def last_estimate(self) -> dict[str, Any] | None:
@@ -328,7 +328,7 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
         observation, reward, terminated, truncated, info = self.env.step(action)
         if self._keeps:  # keep the sample; the filter steps when read
-            self._kept_values.append(info["u"])
+            self._kept_values.append(float(info["u"]))
             self._t = self._kept_t
             self._last = None
             self._kept += 1
