@@ -2,7 +2,8 @@
 
 One hour at 100 Hz is 360,000 steps; "1,000x real time" is 10 us a step. Timed here,
 per step, medians of REPEATS episodes of STEPS steps in one process (CPU time of this
-process, so other load on the machine does not count), after one warm-up episode:
+process, so other load on the machine counts less), after one warm-up episode, the
+loops taking turns episode by episode so that a drift in the machine's load falls on all:
 
 - env: ``CompensatoryTracking-v0`` / ``PreviewTracking-v0`` (DI) stepped with a fixed
   action, through ``gymnasium.make`` (its default wrappers included);
@@ -91,10 +92,26 @@ def summary(times, count):
 
 
 def per_step(make, pilot_factory, steps, repeats, width=None):
+    """A loop ready to time: its env, pilot and width, warmed up (kernels compiled or loaded)."""
+    del repeats  # timed by measured_together, the loops taking turns
     env = make()
     pilot = None if pilot_factory is None else pilot_factory()
-    episode(env, pilot, min(steps, 200), width)  # warm-up: compile / load kernels
-    return summary([episode(env, pilot, steps, width) for _ in range(repeats)], steps)
+    episode(env, pilot, min(steps, 200), width)
+    return env, pilot, width
+
+
+def measured_together(loops, steps, repeats):
+    """Per-step medians and minima of every loop, the loops taking turns episode by episode.
+
+    On a shared machine the load drifts over minutes; timing each loop's episodes one
+    after another would hand one loop a busy minute and the next a quiet one, and the
+    ratios between loops would measure the drift.
+    """
+    times = {name: [] for name in loops}
+    for _ in range(repeats):
+        for name, (env, pilot, width) in loops.items():
+            times[name].append(episode(env, pilot, steps, width))
+    return {name: summary(values, steps) for name, values in times.items()}
 
 
 def recorded_episode(task, steps):
@@ -236,6 +253,7 @@ def main():
                 steps,
                 repeats,
             )
+        rows = measured_together(rows, steps, repeats)
         rows["RML.estimate, per sample"] = estimate_cost(task, RML(**rml), steps, repeats)
         costs = dekf_costs(task, steps, repeats)
         rows.update(costs)
