@@ -233,26 +233,22 @@ def main():
                 repeats,
             ),
         }
-        for form in ("arrays", "none"):  # the thin path: no per-step dicts
-            rows[f"env + pilot + observer(DEKF), {form}"] = per_step(
-                lambda t=task, s=settings, f=form: EstimatorObserver(
-                    make_env(t, steps), DEKF(**s), estimates_in_info=f
-                ),
-                pilot_factory,
-                steps,
-                repeats,
-            )
-        # the RML (a bank of filters, each sample some 20x the DEKF's arithmetic), causal
+        # the thin path (no per-step dicts) with the DEKF; the RML (a bank of filters,
+        # several times the DEKF's arithmetic a sample), causal, both ways
         rml = {**settings, "remnant_injection": "input"}
-        for form in ("dicts", "none"):
-            rows[f"env + pilot + observer(RML), {form}"] = per_step(
-                lambda t=task, s=rml, f=form: EstimatorObserver(
-                    make_env(t, steps), RML(**s), estimates_in_info=f
-                ),
-                pilot_factory,
-                steps,
-                repeats,
-            )
+        for member, member_settings, forms in (
+            (DEKF, settings, ("arrays", "none")),
+            (RML, rml, ("dicts", "none")),
+        ):
+            for form in forms:
+                rows[f"env + pilot + observer({member.__name__}), {form}"] = per_step(
+                    lambda t=task, m=member, s=member_settings, f=form: EstimatorObserver(
+                        make_env(t, steps), m(**s), estimates_in_info=f
+                    ),
+                    pilot_factory,
+                    steps,
+                    repeats,
+                )
         rows = measured_together(rows, steps, repeats)
         rows["RML.estimate, per sample"] = estimate_cost(task, RML(**rml), steps, repeats)
         costs = dekf_costs(task, steps, repeats)
