@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from manualcontrol.envs._validation import check_int
 from manualcontrol.estimators.filters.batch import put_record, stack_records
+from manualcontrol.estimators.shell import compiled_entry
 
 __all__ = ["FilterBatch", "batched_members"]
 
@@ -152,10 +153,8 @@ class FilterBatch:
                 raise ValueError(f"signal {name!r} is infinite for copies {copies}")
         active = self._all if active is None else np.asarray(active, dtype=np.bool_)
         arguments = (*self._records, inputs, u, e, active, self._rows, self._out)
-        if self._entry is None:  # numba's dispatcher types every argument; once is enough
-            self._kernel(*arguments)
-            types = tuple(self._kernel.typeof_pyval(argument) for argument in arguments)
-            self._entry = self._kernel.overloads[types].entry_point
+        if self._entry is None:
+            self._entry = compiled_entry(self._kernel, arguments)
         else:
             self._entry(*arguments)
 

@@ -55,6 +55,7 @@ from manualcontrol.estimators.protocol import (
 __all__ = [
     "REASONS",
     "FilterShell",
+    "compiled_entry",
     "health_summary",
     "output_arrays",
     "read_sample",
@@ -69,6 +70,20 @@ REASONS = {
     monitor.REASON_NONFINITE: "non-finite values",
     monitor.REASON_COVARIANCE: "covariance blow-up",
 }
+
+
+def compiled_entry(kernel: Any, arguments: tuple) -> Any:
+    """Call ``kernel`` on ``arguments`` through numba's dispatcher; return its entry point.
+
+    The dispatcher types every argument on every call: for a filter's records (some
+    forty to sixty arrays in namedtuples) that costs more than the filter's step. The
+    records keep their types from one call to the next, so a caller calls the overload
+    found here directly afterwards (``entry(*arguments)``).
+    """
+    kernel(*arguments)
+    types = tuple(kernel.typeof_pyval(argument) for argument in arguments)
+    return kernel.overloads[types].entry_point
+
 
 #: Distinct row healths kept per filter (one per combination of flags and pins).
 _HEALTH_CACHE = 1024
@@ -312,15 +327,11 @@ class FilterShell:
     def _call_step(self, kernel: Any, arguments: tuple) -> None:
         """Call the compiled one-sample ``kernel``, bypassing numba's dispatcher after once.
 
-        The dispatcher types every argument on every call; for the records of a filter
-        (some forty arrays in namedtuples) that was 16 of the 22 us an ``update()``
-        cost. The records keep their types from one reset to the next sample, so the
-        overload found on the first call is called directly afterwards.
+        The dispatcher's typing of the records was 16 of the 22 us an ``update()`` cost
+        (:func:`compiled_entry`).
         """
         if self._entry is None:
-            kernel(*arguments)
-            types = tuple(kernel.typeof_pyval(argument) for argument in arguments)
-            self._entry = kernel.overloads[types].entry_point
+            self._entry = compiled_entry(kernel, arguments)
         else:
             self._entry(*arguments)
 

@@ -103,7 +103,7 @@ from manualcontrol.estimators.protocol import (
     EstimationResult,
     sample_floats,
 )
-from manualcontrol.estimators.shell import FilterShell, health_summary
+from manualcontrol.estimators.shell import FilterShell, compiled_entry, health_summary
 
 __all__ = [
     "CE_TYPES",
@@ -440,7 +440,6 @@ class PilotFilter(FilterShell):
         """
         from manualcontrol.estimators.filters.batch import stack_of_one
 
-        records = self._require_reset()
         kernel = type(self)._step_many_kernel
         reason = self.batchable() if hasattr(self, "batchable") else ""
         if kernel is None or reason:
@@ -448,6 +447,7 @@ class PilotFilter(FilterShell):
                 f"{type(self).__name__} cannot step a block of samples in one call: "
                 + (reason or "it has no batched step")
             )
+        records = self._require_reset()
         values = np.asarray(values, dtype=np.float64)
         keys = self._sample_keys
         if values.ndim != 2 or values.shape[1] != len(keys):
@@ -475,10 +475,8 @@ class PilotFilter(FilterShell):
                 np.zeros(k, dtype=np.int64),
                 out,
             )
-            if block[3] is None:  # numba's dispatcher types every argument; once is enough
-                kernel(*arguments)
-                types = tuple(kernel.typeof_pyval(argument) for argument in arguments)
-                block = (*block[:3], kernel.overloads[types].entry_point)
+            if block[3] is None:
+                block = (*block[:3], compiled_entry(kernel, arguments))
             else:
                 block[3](*arguments)
             self._block = block

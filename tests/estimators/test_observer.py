@@ -324,6 +324,43 @@ def test_the_none_form_steps_kept_samples_when_read_and_equals_the_dicts(case):
             np.testing.assert_array_equal(kept, stepped)
 
 
+def test_a_block_of_samples_with_a_dropped_one_equals_the_samples_one_by_one():
+    settings = CASES["compensatory"][3]
+    rng = np.random.default_rng(4)
+    values = rng.normal(size=(40, 2))  # columns e, u
+    values[17, 1] = np.nan  # a dropped stick sample
+    by_block, by_sample = DEKF(**settings), DEKF(**settings)
+    assert by_block.sample_keys == ("e", "u")
+    for estimator in (by_block, by_sample):
+        estimator.reset(0.01)
+    assert by_block.update_block(values[:25]) == pytest.approx(0.24)
+    assert by_block.update_block(values[25:], t=7.0) == 7.0
+    for e, u in values:
+        by_sample.update_quiet({"e": float(e), "u": float(u)})
+    np.testing.assert_array_equal(by_block.latest()[0], by_sample.latest()[0])
+    np.testing.assert_array_equal(by_block.latest()[1], by_sample.latest()[1])
+    assert by_block.latest_plain(7.0)["health"] == by_sample.latest_plain(7.0)["health"]
+
+
+def test_a_block_of_samples_is_refused_with_the_reason():
+    from manualcontrol.estimators import RML
+
+    settings = CASES["compensatory"][3]
+    estimator = DEKF(**settings)
+    with pytest.raises(RuntimeError, match="has not been reset"):
+        estimator.update_block(np.zeros((3, 2)))
+    estimator.reset(0.01)
+    with pytest.raises(ValueError, match=re.escape("values must be (k, 2): one column per")):
+        estimator.update_block(np.zeros((3, 3)))
+    bad = np.zeros((3, 2))
+    bad[1, 1] = np.inf
+    with pytest.raises(ValueError, match="sample 1 of the block has u infinite"):
+        estimator.update_block(bad)
+    choosing = RML(**settings, remnant_injection="choose-causal")
+    with pytest.raises(ValueError, match="remnant_injection='choose-causal' decides"):
+        choosing.update_block(np.zeros((3, 2)))
+
+
 def test_an_unknown_estimates_form_is_refused():
     with pytest.raises(ValueError, match="estimates_in_info must be one of 'dicts', 'arrays'"):
         EstimatorObserver(
