@@ -324,21 +324,38 @@ def joint_step_many(
 
     See :func:`~manualcontrol.estimators.members._dekf_core.dekf_step_many`.
     """
+    last = 0
+    model_r = take(model, 0)
+    config_r = take(config, 0)
+    belief_r = take(belief, 0)
+    monitor_r = take(monitor, 0)
+    report_r = take(report, 0)
+    scratch_r = take(scratch, 0)
+    out_r = take(out, 0)
     for i in range(u.shape[0]):
         if active[i]:
             r = rows[i]
+            if r != last:  # a block of one filter's samples takes its views once
+                model_r = take(model, r)
+                config_r = take(config, r)
+                belief_r = take(belief, r)
+                monitor_r = take(monitor, r)
+                report_r = take(report, r)
+                scratch_r = take(scratch, r)
+                out_r = take(out, r)
+                last = r
             joint_step(
-                take(model, r),
-                take(config, r),
-                take(belief, r),
-                take(monitor, r),
-                take(report, r),
-                take(scratch, r),
+                model_r,
+                config_r,
+                belief_r,
+                monitor_r,
+                report_r,
+                scratch_r,
                 inputs[i],
                 u[i],
                 e[i],
                 0,
-                take(out, r),
+                out_r,
             )
 
 
@@ -676,20 +693,39 @@ def dual_step_many(
 
     See :func:`~manualcontrol.estimators.members._dekf_core.dekf_step_many`.
     """
+    last = 0
+    model_r = take(model, 0)
+    config_r = take(config, 0)
+    belief_r = take(belief, 0)
+    monitor_r = take(monitor, 0)
+    report_r = take(report, 0)
+    scratch_r = take(scratch, 0)
+    theta_r = take(theta, 0)
+    out_r = take(out, 0)
     for i in range(u.shape[0]):
         if active[i]:
             r = rows[i]
+            if r != last:  # a block of one filter's samples takes its views once
+                model_r = take(model, r)
+                config_r = take(config, r)
+                belief_r = take(belief, r)
+                monitor_r = take(monitor, r)
+                report_r = take(report, r)
+                scratch_r = take(scratch, r)
+                theta_r = take(theta, r)
+                out_r = take(out, r)
+                last = r
             dual_step(
-                take(model, r),
-                take(config, r),
-                take(belief, r),
-                take(monitor, r),
-                take(report, r),
-                take(scratch, r),
-                take(theta, r),
+                model_r,
+                config_r,
+                belief_r,
+                monitor_r,
+                report_r,
+                scratch_r,
+                theta_r,
                 inputs[i],
                 u[i],
                 e[i],
                 0,
-                take(out, r),
+                out_r,
             )
