@@ -271,7 +271,7 @@ LANE_KEEPING_DELAY = 0.2
 #: it). A departure builds up over such a period: the horizon of PPO's default
 #: ``gamma`` 0.99 at 100 Hz is one second, and an angle agent trained with it let an
 #: oscillation of this period grow until it left the lane on every road.
-LANE_KEEPING_HORIZON = 3.6
+LANE_KEEPING_HORIZON = 3.7
 
 
 #: The lane-keeping env's sample time, s (its default).
