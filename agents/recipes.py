@@ -76,12 +76,10 @@ from manualcontrol.envs._validation import check_choice, check_int
 
 __all__ = [
     "LANE_KEEPING_DELAY",
-    "LANE_KEEPING_HORIZON",
     "RECIPES",
     "RECIPE_ELEMENTS",
     "RECIPE_STEERING",
     "RECIPE_WARM_STARTS",
-    "discount_for_horizon",
     "driver_statistics",
     "human_limitations",
     "human_problem",
@@ -265,28 +263,6 @@ def driver_statistics(steering: str) -> tuple[list[float], float]:
 
 #: The lane-keeping recipes' perceptual delay, s: the agent acts through it, unseen.
 LANE_KEEPING_DELAY = 0.2
-#: The lane-keeping recipes' discount horizon, s: one period of the cybernetic driver's
-#: lateral mode, the car and the nominal driver in closed loop on torque steering (the
-#: offset's ringing after a step into a bend; ``tests/agents/test_recipes.py`` measures
-#: it). A departure builds up over such a period: the horizon of PPO's default
-#: ``gamma`` 0.99 at 100 Hz is one second, and an angle agent trained with it let an
-#: oscillation of this period grow until it left the lane on every road.
-LANE_KEEPING_HORIZON = 3.7
-
-
-#: The lane-keeping env's sample time, s (its default).
-_LANE_DT = 0.01
-
-
-def discount_for_horizon(horizon: float, dt: float) -> float:
-    """The discount ``gamma = 1 - dt/horizon`` whose horizon ``dt/(1 - gamma)`` is ``horizon`` s.
-
-    A discount counts in samples; the task's time scales are in seconds. Stated as a
-    horizon, the same question is asked at any sample rate.
-    """
-    if not 0.0 < dt < horizon:
-        raise ValueError(f"the horizon must exceed the sample time dt={dt!r} s, got {horizon!r} s")
-    return 1.0 - dt / horizon
 
 
 def lane_keeping_problem(
@@ -308,8 +284,7 @@ def lane_keeping_problem(
       exploration one driver RMS (``log_std_init``): unscaled, the torque agent
       explored with a tenth of the torque a driver uses and learned nothing, and an
       angle agent exploring with a whole radian left the lane within seconds.
-    * PPO with eight environments, a 64-64 network, and a discount whose horizon
-      ``dt/(1 - gamma)`` is :data:`LANE_KEEPING_HORIZON` at the env's 100 Hz.
+    * PPO with eight environments, a 64-64 network.
     """
     check_choice("steering", steering, ("angle", "torque"))
     check_int("seed", seed, minimum=0)
@@ -332,7 +307,7 @@ def lane_keeping_problem(
         total_timesteps=total_timesteps,
         n_envs=8,
         seed=seed,
-        algorithm_kwargs={**_PPO, "gamma": discount_for_horizon(LANE_KEEPING_HORIZON, _LANE_DT)},
+        algorithm_kwargs=dict(_PPO),
         policy_kwargs={"net_arch": [64, 64], "log_std_init": math.log(action_rms)},
     )
 
