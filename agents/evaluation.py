@@ -7,8 +7,11 @@ forcing), the open-loop frequency response at the forcing frequencies with cross
 frequency and phase margin, and the identified parameters of the equivalent
 cybernetic pilot model, to hold against the limitations imposed (is the identified
 delay the imposed action delay?): by an offline output-error fit (exact delay,
-constant parameters) and by the DEKF (its estimates averaged over the measurement,
-after converging on the run-in), and, on a compensatory task, the human-likeness
+constant parameters; on ``K/s`` the lead ``K_v`` held at 0, the single integrator's
+rule that the describing-function fit and the filters follow too: free there, the fit
+traded a negative lead against a vanishing delay) and by the DEKF (its estimates
+averaged over the measurement, after converging on the run-in), and, on a
+compensatory task, the human-likeness
 figures of :func:`~manualcontrol.estimators.analysis.human_likeness.human_likeness` (crossover,
 phase margin, effective delay, pilot gain flatness or lead, remnant, RMS ratio) with
 its verdict.
@@ -229,7 +232,7 @@ def evaluate(
     display = TASKS_BY_NAME.get(agent.config.task)  # None on lane keeping: no tracking display
     model = "preview" if display is None else display.pilot_model
     report_progress(f"evaluate: fitting the {model} model (output error)")
-    identified = fit_pilot(recording, model)
+    identified = fit_pilot(recording, model, fixed=_held_by_rule(recording, model))
     report_progress("evaluate: identifying with the DEKF")
     dekf = _dekf_identification(whole, model, agent.config)
     element = agent.config.env_kwargs.get("controlled_element", "SI")
@@ -259,6 +262,23 @@ def evaluate(
         agent.config,
         periods,
     )
+
+
+def _held_by_rule(recording: Recording, model: str) -> dict[str, float]:
+    """The output-error fit's held parameters: the lead ``K_v`` at 0 on ``K/s``.
+
+    Humans need no lead on a single integrator; the describing-function fit
+    (:func:`~manualcontrol.estimators.analysis.frequency.fit_describing_function`) and
+    the filters (``ce="SI"``) hold it at 0 there, and the output-error fit follows the
+    same rule, so that the three identify one structure.
+    """
+    from manualcontrol.estimators.members.pilot_rules import element_type
+    from manualcontrol.pilots import make_model
+
+    element = recording.metadata.get("controlled_element")  # the env's, as it ran
+    if element is None or "K_v" not in make_model(model).parameter_names:
+        return {}
+    return {"K_v": 0.0} if element_type(dict(element)) == "SI" else {}
 
 
 def _dekf_identification(recording: Recording, model: str, config: Any) -> dict[str, float]:
@@ -401,7 +421,12 @@ def write_report(
         "",
         "| parameter | value |",
         "| --- | --- |",
-        *(f"| {name} | {value:.4g} |" for name, value in summary["identified"].items()),
+        *(
+            f"| {name} | {value:.4g}"
+            + ("" if name in evaluation.identified.fitted else " (held at 0 on K/s)")
+            + " |"
+            for name, value in summary["identified"].items()
+        ),
         "",
         "DEKF (mean of the estimates over the measurement):",
         "",

@@ -5,6 +5,7 @@ import json
 import re
 import shutil
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -84,10 +85,13 @@ def test_evaluation_report(trained, tmp_path):
     assert summary["reference_rms_error"] > 0
     assert set(summary["identified"]) == {"K_p", "K_v", "tau_v", "omega_nms", "zeta_nms"}
     assert set(summary["dekf"]) == {"K_p", "tau_v", "omega_nms", "zeta_nms"}  # SI: K_v held
+    # the output-error fit holds the lead at 0 on K/s too, and the report says so
+    assert summary["identified"]["K_v"] == 0.0 and "K_v" not in evaluation.identified.fitted
     assert summary["limitations"] == [{"kind": "action_delay", "delay": 0.2}]
     path = write_report(evaluation, tmp_path)
     text = path.read_text()
     assert "RMS tracking error" in text and "tau_v" in text and "DEKF" in text
+    assert "| K_v | 0 (held at 0 on K/s) |" in text
     assert (tmp_path / "open_loop.png").read_bytes().startswith(b"\x89PNG")
     assert (
         json.loads((tmp_path / "evaluation.json").read_text())["rms_error"] == summary["rms_error"]
@@ -271,3 +275,21 @@ def test_corrupt_policy_weights_are_refused_naming_the_file(trained, tmp_path, d
         torch.save({"layer.weight": torch.zeros(3, 3)}, weights)
     with pytest.raises(ValueError, match=re.escape(f"{weights} is not the weights of this agent")):
         load_agent(copy)
+
+
+@pytest.mark.parametrize(
+    ("element", "held"),
+    [("1/s", {"K_v": 0.0}), ("2.5/s", {"K_v": 0.0}), ("1/s^2", {}), ("1/(s(s+1))", {})],
+)
+def test_the_output_error_fit_holds_the_lead_on_a_single_integrator_only(element, held):
+    from manualcontrol.agents.evaluation import _held_by_rule
+
+    env = gym.make(
+        "ManualControl/CompensatoryTracking-v0", controlled_element=element, measurement_time=1.0
+    )
+    env.reset(seed=0)
+    env.step(np.zeros(1))
+    recording = env.unwrapped.recording()
+    env.close()
+    assert _held_by_rule(recording, "precision") == held
+    assert _held_by_rule(recording, "gain-delay") == {}  # a model without a lead
