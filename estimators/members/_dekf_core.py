@@ -398,36 +398,13 @@ def dekf_step_many(
     ``rows`` all zero on a stack of one
     (:func:`~manualcontrol.estimators.filters.batch.stack_of_one`).
     """
+    records = (model, config, belief, monitor, report, scratch, out)
     last = 0
-    model_r = take(model, 0)
-    config_r = take(config, 0)
-    belief_r = take(belief, 0)
-    monitor_r = take(monitor, 0)
-    report_r = take(report, 0)
-    scratch_r = take(scratch, 0)
-    out_r = take(out, 0)
+    views = take(records, 0)
     for i in range(u.shape[0]):
         if active[i]:
             r = rows[i]
             if r != last:  # a block of one filter's samples takes its views once
-                model_r = take(model, r)
-                config_r = take(config, r)
-                belief_r = take(belief, r)
-                monitor_r = take(monitor, r)
-                report_r = take(report, r)
-                scratch_r = take(scratch, r)
-                out_r = take(out, r)
+                views = take(records, r)
                 last = r
-            dekf_step(
-                model_r,
-                config_r,
-                belief_r,
-                monitor_r,
-                report_r,
-                scratch_r,
-                inputs[i],
-                u[i],
-                e[i],
-                0,
-                out_r,
-            )
+            dekf_step(*views[:6], inputs[i], u[i], e[i], 0, views[6])

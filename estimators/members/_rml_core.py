@@ -626,39 +626,13 @@ def bank_step_many(
 
     See :func:`~manualcontrol.estimators.members._dekf_core.dekf_step_many`.
     """
+    records = (model, config, lines, belief, monitor, report, s, out)
     last = 0
-    model_r = take(model, 0)
-    config_r = take(config, 0)
-    lines_r = take(lines, 0)
-    belief_r = take(belief, 0)
-    monitor_r = take(monitor, 0)
-    report_r = take(report, 0)
-    s_r = take(s, 0)
-    out_r = take(out, 0)
+    views = take(records, 0)
     for i in range(u.shape[0]):
         if active[i]:
             r = rows[i]
             if r != last:  # a block of one filter's samples takes its views once
-                model_r = take(model, r)
-                config_r = take(config, r)
-                lines_r = take(lines, r)
-                belief_r = take(belief, r)
-                monitor_r = take(monitor, r)
-                report_r = take(report, r)
-                s_r = take(s, r)
-                out_r = take(out, r)
+                views = take(records, r)
                 last = r
-            bank_step(
-                model_r,
-                config_r,
-                lines_r,
-                belief_r,
-                monitor_r,
-                report_r,
-                s_r,
-                inputs[i],
-                u[i],
-                e[i],
-                0,
-                out_r,
-            )
+            bank_step(*views[:7], inputs[i], u[i], e[i], 0, views[7])

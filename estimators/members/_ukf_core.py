@@ -324,39 +324,16 @@ def joint_step_many(
 
     See :func:`~manualcontrol.estimators.members._dekf_core.dekf_step_many`.
     """
+    records = (model, config, belief, monitor, report, scratch, out)
     last = 0
-    model_r = take(model, 0)
-    config_r = take(config, 0)
-    belief_r = take(belief, 0)
-    monitor_r = take(monitor, 0)
-    report_r = take(report, 0)
-    scratch_r = take(scratch, 0)
-    out_r = take(out, 0)
+    views = take(records, 0)
     for i in range(u.shape[0]):
         if active[i]:
             r = rows[i]
             if r != last:  # a block of one filter's samples takes its views once
-                model_r = take(model, r)
-                config_r = take(config, r)
-                belief_r = take(belief, r)
-                monitor_r = take(monitor, r)
-                report_r = take(report, r)
-                scratch_r = take(scratch, r)
-                out_r = take(out, r)
+                views = take(records, r)
                 last = r
-            joint_step(
-                model_r,
-                config_r,
-                belief_r,
-                monitor_r,
-                report_r,
-                scratch_r,
-                inputs[i],
-                u[i],
-                e[i],
-                0,
-                out_r,
-            )
+            joint_step(*views[:6], inputs[i], u[i], e[i], 0, views[6])
 
 
 # ------------------------------------------------------------------------- dual
@@ -693,39 +670,13 @@ def dual_step_many(
 
     See :func:`~manualcontrol.estimators.members._dekf_core.dekf_step_many`.
     """
+    records = (model, config, belief, monitor, report, scratch, theta, out)
     last = 0
-    model_r = take(model, 0)
-    config_r = take(config, 0)
-    belief_r = take(belief, 0)
-    monitor_r = take(monitor, 0)
-    report_r = take(report, 0)
-    scratch_r = take(scratch, 0)
-    theta_r = take(theta, 0)
-    out_r = take(out, 0)
+    views = take(records, 0)
     for i in range(u.shape[0]):
         if active[i]:
             r = rows[i]
             if r != last:  # a block of one filter's samples takes its views once
-                model_r = take(model, r)
-                config_r = take(config, r)
-                belief_r = take(belief, r)
-                monitor_r = take(monitor, r)
-                report_r = take(report, r)
-                scratch_r = take(scratch, r)
-                theta_r = take(theta, r)
-                out_r = take(out, r)
+                views = take(records, r)
                 last = r
-            dual_step(
-                model_r,
-                config_r,
-                belief_r,
-                monitor_r,
-                report_r,
-                scratch_r,
-                theta_r,
-                inputs[i],
-                u[i],
-                e[i],
-                0,
-                out_r,
-            )
+            dual_step(*views[:7], inputs[i], u[i], e[i], 0, views[7])
