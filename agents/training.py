@@ -11,7 +11,10 @@ output folder:
 ``model.zip``
     stable-baselines3's own save (optimiser state included), for resuming;
 ``checkpoints/``
-    weights every ``checkpoint_every`` steps, when asked.
+    weights every ``checkpoint_every`` steps, when asked;
+``selection.json``, ``policy_final.pt``
+    with ``select_every``: each validation's step and score, the step whose weights
+    ``policy.pt`` holds, and the final weights beside them.
 
 The human's problem
 -------------------
@@ -34,6 +37,19 @@ that law's returns (:func:`clone_typical_pilot`). On the double integrator and
 ``1/(s(s+1))`` PPO from random weights finds no loop in millions of steps (a stick
 that waits out a low-gain drift scores better early than one that learns the lead);
 started from a human's loop, it keeps one and reshapes it.
+
+Keeping the best weights
+------------------------
+PPO's policy does not improve monotonically: between two updates it can lose what it
+did well in states it rarely visits (a lane-keeping agent that keeps five roads of
+five at one million steps leaves three of them half a million steps later while its
+training reward stays flat). ``select_every`` flies the policy's mean action every so
+many steps on ``select_episodes`` validation episodes of the training environment,
+seeded from :data:`VALIDATION_SEED` up (seeds no training run or evaluation starts
+from), and keeps the weights with the highest mean undiscounted return, the quantity
+training maximises; the final weights are validated too. This is model selection on
+held-out episodes, early stopping's rule, and it changes nothing about the training
+run itself: the same seed trains the same weights with or without it.
 
 Evaluation
 ----------
@@ -81,6 +97,7 @@ from manualcontrol.envs.schedules import Schedule
 __all__ = [
     "ALGORITHMS",
     "TASK_IDS",
+    "VALIDATION_SEED",
     "WARM_STARTS",
     "TrainedAgent",
     "TrainingConfig",
@@ -89,11 +106,15 @@ __all__ = [
     "load_agent",
     "make_env",
     "train",
+    "validation_score",
 ]
 
 FloatArray = NDArray[np.float64]
 
 ALGORITHMS: tuple[str, ...] = ("ppo", "sac")
+#: The first seed of the validation episodes (``select_every``): training resets its
+#: environments from its own seed up, lane-keeping evaluation drives roads from 1000.
+VALIDATION_SEED = 500_000
 #: How a training's policy starts (:attr:`TrainingConfig.warm_start`).
 WARM_STARTS: tuple[str, ...] = ("none", "typical-pilot")
 #: Wrappers that change what the policy observes: a cloned law reads the display itself.
@@ -129,6 +150,10 @@ class TrainingConfig:
         Passed to the stable-baselines3 algorithm and its policy.
     checkpoint_every
         Save the weights every so many steps (None: no checkpoints).
+    select_every, select_episodes
+        Validate the policy every ``select_every`` steps on ``select_episodes``
+        episodes and keep the best weights (the module docstring; None, default: keep
+        the final weights).
     observation_noise_ratio
         Observation noise on the display, as the OCM's noise-to-signal ratio ``rho`` of
         each observed signal (noise intensity ``pi rho`` times its variance;
@@ -168,6 +193,8 @@ class TrainingConfig:
     algorithm_kwargs: Mapping[str, Any] = field(default_factory=dict)
     policy_kwargs: Mapping[str, Any] = field(default_factory=dict)
     checkpoint_every: int | None = None
+    select_every: int | None = None
+    select_episodes: int = 20
     observation_noise_ratio: float | Schedule = 0.0
     effort_rate_weight: float | Schedule = 0.0
     history_length: int = 1
@@ -182,6 +209,9 @@ class TrainingConfig:
         check_int("seed", self.seed, minimum=0)
         if self.checkpoint_every is not None:
             check_int("checkpoint_every", self.checkpoint_every, minimum=1)
+        if self.select_every is not None:
+            check_int("select_every", self.select_every, minimum=1)
+        check_int("select_episodes", self.select_episodes, minimum=1)
         object.__setattr__(
             self, "history_length", check_int("history_length", self.history_length, minimum=1)
         )
@@ -579,6 +609,80 @@ def _checkpoint_callback(every: int, folder: Path) -> Any:
     return Checkpoint()
 
 
+def validation_score(policy: Any, config: TrainingConfig, episodes: int) -> float:
+    """Mean undiscounted return of ``policy``'s mean action on validation episodes.
+
+    ``episodes`` episodes of :func:`make_env` (the wrappers' noise on unless
+    ``config.deterministic``), reset with seeds :data:`VALIDATION_SEED`,
+    ``VALIDATION_SEED + 1``, ...; all flown side by side, one policy call a step for
+    every episode still running. An episode that terminates early (a lane departure,
+    loss of control) keeps the return it had: with a positive reward, what it lost.
+    """
+    check_int("episodes", episodes, minimum=1)
+    envs = [make_env(config, noise=not config.deterministic) for _ in range(episodes)]
+    try:
+        observations = [env.reset(seed=VALIDATION_SEED + i)[0] for i, env in enumerate(envs)]
+        returns = np.zeros(episodes)
+        running = list(range(episodes))
+        while running:
+            batch = np.asarray([observations[i] for i in running], dtype=np.float32)
+            actions, _ = policy.predict(batch, deterministic=True)
+            still = []
+            for i, action in zip(running, actions, strict=True):
+                observations[i], reward, terminated, truncated, _ = envs[i].step(action)
+                returns[i] += float(reward)
+                if not (terminated or truncated):
+                    still.append(i)
+            running = still
+    finally:
+        for env in envs:
+            env.close()
+    return float(np.mean(returns))
+
+
+def _selection_callback(config: TrainingConfig) -> Any:
+    import copy
+
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    every = config.select_every
+
+    class Selection(BaseCallback):
+        """Validates the policy every ``every`` steps and keeps the best weights."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.history: list[dict[str, Any]] = []
+            self.best_state: dict[str, Any] | None = None
+            self.best_score = -math.inf
+            self.best_step = 0
+
+        def validate(self, final: bool = False) -> None:
+            score = validation_score(self.model.policy, config, config.select_episodes)
+            self.history.append({"step": int(self.num_timesteps), "score": score, "final": final})
+            # ties go to the later, longer-trained weights
+            if score >= self.best_score:
+                self.best_score, self.best_step = score, int(self.num_timesteps)
+                self.best_state = copy.deepcopy(self.model.policy.state_dict())
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps % every < self.training_env.num_envs:
+                self.validate()
+            return True
+
+        def summary(self) -> dict[str, Any]:
+            return {
+                "select_every": every,
+                "select_episodes": config.select_episodes,
+                "validation_seed": VALIDATION_SEED,
+                "kept_step": self.best_step,
+                "kept_score": self.best_score,
+                "history": self.history,
+            }
+
+    return Selection()
+
+
 def train(
     config: TrainingConfig,
     output: str | Path,
@@ -637,7 +741,29 @@ def train(
         folder = output / "checkpoints"
         folder.mkdir(exist_ok=True)
         callbacks.append(_checkpoint_callback(config.checkpoint_every, folder))
+    selection = None
+    if config.select_every is not None:
+        selection = _selection_callback(config)
+        callbacks.append(selection)
     model.learn(total_timesteps=config.total_timesteps, callback=CallbackList(callbacks))
+    if selection is not None:
+        final_state = {key: value.clone() for key, value in model.policy.state_dict().items()}
+        atomic_write(output / "policy_final.pt", lambda p: torch.save(final_state, p))
+        # the final weights compete too: they follow the last update, after every
+        # validation that ran during training
+        selection.num_timesteps = model.num_timesteps
+        selection.validate(final=True)
+        model.policy.load_state_dict(selection.best_state)
+        summary = selection.summary()
+        atomic_write(
+            output / "selection.json", lambda p: p.write_text(json.dumps(summary, indent=2))
+        )
+        if report is not None:
+            report(
+                f"kept the weights of step {summary['kept_step']:,d}: mean validation return "
+                f"{summary['kept_score']:.1f} over {config.select_episodes} episodes "
+                f"(final weights {summary['history'][-1]['score']:.1f})"
+            )
     atomic_write(output / "policy.pt", lambda p: torch.save(model.policy.state_dict(), p))
     atomic_write(output / "model.zip", lambda p: model.save(p))
     vec_env.close()

@@ -111,14 +111,21 @@ def run_lane_keeping(
     start = time.perf_counter()
     agent = train(config, Path(out) / f"lane-{steering}-seed{seed}", report=None)
     row = {"steering": steering, "seed": seed, "train_s": round(time.perf_counter() - start)}
-    evaluation = evaluate_lane_keeping(agent)
-    summary = evaluation.summary()
+    summary = evaluate_lane_keeping(agent).summary()
     row["roads_kept"] = sum(not left for left in summary["left_lane"])
     row["roads"] = len(summary["roads"])
     row["rms_offset"] = round(max(summary["rms_offset"]), 4)
     row["max_offset"] = round(max(summary["max_offset"]), 4)
     row["driver_rms_offset"] = round(max(summary["driver_rms_offset"]), 4)
     row["rms_ratio"] = round(summary["rms_ratio"], 3)
+    final = Path(out) / f"lane-{steering}-seed{seed}" / "policy_final.pt"
+    if final.is_file():  # the weights training ended with, beside the kept ones
+        selection = json.loads(final.with_name("selection.json").read_text())
+        row["kept_step"] = selection["kept_step"]
+        agent.policy.load_state_dict(torch.load(final, weights_only=True))
+        summary = evaluate_lane_keeping(agent).summary()
+        row["final_roads_kept"] = sum(not left for left in summary["left_lane"])
+        row["final_rms_ratio"] = round(summary["rms_ratio"], 3)
     return row
 
 
