@@ -126,6 +126,8 @@ _LEADING_NAMES: dict[str, tuple[tuple[str, str], ...]] = {
         ("power_ratio", "--motor-noise"),
         ("task", "--task"),
         ("checkpoint_every", "--checkpoint-every"),
+        ("select_every", "--select-every"),
+        ("select_episodes", "--select-episodes"),
         ("algorithm_kwargs", "--algorithm-option"),
         ("observation_noise_ratio", "--observation-noise"),
         ("effort_rate_weight", "--effort-rate-weight"),
@@ -1409,9 +1411,13 @@ def _cmd_train(args: argparse.Namespace) -> int:
     report = None if args.quiet else _training_report
     if args.recipe is not None:
         config = _recipe_config(args)
-        agent = train(config, args.out, report=report)
-        print(f"saved agent to {agent.path} (config.json, policy.pt, model.zip)")
+        _saved(train(config, args.out, report=report))
         return EXIT_OK
+    if args.select_episodes is not None and args.select_every is None:
+        raise UsageError(
+            f"--select-episodes {args.select_episodes} needs --select-every N: without it "
+            "nothing is validated"
+        )
     delay = _limitation("--delay", args.delay)
     motor_noise = _limitation("--motor-noise", args.motor_noise)
     wrappers = []
@@ -1440,6 +1446,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
             n_envs=args.envs,
             seed=args.seed,
             checkpoint_every=args.checkpoint_every,
+            select_every=args.select_every,
+            select_episodes=20 if args.select_episodes is None else args.select_episodes,
             algorithm_kwargs=_assignments(args.algorithm_option, "--algorithm-option"),
             policy_kwargs={} if args.net_arch is None else {"net_arch": list(args.net_arch)},
             history_length=args.history,
@@ -1460,9 +1468,16 @@ def _cmd_train(args: argparse.Namespace) -> int:
         for name, (flag, _) in renamed.items():
             text = text.replace(name, flag)
         raise UsageError(_led_by_flag(text, "train")) from None
-    agent = train(config, args.out, report=report)
-    print(f"saved agent to {agent.path} (config.json, policy.pt, model.zip)")
+    _saved(train(config, args.out, report=report))
     return EXIT_OK
+
+
+def _saved(agent: Any) -> None:
+    """The line naming what ``train`` wrote."""
+    files = "config.json, policy.pt, model.zip"
+    if agent.config.select_every is not None:
+        files += ", selection.json, policy_final.pt"
+    print(f"saved agent to {agent.path} ({files})")
 
 
 _NO_EPISODE_YET = "mean reward per step n/a"
@@ -1492,6 +1507,8 @@ _RECIPE_SETS = {
     "--envs": ("envs", 1),
     "--algorithm-option": ("algorithm_option", None),
     "--net-arch": ("net_arch", None),
+    "--select-every": ("select_every", None),
+    "--select-episodes": ("select_episodes", None),
 }
 
 
@@ -2126,6 +2143,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=_count, default=0, help="seed")
     p.add_argument(
         "--checkpoint-every", type=positive_int, default=None, help="save weights every N steps"
+    )
+    p.add_argument(
+        "--select-every",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="validate the policy every N steps and keep the best weights, not the last "
+        "(policy.pt; the final ones go to policy_final.pt)",
+    )
+    p.add_argument(
+        "--select-episodes",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="episodes each validation of --select-every flies (default 20)",
     )
     p.add_argument("--out", type=Path, required=True, help="output folder for the agent")
     p.add_argument("--quiet", action="store_true", help="no progress output")

@@ -174,6 +174,9 @@ def test_the_lane_keeping_recipe_scales_to_the_driver_and_hides_its_delay(steeri
         "observe_queue": False,
     }
     assert config.wrappers[1] == {"kind": "observation_scale", "scale": scale}
+    # the kept weights are the best validated ones, not the last update's
+    assert config.select_every is not None and config.select_every < config.total_timesteps
+    assert config.select_episodes > 1
     # on another road the driver's observations, so scaled, are of order one: the policy
     # sees numbers a network learns from
     env = gym.make(

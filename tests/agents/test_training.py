@@ -11,7 +11,14 @@ import pytest
 import torch
 
 from manualcontrol.agents.evaluation import REFERENCE_PILOTS, evaluate, write_report
-from manualcontrol.agents.training import TrainingConfig, load_agent, make_env, train
+from manualcontrol.agents.training import (
+    VALIDATION_SEED,
+    TrainingConfig,
+    load_agent,
+    make_env,
+    train,
+    validation_score,
+)
 
 DELAY = ({"kind": "action_delay", "delay": 0.2},)
 
@@ -205,6 +212,8 @@ def test_evaluation_periods_must_be_whole_and_not_fight_a_measurement_time(train
             ValueError,
             "controlled element must be one of",
         ),
+        ({"select_every": 0}, ValueError, "select_every must be >= 1, got 0"),
+        ({"select_episodes": 0}, ValueError, "select_episodes must be >= 1, got 0"),
     ],
 )
 def test_bad_configurations_fail_before_training(kwargs, error, message):
@@ -293,3 +302,77 @@ def test_the_output_error_fit_holds_the_lead_on_a_single_integrator_only(element
     env.close()
     assert _held_by_rule(recording, "precision") == held
     assert _held_by_rule(recording, "gain-delay") == {}  # a model without a lead
+
+
+#: A short PPO training whose policy changes enough between validations to score
+#: differently: four validations during training and one of the final weights.
+SELECTED = TrainingConfig(
+    env_kwargs={"measurement_time": 2.0},
+    wrappers=DELAY,
+    algorithm="ppo",
+    total_timesteps=256,
+    n_envs=2,
+    algorithm_kwargs={"n_steps": 32, "batch_size": 32, "n_epochs": 2, "learning_rate": 0.01},
+    policy_kwargs={"net_arch": [16, 16]},
+    select_every=64,
+    select_episodes=3,
+)
+
+
+@pytest.fixture(scope="module")
+def selected(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("selected")
+    lines = []
+    train(SELECTED, folder, report=lines.append, report_every=10_000)
+    return folder, json.loads((folder / "selection.json").read_text()), lines
+
+
+def test_selection_keeps_the_weights_that_validate_best(selected):
+    folder, selection, lines = selected
+    history = selection["history"]
+    assert [entry["step"] for entry in history] == [64, 128, 192, 256, 256]
+    assert [entry["final"] for entry in history] == [False] * 4 + [True]
+    scores = [entry["score"] for entry in history]
+    assert len(set(scores)) > 1  # the weights changed between validations
+    best = max(range(len(scores)), key=lambda i: (scores[i], i))  # ties: the later
+    assert selection["kept_score"] == scores[best]
+    assert selection["kept_step"] == history[best]["step"]
+    # policy.pt holds the kept weights: validated again, they score what they scored
+    kept = load_agent(folder)
+    assert validation_score(kept.policy, SELECTED, 3) == selection["kept_score"]
+    final = load_agent(folder)
+    final.policy.load_state_dict(torch.load(folder / "policy_final.pt", weights_only=True))
+    assert validation_score(final.policy, SELECTED, 3) == scores[-1]
+    assert f"kept the weights of step {selection['kept_step']:,d}" in lines[-1]
+
+
+def test_selection_leaves_the_training_itself_unchanged(selected, tmp_path):
+    folder, _, _ = selected
+    plain = dataclasses.replace(SELECTED, select_every=None)
+    train(plain, tmp_path, report=None)
+    assert not (tmp_path / "selection.json").exists()
+    expected = torch.load(tmp_path / "policy.pt", weights_only=True)
+    final = torch.load(folder / "policy_final.pt", weights_only=True)
+    assert expected.keys() == final.keys()
+    for key, value in expected.items():
+        assert torch.equal(final[key], value), key
+
+
+def test_the_validation_score_is_the_mean_return_of_the_episodes_flown_one_by_one(selected):
+    folder, _, _ = selected
+    agent = load_agent(folder)
+    returns = []
+    for i in range(3):
+        env = make_env(SELECTED)
+        observation, _ = env.reset(seed=VALIDATION_SEED + i)
+        total, done = 0.0, False
+        while not done:
+            observation, reward, terminated, truncated, _ = env.step(agent.act(observation))
+            total += reward
+            done = terminated or truncated
+        env.close()
+        returns.append(total)
+    # the validation asks the network for all episodes in one batch, these one row at a
+    # time: float32 matrix products of other shapes may round differently
+    assert validation_score(agent.policy, SELECTED, 3) == pytest.approx(np.mean(returns), rel=1e-6)
+    assert validation_score(agent.policy, SELECTED, 1) == pytest.approx(returns[0], rel=1e-6)

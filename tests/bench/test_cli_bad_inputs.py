@@ -365,6 +365,12 @@ def test_simulate_bad_inputs_name_their_flag(tmp_path, capsys, extra, message):
         (["--net-arch", "0"], "argument --net-arch: must be >= 1, got 0"),
         (["--neuromuscular", "0", "0.3"], "argument --neuromuscular: must be a finite number > 0"),
         (["--checkpoint-every", "-1"], "argument --checkpoint-every: must be >= 1, got -1"),
+        (["--select-every", "0"], "argument --select-every: must be >= 1, got 0"),
+        (["--select-episodes", "5"], "--select-episodes 5 needs --select-every N"),
+        (
+            ["--select-every", "8", "--select-episodes", "0"],
+            "argument --select-episodes: must be >= 1, got 0",
+        ),
         (["--motor-noise", "-0.1"], "--motor-noise: power_ratio must lie in [0, 1)"),
         (["--delay", "-0.2"], "--delay: delay must lie in [0, 2]"),
         (["--delay", "ramp:0.2,0.3"], "give 4 numbers (start, end, t_start, t_end), got 2"),
