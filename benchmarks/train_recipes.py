@@ -111,6 +111,7 @@ def run_lane_keeping(
     start = time.perf_counter()
     agent = train(config, Path(out) / f"lane-{steering}-seed{seed}", report=None)
     row = {"steering": steering, "seed": seed, "train_s": round(time.perf_counter() - start)}
+    row["steps"] = config.total_timesteps
     summary = evaluate_lane_keeping(agent).summary()
     row["roads_kept"] = sum(not left for left in summary["left_lane"])
     row["roads"] = len(summary["roads"])
@@ -127,6 +128,11 @@ def run_lane_keeping(
         row["final_roads_kept"] = sum(not left for left in summary["left_lane"])
         row["final_rms_ratio"] = round(summary["rms_ratio"], 3)
     return row
+
+
+def _count(value: int | None) -> str:
+    """A step count with thousands separators; '-' where a row has none."""
+    return "-" if value is None else f"{value:,}"
 
 
 def markdown(rows: list[dict], command: str) -> str:
@@ -194,18 +200,27 @@ def markdown(rows: list[dict], command: str) -> str:
             "The recipes `lane-angle` and `lane-torque` (`lane_keeping_problem`), each seed",
             "evaluated on five random roads no training run starts from, beside the",
             "cybernetic driver on the same roads (`manualcontrol evaluate`). Offsets are",
-            "the largest over the roads; the ratio pools the roads' RMS offsets.",
+            "the largest over the roads; the ratio pools the roads' RMS offsets. The",
+            "weights evaluated are those the recipe keeps, the best of its validations",
+            "(`select_every`; `kept at`: the training step they are from); `final` is the",
+            "same training's last weights on the same roads (roads kept, RMS / driver's).",
             "",
-            "| steering | seed | train (s) | roads kept | RMS offset (m) | max offset (m) "
-            "| driver RMS (m) | RMS / driver's |",
-            "| --- | --- | --- | --- | --- | --- | --- | --- |",
+            "| steering | seed | train (s) | steps | kept at | roads kept | RMS offset (m) "
+            "| max offset (m) | driver RMS (m) | RMS / driver's | final |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
         ]
         for row in lanes:
+            final = (
+                f"{row['final_roads_kept']} of {row['roads']}, {row['final_rms_ratio']:.3g}"
+                if "final_roads_kept" in row
+                else "-"
+            )
             lines.append(
                 f"| {row['steering']} | {row['seed']} | {row['train_s']} | "
+                f"{_count(row.get('steps'))} | {_count(row.get('kept_step'))} | "
                 f"{row['roads_kept']} of {row['roads']} | {row['rms_offset']:.4f} | "
                 f"{row['max_offset']:.4f} | {row['driver_rms_offset']:.4f} | "
-                f"{row['rms_ratio']:.3g} |"
+                f"{row['rms_ratio']:.3g} | {final} |"
             )
     return "\n".join(lines) + "\n"
 
