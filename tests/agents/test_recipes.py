@@ -160,10 +160,17 @@ def test_the_optimal_control_effort_weight_poses_the_ocms_trade_off_in_reward_un
 
 @pytest.mark.parametrize("steering", ["angle", "torque"])
 def test_the_lane_keeping_recipe_scales_to_the_driver_and_hides_its_delay(steering):
-    from manualcontrol.agents.recipes import LANE_KEEPING_DELAY, driver_statistics
+    from manualcontrol.agents.recipes import (
+        LANE_KEEPING_DELAY,
+        LANE_KEEPING_STEPS,
+        driver_statistics,
+    )
 
     config = recipe(f"lane-{steering}", seed=1)
     assert config.task == "lane-keeping" and config.seed == 1
+    # the steering's own training length unless one is asked for
+    assert config.total_timesteps == LANE_KEEPING_STEPS[steering]
+    assert recipe(f"lane-{steering}", total_timesteps=5_000).total_timesteps == 5_000
     assert config.env_kwargs["steering"] == steering and config.env_kwargs["road"] == "random"
     scale, action_rms = driver_statistics(steering)
     assert config.env_kwargs["action_bound"] == pytest.approx(4 * action_rms)
