@@ -43,14 +43,14 @@ Keeping the best weights
 PPO's policy does not improve monotonically: between two updates it can lose what it
 did well in states it rarely visits (a lane-keeping agent whose weights after 1.3
 million steps keep five evaluation roads of five keeps none with its weights after
-two million; ``docs/surrogates.md``). ``select_every``
-flies the policy's mean action every so many steps on ``select_episodes`` validation
-episodes of the training environment, seeded from :data:`VALIDATION_SEED` up (seeds
-no training run or evaluation starts from), and keeps the weights with the highest
-mean undiscounted return, the quantity training maximises; the final weights are
-validated too. This is model selection on held-out episodes, early stopping's rule,
-and it changes nothing about the training run itself: the same seed trains the same
-weights with or without it.
+two million; ``docs/surrogates.md``). ``select_every`` flies the policy's mean action
+every so many steps on ``select_episodes`` validation episodes of the training
+environment, seeded from :data:`VALIDATION_SEED` up (seeds no training run or
+evaluation starts from), and keeps the weights with the highest mean undiscounted
+return, the quantity training maximises; the final weights are validated too. This is
+model selection on held-out episodes, early stopping's rule, and it changes nothing
+about the training run itself: the same seed trains the same weights with or without
+it.
 
 Evaluation
 ----------
