@@ -695,6 +695,7 @@ def train(
     import torch
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.logger import Logger
 
     output = Path(output)
     accepted = _algorithm_options(config.algorithm)
@@ -735,6 +736,9 @@ def train(
                 f"{fit['law_rms']:.3g}; the critic explains {fit['value_explained']:.0%} of "
                 "the law's returns"
             )
+    # stable-baselines3's default logger makes an empty folder in the system's temporary
+    # directory at every learn(); this one writes nowhere (progress goes to ``report``)
+    model.set_logger(Logger(folder=None, output_formats=[]))
     callbacks = []
     if report is not None:
         callbacks.append(_progress_callback(config.total_timesteps, report, report_every))
