@@ -106,6 +106,7 @@ __all__ = [
     "clone_typical_pilot",
     "load_agent",
     "make_env",
+    "policy_spec",
     "train",
     "validation_score",
 ]
@@ -171,6 +172,12 @@ class TrainingConfig:
     deterministic
         Evaluate without the wrappers' noise (False, default: the noise stays on and
         makes the trial-to-trial variability; see the module docstring).
+    critic_information
+        PPO's critic also reads the tracking loop's hidden state (the forcing ahead,
+        the element's state, the delayed commands, the noise's state; see
+        :mod:`~manualcontrol.agents.critic`), the actor still only the display; False
+        (default): both read the display. A device of training: it changes what the
+        advantages weigh, not what the policy sees.
     warm_start
         ``"none"`` (default: the algorithm's random initial policy) or
         ``"typical-pilot"`` (:data:`WARM_STARTS`; the module docstring): compensatory
@@ -200,6 +207,7 @@ class TrainingConfig:
     effort_rate_weight: float | Schedule = 0.0
     history_length: int = 1
     deterministic: bool = False
+    critic_information: bool = False
     warm_start: str = "none"
 
     def __post_init__(self) -> None:
@@ -217,6 +225,19 @@ class TrainingConfig:
             self, "history_length", check_int("history_length", self.history_length, minimum=1)
         )
         object.__setattr__(self, "deterministic", check_bool("deterministic", self.deterministic))
+        object.__setattr__(
+            self, "critic_information", check_bool("critic_information", self.critic_information)
+        )
+        if self.critic_information and self.algorithm != "ppo":
+            raise ValueError(
+                f"critic_information gives a state-value critic the loop's hidden state: "
+                f"algorithm must be 'ppo', got {self.algorithm!r}"
+            )
+        if self.critic_information and self.task == "lane-keeping":
+            raise ValueError(
+                "critic_information reads a tracking task's forcing: task must be "
+                "'compensatory', 'pursuit' or 'preview', got 'lane-keeping'"
+            )
         for name in _SCHEDULED_FIELDS:
             object.__setattr__(self, name, _field_schedule(name, getattr(self, name)))
         for name in ("env_kwargs", "algorithm_kwargs", "policy_kwargs"):
@@ -510,16 +531,57 @@ def make_env(config: TrainingConfig, *, noise: bool = True, **overrides: Any) ->
     The wrappers are :attr:`TrainingConfig.limitations`; ``overrides`` update
     ``env_kwargs``. ``noise=False`` sets every noise wrapper's level to zero: the noise-free runs of
     ``deterministic`` evaluation (the wrappers stay, so the observation is the same).
+    With ``critic_information``, :class:`~manualcontrol.agents.critic.CriticInformation`
+    comes outermost: the agent's observation first, the critic's after it.
     """
     env = gym.make(TASK_IDS[config.task], **{**config.env_kwargs, **overrides})
     specs = config.limitations
     if not noise:
         specs = tuple(_silenced(spec) for spec in specs)
     try:
-        return apply_wrappers(env, specs)
+        env = apply_wrappers(env, specs)
+        if config.critic_information:
+            from manualcontrol.agents.critic import CriticInformation, critic_horizon
+
+            gamma = float(config.algorithm_kwargs.get("gamma", 0.99))
+            dt = float(env.unwrapped.dt)
+            env = CriticInformation(
+                env, horizon=critic_horizon(gamma, dt), spacing=_forcing_spacing(env)
+            )
+        return env
     except Exception:
         env.close()
         raise
+
+
+def _forcing_spacing(env: gym.Env) -> float:
+    """A tenth of the period of the forcing's fastest sine, at least one sample."""
+    pair = env.unwrapped._forcing  # its realisations share their frequencies
+    fastest = max(
+        float(np.max(signal.frequencies))
+        for signal in (pair.target, pair.disturbance)
+        if signal is not None
+    )
+    return max(float(env.unwrapped.dt), 0.1 * 2.0 * math.pi / fastest)
+
+
+def policy_spec(config: TrainingConfig, env: Any) -> tuple[Any, dict[str, Any]]:
+    """The stable-baselines3 policy and its keywords for a configuration on ``env``.
+
+    ``"MlpPolicy"`` and ``policy_kwargs``; with ``critic_information``,
+    :class:`~manualcontrol.agents.critic.InformedCriticPolicy` told how many of the
+    observation's numbers are the agent's (``env`` a wrapped env or a vector env).
+    """
+    kwargs = dict(config.policy_kwargs)
+    if not config.critic_information:
+        return "MlpPolicy", kwargs
+    from manualcontrol.agents.critic import InformedCriticPolicy
+
+    if isinstance(env, gym.Env):
+        actor_inputs = env.get_wrapper_attr("actor_inputs")
+    else:  # a stable-baselines3 vector env
+        actor_inputs = env.get_attr("actor_inputs", [0])[0]
+    return InformedCriticPolicy, {**kwargs, "actor_inputs": int(actor_inputs)}
 
 
 def _algorithm_options(algorithm: str) -> list[str]:
@@ -707,12 +769,13 @@ def train(
         )
     vec_env = make_vec_env(lambda: make_env(config), n_envs=config.n_envs, seed=config.seed)
     try:
+        policy, policy_kwargs = policy_spec(config, vec_env)
         model = _algorithm_class(config.algorithm)(
-            "MlpPolicy",
+            policy,
             vec_env,
             seed=config.seed,
             verbose=0,
-            policy_kwargs=dict(config.policy_kwargs),
+            policy_kwargs=policy_kwargs,
             **dict(config.algorithm_kwargs),
         )
     except TypeError as error:
@@ -800,9 +863,8 @@ def load_agent(path: str | Path, *, trust_pickle: bool = False) -> TrainedAgent:
     env = make_env(config)
     # only the policy is needed: no replay memory for an off-policy algorithm
     extra = {"buffer_size": 1} if config.algorithm == "sac" else {}
-    model = algorithm(
-        "MlpPolicy", env, policy_kwargs=dict(config.policy_kwargs), device="cpu", **extra
-    )
+    policy, policy_kwargs = policy_spec(config, env)
+    model = algorithm(policy, env, policy_kwargs=policy_kwargs, device="cpu", **extra)
     try:
         state = torch.load(weights, weights_only=True, map_location="cpu")
         model.policy.load_state_dict(state)

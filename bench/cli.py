@@ -1453,6 +1453,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
             history_length=args.history,
             deterministic=args.deterministic_evaluation,
             warm_start=args.warm_start,
+            critic_information=args.critic_information,
             **{name: _limitation(flag, text) for name, (flag, text) in fields.items()},
         )
     except ValueError as error:
@@ -1462,6 +1463,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
             "history_length": ("--history", None),
             "warm_start=": ("--warm-start ", None),
             "warm_start": ("--warm-start", None),
+            "critic_information": ("--critic-information", None),
             "env_kwargs include_rates=True": ("--env include_rates=true", None),
             "algorithm must be": ("--algorithm must be", None),
         }
@@ -1503,6 +1505,7 @@ _RECIPE_SETS = {
     "--history": ("history", 1),
     "--deterministic-evaluation": ("deterministic_evaluation", False),
     "--warm-start": ("warm_start", "none"),
+    "--critic-information": ("critic_information", False),
     "--algorithm": ("algorithm", "sac"),
     "--envs": ("envs", 1),
     "--algorithm-option": ("algorithm_option", None),
@@ -2117,6 +2120,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="how the policy starts: none (the algorithm's random weights, default) or "
         "typical-pilot (PPO's mean fitted to the typical precision pilot's equaliser "
         "K_p e + K_v e_dot; compensatory tracking with --env include_rates=true)",
+    )
+    p.add_argument(
+        "--critic-information",
+        action="store_true",
+        help="PPO's critic also reads the loop's hidden state (the forcing ahead, the "
+        "element's state, the delayed commands, the noise's state), the policy still only "
+        "the display: advantages that are not mostly the forcing's future (tracking tasks)",
     )
     p.add_argument("--algorithm", default="sac", choices=("sac", "ppo"), help="RL algorithm")
     p.add_argument(

@@ -1,0 +1,187 @@
+"""A critic that sees the loop's hidden state, for an actor that sees only the display.
+
+PPO weighs each action by an advantage, the return that followed it less the critic's
+estimate of the return from its state. In tracking, most of that return is decided by
+what the operator cannot see: where the target goes next, the element's state, the
+commands still travelling through the delay, the noise's state. A critic that reads
+only the display explains little of the return (about 40 % of the typical pilot's
+returns on the human's problem), so the advantages are mostly the forcing's future,
+and the gradient that would move the policy towards its optimum is lost in it (the
+objective is flat near the optimum: a gain a third away costs about 1 % of the return).
+
+An asymmetric actor-critic (Pinto et al. 2018, "Asymmetric actor critic for
+image-based robot learning") gives the critic what the simulator knows and keeps the
+actor to what the operator perceives. The critic is a device of training only, like
+the exploration noise: the policy that acts, and is evaluated and identified, reads
+exactly the observation it reads without it. :class:`CriticInformation` appends the
+hidden state to the observation; :class:`InformedCriticPolicy` zeroes it for the actor.
+(This module loads torch: :func:`~manualcontrol.agents.training.make_env` imports it
+only for a configuration with ``critic_information``.)
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.torch_layers import FlattenExtractor
+
+from manualcontrol.agents.wrappers import (
+    ActionDelay,
+    EffortCost,
+    MotorNoise,
+    ObservationNoise,
+)
+
+FloatArray = NDArray[np.float64]
+
+__all__ = ["CriticInformation", "InformedCriticPolicy", "critic_horizon"]
+
+
+def critic_horizon(gamma: float, dt: float) -> float:
+    """How far ahead the critic reads the forcing: two discount horizons, ``2 dt/(1 - gamma)``.
+
+    A reward ``n`` samples ahead weighs ``gamma^n`` in the return, so beyond two horizons
+    the forcing adds at most ``e^-2`` (14 %) of its weight to the value.
+    """
+    return 2.0 * dt / (1.0 - gamma)
+
+
+def _chain(env: gym.Env) -> list[gym.Env]:
+    layers = []
+    while isinstance(env, gym.Wrapper):
+        layers.append(env)
+        env = env.env
+    return layers
+
+
+class CriticInformation(gym.Wrapper):
+    """Appends the tracking loop's hidden state to the observation, for a critic to read.
+
+    After the wrapped observation (what the agent perceives, ``actor_inputs`` numbers)
+    come, in this order:
+
+    * the target and the disturbance over the next ``horizon`` seconds, every
+      ``spacing`` seconds from now (zero past the episode's forcing), less the element's
+      present output for the target;
+    * the element's state, and the error without observation noise;
+    * the commands in each :class:`~manualcontrol.agents.wrappers.ActionDelay` queue
+      that the agent is not shown;
+    * the state of each noise filter
+      (:class:`~manualcontrol.agents.wrappers.ObservationNoise`,
+      :class:`~manualcontrol.agents.wrappers.MotorNoise`) and the last stick of each
+      :class:`~manualcontrol.agents.wrappers.EffortCost`;
+    * the fraction of the episode elapsed (the return ends with it).
+
+    The motor noise's scaling by the stick's recent variance is left out: it changes
+    over seconds, not within the critic's horizon. Tracking tasks only (the driving
+    task's road is not a forcing signal).
+
+    Parameters
+    ----------
+    env
+        A compensatory, pursuit or preview tracking environment, possibly wrapped.
+    horizon
+        Seconds of forcing ahead, ``> 0`` (:func:`critic_horizon`).
+    spacing
+        Seconds between the forcing samples, ``> 0`` (the target and disturbance vary
+        little within a tenth of their fastest period).
+    """
+
+    def __init__(self, env: gym.Env, horizon: float, spacing: float) -> None:
+        super().__init__(env)
+        base = env.unwrapped
+        if not hasattr(base, "episode_steps") or not hasattr(base, "_forcing"):
+            raise ValueError(
+                f"critic information reads a tracking task's forcing: got {type(base).__name__}"
+            )
+        for name, value in (("horizon", horizon), ("spacing", spacing)):
+            if not np.isfinite(value) or value <= 0.0:
+                raise ValueError(f"{name} must be a positive number of seconds, got {value!r}")
+        dt = float(base.dt)
+        step = max(1, round(spacing / dt))
+        self._offsets = np.arange(0, round(horizon / dt) + 1, step, dtype=np.int64)
+        layers = _chain(env)
+        self._delays = [w for w in layers if isinstance(w, ActionDelay) and not w.observe_queue]
+        self._observation_noise = [w for w in layers if isinstance(w, ObservationNoise)]
+        self._motor_noise = [w for w in layers if isinstance(w, MotorNoise)]
+        self._efforts = [w for w in layers if isinstance(w, EffortCost)]
+        self.actor_inputs = int(np.prod(env.observation_space.shape))
+        size = (
+            2 * len(self._offsets)
+            + base._order
+            + 1
+            + sum(w._queued for w in self._delays)
+            + sum(w._noise.shape[0] for w in self._observation_noise)
+            + len(self._motor_noise)
+            + len(self._efforts)
+            + 1
+        )
+        space = env.observation_space
+        self.observation_space = gym.spaces.Box(
+            np.concatenate([np.ravel(space.low), np.full(size, -np.inf)]),
+            np.concatenate([np.ravel(space.high), np.full(size, np.inf)]),
+            dtype=space.dtype,
+        )
+
+    def hidden_state(self) -> FloatArray:
+        """The numbers appended to the observation (class docstring), in its order."""
+        base = self.env.unwrapped
+        k = base._k
+        ahead = k + self._offsets
+        inside = ahead < len(base._ft)
+        at = np.where(inside, ahead, 0)
+        target = np.where(inside, base._ft[at] - base._y[k], 0.0)
+        disturbance = np.where(inside, base._fd[at], 0.0)
+        parts = [target, disturbance, np.asarray(base._x, dtype=np.float64), [base._e[k]]]
+        parts += [w._history[: w._queued] for w in self._delays]
+        parts += [w._noise for w in self._observation_noise]
+        parts.append([w._state for w in self._motor_noise])
+        parts.append([w._previous for w in self._efforts])
+        parts.append([k / base.episode_steps])
+        return np.concatenate([np.asarray(p, dtype=np.float64).ravel() for p in parts])
+
+    def _observe(self, observation: FloatArray) -> FloatArray:
+        return np.concatenate([np.ravel(observation), self.hidden_state()])
+
+    def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
+        observation, info = self.env.reset(**kwargs)
+        return self._observe(observation), info
+
+    def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        return self._observe(observation), reward, terminated, truncated, info
+
+
+class ActorInputs(FlattenExtractor):
+    """Flattens the observation and zeroes all but its first ``actor_inputs`` numbers."""
+
+    def __init__(self, observation_space: gym.spaces.Box, actor_inputs: int) -> None:
+        super().__init__(observation_space)
+        mask = torch.zeros(self.features_dim)
+        mask[:actor_inputs] = 1.0
+        self.register_buffer("mask", mask)
+
+    def forward(self, observations: torch.Tensor) -> torch.Tensor:
+        return super().forward(observations) * self.mask
+
+
+class InformedCriticPolicy(ActorCriticPolicy):
+    """PPO's actor-critic whose actor reads only the first ``actor_inputs`` numbers.
+
+    The critic reads the whole observation (:class:`CriticInformation`); the actor's
+    features extractor zeroes the rest, so the action depends on the operator's
+    observation alone (its weights on the zeroes get no gradient).
+    """
+
+    def __init__(
+        self, observation_space: gym.spaces.Box, *args: Any, actor_inputs: int, **kwargs: Any
+    ) -> None:
+        kwargs["share_features_extractor"] = False
+        super().__init__(observation_space, *args, **kwargs)
+        self.pi_features_extractor = ActorInputs(observation_space, actor_inputs)
+        self.features_extractor = self.pi_features_extractor
