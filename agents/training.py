@@ -38,6 +38,17 @@ that law's returns (:func:`clone_typical_pilot`). On the double integrator and
 that waits out a low-gain drift scores better early than one that learns the lead);
 started from a human's loop, it keeps one and reshapes it.
 
+An informed critic
+------------------
+``critic_information=True`` (PPO on a tracking task) gives the critic the loop's
+hidden state besides the display: the forcing ahead, the element's state, the commands
+in the delay, the noise filters' states (:mod:`~manualcontrol.agents.critic`, an
+asymmetric actor-critic). The actor still reads only the display, so the trained
+policy is an operator's. Without it the advantages that weigh PPO's updates are mostly
+the forcing's future, which no display-only critic can predict; on the human's
+problem, where the return is flat near its optimum, that noise outweighs the gradient
+(``agents/recipes.py`` gives the figures).
+
 Keeping the best weights
 ------------------------
 PPO's policy does not improve monotonically: between two updates it can lose what it
