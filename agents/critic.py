@@ -104,6 +104,7 @@ class CriticInformation(gym.Wrapper):
                 raise ValueError(f"{name} must be a positive number of seconds, got {value!r}")
         dt = float(base.dt)
         step = max(1, round(spacing / dt))
+        self._stride = step
         self._offsets = np.arange(0, round(horizon / dt) + 1, step, dtype=np.int64)
         layers = _chain(env)
         self._delays = [w for w in layers if isinstance(w, ActionDelay) and not w.observe_queue]
@@ -130,26 +131,54 @@ class CriticInformation(gym.Wrapper):
 
     def hidden_state(self) -> FloatArray:
         """The numbers appended to the observation (class docstring), in its order."""
+        observation = self._observe(np.zeros(self.actor_inputs))
+        return observation[self.actor_inputs :]
+
+    def _pad_forcing(self) -> None:
+        # the episode's forcing with zeros past its end: each step then reads a strided
+        # slice (the forcing samples exist only once the episode is reset)
         base = self.env.unwrapped
-        k = base._k
-        ahead = k + self._offsets
-        inside = ahead < len(base._ft)
-        at = np.where(inside, ahead, 0)
-        target = np.where(inside, base._ft[at] - base._y[k], 0.0)
-        disturbance = np.where(inside, base._fd[at], 0.0)
-        parts = [target, disturbance, np.asarray(base._x, dtype=np.float64), [base._e[k]]]
-        parts += [w._history[: w._queued] for w in self._delays]
-        parts += [w._noise for w in self._observation_noise]
-        parts.append([w._state for w in self._motor_noise])
-        parts.append([w._previous for w in self._efforts])
-        parts.append([k / base.episode_steps])
-        return np.concatenate([np.asarray(p, dtype=np.float64).ravel() for p in parts])
+        reach = int(self._offsets[-1]) + 1
+        self._ahead = np.zeros((2, len(base._ft) + reach))
+        self._ahead[0, : len(base._ft)] = base._ft
+        self._ahead[1, : len(base._fd)] = base._fd
 
     def _observe(self, observation: FloatArray) -> FloatArray:
-        return np.concatenate([np.ravel(observation), self.hidden_state()])
+        base = self.env.unwrapped
+        k = base._k
+        out = np.empty(self.observation_space.shape[0])
+        i = self.actor_inputs
+        out[:i] = np.ravel(observation)
+        n = len(self._offsets)
+        window = slice(k, k + int(self._offsets[-1]) + 1, self._stride)
+        out[i : i + n] = self._ahead[0, window]
+        # the output is subtracted where there is a target: zero stays zero past the end
+        inside = min(n, -(-(len(base._ft) - k) // self._stride))
+        out[i : i + inside] -= base._y[k]
+        out[i + n : i + 2 * n] = self._ahead[1, window]
+        i += 2 * n
+        order = base._order
+        out[i : i + order] = base._x
+        out[i + order] = base._e[k]
+        i += order + 1
+        for delay in self._delays:
+            out[i : i + delay._queued] = delay._history[: delay._queued]
+            i += delay._queued
+        for noise in self._observation_noise:
+            out[i : i + noise._noise.shape[0]] = noise._noise
+            i += noise._noise.shape[0]
+        for motor in self._motor_noise:
+            out[i] = motor._state
+            i += 1
+        for effort in self._efforts:
+            out[i] = effort._previous
+            i += 1
+        out[i] = k / base.episode_steps
+        return out
 
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
         observation, info = self.env.reset(**kwargs)
+        self._pad_forcing()
         return self._observe(observation), info
 
     def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
