@@ -70,7 +70,13 @@ def test_reloaded_agent_acts_identically(trained):
     assert weights_only.config == config
 
 
-def test_ppo_trains_too(tmp_path):
+def test_ppo_trains_too_and_writes_nothing_outside_its_folder(tmp_path, monkeypatch):
+    # stable-baselines3's default logger makes a folder in the temporary directory on
+    # every learn(); the training's own logger must not
+    scratch = tmp_path / "system-temp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    monkeypatch.delenv("SB3_LOGDIR", raising=False)
     config = TrainingConfig(
         env_kwargs={"measurement_time": 2.0},
         algorithm="ppo",
@@ -81,23 +87,6 @@ def test_ppo_trains_too(tmp_path):
     agent = train(config, tmp_path / "agent", report=None)
     action = agent.act(np.zeros(1))
     assert action.shape == (1,) and np.isfinite(action).all()
-
-
-def test_training_writes_nothing_outside_its_folder(tmp_path, monkeypatch):
-    # stable-baselines3's default logger makes a folder in the temporary directory on
-    # every learn(); the training's own logger must not
-    scratch = tmp_path / "system-temp"
-    scratch.mkdir()
-    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
-    monkeypatch.delenv("SB3_LOGDIR", raising=False)
-    config = TrainingConfig(
-        env_kwargs={"measurement_time": 2.0},
-        algorithm="ppo",
-        total_timesteps=64,
-        n_envs=2,
-        algorithm_kwargs={"n_steps": 32, "batch_size": 32, "n_epochs": 1},
-    )
-    train(config, tmp_path / "agent", report=None)
     assert list(scratch.iterdir()) == []
     assert (tmp_path / "agent" / "policy.pt").is_file()
 
