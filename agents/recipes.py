@@ -59,11 +59,13 @@ reads the loop's hidden state (``critic_information``; the policy reads only the
 display). Near its optimum the human's problem is flat (a gain a third away from the
 best costs about 1 % of the return), and a critic that sees only the display explains
 about 40 % of the returns, the rest being the forcing's future: with it, PPO's
-advantages were mostly that future, and training from the typical pilot lowered the
-return it trains on (validated every 100,000 steps on ``1/s``, it ended below the
-start's on both seeds measured) and left the loop wherever the noise took it. With the
-informed critic (97 % of the returns explained) the same training raised the return
-above the typical pilot's on ``1/s``. From its random policy, PPO on the double
+advantages were mostly that future, and training from the typical pilot ended below
+the typical pilot's own return on six agents of nine (three seeds on each element, 16
+held-out episodes) and left the loop wherever the noise took it (five of the nine
+outside a human range in one figure). With the informed critic (97 % of the returns
+explained) the same seeds' mean return is higher on every element, five agents of nine
+end above the typical pilot's, and their figures are in the human ranges
+(``docs/surrogates.md``). From its random policy, PPO on the double
 integrator and ``1/(s(s+1))`` settles on a low-gain drift (0.3-0.4 rad/s crossover)
 and never finds the lead these elements need. With PPO's default exploration (a
 standard deviation of one stick unit, white), training from the typical pilot lost the
