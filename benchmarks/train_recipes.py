@@ -32,6 +32,7 @@ writes it from an earlier run's figures without training.
 """
 
 import argparse
+import dataclasses
 import json
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -66,7 +67,14 @@ def held_out_return(actor, config) -> float:
 
 
 def run_tracking(
-    element: str, seed: int, out: str, steps: int | None, warm: bool, periods: int, existing: bool
+    element: str,
+    seed: int,
+    out: str,
+    steps: int | None,
+    warm: bool,
+    periods: int,
+    existing: bool,
+    display_critic: bool = False,
 ) -> dict:
     import torch
 
@@ -81,8 +89,11 @@ def run_tracking(
         warm_start="typical-pilot" if warm else "none",
         **({} if steps is None else {"total_timesteps": steps}),
     )
+    if display_critic:
+        config = dataclasses.replace(config, critic_information=False)
     folder = element.replace("/", "_").replace("(", "").replace(")", "").replace("^", "")
     folder += "-warm" if warm else ""
+    folder += "-display-critic" if display_critic else ""
     start = time.perf_counter()
     if existing:
         agent = load_agent(Path(out) / f"{folder}-seed{seed}")
@@ -92,6 +103,7 @@ def run_tracking(
         train_s = round(time.perf_counter() - start)
     row = {"element": element, "seed": seed, "train_s": train_s, "periods": periods}
     row["start"] = config.warm_start
+    row["critic"] = "informed" if config.critic_information else "display"
     row["return"] = round(held_out_return(agent, config), 1)
     human = evaluate(agent, seed=0, periods=periods).human
     row.update({k: round(float(v), 3) for k, v in human.figures().items()})
@@ -101,8 +113,20 @@ def run_tracking(
     return row
 
 
+def run_display_critic(*args) -> dict:
+    """:func:`run_tracking` with a critic that reads only the display."""
+    return run_tracking(*args, display_critic=True)
+
+
 def run_law(
-    element: str, seed: int, out: str, steps: int | None, warm: bool, periods: int, existing: bool
+    element: str,
+    seed: int,
+    out: str,
+    steps: int | None,
+    warm: bool,
+    periods: int,
+    existing: bool,
+    display_critic: bool = False,
 ) -> dict:
     """The typical pilot's equaliser itself, flown through the problem's wrappers, untrained.
 
@@ -113,7 +137,7 @@ def run_law(
     from manualcontrol.agents.recipes import human_problem
     from manualcontrol.agents.training import TypicalPilotAgent
 
-    del seed, out, steps, warm, existing
+    del seed, out, steps, warm, existing, display_critic
     config = human_problem(element, warm_start="typical-pilot")
     human = evaluate(TypicalPilotAgent(config), seed=0, periods=periods).human
     row = {"element": element, "seed": "-", "train_s": "-", "start": "law, untrained"}
@@ -176,6 +200,7 @@ def markdown(rows: list[dict], command: str) -> str:
         key=lambda row: (
             elements.index(row["element"]),
             ["law, untrained", "none", "typical-pilot"].index(row.get("start", "none")),
+            row.get("critic", "informed") != "display",
             str(row["seed"]),
             row.get("periods", 1),
         )
@@ -215,12 +240,16 @@ def markdown(rows: list[dict], command: str) -> str:
         f"what training maximises: the mean return of {RETURN_EPISODES} held-out episodes",
         "(the same for every row of an element; noise on, one period), so an agent",
         "whose return is above its law's did better than the typical pilot's equaliser",
-        "on its own objective.",
+        "on its own objective. Rows with critic `display` are the same seeds trained",
+        "with a critic that reads only the display, as the recipes did before",
+        "(`--display-critic`; their `return` is the same held-out episodes').",
         "",
-        "| element | start | seed | train (s) | periods | return | "
+        "| element | start | critic | seed | train (s) | periods | return | "
         + " | ".join(FIGURES)
         + " | OCM |",
-        "| --- | --- | --- | --- | --- | --- | " + " | ".join("---" for _ in FIGURES) + " | --- |",
+        "| --- | --- | --- | --- | --- | --- | --- | "
+        + " | ".join("---" for _ in FIGURES)
+        + " | --- |",
     ]
     for row in tracking:
         cells = []
@@ -230,7 +259,8 @@ def markdown(rows: list[dict], command: str) -> str:
             cells.append(text + (" *" if name in row["outside"] else ""))
         ocm = " / ".join(f"{v:g}" for v in row.get("ocm", [])) or "-"
         lines.append(
-            f"| {row['element']} | {row.get('start', 'none')} | {row['seed']} | "
+            f"| {row['element']} | {row.get('start', 'none')} | {row.get('critic', '-')} | "
+            f"{row['seed']} | "
             f"{row['train_s']} | {row.get('periods', 1)} | {row.get('return', '-')} | "
             + " | ".join(cells)
             + f" | {ocm} |"
@@ -299,6 +329,13 @@ def main() -> None:
         help="forcing periods each tracking evaluation flies and measures over",
     )
     parser.add_argument(
+        "--display-critic",
+        action="store_true",
+        help="train (or, with --existing, evaluate) the tracking agents with a critic that "
+        "reads only the display, as the recipes did before their informed critic: the "
+        "comparison the results page shows",
+    )
+    parser.add_argument(
         "--existing",
         action="store_true",
         help="evaluate the tracking agents already trained in --out instead of training; "
@@ -315,6 +352,8 @@ def main() -> None:
         for element in args.elements
         for seed in args.seeds
     ]
+    if args.display_critic:
+        jobs = [(run_display_critic, *job[1:]) for job in jobs]
     jobs += [(run_law, element, 0, False) for element in args.laws]
     if not args.existing:  # lane-keeping agents are trained, never re-read
         jobs += [
