@@ -64,10 +64,10 @@ the typical pilot's own return on six agents of nine (three seeds on each elemen
 held-out episodes) and left the loop wherever the noise took it (five of the nine
 outside a human range in one figure). With the informed critic (97 % of the returns
 explained) the same seeds' mean return is higher on every element, five agents of nine
-end above the typical pilot's, and their figures are in the human ranges
-(``docs/surrogates.md``). From its random policy, PPO on the double
-integrator and ``1/(s(s+1))`` settles on a low-gain drift (0.3-0.4 rad/s crossover)
-and never finds the lead these elements need. With PPO's default exploration (a
+end above the typical pilot's, and their figures are in the human ranges (all nine
+over five periods, eight over one; ``docs/surrogates.md``). From its random policy,
+PPO on the double integrator and ``1/(s(s+1))`` settles on a low-gain drift (0.3-0.4
+rad/s crossover) and never finds the lead these elements need. With PPO's default exploration (a
 standard deviation of one stick unit, white), training from the typical pilot lost the
 loop on ``1/s`` (0.3-0.4 rad/s, four seeds of four) once the motor noise was the OCM's.
 Exploring by the state-dependent noise of gSDE instead (the same spread, held over each
