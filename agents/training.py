@@ -764,7 +764,30 @@ def train(
     report: Callable[[str], None] | None = print,
     report_every: int = 10_000,
 ) -> TrainedAgent:
-    """Train an agent and save it (see the module docstring) in ``output``."""
+    """Train an agent and save it (see the module docstring) in ``output``.
+
+    Torch computes on one thread while it trains (its thread count is restored after):
+    a sum split over threads depends on how many there are, so without this the same
+    seed trains different weights on machines with different numbers of cores; and the
+    small networks of these agents gain nothing from more threads.
+    """
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return _train(config, output, report=report, report_every=report_every)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _train(
+    config: TrainingConfig,
+    output: Path | str,
+    *,
+    report: Callable[[str], None] | None,
+    report_every: int,
+) -> TrainedAgent:
     import torch
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.env_util import make_vec_env

@@ -92,6 +92,31 @@ def test_ppo_trains_too_and_writes_nothing_outside_its_folder(tmp_path, monkeypa
     assert (tmp_path / "agent" / "policy.pt").is_file()
 
 
+def test_training_computes_on_one_torch_thread_and_restores_the_count(tmp_path):
+    # the same seed must train the same weights whatever the machine's core count
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        during = []
+        config = TrainingConfig(
+            env_kwargs={"measurement_time": 2.0},
+            algorithm="ppo",
+            total_timesteps=64,
+            n_envs=2,
+            algorithm_kwargs={"n_steps": 32, "batch_size": 32, "n_epochs": 1},
+        )
+        train(
+            config,
+            tmp_path,
+            report=lambda _: during.append(torch.get_num_threads()),
+            report_every=32,
+        )
+        assert during and set(during) == {1}
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_evaluation_report(trained, tmp_path):
     _, agent, _, _ = trained
     evaluation = evaluate(agent, run_in=2.0)
