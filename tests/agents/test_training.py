@@ -22,6 +22,14 @@ from manualcontrol.agents.training import (
 )
 
 DELAY = ({"kind": "action_delay", "delay": 0.2},)
+#: PPO on 2-s episodes, two updates of 64 steps: for what a training does around PPO.
+TINY_PPO = dict(
+    env_kwargs={"measurement_time": 2.0},
+    algorithm="ppo",
+    total_timesteps=128,
+    n_envs=2,
+    algorithm_kwargs={"n_steps": 32, "batch_size": 32, "n_epochs": 1},
+)
 
 
 @pytest.fixture(scope="module")
@@ -77,13 +85,7 @@ def test_ppo_trains_too_and_writes_nothing_outside_its_folder(tmp_path, monkeypa
     scratch.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(scratch))
     monkeypatch.delenv("SB3_LOGDIR", raising=False)
-    config = TrainingConfig(
-        env_kwargs={"measurement_time": 2.0},
-        algorithm="ppo",
-        total_timesteps=128,
-        n_envs=2,
-        algorithm_kwargs={"n_steps": 32, "batch_size": 32, "n_epochs": 1},
-    )
+    config = TrainingConfig(**TINY_PPO)
     agent = train(config, tmp_path / "agent", report=None)
     action = agent.act(np.zeros(1))
     assert action.shape == (1,) and np.isfinite(action).all()
@@ -98,13 +100,7 @@ def test_training_computes_on_one_torch_thread_and_restores_the_count(tmp_path):
     torch.set_num_threads(2)
     try:
         during = []
-        config = TrainingConfig(
-            env_kwargs={"measurement_time": 2.0},
-            algorithm="ppo",
-            total_timesteps=64,
-            n_envs=2,
-            algorithm_kwargs={"n_steps": 32, "batch_size": 32, "n_epochs": 1},
-        )
+        config = TrainingConfig(**{**TINY_PPO, "total_timesteps": 64})
         train(
             config,
             tmp_path,
