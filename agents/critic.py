@@ -39,7 +39,7 @@ from manualcontrol.agents.wrappers import (
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["CriticInformation", "InformedCriticPolicy", "critic_horizon"]
+__all__ = ["CriticInformation", "InformedCriticPolicy", "critic_horizon", "forcing_spacing"]
 
 
 def critic_horizon(gamma: float, dt: float) -> float:
@@ -49,6 +49,21 @@ def critic_horizon(gamma: float, dt: float) -> float:
     the forcing adds at most ``e^-2`` (14 %) of its weight to the value.
     """
     return 2.0 * dt / (1.0 - gamma)
+
+
+def forcing_spacing(env: gym.Env) -> float:
+    """How finely the critic samples the forcing ahead: a tenth of its fastest period.
+
+    At least one sample of ``env``; the realisations of a forcing share its frequencies.
+    """
+    base = env.unwrapped
+    pair = base._forcing
+    fastest = max(
+        float(np.max(signal.frequencies))
+        for signal in (pair.target, pair.disturbance)
+        if signal is not None
+    )
+    return max(float(base.dt), 0.1 * 2.0 * np.pi / fastest)
 
 
 def _chain(env: gym.Env) -> list[gym.Env]:
@@ -88,8 +103,7 @@ class CriticInformation(gym.Wrapper):
     horizon
         Seconds of forcing ahead, ``> 0`` (:func:`critic_horizon`).
     spacing
-        Seconds between the forcing samples, ``> 0`` (the target and disturbance vary
-        little within a tenth of their fastest period).
+        Seconds between the forcing samples, ``> 0`` (:func:`forcing_spacing`).
     """
 
     def __init__(self, env: gym.Env, horizon: float, spacing: float) -> None:
@@ -128,11 +142,6 @@ class CriticInformation(gym.Wrapper):
             np.concatenate([np.ravel(space.high), np.full(size, np.inf)]),
             dtype=space.dtype,
         )
-
-    def hidden_state(self) -> FloatArray:
-        """The numbers appended to the observation (class docstring), in its order."""
-        observation = self._observe(np.zeros(self.actor_inputs))
-        return observation[self.actor_inputs :]
 
     def _pad_forcing(self) -> None:
         # the episode's forcing with zeros past its end: each step then reads a strided

@@ -466,7 +466,7 @@ def clone_typical_pilot(
     """
     import torch
 
-    gamma = float(config.algorithm_kwargs.get("gamma", 0.99))
+    gamma = _discount(config)
     tail = math.ceil(5.0 / (1.0 - gamma))
     law = typical_pilot_law(config)
     env = make_env(config)
@@ -552,28 +552,23 @@ def make_env(config: TrainingConfig, *, noise: bool = True, **overrides: Any) ->
     try:
         env = apply_wrappers(env, specs)
         if config.critic_information:
-            from manualcontrol.agents.critic import CriticInformation, critic_horizon
-
-            gamma = float(config.algorithm_kwargs.get("gamma", 0.99))
-            dt = float(env.unwrapped.dt)
-            env = CriticInformation(
-                env, horizon=critic_horizon(gamma, dt), spacing=_forcing_spacing(env)
+            from manualcontrol.agents.critic import (
+                CriticInformation,
+                critic_horizon,
+                forcing_spacing,
             )
+
+            horizon = critic_horizon(_discount(config), float(env.unwrapped.dt))
+            env = CriticInformation(env, horizon=horizon, spacing=forcing_spacing(env))
         return env
     except Exception:
         env.close()
         raise
 
 
-def _forcing_spacing(env: gym.Env) -> float:
-    """A tenth of the period of the forcing's fastest sine, at least one sample."""
-    pair = env.unwrapped._forcing  # its realisations share their frequencies
-    fastest = max(
-        float(np.max(signal.frequencies))
-        for signal in (pair.target, pair.disturbance)
-        if signal is not None
-    )
-    return max(float(env.unwrapped.dt), 0.1 * 2.0 * math.pi / fastest)
+def _discount(config: TrainingConfig) -> float:
+    """The algorithm's ``gamma``: the configuration's, or stable-baselines3's default 0.99."""
+    return float(config.algorithm_kwargs.get("gamma", 0.99))
 
 
 def policy_spec(config: TrainingConfig, env: Any) -> tuple[Any, dict[str, Any]]:

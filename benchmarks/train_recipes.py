@@ -36,6 +36,7 @@ import dataclasses
 import json
 import time
 from concurrent.futures import ProcessPoolExecutor
+from functools import partial
 from pathlib import Path
 
 #: Held-out episodes each tracking agent's return is measured on.
@@ -49,6 +50,8 @@ def held_out_return(actor, config) -> float:
     on), from the validation seeds no training run starts from
     (:data:`~manualcontrol.agents.training.VALIDATION_SEED` up): the agents and the
     typical pilot's equaliser on the same episodes, so their returns compare pairwise.
+    Not :func:`~manualcontrol.agents.training.validation_score`, which flies a policy's
+    batched ``predict`` on float32 observations: the law acts on the display as it is.
     """
     from manualcontrol.agents.training import VALIDATION_SEED, make_env
 
@@ -74,6 +77,7 @@ def run_tracking(
     warm: bool,
     periods: int,
     existing: bool,
+    *,
     display_critic: bool = False,
 ) -> dict:
     import torch
@@ -113,20 +117,8 @@ def run_tracking(
     return row
 
 
-def run_display_critic(*args) -> dict:
-    """:func:`run_tracking` with a critic that reads only the display."""
-    return run_tracking(*args, display_critic=True)
-
-
 def run_law(
-    element: str,
-    seed: int,
-    out: str,
-    steps: int | None,
-    warm: bool,
-    periods: int,
-    existing: bool,
-    display_critic: bool = False,
+    element: str, seed: int, out: str, steps: int | None, warm: bool, periods: int, existing: bool
 ) -> dict:
     """The typical pilot's equaliser itself, flown through the problem's wrappers, untrained.
 
@@ -137,7 +129,7 @@ def run_law(
     from manualcontrol.agents.recipes import human_problem
     from manualcontrol.agents.training import TypicalPilotAgent
 
-    del seed, out, steps, warm, existing, display_critic
+    del seed, out, steps, warm, existing
     config = human_problem(element, warm_start="typical-pilot")
     human = evaluate(TypicalPilotAgent(config), seed=0, periods=periods).human
     row = {"element": element, "seed": "-", "train_s": "-", "start": "law, untrained"}
@@ -353,7 +345,7 @@ def main() -> None:
         for seed in args.seeds
     ]
     if args.display_critic:
-        jobs = [(run_display_critic, *job[1:]) for job in jobs]
+        jobs = [(partial(run_tracking, display_critic=True), *job[1:]) for job in jobs]
     jobs += [(run_law, element, 0, False) for element in args.laws]
     if not args.existing:  # lane-keeping agents are trained, never re-read
         jobs += [
