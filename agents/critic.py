@@ -36,6 +36,7 @@ from manualcontrol.agents.wrappers import (
     MotorNoise,
     ObservationNoise,
 )
+from manualcontrol.envs.tracking import TrackingEnv
 
 FloatArray = NDArray[np.float64]
 
@@ -56,14 +57,17 @@ def forcing_spacing(env: gym.Env) -> float:
 
     At least one sample of ``env``; the realisations of a forcing share its frequencies.
     """
-    base = env.unwrapped
-    pair = base._forcing
+    pair = env.unwrapped.forcing
     fastest = max(
         float(np.max(signal.frequencies))
         for signal in (pair.target, pair.disturbance)
         if signal is not None
     )
-    return max(float(base.dt), 0.1 * 2.0 * np.pi / fastest)
+    return max(float(env.unwrapped.dt), 0.1 * 2.0 * np.pi / fastest)
+
+
+#: The wrappers whose hidden state the critic reads (``hidden_size``, ``hidden_state()``).
+_HIDDEN_KINDS = (ActionDelay, ObservationNoise, MotorNoise, EffortCost)
 
 
 def _chain(env: gym.Env) -> list[gym.Env]:
@@ -92,6 +96,12 @@ class CriticInformation(gym.Wrapper):
       :class:`~manualcontrol.agents.wrappers.EffortCost`;
     * the fraction of the episode elapsed (the return ends with it).
 
+    It reads them through the public views the simulation offers for this:
+    :meth:`~manualcontrol.envs.tracking.TrackingEnv.forcing_samples` and
+    :meth:`~manualcontrol.envs.tracking.TrackingEnv.loop_state` of the environment,
+    ``hidden_state()`` of each wrapper (:mod:`manualcontrol.agents.wrappers`, Hidden
+    state), the wrappers' kinds in the order above.
+
     The motor noise's scaling by the stick's recent variance is left out: it changes
     over seconds, not within the critic's horizon. Tracking tasks only (the driving
     task's road is not a forcing signal).
@@ -109,7 +119,7 @@ class CriticInformation(gym.Wrapper):
     def __init__(self, env: gym.Env, horizon: float, spacing: float) -> None:
         super().__init__(env)
         base = env.unwrapped
-        if not hasattr(base, "episode_steps") or not hasattr(base, "_forcing"):
+        if not isinstance(base, TrackingEnv):
             raise ValueError(
                 f"critic information reads a tracking task's forcing: got {type(base).__name__}"
             )
@@ -121,19 +131,20 @@ class CriticInformation(gym.Wrapper):
         self._stride = step
         self._offsets = np.arange(0, round(horizon / dt) + 1, step, dtype=np.int64)
         layers = _chain(env)
-        self._delays = [w for w in layers if isinstance(w, ActionDelay) and not w.observe_queue]
-        self._observation_noise = [w for w in layers if isinstance(w, ObservationNoise)]
-        self._motor_noise = [w for w in layers if isinstance(w, MotorNoise)]
-        self._efforts = [w for w in layers if isinstance(w, EffortCost)]
+        # grouped by kind in this order, each kind outermost first: the order the
+        # critic's inputs have had since its first trained agents
+        self._hidden = [
+            layer
+            for kind in _HIDDEN_KINDS
+            for layer in layers
+            if isinstance(layer, kind) and layer.hidden_size > 0
+        ]
         self.actor_inputs = int(np.prod(env.observation_space.shape))
         size = (
             2 * len(self._offsets)
-            + base._order
+            + base.element_order
             + 1
-            + sum(w._queued for w in self._delays)
-            + sum(w._noise.shape[0] for w in self._observation_noise)
-            + len(self._motor_noise)
-            + len(self._efforts)
+            + sum(layer.hidden_size for layer in self._hidden)
             + 1
         )
         space = env.observation_space
@@ -146,15 +157,17 @@ class CriticInformation(gym.Wrapper):
     def _pad_forcing(self) -> None:
         # the episode's forcing with zeros past its end: each step then reads a strided
         # slice (the forcing samples exist only once the episode is reset)
-        base = self.env.unwrapped
+        target, disturbance = self.env.unwrapped.forcing_samples()
         reach = int(self._offsets[-1]) + 1
-        self._ahead = np.zeros((2, len(base._ft) + reach))
-        self._ahead[0, : len(base._ft)] = base._ft
-        self._ahead[1, : len(base._fd)] = base._fd
+        self._ahead = np.zeros((2, len(target) + reach))
+        self._ahead[0, : len(target)] = target
+        self._ahead[1, : len(disturbance)] = disturbance
+        self._target_length = len(target)
 
     def _observe(self, observation: FloatArray) -> FloatArray:
         base = self.env.unwrapped
-        k = base._k
+        k = base.sample_index
+        loop = base.loop_state()
         out = np.empty(self.observation_space.shape[0])
         i = self.actor_inputs
         out[:i] = np.ravel(observation)
@@ -162,26 +175,17 @@ class CriticInformation(gym.Wrapper):
         window = slice(k, k + int(self._offsets[-1]) + 1, self._stride)
         out[i : i + n] = self._ahead[0, window]
         # the output is subtracted where there is a target: zero stays zero past the end
-        inside = min(n, -(-(len(base._ft) - k) // self._stride))
-        out[i : i + inside] -= base._y[k]
+        inside = min(n, -(-(self._target_length - k) // self._stride))
+        out[i : i + inside] -= loop.output
         out[i + n : i + 2 * n] = self._ahead[1, window]
         i += 2 * n
-        order = base._order
-        out[i : i + order] = base._x
-        out[i + order] = base._e[k]
+        order = len(loop.element_state)
+        out[i : i + order] = loop.element_state
+        out[i + order] = loop.error
         i += order + 1
-        for delay in self._delays:
-            out[i : i + delay._queued] = delay._history[: delay._queued]
-            i += delay._queued
-        for noise in self._observation_noise:
-            out[i : i + noise._noise.shape[0]] = noise._noise
-            i += noise._noise.shape[0]
-        for motor in self._motor_noise:
-            out[i] = motor._state
-            i += 1
-        for effort in self._efforts:
-            out[i] = effort._previous
-            i += 1
+        for layer in self._hidden:
+            out[i : i + layer.hidden_size] = layer.hidden_state()
+            i += layer.hidden_size
         out[i] = k / base.episode_steps
         return out
 

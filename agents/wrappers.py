@@ -39,6 +39,14 @@ like the stick. Schedules are evaluated once, on the episode's whole time grid, 
 the wrapper is built, and every value is checked there: a value outside the allowed
 range raises ``ValueError`` naming the argument, the value, the time and the range.
 
+Hidden state
+------------
+What a wrapper holds that the agent does not observe (a hidden delay queue, the noise
+filters' states, the effort cost's last stick) it reports as ``hidden_size`` numbers by
+``hidden_state()``: the loop's state behind the display, for a critic that may read it
+in training (:class:`~manualcontrol.agents.critic.CriticInformation`). The policy never
+reads it.
+
 Noise
 -----
 The noise wrappers draw from a :class:`numpy.random.Generator` of their own, seeded at
@@ -338,6 +346,14 @@ class ActionDelay(gym.Wrapper, gym.utils.RecordConstructorArgs):
         # newest first: history[0] is this step's command, history[q] came q samples ago
         self._history = np.zeros(self._queued + 1)
         self._k = 0
+        #: The queued commands when the agent is not shown them (``observe_queue=False``).
+        self.hidden_size = self._queued - shown
+
+    def hidden_state(self) -> FloatArray:
+        """The queued commands the agent is not shown, newest first (a read-only view)."""
+        view = self._history[: self.hidden_size]
+        view.setflags(write=False)
+        return view
 
     def _observe(self, observation: FloatArray) -> FloatArray:
         if not self.observe_queue:
@@ -497,6 +513,13 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._state = 0.0
         self._k = 0
         self._rng = np.random.default_rng()
+
+    #: The noise filter's state.
+    hidden_size = 1
+
+    def hidden_state(self) -> FloatArray:
+        """The noise filter's state at unit intensity, shape (1,): the next noise, unscaled."""
+        return np.array((self._state,))
 
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
         observation, info = self.env.reset(**kwargs)
@@ -678,6 +701,14 @@ class ObservationNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._bandwidth = 1.0 / self._dt if omega_r is None else 0.5 * self.omega_r
         self._k = 0
         self._rng = np.random.default_rng()
+        #: One noise state per observed number.
+        self.hidden_size = space.shape[0]
+
+    def hidden_state(self) -> FloatArray:
+        """The noise on each observed number at this step (its filter's state; read-only)."""
+        view = self._noise.view()
+        view.setflags(write=False)
+        return view
 
     def _perturb(self, observation: FloatArray) -> FloatArray:
         level = self._level.at(self._k)
@@ -771,6 +802,13 @@ class EffortCost(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._rate_scale = self._scale / _dt(env)
         self._previous = 0.0
         self._k = 0
+
+    #: The last applied stick, from which the next step's rate is taken.
+    hidden_size = 1
+
+    def hidden_state(self) -> FloatArray:
+        """The stick applied over the last step (zero at reset), shape (1,)."""
+        return np.array((self._previous,))
 
     @staticmethod
     def _applied_stick(info: Mapping[str, Any]) -> float:

@@ -68,7 +68,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -103,6 +103,7 @@ from manualcontrol.envs.tasks import (
 __all__ = [
     "REWARDS",
     "CompensatoryTracking",
+    "LoopState",
     "PreviewTracking",
     "PursuitTracking",
     "TrackingEnv",
@@ -120,6 +121,17 @@ REWARDS: tuple[str, ...] = (
 
 _SCREEN = (600, 400)
 _RESET_OPTIONS = ("realisation",)
+
+
+class LoopState(NamedTuple):
+    """The tracking loop at one sample as the simulation knows it (``TrackingEnv.loop_state``)."""
+
+    #: The element's states, ``TrackingEnv.element_order`` of them.
+    element_state: tuple[float, ...]
+    #: The element's output ``y`` (with a disturbance at the output, including it).
+    output: float
+    #: The error ``ft - y``, without any observation noise.
+    error: float
 
 
 class TrackingEnv(gym.Env[FloatArray, FloatArray]):
@@ -166,6 +178,13 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
     render_mode
         None, ``"rgb_array"`` or ``"human"``.
 
+    Attributes
+    ----------
+    element_order
+        Number of the element's states (of its exact discretisation).
+    forcing
+        The episode's :class:`~manualcontrol.envs.signals.ForcingPair` (before the first
+        reset, the pair as given: a preset's realisations share its frequencies).
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 100}
@@ -203,6 +222,9 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         if realisation is not None:
             realisation = self.check_realisation(realisation)
         self._forcing = forcing_pair
+        # the episode's pair once reset; before, the pair as given (the realisations of
+        # a preset share its frequencies and variance)
+        self.forcing = forcing_pair
         self.realisation = realisation
         self.dt = check_positive("dt", dt)
         self.measurement_time = measurement_time_for(forcing_pair, measurement_time)
@@ -288,7 +310,7 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         self._gamma = exact.gamma[..., 0]
         self._c = model.C[..., 0, :]
         self._d = model.D[..., 0, 0]
-        self._order = model.A.shape[-1]
+        self.element_order = model.A.shape[-1]
         constant = {
             name: float(value[0]) for name, value in element.parameters_at(np.zeros(1)).items()
         }
@@ -305,6 +327,39 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         view = self._time.view()
         view.setflags(write=False)
         return view
+
+    @property
+    def sample_index(self) -> int:
+        """Index ``k`` of the present observation's sample: 0 after :meth:`reset`, -1 before."""
+        return self._k
+
+    def forcing_samples(self) -> tuple[FloatArray, FloatArray]:
+        """The episode's target and disturbance at every sample (read-only views).
+
+        Index ``k`` is sample ``k`` of the episode; both run a preview window past its
+        last sample (zero where the pair has no such signal). Loop state a display may
+        not show: for a critic that reads the forcing ahead (training only), never for
+        the operator. Raises ``RuntimeError`` before :meth:`reset`.
+        """
+        if self._k < 0:
+            raise RuntimeError("forcing_samples() needs an episode: call reset() first")
+        views = (self._ft.view(), self._fd.view())
+        for view in views:
+            view.setflags(write=False)
+        return views
+
+    def loop_state(self) -> LoopState:
+        """The loop's state at the present sample, behind what the display shows.
+
+        The element's states (the exact discretisation's, ``element_order`` of them),
+        its output and the error without any observation noise. For a critic that
+        reads the hidden state (:class:`~manualcontrol.agents.critic.CriticInformation`),
+        never for the operator. Raises ``RuntimeError`` before :meth:`reset`.
+        """
+        k = self._k
+        if k < 0:
+            raise RuntimeError("loop_state() needs an episode: call reset() first")
+        return LoopState(tuple(self._x), float(self._y[k]), float(self._e[k]))
 
     def check_realisation(self, realisation: Any) -> int:
         """``realisation`` as a valid index of this environment's forcing, or raise."""
@@ -346,7 +401,7 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
         self._inverse_variance = 1.0 / self._forcing_variance(pair)
         self._inverse_std = math.sqrt(self._inverse_variance)
         self._k = 0
-        self._x = [0.0] * self._order
+        self._x = [0.0] * self.element_order
         self._u = np.zeros(n)
         self._y = np.zeros(n + 1)
         self._e = np.zeros(n + 1)

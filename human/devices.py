@@ -563,7 +563,7 @@ def make_device(
 
 def _forcing_std(base: Any) -> tuple[float | None, float | None]:
     """Standard deviations of the target and the disturbance forcing (None if absent)."""
-    pair = getattr(base, "forcing", None) or getattr(base, "_forcing", None)
+    pair = getattr(base, "forcing", None)  # a tracking task has one from construction on
     if pair is None:
         return None, None
 

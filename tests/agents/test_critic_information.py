@@ -71,9 +71,9 @@ def test_the_critic_reads_the_forcing_ahead_the_element_and_the_delayed_commands
         np.testing.assert_array_equal(hidden[:n], ahead)
         np.testing.assert_array_equal(hidden[n : 2 * n], 0.0)
         # the error without the display's noise
-        assert hidden[2 * n + base._order] == errors[k]
+        assert hidden[2 * n + base.element_order] == errors[k]
         # the 13 commands still in the 0.13-s delay, newest first (zeros before the start)
-        queue = hidden[2 * n + base._order + 1 : 2 * n + base._order + 14]
+        queue = hidden[2 * n + base.element_order + 1 : 2 * n + base.element_order + 14]
         np.testing.assert_array_equal(queue, recent + [0.0] * (13 - len(recent)))
         assert hidden[-1] == pytest.approx(k / base.episode_steps)
     # the agent's own part is the observation without the critic's wrapper, unchanged
@@ -89,7 +89,7 @@ def test_the_horizon_is_two_discount_horizons_and_the_spacing_a_tenth_of_the_fas
     config = TrainingConfig(**SMALL)
     env = make_env(config)
     layer = _layer(env)
-    fastest = float(np.max(env.unwrapped._forcing.target.frequencies))
+    fastest = float(np.max(env.unwrapped.forcing.target.frequencies))
     spacing = round(0.1 * 2 * np.pi / fastest / 0.01)
     np.testing.assert_array_equal(layer._offsets, np.arange(0, 201, spacing))
 

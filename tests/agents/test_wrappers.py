@@ -12,6 +12,7 @@ from gymnasium.utils.env_checker import check_env
 import manualcontrol.envs  # noqa: F401
 from manualcontrol.agents.wrappers import (
     ActionDelay,
+    EffortCost,
     MotorNoise,
     NeuromuscularFilter,
     ObservationNoise,
@@ -186,3 +187,40 @@ def test_motor_noise_variance_is_numpys_to_the_bit():
         values = rng.standard_normal(count) * 10.0 ** rng.uniform(-5, 5)
         values += rng.uniform(-1, 1) * 10.0 ** rng.uniform(-3, 3)
         assert _population_variance(values) == np.var(values), count
+
+
+def test_hidden_state_is_what_the_agent_is_not_shown():
+    rng = np.random.default_rng(3)
+    hidden_delay = ActionDelay(base(), 0.05, observe_queue=False)
+    shown_delay = ActionDelay(base(), 0.05)
+    assert (hidden_delay.hidden_size, shown_delay.hidden_size) == (5, 0)
+    noisy = ObservationNoise(base(include_rates=True), ratio=0.01, omega_r=10.0)
+    assert noisy.hidden_size == 2
+    motor = MotorNoise(base(), power_ratio=0.1)
+    effort = EffortCost(base(), rate_weight=0.01)
+    for env in (hidden_delay, motor, effort):
+        env.reset(seed=0)
+    _, info = noisy.reset(seed=0)
+    error = info["e"]
+    commands, previous_state = [], None
+    for _ in range(60):
+        command = rng.uniform(-1.0, 1.0, 1)
+        commands.insert(0, float(command[0]))
+        hidden_delay.step(command)
+        np.testing.assert_array_equal(hidden_delay.hidden_state(), (commands + [0.0] * 5)[:5])
+        # the noise on the display: the observation less the noise-free error and rate
+        observation, _, _, _, info = noisy.step(command)
+        clean = np.array([info["e"], (info["e"] - error) / 0.01])
+        error = info["e"]
+        np.testing.assert_allclose(noisy.hidden_state(), observation - clean, atol=1e-9)
+        # the motor noise's next remnant is its filter's state scaled by a positive gain
+        _, _, _, _, info = motor.step(command)
+        if previous_state is not None:
+            assert info["remnant"] / previous_state > 0.0
+        previous_state = float(motor.hidden_state()[0])
+        assert previous_state != 0.0  # a fresh normal draw in it
+        # the effort cost's last stick is the stick the element received
+        _, _, _, _, info = effort.step(command)
+        assert effort.hidden_state()[0] == info["u"]
+    with pytest.raises(ValueError, match="read-only"):
+        hidden_delay.hidden_state()[0] = 0.0

@@ -362,3 +362,31 @@ def test_times_are_the_observation_times_and_read_only():
         assert info["t"] == times[k]
     with pytest.raises(ValueError, match="read-only"):
         times[0] = 0.0
+
+
+def test_loop_state_and_forcing_samples_are_the_episode_as_flown():
+    # 1/s (A = 0, B = C = 1): the exact step integrates the held stick, so the element's
+    # state is dt times the sum of the sticks so far, independent of the env's algebra
+    env = CompensatoryTracking(
+        controlled_element="1/s", forcing="popovici2017", measurement_time=2.0
+    )
+    with pytest.raises(RuntimeError, match="reset"):
+        env.loop_state()
+    with pytest.raises(RuntimeError, match="reset"):
+        env.forcing_samples()
+    assert env.sample_index == -1
+    assert env.element_order == 1
+    _, info = env.reset(seed=0)
+    target, disturbance = env.forcing_samples()
+    sticks = np.random.default_rng(1).uniform(-1.0, 1.0, 150)
+    for k, stick in enumerate(sticks, start=1):
+        _, _, _, _, info = env.step(np.array([stick]))
+        loop = env.loop_state()
+        assert env.sample_index == k
+        assert loop.output == info["y"]
+        assert loop.error == info["e"]
+        assert target[k] == info["ft"]
+        assert loop.element_state[0] == pytest.approx(0.01 * sticks[:k].sum(), abs=1e-12)
+    np.testing.assert_array_equal(disturbance, 0.0)  # a target-only forcing
+    with pytest.raises(ValueError, match="read-only"):
+        target[0] = 1.0
