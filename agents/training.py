@@ -195,12 +195,12 @@ class TrainingConfig:
         tracking with ``include_rates=True`` of an element with a typical pilot, the
         observation ``(e, e_dot)`` as the display shows it (with ``history_length``,
         the law reads the newest frame and the policy starts from it with a memory).
-        With a history, lower the learning rate about in proportion to its length:
-        Adam's first steps move each input weight by about the learning rate, and the
-        frames of a history, a sample apart, are nearly equal, so the action moves
+        With a history, lower the learning rate: Adam's first steps move each input
+        weight by about the learning rate, and the frames of a history, a sample
+        apart, are nearly equal, so one step moves the action up to
         ``history_length`` times as far as from one frame (with the recipes' PPO, 20
-        frames at its 3e-4 lost the typical pilot's loop in the first update, at 1e-4
-        they kept it).
+        frames at its 3e-4 lost the typical pilot's loop in the first update; at
+        1e-4 each update moved the policy as far as one frame's at 3e-4).
 
     Each limitation is given once: a field above that is on and a ``wrappers`` entry of
     the same kind raise. Schedules are saved in ``config.json`` as their dicts
