@@ -49,8 +49,19 @@ The human's problem, as the optimal control model poses it
   RMS stick is about four times the single integrator's).
 * The bounded reward with loss-of-control termination (a positive reward, so ending an
   episode never pays while the policy is poor).
+* **A memory of the display**: the policy reads the last 0.2 s of ``(e, e_dot)`` (20
+  frames, :attr:`~manualcontrol.agents.training.TrainingConfig.history_length`), not
+  the present frame alone. The OCM's pilot estimates the loop's state from the whole
+  past of its noisy display (its Kalman filter) and predicts through its delay; a policy
+  that reads one frame cannot average the observation noise or see where the error is
+  heading beyond its present rate. With one frame the agents' crossover stayed where
+  the typical pilots' is on every element (about 2 rad/s; McRuer's regression from
+  ``1/s`` to ``1/s^2`` did not show); with the memory it falls from ``1/s`` to
+  ``1/(s(s+1))`` to ``1/s^2`` and the returns rise (``docs/surrogates.md``).
 
-PPO with eight environments, a 64-64 network, 1.2 million steps, started from the
+PPO with eight environments, a 64-64 network, 1.2 million steps at a learning rate of
+1e-4 (a third of PPO's default: with 20 frames of history its default lost the typical
+pilot's loop in the first update, see ``history_length``), started from the
 typical pilot's equaliser and a critic fitted to its returns
 (:attr:`~manualcontrol.agents.training.TrainingConfig.warm_start`; the recipes ``si``,
 ``di`` and ``lag``), exploring with the motor noise's spread at the typical stick
@@ -112,6 +123,10 @@ _OBSERVATION_NOISE_RATIO = 0.01
 #: once in some 16,000 samples).
 _STICK_ROOM = 4.0
 _PPO = {"n_steps": 512, "batch_size": 256}
+#: Frames of the display the tracking policy reads, 0.2 s at the recipes' 100 Hz.
+_HISTORY_FRAMES = 20
+#: PPO's learning rate on tracking: a third of its default, for the history's frames.
+_TRACKING_LEARNING_RATE = 1e-4
 
 
 def optimal_control_effort_weight(
@@ -232,10 +247,11 @@ def _tracking(element: str) -> dict[str, Any]:
         },
         "wrappers": human_limitations(element),
         "effort_rate_weight": optimal_control_effort_weight(element, _FORCING, bound),
+        "history_length": _HISTORY_FRAMES,
         "critic_information": True,
         "algorithm": "ppo",
         "n_envs": 8,
-        "algorithm_kwargs": _PPO,
+        "algorithm_kwargs": {**_PPO, "learning_rate": _TRACKING_LEARNING_RATE},
         "policy_kwargs": {"net_arch": [64, 64], "log_std_init": math.log(exploration)},
     }
 

@@ -21,11 +21,12 @@ Elements in ``--warm-start`` (default: all three, as the recipes ``si``, ``di`` 
 Run: .venv/bin/python benchmarks/train_recipes.py [--elements 1/s 1/s^2 "1/(s(s+1))"]
      [--lane-keeping angle torque] [--seeds 0 1 2]
      [--jobs 2] [--out results/recipes] [--markdown docs/surrogates.md] [--steps N]
-     [--periods N] [--existing]
+     [--periods N] [--existing] [--variant recipe|one-frame|display-critic]
 
 ``--periods N`` evaluates each tracking agent over N forcing periods read together (a
 laboratory's average over repeated runs); ``--existing`` re-evaluates the tracking agents
-already in ``--out`` without training them again.
+already in ``--out`` without training them again. ``--variant`` trains (or re-evaluates)
+the tracking agents in an earlier form of the recipes (:func:`variant_config`).
 
 ``--markdown`` writes the tables as a results page; ``--table results/recipes/recipes.json``
 writes it from an earlier run's figures without training.
@@ -69,6 +70,27 @@ def held_out_return(actor, config) -> float:
     return sum(returns) / len(returns)
 
 
+#: The forms of the human's problem a tracking job trains: the recipes' own, and the
+#: earlier forms the results page compares them with (``--variant``).
+VARIANTS = ("recipe", "one-frame", "display-critic")
+
+
+def variant_config(config, variant: str):
+    """``config`` (the recipe's) in the form ``variant`` (:data:`VARIANTS`).
+
+    ``one-frame``: the policy reads the present frame only, at PPO's default learning
+    rate (the recipes before their memory); ``display-critic``: that, with a critic
+    that reads only the display too (the recipes before their informed critic).
+    """
+    if variant == "recipe":
+        return config
+    options = {k: v for k, v in config.algorithm_kwargs.items() if k != "learning_rate"}
+    config = dataclasses.replace(config, history_length=1, algorithm_kwargs=options)
+    if variant == "display-critic":
+        config = dataclasses.replace(config, critic_information=False)
+    return config
+
+
 def run_tracking(
     element: str,
     seed: int,
@@ -78,7 +100,7 @@ def run_tracking(
     periods: int,
     existing: bool,
     *,
-    display_critic: bool = False,
+    variant: str = "recipe",
 ) -> dict:
     import torch
 
@@ -93,11 +115,10 @@ def run_tracking(
         warm_start="typical-pilot" if warm else "none",
         **({} if steps is None else {"total_timesteps": steps}),
     )
-    if display_critic:
-        config = dataclasses.replace(config, critic_information=False)
+    config = variant_config(config, variant)
     folder = element.replace("/", "_").replace("(", "").replace(")", "").replace("^", "")
     folder += "-warm" if warm else ""
-    folder += "-display-critic" if display_critic else ""
+    folder += "" if variant == "recipe" else f"-{variant}"
     start = time.perf_counter()
     if existing:
         agent = load_agent(Path(out) / f"{folder}-seed{seed}")
@@ -108,6 +129,7 @@ def run_tracking(
     row = {"element": element, "seed": seed, "train_s": train_s, "periods": periods}
     row["start"] = config.warm_start
     row["critic"] = "informed" if config.critic_information else "display"
+    row["memory"] = config.history_length
     row["return"] = round(held_out_return(agent, config), 1)
     human = evaluate(agent, seed=0, periods=periods).human
     row.update({k: round(float(v), 3) for k, v in human.figures().items()})
@@ -193,6 +215,7 @@ def markdown(rows: list[dict], command: str) -> str:
             elements.index(row["element"]),
             ["law, untrained", "none", "typical-pilot"].index(row.get("start", "none")),
             row.get("critic", "informed") != "display",
+            row.get("memory", 1),
             str(row["seed"]),
             row.get("periods", 1),
         )
@@ -228,18 +251,20 @@ def markdown(rows: list[dict], command: str) -> str:
         "",
         "PPO's critic reads the loop's hidden state as well (`critic_information`: the",
         "forcing ahead, the element's state, the delayed commands, the noise's state);",
-        "the policy, which acts and is measured, reads only the display. `return` is",
-        f"what training maximises: the mean return of {RETURN_EPISODES} held-out episodes",
-        "(the same for every row of an element; noise on, one period), so an agent",
-        "whose return is above its law's did better than the typical pilot's equaliser",
-        "on its own objective. Rows with critic `display` are the same seeds trained",
-        "with a critic that reads only the display, as the recipes did before",
-        "(`--display-critic`; their `return` is the same held-out episodes').",
+        "the policy, which acts and is measured, reads only the display: its last",
+        "`memory` frames (`history_length`; the recipes' 20 frames are 0.2 s). `return`",
+        f"is what training maximises: the mean return of {RETURN_EPISODES} held-out",
+        "episodes (the same for every row of an element; noise on, one period), so an",
+        "agent whose return is above its law's did better than the typical pilot's",
+        "equaliser on its own objective. The same seeds trained as the recipes did",
+        "before stand beside them: `memory` 1, the present frame only, at PPO's",
+        "default learning rate (`--variant one-frame`), and that with critic",
+        "`display`, a critic that reads only the display (`--variant display-critic`).",
         "",
-        "| element | start | critic | seed | train (s) | periods | return | "
+        "| element | start | critic | memory | seed | train (s) | periods | return | "
         + " | ".join(FIGURES)
         + " | OCM |",
-        "| --- | --- | --- | --- | --- | --- | --- | "
+        "| --- | --- | --- | --- | --- | --- | --- | --- | "
         + " | ".join("---" for _ in FIGURES)
         + " | --- |",
     ]
@@ -252,7 +277,7 @@ def markdown(rows: list[dict], command: str) -> str:
         ocm = " / ".join(f"{v:g}" for v in row.get("ocm", [])) or "-"
         lines.append(
             f"| {row['element']} | {row.get('start', 'none')} | {row.get('critic', '-')} | "
-            f"{row['seed']} | "
+            f"{row.get('memory', '-')} | {row['seed']} | "
             f"{row['train_s']} | {row.get('periods', 1)} | {row.get('return', '-')} | "
             + " | ".join(cells)
             + f" | {ocm} |"
@@ -321,11 +346,13 @@ def main() -> None:
         help="forcing periods each tracking evaluation flies and measures over",
     )
     parser.add_argument(
-        "--display-critic",
-        action="store_true",
-        help="train (or, with --existing, evaluate) the tracking agents with a critic that "
-        "reads only the display, as the recipes did before their informed critic: the "
-        "comparison the results page shows",
+        "--variant",
+        choices=VARIANTS,
+        default="recipe",
+        help="train (or, with --existing, evaluate) the tracking agents as the recipes "
+        "do, or as they did before: one-frame (no memory, PPO's default learning rate), "
+        "display-critic (that, and a critic that reads only the display); the "
+        "comparisons the results page shows",
     )
     parser.add_argument(
         "--existing",
@@ -344,8 +371,8 @@ def main() -> None:
         for element in args.elements
         for seed in args.seeds
     ]
-    if args.display_critic:
-        jobs = [(partial(run_tracking, display_critic=True), *job[1:]) for job in jobs]
+    if args.variant != "recipe":
+        jobs = [(partial(run_tracking, variant=args.variant), *job[1:]) for job in jobs]
     jobs += [(run_law, element, 0, False) for element in args.laws]
     if not args.existing:  # lane-keeping agents are trained, never re-read
         jobs += [

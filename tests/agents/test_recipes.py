@@ -48,9 +48,19 @@ def test_the_human_problem_imposes_the_typical_pilots_own_limitations(element):
     assert np.exp(config.policy_kwargs["log_std_init"]) == pytest.approx(spread)
     assert config.env_kwargs["forcing"] == "popovici2017"
     assert config.env_kwargs["action_bound"] == pytest.approx(4 * typical_stick_rms(element))
+    # the policy reads the last 0.2 s, 20 frames (e, e_dot and the limb's stick and its
+    # rate), newest first, at a learning rate below PPO's default 3e-4 (the frames move
+    # Adam's steps together)
+    assert config.algorithm_kwargs["learning_rate"] < 3e-4
     env = make_env(config)
     observation, _ = env.reset(seed=0)
     assert env.observation_space.contains(observation)
+    assert env.actor_inputs == 20 * 4
+    frames = [observation[:4].copy()]
+    for _ in range(25):
+        observation, *_ = env.step(np.full(1, 0.1))
+        frames.insert(0, observation[:4].copy())
+    np.testing.assert_array_equal(observation[:80].reshape(20, 4), frames[:20])
     env.close()
 
 
