@@ -55,9 +55,10 @@ The human's problem, as the optimal control model poses it
   past of its noisy display (its Kalman filter) and predicts through its delay; a policy
   that reads one frame cannot average the observation noise or see where the error is
   heading beyond its present rate. With one frame the agents' crossover stayed where
-  the typical pilots' is on every element (about 2 rad/s; McRuer's regression from
+  the typical pilots' is on every element (about 2 rad/s: McRuer's regression from
   ``1/s`` to ``1/s^2`` did not show); with the memory it falls from ``1/s`` to
-  ``1/(s(s+1))`` to ``1/s^2`` and the returns rise (``docs/surrogates.md``).
+  ``1/s^2`` on every seed (``1/(s(s+1))`` between them on average), and the returns
+  rise on those two elements (``docs/surrogates.md``).
 
 PPO with eight environments, a 64-64 network, 1.2 million steps at a learning rate of
 1e-4 (a third of PPO's default: with 20 frames of history its default lost the typical
@@ -74,9 +75,11 @@ advantages were mostly that future, and training from the typical pilot ended be
 the typical pilot's own return on six agents of nine (three seeds on each element, 16
 held-out episodes) and left the loop wherever the noise took it (five of the nine
 outside a human range in one figure). With the informed critic (97 % of the returns
-explained) the same seeds' mean return is higher on every element, five agents of nine
-end above the typical pilot's, and their figures are in the human ranges (all nine
-over five periods, eight over one; ``docs/surrogates.md``). From its random policy,
+explained) the same seeds' mean return is higher on every element and five agents of
+nine end above the typical pilot's; with the memory as well, six (every seed on
+``1/s`` and ``1/s^2``, none on ``1/(s(s+1))``, where no agent of either form beats the
+typical pilot's equaliser), and eight of nine are in every human range over one
+period and over five (``docs/surrogates.md``). From its random policy,
 PPO on the double integrator and ``1/(s(s+1))`` settles on a low-gain drift (0.3-0.4
 rad/s crossover) and never finds the lead these elements need. With PPO's default exploration (a
 standard deviation of one stick unit, white), training from the typical pilot lost the

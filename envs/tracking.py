@@ -330,7 +330,10 @@ class TrackingEnv(gym.Env[FloatArray, FloatArray]):
 
     @property
     def sample_index(self) -> int:
-        """Index ``k`` of the present observation's sample: 0 after :meth:`reset`, -1 before."""
+        """Index ``k`` of the present observation's sample: ``k`` steps after :meth:`reset`.
+
+        -1 before the first reset.
+        """
         return self._k
 
     def forcing_samples(self) -> tuple[FloatArray, FloatArray]:
