@@ -48,7 +48,11 @@ def policy_mean(policy, states):
 
 @pytest.mark.parametrize("element", ["1/s^2", "1/(s(s+1))"])
 def test_the_cloned_policy_acts_as_the_typical_pilots_equaliser(element):
-    config = short(human_problem(element, warm_start="typical-pilot"))
+    # one frame: the fit to a history is the next test's (a short fit to the recipes' 20
+    # frames needs more states and steps than this test can afford)
+    config = short(
+        dataclasses.replace(human_problem(element, warm_start="typical-pilot"), history_length=1)
+    )
     law = typical_pilot_law(config)
     typical = reference_pilot(element)
     # the law is the precision model's equaliser K_p e + K_v e_dot on the display
@@ -77,7 +81,9 @@ def test_a_start_with_a_history_acts_on_the_newest_frame():
     """With a memory, the start is still the law: on the newest (e, e_dot) of the window."""
     # the critic's information (appended after the history) is not what is tested here
     single = dataclasses.replace(
-        short(human_problem("1/s", warm_start="typical-pilot")), critic_information=False
+        short(human_problem("1/s", warm_start="typical-pilot")),
+        critic_information=False,
+        history_length=1,
     )
     config = dataclasses.replace(single, history_length=4)
     law = typical_pilot_law(config)
@@ -96,9 +102,10 @@ def test_a_start_with_a_history_acts_on_the_newest_frame():
 
 
 def test_training_from_the_typical_pilot_says_so_and_saves_the_start(tmp_path):
-    config = dataclasses.replace(
-        short(recipe("lag", total_timesteps=64)), algorithm_kwargs={"n_steps": 64}
-    )
+    lag = recipe("lag", total_timesteps=64)
+    # one short update at the recipe's own learning rate (its history's frames need it)
+    options = {**lag.algorithm_kwargs, "n_steps": 64, "batch_size": 64}
+    config = dataclasses.replace(short(lag), algorithm_kwargs=options)
     assert config.warm_start == "typical-pilot"
     lines = []
     agent = train(config, tmp_path / "agent", report=lines.append, report_every=10**9)
@@ -128,7 +135,7 @@ def test_episodes_too_short_for_the_critics_returns_are_refused():
 
 
 def test_a_start_the_observation_cannot_carry_is_refused():
-    base = human_problem("1/s^2")
+    base = dataclasses.replace(human_problem("1/s^2"), history_length=1)
     with pytest.raises(ValueError, match="warm_start must be one of"):
         dataclasses.replace(base, warm_start="expert")
     for change, message in (
