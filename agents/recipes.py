@@ -130,6 +130,10 @@ _PPO = {"n_steps": 512, "batch_size": 256}
 _HISTORY_FRAMES = 20
 #: PPO's learning rate on tracking: a third of its default, for the history's frames.
 _TRACKING_LEARNING_RATE = 1e-4
+#: Tracking validates the policy every so many steps on as many held-out episodes and
+#: keeps the best weights, the start's among them (``select_every``).
+_TRACKING_SELECT_EVERY = 100_000
+_TRACKING_SELECT_EPISODES = 20
 
 
 def optimal_control_effort_weight(
@@ -256,6 +260,8 @@ def _tracking(element: str) -> dict[str, Any]:
         "n_envs": 8,
         "algorithm_kwargs": {**_PPO, "learning_rate": _TRACKING_LEARNING_RATE},
         "policy_kwargs": {"net_arch": [64, 64], "log_std_init": math.log(exploration)},
+        "select_every": _TRACKING_SELECT_EVERY,
+        "select_episodes": _TRACKING_SELECT_EPISODES,
     }
 
 

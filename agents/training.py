@@ -58,7 +58,8 @@ two million; ``docs/surrogates.md``). ``select_every`` flies the policy's mean a
 every so many steps on ``select_episodes`` validation episodes of the training
 environment, seeded from :data:`VALIDATION_SEED` up (seeds no training run or
 evaluation starts from), and keeps the weights with the highest mean undiscounted
-return, the quantity training maximises; the final weights are validated too. This is
+return, the quantity training maximises; the weights training starts from (a warm
+start's typical pilot) and the final weights are validated too. This is
 model selection on held-out episodes, early stopping's rule, and it changes nothing
 about the training run itself: the same seed trains the same weights with or without
 it.
@@ -739,6 +740,11 @@ def _selection_callback(config: TrainingConfig) -> Any:
             if score >= self.best_score:
                 self.best_score, self.best_step = score, int(self.num_timesteps)
                 self.best_state = copy.deepcopy(self.model.policy.state_dict())
+
+        def _on_training_start(self) -> None:
+            # the weights training starts from compete too: a warm start's (the typical
+            # pilot's equaliser) can validate above every update's
+            self.validate()
 
         def _on_step(self) -> bool:
             if self.num_timesteps % every < self.training_env.num_envs:

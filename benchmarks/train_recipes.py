@@ -85,7 +85,9 @@ def variant_config(config, variant: str):
     if variant == "recipe":
         return config
     options = {k: v for k, v in config.algorithm_kwargs.items() if k != "learning_rate"}
-    config = dataclasses.replace(config, history_length=1, algorithm_kwargs=options)
+    config = dataclasses.replace(
+        config, history_length=1, algorithm_kwargs=options, select_every=None
+    )
     if variant == "display-critic":
         config = dataclasses.replace(config, critic_information=False)
     return config

@@ -336,7 +336,8 @@ def test_the_output_error_fit_holds_the_lead_on_a_single_integrator_only(element
 
 
 #: A short PPO training whose policy changes enough between validations to score
-#: differently: four validations during training and one of the final weights.
+#: differently: the starting weights, four validations during training and the final
+#: weights.
 SELECTED = TrainingConfig(
     env_kwargs={"measurement_time": 2.0},
     wrappers=DELAY,
@@ -361,8 +362,9 @@ def selected(tmp_path_factory):
 def test_selection_keeps_the_weights_that_validate_best(selected):
     folder, selection, lines = selected
     history = selection["history"]
-    assert [entry["step"] for entry in history] == [64, 128, 192, 256, 256]
-    assert [entry["final"] for entry in history] == [False] * 4 + [True]
+    # the starting weights, four validations during training and the final weights
+    assert [entry["step"] for entry in history] == [0, 64, 128, 192, 256, 256]
+    assert [entry["final"] for entry in history] == [False] * 5 + [True]
     scores = [entry["score"] for entry in history]
     assert len(set(scores)) > 1  # the weights changed between validations
     best = max(range(len(scores)), key=lambda i: (scores[i], i))  # ties: the later
