@@ -97,7 +97,7 @@ from typing import Any
 
 import numpy as np
 
-from manualcontrol.agents.training import TrainingConfig
+from manualcontrol.agents.training import VALIDATION_SEED, TrainingConfig
 from manualcontrol.envs._validation import check_choice, check_int
 
 __all__ = [
@@ -134,6 +134,10 @@ _TRACKING_LEARNING_RATE = 1e-4
 #: keeps the best weights, the start's among them (``select_every``).
 _TRACKING_SELECT_EVERY = 100_000
 _TRACKING_SELECT_EPISODES = 20
+#: Their first seed: apart from the held-out episodes from ``VALIDATION_SEED`` up that
+#: ``benchmarks/train_recipes.py`` measures every agent's return on (and the lane
+#: recipes validate on), so that no agent is judged on the episodes it was chosen on.
+_TRACKING_SELECT_SEED = VALIDATION_SEED + 1_000
 
 
 def optimal_control_effort_weight(
@@ -262,6 +266,7 @@ def _tracking(element: str) -> dict[str, Any]:
         "policy_kwargs": {"net_arch": [64, 64], "log_std_init": math.log(exploration)},
         "select_every": _TRACKING_SELECT_EVERY,
         "select_episodes": _TRACKING_SELECT_EPISODES,
+        "select_seed": _TRACKING_SELECT_SEED,
     }
 
 

@@ -56,10 +56,10 @@ did well in states it rarely visits (a lane-keeping agent whose weights after 1.
 million steps keep five evaluation roads of five keeps none with its weights after
 two million; ``docs/surrogates.md``). ``select_every`` flies the policy's mean action
 every so many steps on ``select_episodes`` validation episodes of the training
-environment, seeded from :data:`VALIDATION_SEED` up (seeds no training run or
-evaluation starts from), and keeps the weights with the highest mean undiscounted
-return, the quantity training maximises; the weights training starts from (a warm
-start's typical pilot) and the final weights are validated too. This is
+environment, seeded from ``select_seed`` up (:data:`VALIDATION_SEED` by default: seeds
+no training run or evaluation starts from), and keeps the weights with the highest
+mean undiscounted return, the quantity training maximises; the weights training starts
+from (a warm start's typical pilot) and the final weights are validated too. This is
 model selection on held-out episodes, early stopping's rule, and it changes nothing
 about the training run itself: the same seed trains the same weights with or without
 it.
@@ -168,6 +168,11 @@ class TrainingConfig:
         Validate the policy every ``select_every`` steps on ``select_episodes``
         episodes and keep the best weights (the module docstring; None, default: keep
         the final weights).
+    select_seed
+        The validation episodes' first seed (:data:`VALIDATION_SEED`, default): they
+        are reset with ``select_seed``, ``select_seed + 1``, ... Move it where other
+        episodes from that seed up measure the kept agent, so that the weights are not
+        chosen on the episodes that then judge them.
     observation_noise_ratio
         Observation noise on the display, as the OCM's noise-to-signal ratio ``rho`` of
         each observed signal (noise intensity ``pi rho`` times its variance;
@@ -221,6 +226,7 @@ class TrainingConfig:
     checkpoint_every: int | None = None
     select_every: int | None = None
     select_episodes: int = 20
+    select_seed: int = VALIDATION_SEED
     observation_noise_ratio: float | Schedule = 0.0
     effort_rate_weight: float | Schedule = 0.0
     history_length: int = 1
@@ -239,6 +245,7 @@ class TrainingConfig:
         if self.select_every is not None:
             check_int("select_every", self.select_every, minimum=1)
         check_int("select_episodes", self.select_episodes, minimum=1)
+        check_int("select_seed", self.select_seed, minimum=0)
         object.__setattr__(
             self, "history_length", check_int("history_length", self.history_length, minimum=1)
         )
@@ -689,15 +696,16 @@ def validation_score(policy: Any, config: TrainingConfig, episodes: int) -> floa
     """Mean undiscounted return of ``policy``'s mean action on validation episodes.
 
     ``episodes`` episodes of :func:`make_env` (the wrappers' noise on unless
-    ``config.deterministic``), reset with seeds :data:`VALIDATION_SEED`,
-    ``VALIDATION_SEED + 1``, ...; all flown side by side, one policy call a step for
-    every episode still running. An episode that terminates early (a lane departure,
-    loss of control) keeps the return it had: with a positive reward, what it lost.
+    ``config.deterministic``), reset with seeds ``config.select_seed`` (by default
+    :data:`VALIDATION_SEED`), ``config.select_seed + 1``, ...; all flown side by side,
+    one policy call a step for every episode still running. An episode that terminates
+    early (a lane departure, loss of control) keeps the return it had: with a positive
+    reward, what it lost.
     """
     check_int("episodes", episodes, minimum=1)
     envs = [make_env(config, noise=not config.deterministic) for _ in range(episodes)]
     try:
-        observations = [env.reset(seed=VALIDATION_SEED + i)[0] for i, env in enumerate(envs)]
+        observations = [env.reset(seed=config.select_seed + i)[0] for i, env in enumerate(envs)]
         returns = np.zeros(episodes)
         running = list(range(episodes))
         while running:
@@ -755,7 +763,7 @@ def _selection_callback(config: TrainingConfig) -> Any:
             return {
                 "select_every": every,
                 "select_episodes": config.select_episodes,
-                "validation_seed": VALIDATION_SEED,
+                "validation_seed": config.select_seed,
                 "kept_step": self.best_step,
                 "kept_score": self.best_score,
                 "history": self.history,

@@ -13,7 +13,7 @@ from manualcontrol.agents.recipes import (
     recipe,
     typical_stick_rms,
 )
-from manualcontrol.agents.training import make_env
+from manualcontrol.agents.training import VALIDATION_SEED, make_env
 from manualcontrol.agents.wrappers import ObservationScale
 from manualcontrol.bench.cli import main
 from manualcontrol.estimators.analysis.human_likeness import reference_pilot
@@ -52,6 +52,11 @@ def test_the_human_problem_imposes_the_typical_pilots_own_limitations(element):
     # rate), newest first, at a learning rate below PPO's default 3e-4 (the frames move
     # Adam's steps together)
     assert config.algorithm_kwargs["learning_rate"] < 3e-4
+    # the kept weights are the best validated ones, chosen on episodes apart from those
+    # from VALIDATION_SEED up, where the results page measures every agent's return
+    assert config.select_every is not None and config.select_every < config.total_timesteps
+    chosen_on = range(config.select_seed, config.select_seed + config.select_episodes)
+    assert not set(chosen_on) & set(range(VALIDATION_SEED, VALIDATION_SEED + 100))
     env = make_env(config)
     observation, _ = env.reset(seed=0)
     assert env.observation_space.contains(observation)

@@ -245,6 +245,7 @@ def test_evaluation_periods_must_be_whole_and_not_fight_a_measurement_time(train
         ),
         ({"select_every": 0}, ValueError, "select_every must be >= 1, got 0"),
         ({"select_episodes": 0}, ValueError, "select_episodes must be >= 1, got 0"),
+        ({"select_seed": -1}, ValueError, "select_seed must be >= 0, got -1"),
     ],
 )
 def test_bad_configurations_fail_before_training(kwargs, error, message):
@@ -409,3 +410,6 @@ def test_the_validation_score_is_the_mean_return_of_the_episodes_flown_one_by_on
     # time: float32 matrix products of other shapes may round differently
     assert validation_score(agent.policy, SELECTED, 3) == pytest.approx(np.mean(returns), rel=1e-6)
     assert validation_score(agent.policy, SELECTED, 1) == pytest.approx(returns[0], rel=1e-6)
+    # select_seed moves the episodes: from VALIDATION_SEED + 1 they are the last two
+    moved = dataclasses.replace(SELECTED, select_seed=VALIDATION_SEED + 1)
+    assert validation_score(agent.policy, moved, 2) == pytest.approx(np.mean(returns[1:]), rel=1e-6)
