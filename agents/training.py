@@ -86,6 +86,7 @@ import dataclasses
 import json
 import math
 import time
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -109,18 +110,21 @@ from manualcontrol.envs.schedules import Schedule
 
 __all__ = [
     "ALGORITHMS",
+    "PPO_DEFAULT_LEARNING_RATE",
     "TASK_IDS",
     "VALIDATION_SEED",
     "WARM_STARTS",
     "TrainedAgent",
     "TrainingConfig",
     "TypicalPilotAgent",
+    "WarmStartWarning",
     "clone_typical_pilot",
     "load_agent",
     "make_env",
     "policy_spec",
     "train",
     "validation_score",
+    "warm_start_warning",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -772,6 +776,37 @@ def _selection_callback(config: TrainingConfig) -> Any:
     return Selection()
 
 
+class WarmStartWarning(UserWarning):
+    """A warm start configured so that its first updates are likely to lose it."""
+
+
+#: stable-baselines3's PPO learning rate, where none is given.
+PPO_DEFAULT_LEARNING_RATE = 3e-4
+
+
+def warm_start_warning(config: TrainingConfig) -> str | None:
+    """Why ``config``'s warm start is likely lost in its first update, or None.
+
+    A typical pilot's start with a history at PPO's default learning rate (or above):
+    Adam's first steps move each input weight by about the learning rate, and the
+    history's frames, a sample apart, are nearly equal, so one update moves the action
+    up to ``history_length`` times as far as from one frame (the recipes' 20 frames at
+    3e-4 lost the typical pilot's loop in the first update: ``history_length``).
+    """
+    if config.warm_start != "typical-pilot" or config.history_length == 1:
+        return None
+    rate = config.algorithm_kwargs.get("learning_rate", PPO_DEFAULT_LEARNING_RATE)
+    if not isinstance(rate, (int, float)) or rate < PPO_DEFAULT_LEARNING_RATE:
+        return None  # a schedule is the user's own design
+    return (
+        f"warm_start='typical-pilot' with history_length={config.history_length} at a "
+        f"learning rate of {rate:g}: the frames move Adam's first steps together, and "
+        f"the first update can lose the typical pilot's loop; give algorithm_kwargs "
+        f"learning_rate below {PPO_DEFAULT_LEARNING_RATE:g} (the tracking recipes train "
+        f"20 frames at 1e-4)"
+    )
+
+
 def train(
     config: TrainingConfig,
     output: str | Path,
@@ -809,6 +844,9 @@ def _train(
     from stable_baselines3.common.logger import Logger
 
     output = Path(output)
+    warning = warm_start_warning(config)
+    if warning is not None:
+        warnings.warn(warning, WarmStartWarning, stacklevel=3)
     accepted = _algorithm_options(config.algorithm)
     unknown = sorted(set(config.algorithm_kwargs) - set(accepted))
     if unknown:

@@ -1405,7 +1405,14 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from manualcontrol.agents.training import TrainingConfig, train
+    import warnings
+
+    from manualcontrol.agents.training import (
+        TrainingConfig,
+        WarmStartWarning,
+        train,
+        warm_start_warning,
+    )
 
     _check_output("--out", args.out, folder=True)
     report = None if args.quiet else _training_report
@@ -1470,7 +1477,21 @@ def _cmd_train(args: argparse.Namespace) -> int:
         for name, (flag, _) in renamed.items():
             text = text.replace(name, flag)
         raise UsageError(_led_by_flag(text, "train")) from None
-    _saved(train(config, args.out, report=report))
+    warning = warm_start_warning(config)
+    if warning is not None:  # said before the minutes of training, in the flags' words
+        for name, flag in (
+            ("warm_start='typical-pilot'", "--warm-start typical-pilot"),
+            ("history_length=", "--history "),
+            (
+                "give algorithm_kwargs learning_rate below",
+                "give --algorithm-option learning_rate=R, R below",
+            ),
+        ):
+            warning = warning.replace(name, flag)
+        print(f"manualcontrol train: warning: {warning}", file=sys.stderr)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", WarmStartWarning)
+        _saved(train(config, args.out, report=report))
     return EXIT_OK
 
 

@@ -21,12 +21,13 @@ Elements in ``--warm-start`` (default: all three, as the recipes ``si``, ``di`` 
 Run: .venv/bin/python benchmarks/train_recipes.py [--elements 1/s 1/s^2 "1/(s(s+1))"]
      [--lane-keeping angle torque] [--seeds 0 1 2]
      [--jobs 2] [--out results/recipes] [--markdown docs/surrogates.md] [--steps N]
-     [--periods N] [--existing] [--variant recipe|one-frame|display-critic]
+     [--periods N] [--existing] [--variant recipe|final|one-frame|display-critic]
 
 ``--periods N`` evaluates each tracking agent over N forcing periods read together (a
 laboratory's average over repeated runs); ``--existing`` re-evaluates the tracking agents
 already in ``--out`` without training them again. ``--variant`` trains (or re-evaluates)
-the tracking agents in an earlier form of the recipes (:func:`variant_config`).
+the tracking agents in an earlier form of the recipes (:func:`variant_config`);
+``--existing --variant final`` re-evaluates the recipes' trainings with their last weights.
 
 ``--markdown`` writes the tables as a results page; ``--table results/recipes/recipes.json``
 writes it from an earlier run's figures without training.
@@ -71,8 +72,10 @@ def held_out_return(actor, config) -> float:
 
 
 #: The forms of the human's problem a tracking job trains: the recipes' own, and the
-#: earlier forms the results page compares them with (``--variant``).
-VARIANTS = ("recipe", "one-frame", "display-critic")
+#: earlier forms the results page compares them with (``--variant``). ``final`` is the
+#: recipe's own training with the weights it ended with instead of the kept ones (the
+#: recipes before they kept their best validated weights): it is only re-evaluated.
+VARIANTS = ("recipe", "final", "one-frame", "display-critic")
 
 
 def variant_config(config, variant: str):
@@ -82,7 +85,7 @@ def variant_config(config, variant: str):
     rate (the recipes before their memory); ``display-critic``: that, with a critic
     that reads only the display too (the recipes before their informed critic).
     """
-    if variant == "recipe":
+    if variant in ("recipe", "final"):
         return config
     options = {k: v for k, v in config.algorithm_kwargs.items() if k != "learning_rate"}
     config = dataclasses.replace(
@@ -120,15 +123,23 @@ def run_tracking(
     config = variant_config(config, variant)
     folder = element.replace("/", "_").replace("(", "").replace(")", "").replace("^", "")
     folder += "-warm" if warm else ""
-    folder += "" if variant == "recipe" else f"-{variant}"
+    folder += "" if variant in ("recipe", "final") else f"-{variant}"
+    folder = Path(out) / f"{folder}-seed{seed}"
     start = time.perf_counter()
     if existing:
-        agent = load_agent(Path(out) / f"{folder}-seed{seed}")
+        agent = load_agent(folder)
         train_s = "-"
+    elif variant == "final":
+        raise ValueError("--variant final re-evaluates the recipe's training: give --existing")
     else:
-        agent = train(config, Path(out) / f"{folder}-seed{seed}", report=None)
+        agent = train(config, folder, report=None)
         train_s = round(time.perf_counter() - start)
     row = {"element": element, "seed": seed, "train_s": train_s, "periods": periods}
+    if variant == "final":
+        agent.policy.load_state_dict(torch.load(folder / "policy_final.pt", weights_only=True))
+        row["weights"] = "final"
+    elif (folder / "selection.json").is_file():
+        row["weights"] = json.loads((folder / "selection.json").read_text())["kept_step"]
     row["start"] = config.warm_start
     row["critic"] = "informed" if config.critic_information else "display"
     row["memory"] = config.history_length
@@ -219,6 +230,7 @@ def markdown(rows: list[dict], command: str) -> str:
             row.get("critic", "informed") != "display",
             row.get("memory", 1),
             str(row["seed"]),
+            row.get("weights") == "final",
             row.get("periods", 1),
         )
     )
@@ -263,10 +275,17 @@ def markdown(rows: list[dict], command: str) -> str:
         "default learning rate (`--variant one-frame`), and that with critic",
         "`display`, a critic that reads only the display (`--variant display-critic`).",
         "",
-        "| element | start | critic | memory | seed | train (s) | periods | return | "
+        "`weights`: the recipes keep the best of the weights validated every",
+        "100,000 steps on 20 episodes apart from the held-out ones, the start's",
+        "among them (`select_every`; `kept at` the step they are from, 0 the warm",
+        "start itself); `final` is the same training's last weights (the recipes",
+        "before they kept their best: the same training, so the same weights); `-`:",
+        "the earlier forms, which kept their last weights.",
+        "",
+        "| element | start | critic | memory | weights | seed | train (s) | periods | return | "
         + " | ".join(FIGURES)
         + " | OCM |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | "
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | "
         + " | ".join("---" for _ in FIGURES)
         + " | --- |",
     ]
@@ -277,9 +296,11 @@ def markdown(rows: list[dict], command: str) -> str:
             text = "-" if value is None or value != value else f"{value:.3g}"
             cells.append(text + (" *" if name in row["outside"] else ""))
         ocm = " / ".join(f"{v:g}" for v in row.get("ocm", [])) or "-"
+        weights = row.get("weights", "-")
+        weights = f"kept at {weights:,}" if isinstance(weights, int) else weights
         lines.append(
             f"| {row['element']} | {row.get('start', 'none')} | {row.get('critic', '-')} | "
-            f"{row.get('memory', '-')} | {row['seed']} | "
+            f"{row.get('memory', '-')} | {weights} | {row['seed']} | "
             f"{row['train_s']} | {row.get('periods', 1)} | {row.get('return', '-')} | "
             + " | ".join(cells)
             + f" | {ocm} |"
@@ -398,7 +419,8 @@ def main() -> None:
         for row in rows:
             if row.get("train_s") == "-" and (row.get("element"), row["seed"]) in trained:
                 row["train_s"] = trained[row.get("element"), row["seed"]]
-        table = Path(args.out) / f"recipes-periods{args.periods}.json"
+        form = "" if args.variant == "recipe" else f"-{args.variant}"
+        table = Path(args.out) / f"recipes{form}-periods{args.periods}.json"
     Path(args.out).mkdir(parents=True, exist_ok=True)
     table.write_text(json.dumps(rows, indent=2))
     if args.markdown is not None:

@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -10,12 +11,15 @@ from stable_baselines3 import PPO
 
 from manualcontrol.agents.recipes import RECIPE_ELEMENTS, human_problem, recipe
 from manualcontrol.agents.training import (
+    PPO_DEFAULT_LEARNING_RATE,
     TrainingConfig,
+    WarmStartWarning,
     clone_typical_pilot,
     make_env,
     policy_spec,
     train,
     typical_pilot_law,
+    warm_start_warning,
 )
 from manualcontrol.estimators.analysis.human_likeness import reference_pilot
 
@@ -108,7 +112,9 @@ def test_training_from_the_typical_pilot_says_so_and_saves_the_start(tmp_path):
     config = dataclasses.replace(short(lag), algorithm_kwargs=options)
     assert config.warm_start == "typical-pilot"
     lines = []
-    agent = train(config, tmp_path / "agent", report=lines.append, report_every=10**9)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", WarmStartWarning)  # the recipe's rate: no warning
+        agent = train(config, tmp_path / "agent", report=lines.append, report_every=10**9)
     assert lines[0].startswith("warm start: the typical pilot's equaliser fitted on")
     saved = json.loads((tmp_path / "agent" / "config.json").read_text())
     assert saved["warm_start"] == "typical-pilot"
@@ -170,3 +176,39 @@ def test_the_train_command_names_its_flags_when_a_start_cannot_be_made(tmp_path,
         code = main(["train", "--warm-start", "typical-pilot", *flags, "--out", str(out)])
         assert code == 2 and message in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_start_with_a_history_at_ppos_default_learning_rate_is_warned_of():
+    history = recipe("si")
+    assert warm_start_warning(history) is None  # the recipe's third of the default
+    default = {k: v for k, v in history.algorithm_kwargs.items() if k != "learning_rate"}
+    at_default = dataclasses.replace(history, algorithm_kwargs=default)
+    message = warm_start_warning(at_default)
+    assert "history_length=20 at a learning rate of 0.0003" in message
+    assert f"learning_rate below {PPO_DEFAULT_LEARNING_RATE:g}" in message
+    faster = dataclasses.replace(history, algorithm_kwargs={**default, "learning_rate": 1e-3})
+    assert "learning rate of 0.001" in warm_start_warning(faster)
+    # one frame, or no start to lose: nothing to warn of
+    assert warm_start_warning(dataclasses.replace(at_default, history_length=1)) is None
+    assert warm_start_warning(dataclasses.replace(at_default, warm_start="none")) is None
+
+
+def test_the_train_command_warns_of_a_history_at_ppos_default_rate_before_training(
+    tmp_path, capsys
+):
+    from manualcontrol.bench.cli import main
+
+    flags = [
+        "train", "--warm-start", "typical-pilot", "--algorithm", "ppo", "--history", "5",
+        "--env", "include_rates=true", "--env", "measurement_time=6", "--steps", "64",
+        "--envs", "1", "--algorithm-option", "n_steps=64", "--algorithm-option",
+        "batch_size=64", "--quiet",
+    ]  # fmt: skip
+    assert main([*flags, "--out", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err
+    assert "manualcontrol train: warning: --warm-start typical-pilot with --history 5" in err
+    assert "give --algorithm-option learning_rate=R, R below 0.0003" in err
+    assert err.count("warning") == 1  # the library's own warning is not repeated
+    slower = [*flags, "--algorithm-option", "learning_rate=1e-4", "--out", str(tmp_path / "b")]
+    assert main(slower) == 0
+    assert "warning" not in capsys.readouterr().err
