@@ -131,9 +131,9 @@ _HISTORY_FRAMES = 20
 #: PPO's learning rate on tracking: a third of its default, for the history's frames.
 _TRACKING_LEARNING_RATE = 1e-4
 #: Tracking validates the policy every so many steps on as many held-out episodes and
-#: keeps the best weights, the start's among them (``select_every``). A validation
-#: flies twenty 30-s episodes through the wrappers, 20-30 s on a busy core: every
-#: 100,000 steps took the training from about 6 to 12.7 minutes.
+#: keeps the best weights, the start's among them (``select_every``). The validated
+#: return moves a few points per 100,000 steps, and a validation flies twenty 30-s
+#: episodes through the wrappers (about 5 s): every 200,000 steps is 8 validations.
 _TRACKING_SELECT_EVERY = 200_000
 _TRACKING_SELECT_EPISODES = 20
 #: Their first seed: apart from the held-out episodes from ``VALIDATION_SEED`` up that
