@@ -2,7 +2,8 @@
 
 For each batch of the chosen suites, the first scenario is run ``--repeats`` times in
 this process after one warm-up run (compiled kernels loaded), and the median CPU time
-of each stage printed (process CPU time, so other load on the machine counts little):
+of each stage printed (process CPU time, so other load on the machine counts little;
+one BLAS thread, as the bench's runs have):
 
 - simulate: ``runner.simulate_scenario`` (the closed loop, remnant calibration);
 - estimate: the DEKF over the whole run;
@@ -25,6 +26,8 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
+
+from threadpoolctl import threadpool_limits
 
 from manualcontrol.bench.runner import make_estimator, simulate_scenario
 from manualcontrol.bench.scenarios import load_suite
@@ -69,6 +72,10 @@ def main():
         help="keep remembered forcing evaluations between repeats (a batch's later runs)",
     )
     args = parser.parse_args()
+    # one BLAS thread, as the bench runs every scenario (runner._one_thread): process
+    # CPU time counts every thread's spinning, which made the estimate stage read 2.5x
+    # its single-thread cost
+    threadpool_limits(1)
     forget = (lambda: None) if args.warm_forcing else _forget_forcing
     names = args.suite or ["vertregt2020-performance", "popovici2017", "vertregt2020-feasibility"]
     with tempfile.TemporaryDirectory() as temporary:
