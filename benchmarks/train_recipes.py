@@ -413,12 +413,13 @@ def main() -> None:
             rows.append(future.result())
             print(json.dumps(rows[-1]), flush=True)
     table = Path(args.out) / "recipes.json"
-    if args.existing and table.exists():
-        earlier = json.loads(table.read_text())
-        trained = {(r.get("element"), r["seed"]): r["train_s"] for r in earlier}
-        for row in rows:
-            if row.get("train_s") == "-" and (row.get("element"), row["seed"]) in trained:
-                row["train_s"] = trained[row.get("element"), row["seed"]]
+    if args.existing:  # the training run's own table stays as it was written
+        if table.exists():
+            earlier = json.loads(table.read_text())
+            trained = {(r.get("element"), r["seed"]): r["train_s"] for r in earlier}
+            for row in rows:
+                if row.get("train_s") == "-" and (row.get("element"), row["seed"]) in trained:
+                    row["train_s"] = trained[row.get("element"), row["seed"]]
         form = "" if args.variant == "recipe" else f"-{args.variant}"
         table = Path(args.out) / f"recipes{form}-periods{args.periods}.json"
     Path(args.out).mkdir(parents=True, exist_ok=True)
