@@ -276,7 +276,7 @@ def markdown(rows: list[dict], command: str) -> str:
         "`display`, a critic that reads only the display (`--variant display-critic`).",
         "",
         "`weights`: the recipes keep the best of the weights validated every",
-        "100,000 steps on 20 episodes apart from the held-out ones, the start's",
+        "200,000 steps on 20 episodes apart from the held-out ones, the start's",
         "among them (`select_every`; `kept at` the step they are from, 0 the warm",
         "start itself); `final` is the same training's last weights (the recipes",
         "before they kept their best: the same training, so the same weights); `-`:",
