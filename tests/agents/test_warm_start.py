@@ -209,6 +209,3 @@ def test_the_train_command_warns_of_a_history_at_ppos_default_rate_before_traini
     assert "manualcontrol train: warning: --warm-start typical-pilot with --history 5" in err
     assert "give --algorithm-option learning_rate=R, R below 0.0003" in err
     assert err.count("warning") == 1  # the library's own warning is not repeated
-    slower = [*flags, "--algorithm-option", "learning_rate=1e-4", "--out", str(tmp_path / "b")]
-    assert main(slower) == 0
-    assert "warning" not in capsys.readouterr().err
