@@ -87,9 +87,17 @@ def variant_config(config, variant: str):
     """
     if variant in ("recipe", "final"):
         return config
+    from manualcontrol.agents.training import VALIDATION_SEED
+
     options = {k: v for k, v in config.algorithm_kwargs.items() if k != "learning_rate"}
+    # the earlier forms kept their last weights: no selection, its seed the default, so
+    # each form equals the configuration its agents were trained with (their config.json)
     config = dataclasses.replace(
-        config, history_length=1, algorithm_kwargs=options, select_every=None
+        config,
+        history_length=1,
+        algorithm_kwargs=options,
+        select_every=None,
+        select_seed=VALIDATION_SEED,
     )
     if variant == "display-critic":
         config = dataclasses.replace(config, critic_information=False)
