@@ -144,7 +144,8 @@ _TRACKING_LEARNING_RATE = 1e-4
 #: keeps the best weights, the start's among them (``select_every``). The validated
 #: return moves a few points per 100,000 steps, and a validation flies twenty 30-s
 #: episodes through the wrappers (12 CPU-s where the results page's agents trained):
-#: every 200,000 steps is 8 validations, about a seventh of a training.
+#: every 200,000 steps is 8 validations, about a seventh of a training's CPU time, flown
+#: on a second core while training goes on where there is one.
 _TRACKING_SELECT_EVERY = 200_000
 _TRACKING_SELECT_EPISODES = 20
 #: Their first seed: apart from the held-out episodes from ``VALIDATION_SEED`` up that

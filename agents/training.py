@@ -62,7 +62,9 @@ mean undiscounted return, the quantity training maximises; the weights training 
 from (a warm start's typical pilot) and the final weights are validated too. This is
 model selection on held-out episodes, early stopping's rule, and it changes nothing
 about the training run itself: the same seed trains the same weights with or without
-it.
+it. On a machine with more than one core the validations are flown in a second process
+while training goes on (:mod:`~manualcontrol.agents._validation_worker`), with the
+scores, and so the kept weights, the training process would have found.
 
 Evaluation
 ----------
@@ -85,6 +87,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
+import pickle
+import subprocess
+import sys
 import time
 import warnings
 from collections.abc import Callable, Mapping
@@ -728,7 +734,77 @@ def validation_score(policy: Any, config: TrainingConfig, episodes: int) -> floa
     return float(np.mean(returns))
 
 
-def _selection_callback(config: TrainingConfig) -> Any:
+class _BackgroundValidation:
+    """The validation worker (:mod:`~manualcontrol.agents._validation_worker`) of one training.
+
+    :meth:`submit` hands it a policy's weights and returns at once; :meth:`scores` ends
+    the worker and returns each submission's score, in order.
+    """
+
+    def __init__(self, config: TrainingConfig) -> None:
+        self._config = config.to_dict()
+        self._submitted = 0
+        self._process = subprocess.Popen(
+            [sys.executable, "-m", "manualcontrol.agents._validation_worker"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+        )
+
+    def submit(self, state: Mapping[str, Any], episodes: int) -> None:
+        weights = {name: value.detach().cpu().numpy().copy() for name, value in state.items()}
+        try:
+            pickle.dump((self._config, weights, episodes), self._process.stdin)
+            self._process.stdin.flush()
+        except BrokenPipeError:
+            raise RuntimeError(self._stopped(0)) from None
+        self._submitted += 1
+
+    def scores(self) -> list[float]:
+        try:
+            pickle.dump(None, self._process.stdin)
+            self._process.stdin.close()
+        except BrokenPipeError:
+            pass  # the worker is gone: reading says how far it got
+        scores: list[float] = []
+        while len(scores) < self._submitted:
+            try:
+                kind, value = pickle.load(self._process.stdout)
+            except EOFError:
+                raise RuntimeError(self._stopped(len(scores))) from None
+            if kind == "error":
+                raise RuntimeError(f"validation in the background process failed: {value}")
+            scores.append(value)
+        self._process.wait()
+        return scores
+
+    def _stopped(self, answered: int) -> str:
+        code = self._process.wait()
+        return (
+            f"the validation process stopped (exit code {code}) after {answered} of "
+            f"{self._submitted} validations; train with validate_in_background=False to "
+            "validate in this process"
+        )
+
+    def close(self) -> None:
+        if self._process.poll() is None:
+            self._process.kill()
+            self._process.wait()
+        for stream in (self._process.stdin, self._process.stdout):
+            if stream is not None and not stream.closed:
+                stream.close()
+
+
+def _validate_in_background(asked: bool | None) -> bool:
+    if asked is not None:
+        return check_bool("validate_in_background", asked)
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return cores > 1
+
+
+def _selection_callback(config: TrainingConfig, background: _BackgroundValidation | None) -> Any:
     import copy
 
     from stable_baselines3.common.callbacks import BaseCallback
@@ -736,7 +812,11 @@ def _selection_callback(config: TrainingConfig) -> Any:
     every = config.select_every
 
     class Selection(BaseCallback):
-        """Validates the policy every ``every`` steps and keeps the best weights."""
+        """Validates the policy every ``every`` steps and keeps the best weights.
+
+        With ``background``, each validation's weights go to the worker and are judged
+        when :meth:`finish` reads the scores; without, they are flown here and then.
+        """
 
         def __init__(self) -> None:
             super().__init__()
@@ -744,14 +824,32 @@ def _selection_callback(config: TrainingConfig) -> Any:
             self.best_state: dict[str, Any] | None = None
             self.best_score = -math.inf
             self.best_step = 0
+            self._pending: list[tuple[int, bool, dict[str, Any]]] = []
 
         def validate(self, final: bool = False) -> None:
-            score = validation_score(self.model.policy, config, config.select_episodes)
-            self.history.append({"step": int(self.num_timesteps), "score": score, "final": final})
+            step = int(self.num_timesteps)
+            if background is None:
+                score = validation_score(self.model.policy, config, config.select_episodes)
+                self._judge(step, final, score, self.model.policy.state_dict())
+                return
+            state = copy.deepcopy(self.model.policy.state_dict())
+            background.submit(state, config.select_episodes)
+            self._pending.append((step, final, state))
+
+        def finish(self) -> None:
+            """Judge the validations still with the worker, in the order they were made."""
+            if background is None:
+                return
+            for (step, final, state), score in zip(self._pending, background.scores(), strict=True):
+                self._judge(step, final, score, state)
+            self._pending = []
+
+        def _judge(self, step: int, final: bool, score: float, state: Mapping[str, Any]) -> None:
+            self.history.append({"step": step, "score": score, "final": final})
             # ties go to the later, longer-trained weights
             if score >= self.best_score:
-                self.best_score, self.best_step = score, int(self.num_timesteps)
-                self.best_state = copy.deepcopy(self.model.policy.state_dict())
+                self.best_score, self.best_step = score, step
+                self.best_state = copy.deepcopy(dict(state))
 
         def _on_training_start(self) -> None:
             # the weights training starts from compete too: a warm start's (the typical
@@ -813,6 +911,7 @@ def train(
     *,
     report: Callable[[str], None] | None = print,
     report_every: int = 10_000,
+    validate_in_background: bool | None = None,
 ) -> TrainedAgent:
     """Train an agent and save it (see the module docstring) in ``output``.
 
@@ -820,13 +919,21 @@ def train(
     a sum split over threads depends on how many there are, so without this the same
     seed trains different weights on machines with different numbers of cores; and the
     small networks of these agents gain nothing from more threads.
+
+    ``validate_in_background`` (with ``select_every``): fly the validations in a second
+    process while training goes on (:mod:`~manualcontrol.agents._validation_worker`),
+    with the same scores and so the same kept weights; None (default): where this
+    process may run on more than one CPU.
     """
     import torch
 
+    background = config.select_every is not None and _validate_in_background(validate_in_background)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        return _train(config, output, report=report, report_every=report_every)
+        return _train(
+            config, output, report=report, report_every=report_every, background=background
+        )
     finally:
         torch.set_num_threads(threads)
 
@@ -837,6 +944,7 @@ def _train(
     *,
     report: Callable[[str], None] | None,
     report_every: int,
+    background: bool,
 ) -> TrainedAgent:
     import torch
     from stable_baselines3.common.callbacks import CallbackList
@@ -896,18 +1004,25 @@ def _train(
         folder = output / "checkpoints"
         folder.mkdir(exist_ok=True)
         callbacks.append(_checkpoint_callback(config.checkpoint_every, folder))
-    selection = None
-    if config.select_every is not None:
-        selection = _selection_callback(config)
-        callbacks.append(selection)
-    model.learn(total_timesteps=config.total_timesteps, callback=CallbackList(callbacks))
+    selection = validations = None
+    try:
+        if config.select_every is not None:
+            validations = _BackgroundValidation(config) if background else None
+            selection = _selection_callback(config, validations)
+            callbacks.append(selection)
+        model.learn(total_timesteps=config.total_timesteps, callback=CallbackList(callbacks))
+        if selection is not None:
+            final_state = {key: value.clone() for key, value in model.policy.state_dict().items()}
+            atomic_write(output / "policy_final.pt", lambda p: torch.save(final_state, p))
+            # the final weights compete too: they follow the last update, after every
+            # validation that ran during training
+            selection.num_timesteps = model.num_timesteps
+            selection.validate(final=True)
+            selection.finish()
+    finally:
+        if validations is not None:
+            validations.close()
     if selection is not None:
-        final_state = {key: value.clone() for key, value in model.policy.state_dict().items()}
-        atomic_write(output / "policy_final.pt", lambda p: torch.save(final_state, p))
-        # the final weights compete too: they follow the last update, after every
-        # validation that ran during training
-        selection.num_timesteps = model.num_timesteps
-        selection.validate(final=True)
         model.policy.load_state_dict(selection.best_state)
         summary = selection.summary()
         atomic_write(
@@ -947,20 +1062,27 @@ def load_agent(path: str | Path, *, trust_pickle: bool = False) -> TrainedAgent:
     weights = folder / "policy.pt"
     if not weights.is_file():
         raise FileNotFoundError(f"{folder} has no policy.pt weights")
-    env = make_env(config)
-    # only the policy is needed: no replay memory for an off-policy algorithm
-    extra = {"buffer_size": 1} if config.algorithm == "sac" else {}
-    policy, policy_kwargs = policy_spec(config, env)
-    model = algorithm(policy, env, policy_kwargs=policy_kwargs, device="cpu", **extra)
+    policy = _rebuilt_policy(config)
     try:
         state = torch.load(weights, weights_only=True, map_location="cpu")
-        model.policy.load_state_dict(state)
+        policy.load_state_dict(state)
     except Exception as error:  # a truncated, corrupt or foreign file: torch says how
         raise ValueError(
             f"{weights} is not the weights of this agent's policy (corrupt, truncated, or "
             f"from another network: {type(error).__name__}: {error}); retrain it or "
             "restore the file"
         ) from None
+    return TrainedAgent(config, policy, folder)
+
+
+def _rebuilt_policy(config: TrainingConfig) -> Any:
+    """A fresh policy of ``config``'s network, on the CPU, for weights to be loaded into."""
+    algorithm = _algorithm_class(config.algorithm)
+    env = make_env(config)
+    try:
+        # only the policy is needed: no replay memory for an off-policy algorithm
+        extra = {"buffer_size": 1} if config.algorithm == "sac" else {}
+        policy, policy_kwargs = policy_spec(config, env)
+        return algorithm(policy, env, policy_kwargs=policy_kwargs, device="cpu", **extra).policy
     finally:
         env.close()
-    return TrainedAgent(config, model.policy, folder)

@@ -15,6 +15,7 @@ from manualcontrol.agents.evaluation import REFERENCE_PILOTS, evaluate, write_re
 from manualcontrol.agents.training import (
     VALIDATION_SEED,
     TrainingConfig,
+    _BackgroundValidation,
     load_agent,
     make_env,
     train,
@@ -356,7 +357,7 @@ SELECTED = TrainingConfig(
 def selected(tmp_path_factory):
     folder = tmp_path_factory.mktemp("selected")
     lines = []
-    train(SELECTED, folder, report=lines.append, report_every=10_000)
+    train(SELECTED, folder, report=lines.append, report_every=10_000, validate_in_background=True)
     return folder, json.loads((folder / "selection.json").read_text()), lines
 
 
@@ -390,6 +391,48 @@ def test_selection_leaves_the_training_itself_unchanged(selected, tmp_path):
     assert expected.keys() == final.keys()
     for key, value in expected.items():
         assert torch.equal(final[key], value), key
+
+
+def test_validating_in_this_process_keeps_what_the_background_process_kept(selected, tmp_path):
+    folder, selection, _ = selected
+    train(SELECTED, tmp_path, report=None, validate_in_background=False)
+    # the same weights flown on the same episodes score the same, bit for bit
+    assert json.loads((tmp_path / "selection.json").read_text()) == selection
+    for name in ("policy.pt", "policy_final.pt"):
+        here = torch.load(tmp_path / name, weights_only=True)
+        there = torch.load(folder / name, weights_only=True)
+        assert here.keys() == there.keys()
+        for key, value in here.items():
+            assert torch.equal(there[key], value), (name, key)
+
+
+def test_a_validation_the_background_process_cannot_fly_is_reported(selected):
+    folder, _, _ = selected
+    weights = load_agent(folder).policy.state_dict()
+    worker = _BackgroundValidation(SELECTED)
+    try:
+        worker.submit({**weights, "extra": torch.zeros(1)}, 3)
+        with pytest.raises(
+            RuntimeError, match="validation in the background process failed: "
+        ) as e:
+            worker.scores()
+        assert 'Unexpected key(s) in state_dict: "extra"' in str(e.value)
+    finally:
+        worker.close()
+    worker = _BackgroundValidation(SELECTED)
+    try:
+        worker.submit(weights, 3)
+        worker._process.kill()
+        with pytest.raises(RuntimeError, match=r"validation process stopped .* after 0 of 1 "):
+            worker.scores()
+    finally:
+        worker.close()
+
+
+def test_validate_in_background_must_be_a_bool(tmp_path):
+    with pytest.raises(TypeError, match="validate_in_background must be True or False, got 'yes'"):
+        train(SELECTED, tmp_path, report=None, validate_in_background="yes")
+    assert not any(tmp_path.iterdir())
 
 
 def test_the_validation_score_is_the_mean_return_of_the_episodes_flown_one_by_one(selected):

@@ -1,0 +1,77 @@
+"""A second process that flies a training's validations while the training goes on.
+
+With ``select_every`` (:class:`~manualcontrol.agents.training.TrainingConfig`) a
+training stops every so many steps to fly its policy on the validation episodes: on
+the tracking recipes about a seventh of the training's time, on one core, while the
+training itself (one torch thread, its environments stepped one after another) leaves
+a second core idle. :func:`~manualcontrol.agents.training.train` therefore hands each
+validation's weights to this worker and reads the scores when training ends. The
+worker rebuilds the same policy from the configuration, loads the weights and calls
+the same :func:`~manualcontrol.agents.training.validation_score` on one torch thread,
+so each score is the one the training process would have computed, bit for bit, and
+the kept weights are the same.
+
+Protocol, over the worker's standard input and output: the parent writes pickled jobs
+``(config_dict, weights, episodes)`` (``weights``: the policy's state as numpy arrays)
+and ``None`` when there are no more; the worker answers each job in order with a
+pickled ``("score", value)`` or ``("error", message)``. A thread reads the jobs as
+they come, so the parent never waits on a full pipe while a validation runs.
+
+Run as ``python -m manualcontrol.agents._validation_worker`` (by the parent only).
+"""
+
+from __future__ import annotations
+
+import pickle
+import queue
+import sys
+import threading
+from typing import Any
+
+
+def _read_jobs(source: Any, jobs: queue.Queue[Any]) -> None:
+    while True:
+        try:
+            job = pickle.load(source)
+        except EOFError:
+            job = None  # the parent is gone: stop after the jobs already read
+        jobs.put(job)
+        if job is None:
+            return
+
+
+def main() -> None:
+    """Answer validation jobs from standard input until ``None`` or the end of input."""
+    import torch
+
+    from manualcontrol.agents.training import (
+        TrainingConfig,
+        _rebuilt_policy,
+        validation_score,
+    )
+
+    torch.set_num_threads(1)  # as train() does: the same sums in the same order
+    jobs: queue.Queue[Any] = queue.Queue()
+    reader = threading.Thread(target=_read_jobs, args=(sys.stdin.buffer, jobs), daemon=True)
+    reader.start()
+    output = sys.stdout.buffer
+    policies: dict[str, Any] = {}
+    while (job := jobs.get()) is not None:
+        config_data, weights, episodes = job
+        try:
+            config = TrainingConfig.from_dict(config_data)
+            key = repr(config_data)
+            if key not in policies:
+                policies.clear()
+                policies[key] = _rebuilt_policy(config)
+            policy = policies[key]
+            policy.load_state_dict({name: torch.from_numpy(w) for name, w in weights.items()})
+            reply: tuple[str, Any] = ("score", validation_score(policy, config, episodes))
+        except Exception as error:  # the parent raises it, named, where it reads the score
+            reply = ("error", f"{type(error).__name__}: {error}")
+        pickle.dump(reply, output, protocol=pickle.HIGHEST_PROTOCOL)
+        output.flush()
+
+
+if __name__ == "__main__":
+    main()
