@@ -951,8 +951,6 @@ def _train(
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.logger import Logger
 
-    from manualcontrol.agents._vec_env import FreshInfoVecEnv
-
     output = Path(output)
     warning = warm_start_warning(config)
     if warning is not None:
@@ -964,12 +962,7 @@ def _train(
             f"algorithm_kwargs: {config.algorithm.upper()} takes no option "
             f"{', '.join(map(repr, unknown))}; its options: {', '.join(accepted)}"
         )
-    vec_env = make_vec_env(
-        lambda: make_env(config),
-        n_envs=config.n_envs,
-        seed=config.seed,
-        vec_env_cls=FreshInfoVecEnv,
-    )
+    vec_env = make_vec_env(lambda: make_env(config), n_envs=config.n_envs, seed=config.seed)
     try:
         policy, policy_kwargs = policy_spec(config, vec_env)
         model = _algorithm_class(config.algorithm)(
