@@ -69,8 +69,11 @@ def main() -> None:
             reply: tuple[str, Any] = ("score", validation_score(policy, config, episodes))
         except Exception as error:  # the parent raises it, named, where it reads the score
             reply = ("error", f"{type(error).__name__}: {error}")
-        pickle.dump(reply, output, protocol=pickle.HIGHEST_PROTOCOL)
-        output.flush()
+        try:
+            pickle.dump(reply, output, protocol=pickle.HIGHEST_PROTOCOL)
+            output.flush()
+        except BrokenPipeError:
+            return  # the training ended without reading: nobody is left to answer
 
 
 if __name__ == "__main__":
