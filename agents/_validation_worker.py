@@ -42,6 +42,9 @@ def _read_jobs(source: Any, jobs: queue.Queue[Any]) -> None:
 
 def main() -> None:
     """Answer validation jobs from standard input until ``None`` or the end of input."""
+    # the replies own standard output: anything printed goes to standard error instead
+    output = sys.stdout.buffer
+    sys.stdout = sys.stderr
     import torch
 
     from manualcontrol.agents.training import (
@@ -54,7 +57,6 @@ def main() -> None:
     jobs: queue.Queue[Any] = queue.Queue()
     reader = threading.Thread(target=_read_jobs, args=(sys.stdin.buffer, jobs), daemon=True)
     reader.start()
-    output = sys.stdout.buffer
     policies: dict[str, Any] = {}
     while (job := jobs.get()) is not None:
         config_data, weights, episodes = job

@@ -849,7 +849,7 @@ def _selection_callback(config: TrainingConfig, background: _BackgroundValidatio
             # ties go to the later, longer-trained weights
             if score >= self.best_score:
                 self.best_score, self.best_step = score, step
-                self.best_state = copy.deepcopy(dict(state))
+                self.best_state = copy.deepcopy(state)
 
         def _on_training_start(self) -> None:
             # the weights training starts from compete too: a warm start's (the typical
@@ -927,7 +927,8 @@ def train(
     """
     import torch
 
-    background = config.select_every is not None and _validate_in_background(validate_in_background)
+    in_background = _validate_in_background(validate_in_background)
+    background = config.select_every is not None and in_background
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:

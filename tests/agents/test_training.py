@@ -429,9 +429,11 @@ def test_a_validation_the_background_process_cannot_fly_is_reported(selected):
         worker.close()
 
 
-def test_validate_in_background_must_be_a_bool(tmp_path):
+@pytest.mark.parametrize("select_every", [64, None])
+def test_validate_in_background_must_be_a_bool(tmp_path, select_every):
+    config = dataclasses.replace(SELECTED, select_every=select_every)
     with pytest.raises(TypeError, match="validate_in_background must be True or False, got 'yes'"):
-        train(SELECTED, tmp_path, report=None, validate_in_background="yes")
+        train(config, tmp_path, report=None, validate_in_background="yes")
     assert not any(tmp_path.iterdir())
 
 
