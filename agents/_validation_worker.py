@@ -22,8 +22,10 @@ Run as ``python -m manualcontrol.agents._validation_worker`` (by the parent only
 
 from __future__ import annotations
 
+import os
 import pickle
 import queue
+import signal
 import sys
 import threading
 from typing import Any
@@ -33,8 +35,8 @@ def _read_jobs(source: Any, jobs: queue.Queue[Any]) -> None:
     while True:
         try:
             job = pickle.load(source)
-        except EOFError:
-            job = None  # the parent is gone: stop after the jobs already read
+        except Exception:  # the end of input, or a job cut short: the parent is gone
+            job = None  # stop after the jobs already read
         jobs.put(job)
         if job is None:
             return
@@ -42,8 +44,13 @@ def _read_jobs(source: Any, jobs: queue.Queue[Any]) -> None:
 
 def main() -> None:
     """Answer validation jobs from standard input until ``None`` or the end of input."""
-    # the replies own standard output: anything printed goes to standard error instead
-    output = sys.stdout.buffer
+    # the parent's Ctrl-C reaches this process too: the parent ends it, so no second
+    # traceback on the terminal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # the replies own standard output: anything written there, by Python or by a
+    # compiled library, goes to standard error instead
+    output = os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)
     sys.stdout = sys.stderr
     import torch
 

@@ -84,6 +84,7 @@ made yourself.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -734,63 +735,77 @@ def validation_score(policy: Any, config: TrainingConfig, episodes: int) -> floa
     return float(np.mean(returns))
 
 
+class _ValidationWorkerError(RuntimeError):
+    """The validation worker stopped or could not fly a validation."""
+
+
 class _BackgroundValidation:
     """The validation worker (:mod:`~manualcontrol.agents._validation_worker`) of one training.
 
     :meth:`submit` hands it a policy's weights and returns at once; :meth:`scores` ends
-    the worker and returns each submission's score, in order.
+    the worker and returns each submission's score, in order, or raises
+    :class:`_ValidationWorkerError` saying why it cannot.
     """
+
+    #: How the worker is started (a test starts another command in its place).
+    command: tuple[str, ...] = (sys.executable, "-m", "manualcontrol.agents._validation_worker")
 
     def __init__(self, config: TrainingConfig) -> None:
         self._config = config.to_dict()
         self._submitted = 0
+        self._failure: str | None = None
         self._process = subprocess.Popen(
-            [sys.executable, "-m", "manualcontrol.agents._validation_worker"],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
+            list(self.command), stdin=subprocess.PIPE, stdout=subprocess.PIPE
         )
 
     def submit(self, state: Mapping[str, Any], episodes: int) -> None:
+        self._submitted += 1
+        if self._failure is not None:
+            return  # judged in the training process once training ends
         weights = {name: value.detach().cpu().numpy().copy() for name, value in state.items()}
         try:
             pickle.dump((self._config, weights, episodes), self._process.stdin)
             self._process.stdin.flush()
-        except BrokenPipeError:
-            raise RuntimeError(self._stopped(0)) from None
-        self._submitted += 1
+        except OSError:
+            self._failure = self._stopped(f"while validation {self._submitted} was handed over")
 
     def scores(self) -> list[float]:
-        try:
-            pickle.dump(None, self._process.stdin)
-            self._process.stdin.close()
-        except BrokenPipeError:
-            pass  # the worker is gone: reading says how far it got
+        if self._failure is None:
+            with contextlib.suppress(OSError):  # a worker gone: reading says how far it got
+                pickle.dump(None, self._process.stdin)
+                self._process.stdin.close()
         scores: list[float] = []
-        while len(scores) < self._submitted:
+        while self._failure is None and len(scores) < self._submitted:
             try:
                 kind, value = pickle.load(self._process.stdout)
-            except EOFError:
-                raise RuntimeError(self._stopped(len(scores))) from None
+            except (EOFError, OSError, pickle.UnpicklingError):
+                self._failure = self._stopped(f"after {len(scores)} of {self._submitted} scores")
+                break
             if kind == "error":
-                raise RuntimeError(f"validation in the background process failed: {value}")
+                self._failure = f"validation {len(scores) + 1} failed there: {value}"
+                break
             scores.append(value)
+        if self._failure is not None:
+            raise _ValidationWorkerError(self._failure)
         self._process.wait()
         return scores
 
-    def _stopped(self, answered: int) -> str:
-        code = self._process.wait()
-        return (
-            f"the validation process stopped (exit code {code}) after {answered} of "
-            f"{self._submitted} validations; train with validate_in_background=False to "
-            "validate in this process"
-        )
+    def _stopped(self, when: str) -> str:
+        try:
+            code = self._process.wait(timeout=10)
+        except subprocess.TimeoutExpired:  # alive but not answering as it should
+            self._process.kill()
+            code = self._process.wait()
+        how = f"killed by signal {-code}" if code < 0 else f"exit code {code}"
+        return f"the validation process stopped ({how}) {when}; its own error, if any, is above"
 
     def close(self) -> None:
         if self._process.poll() is None:
             self._process.kill()
             self._process.wait()
         for stream in (self._process.stdin, self._process.stdout):
-            if stream is not None and not stream.closed:
+            # a pipe to a worker that is gone cannot take the bytes still buffered for it
+            with contextlib.suppress(OSError):
                 stream.close()
 
 
@@ -837,10 +852,31 @@ def _selection_callback(config: TrainingConfig, background: _BackgroundValidatio
             self._pending.append((step, final, state))
 
         def finish(self) -> None:
-            """Judge the validations still with the worker, in the order they were made."""
+            """Judge the validations still with the worker, in the order they were made.
+
+            Where the worker failed, every validation's weights are flown here, as they
+            would have been without it: the same scores, later.
+            """
             if background is None:
                 return
-            for (step, final, state), score in zip(self._pending, background.scores(), strict=True):
+            try:
+                scores = background.scores()
+            except _ValidationWorkerError as error:
+                warnings.warn(
+                    f"{error}: the {len(self._pending)} validations are flown in the "
+                    "training process instead",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
+                final_state = copy.deepcopy(self.model.policy.state_dict())
+                scores = []
+                for _, _, state in self._pending:
+                    self.model.policy.load_state_dict(state)
+                    scores.append(
+                        validation_score(self.model.policy, config, config.select_episodes)
+                    )
+                self.model.policy.load_state_dict(final_state)
+            for (step, final, state), score in zip(self._pending, scores, strict=True):
                 self._judge(step, final, score, state)
             self._pending = []
 
@@ -920,10 +956,13 @@ def train(
     seed trains different weights on machines with different numbers of cores; and the
     small networks of these agents gain nothing from more threads.
 
-    ``validate_in_background`` (with ``select_every``): fly the validations in a second
-    process while training goes on (:mod:`~manualcontrol.agents._validation_worker`),
-    with the same scores and so the same kept weights; None (default): where this
-    process may run on more than one CPU.
+    ``validate_in_background`` (with ``select_every``, a model on the CPU): fly the
+    validations in a second process while training goes on
+    (:mod:`~manualcontrol.agents._validation_worker`), with the same scores and so the
+    same kept weights; where the worker fails, the training process flies what it did
+    not score (a :class:`RuntimeWarning` says why). None (default): where this process
+    may run on more than one CPU; pass False where the other cores are busy already
+    (one training per core).
     """
     import torch
 
@@ -1008,7 +1047,10 @@ def _train(
     selection = validations = None
     try:
         if config.select_every is not None:
-            validations = _BackgroundValidation(config) if background else None
+            # a worker flies on the CPU: a model on another device validates here, where
+            # its scores are computed on the device it trains on
+            on_cpu = model.device.type == "cpu"
+            validations = _BackgroundValidation(config) if background and on_cpu else None
             selection = _selection_callback(config, validations)
             callbacks.append(selection)
         model.learn(total_timesteps=config.total_timesteps, callback=CallbackList(callbacks))
@@ -1083,6 +1125,9 @@ def _rebuilt_policy(config: TrainingConfig) -> Any:
     try:
         # only the policy is needed: no replay memory for an off-policy algorithm
         extra = {"buffer_size": 1} if config.algorithm == "sac" else {}
+        # state-dependent exploration changes the shape of the policy's log_std
+        if "use_sde" in config.algorithm_kwargs:
+            extra["use_sde"] = config.algorithm_kwargs["use_sde"]
         policy, policy_kwargs = policy_spec(config, env)
         return algorithm(policy, env, policy_kwargs=policy_kwargs, device="cpu", **extra).policy
     finally:

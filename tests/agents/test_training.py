@@ -2,8 +2,10 @@
 
 import dataclasses
 import json
+import os
 import re
 import shutil
+import sys
 import tempfile
 
 import gymnasium as gym
@@ -16,6 +18,8 @@ from manualcontrol.agents.training import (
     VALIDATION_SEED,
     TrainingConfig,
     _BackgroundValidation,
+    _validate_in_background,
+    _ValidationWorkerError,
     load_agent,
     make_env,
     train,
@@ -395,6 +399,9 @@ def test_selection_leaves_the_training_itself_unchanged(selected, tmp_path):
 
 def test_validating_in_this_process_keeps_what_the_background_process_kept(selected, tmp_path):
     folder, selection, _ = selected
+    # kept weights other than the final ones: a state read at the end instead of when
+    # it was validated would show
+    assert selection["kept_score"] != selection["history"][-1]["score"]
     train(SELECTED, tmp_path, report=None, validate_in_background=False)
     # the same weights flown on the same episodes score the same, bit for bit
     assert json.loads((tmp_path / "selection.json").read_text()) == selection
@@ -412,9 +419,7 @@ def test_a_validation_the_background_process_cannot_fly_is_reported(selected):
     worker = _BackgroundValidation(SELECTED)
     try:
         worker.submit({**weights, "extra": torch.zeros(1)}, 3)
-        with pytest.raises(
-            RuntimeError, match="validation in the background process failed: "
-        ) as e:
+        with pytest.raises(_ValidationWorkerError, match="validation 1 failed there: ") as e:
             worker.scores()
         assert 'Unexpected key(s) in state_dict: "extra"' in str(e.value)
     finally:
@@ -423,10 +428,62 @@ def test_a_validation_the_background_process_cannot_fly_is_reported(selected):
     try:
         worker.submit(weights, 3)
         worker._process.kill()
-        with pytest.raises(RuntimeError, match=r"validation process stopped .* after 0 of 1 "):
+        with pytest.raises(_ValidationWorkerError, match=r"stopped \(killed by signal 9\) after 0"):
             worker.scores()
     finally:
         worker.close()
+    # gone before the weights are handed over: the pipe refuses them, and closing the
+    # worker afterwards does not raise in place of that report
+    worker = _BackgroundValidation(SELECTED)
+    worker._process.kill()
+    worker._process.wait()
+    worker.submit(weights, 3)
+    worker.submit(weights, 3)
+    with pytest.raises(_ValidationWorkerError, match="while validation 1 was handed over"):
+        worker.scores()
+    worker.close()
+
+
+def test_where_the_worker_fails_the_training_process_flies_the_validations(
+    selected, tmp_path, monkeypatch
+):
+    folder, selection, _ = selected
+    monkeypatch.setattr(
+        _BackgroundValidation, "command", (sys.executable, "-c", "raise SystemExit(3)")
+    )
+    with pytest.warns(RuntimeWarning, match=r"stopped \(exit code 3\).* flown in the training"):
+        train(SELECTED, tmp_path, report=None, validate_in_background=True)
+    assert json.loads((tmp_path / "selection.json").read_text()) == selection
+    here = torch.load(tmp_path / "policy.pt", weights_only=True)
+    there = torch.load(folder / "policy.pt", weights_only=True)
+    for key, value in here.items():
+        assert torch.equal(there[key], value), key
+
+
+def test_a_training_that_fails_ends_its_worker(tmp_path, monkeypatch):
+    workers = []
+    original = _BackgroundValidation.__init__
+
+    def keep(self, config):
+        original(self, config)
+        workers.append(self._process)
+
+    def fail(line):
+        raise RuntimeError("the report failed")
+
+    monkeypatch.setattr(_BackgroundValidation, "__init__", keep)
+    with pytest.raises(RuntimeError, match="the report failed"):
+        train(SELECTED, tmp_path, report=fail, report_every=32, validate_in_background=True)
+    assert len(workers) == 1 and workers[0].poll() is not None
+
+
+@pytest.mark.parametrize(("cores", "expected"), [({0}, False), ({0, 1}, True)])
+def test_by_default_validations_go_to_a_second_process_where_there_is_a_second_core(
+    monkeypatch, cores, expected
+):
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: cores, raising=False)
+    assert _validate_in_background(None) is expected
+    assert _validate_in_background(False) is False
 
 
 @pytest.mark.parametrize("select_every", [64, None])
