@@ -64,16 +64,13 @@ def main() -> None:
     jobs: queue.Queue[Any] = queue.Queue()
     reader = threading.Thread(target=_read_jobs, args=(sys.stdin.buffer, jobs), daemon=True)
     reader.start()
-    policies: dict[str, Any] = {}
+    config = policy = None  # one training's: built at its first job
     while (job := jobs.get()) is not None:
         config_data, weights, episodes = job
         try:
-            config = TrainingConfig.from_dict(config_data)
-            key = repr(config_data)
-            if key not in policies:
-                policies.clear()
-                policies[key] = _rebuilt_policy(config)
-            policy = policies[key]
+            if policy is None:
+                config = TrainingConfig.from_dict(config_data)
+                policy = _rebuilt_policy(config)
             policy.load_state_dict({name: torch.from_numpy(w) for name, w in weights.items()})
             reply: tuple[str, Any] = ("score", validation_score(policy, config, episodes))
         except Exception as error:  # the parent raises it, named, where it reads the score

@@ -845,7 +845,7 @@ def _selection_callback(config: TrainingConfig, background: _BackgroundValidatio
             step = int(self.num_timesteps)
             if background is None:
                 score = validation_score(self.model.policy, config, config.select_episodes)
-                self._judge(step, final, score, self.model.policy.state_dict())
+                self._judge(step, final, score, copy.deepcopy(self.model.policy.state_dict()))
                 return
             state = copy.deepcopy(self.model.policy.state_dict())
             background.submit(state, config.select_episodes)
@@ -881,11 +881,12 @@ def _selection_callback(config: TrainingConfig, background: _BackgroundValidatio
             self._pending = []
 
         def _judge(self, step: int, final: bool, score: float, state: Mapping[str, Any]) -> None:
+            # ``state`` is a copy of the weights validated, kept as it is if they win
             self.history.append({"step": step, "score": score, "final": final})
             # ties go to the later, longer-trained weights
             if score >= self.best_score:
                 self.best_score, self.best_step = score, step
-                self.best_state = copy.deepcopy(state)
+                self.best_state = state
 
         def _on_training_start(self) -> None:
             # the weights training starts from compete too: a warm start's (the typical
