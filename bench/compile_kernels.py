@@ -14,9 +14,12 @@ environment and of the native vector envs, and every registered estimator's
 ``estimate`` (smoothed where it can be) and ``update`` on a short recording of the kind
 it reads, and the batched step of those that have one
 (:class:`~manualcontrol.estimators.batch.FilterBatch`): the pilot filters on the
-precision and the preview model. Nothing is
-written but numba's cache; a job that fails is reported and the rest go on (its
-kernels then compile at first use, as without this step).
+precision and the preview model. The members' C ports are built too
+(``estimators/members/_native.py``: the DEKF's, under a second), and the numba kernels
+of those members compiled all the same (the reference their tests compare with, and
+what runs where no compiler is found). Nothing is written but the kernel cache; a job
+that fails is reported and the rest go on (its kernels then compile at first use, as
+without this step).
 
 Run: ``python -m manualcontrol.bench.compile_kernels [--workers N]``.
 """
@@ -156,10 +159,43 @@ def _pilot_filter_on_preview(name: str) -> Callable[[], None]:
     return job
 
 
+def _numba_kernels(job: Callable[[], None]) -> Callable[[], None]:
+    """``job`` with the members' C ports off: their numba kernels compile as well.
+
+    A member with a C port runs it wherever it builds, but its numba kernels are the
+    reference its tests compare it with and what runs where no compiler is found
+    (``estimators/members/_native.py``).
+    """
+
+    def numba_job() -> None:
+        before = os.environ.get("MANUALCONTROL_NATIVE")
+        os.environ["MANUALCONTROL_NATIVE"] = "0"
+        try:
+            job()
+        finally:
+            if before is None:
+                del os.environ["MANUALCONTROL_NATIVE"]
+            else:
+                os.environ["MANUALCONTROL_NATIVE"] = before
+
+    return numba_job
+
+
+def _c_ports() -> None:
+
+    from manualcontrol.estimators.members import _dekf_native, _native
+
+    if _dekf_native.library() is None:
+        raise RuntimeError(
+            "the DEKF's C port was not built: " + _native.native_failure(_dekf_native.SOURCE)
+        )
+    _estimator("dekf")  # the C path's own first run
+
+
 #: The jobs, the longest first (CPU-s on a fresh machine, roughly in this order).
 JOBS: dict[str, Callable[[], None]] = {
     "rml": lambda: _estimator("rml"),
-    "dekf": lambda: _estimator("dekf"),
+    "dekf (numba)": _numba_kernels(lambda: _estimator("dekf")),
     "joint-ukf": lambda: _estimator("joint-ukf"),
     "dual-ukf": lambda: _estimator("dual-ukf"),
     "schiess-roland": lambda: _estimator("schiess-roland"),
@@ -167,7 +203,8 @@ JOBS: dict[str, Callable[[], None]] = {
     "zhao-multi-ukf": lambda: _estimator("zhao-multi-ukf"),
     "rdi": lambda: _estimator("rdi"),
     "rml on the preview model": _pilot_filter_on_preview("rml"),
-    "dekf on the preview model": _pilot_filter_on_preview("dekf"),
+    "dekf (numba) on the preview model": _numba_kernels(_pilot_filter_on_preview("dekf")),
+    "C ports (the DEKF's)": _c_ports,
     "joint-ukf on the preview model": _pilot_filter_on_preview("joint-ukf"),
     "tracking simulations": _tracking_runs,
     "environments": _environments,

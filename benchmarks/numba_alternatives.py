@@ -2,11 +2,13 @@
 
 The estimators' kernels are numba; warm they are fast, but a fresh clone's first
 ``estimate`` compiles for about 30 CPU-s. This measures the alternative of a compiled
-extension built at install, on one estimator: ``benchmarks/alternatives/dekf.c``, a
-plain C99 port of the DEKF's compiled path (``_dekf_core.dekf_step``/``dekf_run`` and
-everything they call), operation for operation, built with the system ``cc`` and
-called through ``ctypes`` on the records the project's own ``DEKF.estimate`` builds
-(only the call of ``dekf_run`` is replaced: ``benchmarks/alternatives/dekf_ctypes.py``).
+extension built at install, on one estimator: ``estimators/members/_dekf_native.c``,
+a plain C99 port of the DEKF's compiled path (``_dekf_core.dekf_step``/``dekf_run``
+and everything they call), operation for operation, which the package builds with the
+system ``cc`` and calls through ``ctypes`` on the records the project's own
+``DEKF.estimate`` builds (``_dekf_native.py``; ``_native.py`` builds it). Since this
+measurement the DEKF runs it wherever it builds; ``MANUALCONTROL_NATIVE=0`` runs
+numba, which is how the numba figures here are taken.
 On a 30-s simulated run (precision pilot, ``popovici2017``, seed 0, as
 ``benchmarks/first_use.py``) and each ``--configs`` setting of the DEKF, side by side:
 
@@ -14,8 +16,9 @@ On a 30-s simulated run (precision pilot, ``popovici2017``, seed 0, as
   compiler); numba's counterpart is a fresh process on an empty ``NUMBA_CACHE_DIR``
   running one ``estimate`` (what ``make``'s kernel compilation pays);
 - first use, each a fresh process, CPU seconds: numba after its cache is filled, and C
-  (import, load the library, one ``estimate``; the package's modules still import
-  numba, and the process checks that it compiled nothing), against
+  on an empty cache (import, the package building its library, one ``estimate``: a
+  fresh clone's first use; the package's modules still import numba, and the process
+  checks that it compiled no numba kernel), against
   ``import numpy, scipy, gymnasium`` (the floor; ratios are against it) and what
   ``import numba`` adds to it (paid by the C path too while the package imports numba);
 - steady speed, in this process, the two taking turns: the kernel of a whole run per
@@ -43,9 +46,11 @@ Run: .venv/bin/python benchmarks/numba_alternatives.py [--configs SI,DI] [--repe
 """
 
 import argparse
+import ctypes
 import json
 import math
 import os
+import resource
 import shlex
 import statistics
 import subprocess
@@ -55,7 +60,6 @@ import time
 import warnings
 from pathlib import Path
 
-ALTERNATIVES = Path(__file__).resolve().parent / "alternatives"
 #: First-use and speed configurations (keyword arguments of ``DEKF``).
 CONFIGS = {"SI": {}, "DI": {"ce": "DI"}}
 
@@ -76,23 +80,20 @@ usage = resource.getrusage(resource.RUSAGE_SELF)
 print(usage.ru_utime + usage.ru_stime - before)
 """
 
-# argv: kind (numba | c), library, recording, settings (JSON), alternatives folder
+# argv: recording, settings (JSON); MANUALCONTROL_NATIVE=0 in the environment for numba
 FIRST_USE = """
 import json, os, resource, sys, time, warnings
 warnings.simplefilter("ignore")
 def cpu():
     usage = resource.getrusage(resource.RUSAGE_SELF)
-    return usage.ru_utime + usage.ru_stime
-kind, library, path, settings, alternatives = sys.argv[1:6]
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)  # the C compiler
+    return usage.ru_utime + usage.ru_stime + children.ru_utime + children.ru_stime
+path, settings = sys.argv[1:3]
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators.members import _dekf_core
 from manualcontrol.estimators.members.dekf import DEKF
 recording = Recording.load(path)
 estimator = DEKF(**json.loads(settings))
-if kind == "c":
-    sys.path.insert(0, alternatives)
-    import dekf_ctypes
-    estimator = dekf_ctypes.use_c(estimator, dekf_ctypes.load(library))
 imported = cpu()
 estimator.estimate(recording)
 first = cpu() - imported
@@ -100,7 +101,10 @@ start = time.perf_counter()
 estimator.estimate(recording)
 warm = time.perf_counter() - start
 compiled = len(_dekf_core.dekf_run.signatures) + len(_dekf_core.dekf_step.signatures)
-cached = sum(len(files) for _, _, files in os.walk(os.environ["NUMBA_CACHE_DIR"]))
+cached = sum(
+    len(files) for folder, _, files in os.walk(os.environ["NUMBA_CACHE_DIR"])
+    if "manualcontrol-native" not in folder
+)
 print(cpu(), imported, first, warm, compiled, cached)
 """
 
@@ -113,8 +117,9 @@ simulate(Pilot("precision"), "popovici2017", "popovici2017", seed=0,
 """
 
 
-def run(code, *args, cache=None):
+def run(code, *args, cache=None, native=True):
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    env["MANUALCONTROL_NATIVE"] = "1" if native else "0"
     if cache is not None:
         env["NUMBA_CACHE_DIR"] = cache
     out = subprocess.run(
@@ -127,6 +132,47 @@ def run(code, *args, cache=None):
     if out.returncode != 0:
         raise RuntimeError(out.stderr.strip().splitlines()[-1])
     return [float(x) for x in out.stdout.split()]
+
+
+class CPort:
+    """The C port as this script drives it: built with chosen flags, bound to one estimator."""
+
+    def __init__(self, flags):
+        from manualcontrol.estimators.members import _dekf_native, _native
+
+        self.flags = flags
+        self.source = Path(_native.__file__).with_name(_dekf_native.SOURCE)
+        self.binding = _dekf_native
+
+    def build(self, folder, cc):
+        """Compile into ``folder``; ``(library, wall s, CPU s)`` of the compiler process."""
+        folder.mkdir(parents=True, exist_ok=True)
+        library = folder / "libdekf.so"
+        command = [cc, *self.flags, str(self.source), "-o", str(library), "-lm"]
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        start = time.perf_counter()
+        subprocess.run(command, check=True, capture_output=True, text=True)
+        wall = time.perf_counter() - start
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+        return library, wall, cpu
+
+    def load(self, library):
+        return self.binding.declare(ctypes.CDLL(str(library)))
+
+    def records(self, lib, records, out):
+        return self.binding.NativeRecords(lib, records, out)
+
+    def use(self, estimator, lib):
+        """Make ``estimator`` run its whole-recording kernel through this build."""
+
+        def run(inputs, u, e, out):
+            self.records(lib, estimator._records, out).run(inputs, u, e)
+            estimator.c_calls += 1
+
+        estimator._run = run
+        estimator.c_calls = 0
+        return estimator
 
 
 # ------------------------------------------------------------------ equality cases
@@ -244,7 +290,7 @@ def _compare(ours, theirs):
     return bits, values, float(np.max(difference[finite])) if finite.any() else float("inf")
 
 
-def equality(lib, dekf_ctypes):
+def equality(lib, port):
     """Per case: which output and record arrays differ, in bits or in value."""
     from manualcontrol.estimators.members.dekf import DEKF
 
@@ -254,7 +300,7 @@ def equality(lib, dekf_ctypes):
         for use_c in (False, True):
             estimator = DEKF(**settings)
             if use_c:
-                dekf_ctypes.use_c(estimator, lib)
+                port.use(estimator, lib)
             kernel = estimator._run
             kept = {}
 
@@ -308,7 +354,7 @@ def kept_stop(state):
 # ------------------------------------------------------------------- steady speed
 
 
-def steady(lib, dekf_ctypes, settings, repeats):
+def steady(lib, port, settings, repeats):
     """Per-sample figures of numba and C in this process (the two taking turns)."""
     import numpy as np
 
@@ -329,7 +375,7 @@ def steady(lib, dekf_ctypes, settings, repeats):
 
         def timed(inputs, u, e, out, kind=kind, estimator=estimator):
             if kind == "c":  # the struct is filled outside the kernel's time (timed below)
-                struct = dekf_ctypes.CRecords(lib, estimator._records, out)
+                struct = port.records(lib, estimator._records, out)
                 start = time.process_time()
                 struct.run(inputs, u, e)
             else:  # what DEKF._run calls
@@ -350,7 +396,7 @@ def steady(lib, dekf_ctypes, settings, repeats):
     out = c._new_output(n, store=False)
     for _ in range(repeats):
         start = time.process_time()
-        dekf_ctypes.CRecords(lib, c._records, out)
+        port.records(lib, c._records, out)
         struct_time.append(time.process_time() - start)
 
     # one sample from Python: the online path
@@ -391,7 +437,7 @@ def steady(lib, dekf_ctypes, settings, repeats):
 
     def loop_c(estimator, rows_out=None):
         records, row, inputs = reset(estimator)
-        struct = dekf_ctypes.CRecords(lib, records, row)
+        struct = port.records(lib, records, row)
         call, ref, address = lib.dekf_step, struct.ref, inputs.ctypes.data
         start = time.process_time()
         for k in range(n):
@@ -402,12 +448,17 @@ def steady(lib, dekf_ctypes, settings, repeats):
                     rows_out[name].append(getattr(row, name)[0].copy())
         return (time.process_time() - start) / n
 
-    def loop_update(estimator):
-        reset(estimator)
-        start = time.process_time()
-        for sample in samples:
-            estimator.update(sample)
-        return (time.process_time() - start) / n
+    def loop_update(estimator, native=False):
+        # the package's own choice: its C build (default flags) where native, else numba
+        os.environ["MANUALCONTROL_NATIVE"] = "1" if native else "0"
+        try:
+            reset(estimator)
+            start = time.process_time()
+            for sample in samples:
+                estimator.update(sample)
+            return (time.process_time() - start) / n
+        finally:
+            os.environ["MANUALCONTROL_NATIVE"] = "0"
 
     online = DEKF(**settings)
     loops = {
@@ -415,6 +466,7 @@ def steady(lib, dekf_ctypes, settings, repeats):
         "numba dispatcher": lambda: loop_dispatcher(online),
         "C via ctypes": lambda: loop_c(online),
         "DEKF.update (numba, whole)": lambda: loop_update(online),
+        "DEKF.update (C, whole)": lambda: loop_update(online, native=True),
     }
     per_call = {name: [] for name in loops}
     for loop in loops.values():
@@ -451,6 +503,12 @@ def steady(lib, dekf_ctypes, settings, repeats):
 # --------------------------------------------------------------------------- main
 
 
+def _native_flags():
+    from manualcontrol.estimators.members._native import FLAGS
+
+    return FLAGS
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--configs", default="SI,DI", help=f"of {', '.join(CONFIGS)}")
@@ -463,25 +521,23 @@ def main():
     )
     args = parser.parse_args()
     configs = args.configs.split(",")
-    sys.path.insert(0, str(ALTERNATIVES))
-    import dekf_ctypes
-
     flags = (
-        dekf_ctypes.FLAGS
-        if args.cflags is None
-        else (*shlex.split(args.cflags), "-fPIC", "-shared")
+        _native_flags() if args.cflags is None else (*shlex.split(args.cflags), "-fPIC", "-shared")
     )
+    port = CPort(flags)
+    # in this process numba runs unless this script hands an estimator the C build
+    os.environ["MANUALCONTROL_NATIVE"] = "0"
     rows = {}
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
         recording = folder / "run.npz"
         run(SIMULATE, recording)
-        library, build_wall, build_cpu = dekf_ctypes.build(folder / "build", args.cc, flags)
+        library, build_wall, build_cpu = port.build(folder / "build", args.cc)
         floor = statistics.median(run(IMPORT_ONLY)[0] for _ in range(args.imports))
         rows["import numpy, scipy, gymnasium"] = (floor, None, None, None)
         numba_import = statistics.median(run(IMPORT_NUMBA)[0] for _ in range(args.imports))
         rows["... then import numba (C path pays it too)"] = (numba_import, None, None, None)
-        rows[f"C: {args.cc} builds libdekf.so (wall {build_wall:.2f} s)"] = (
+        rows[f"C: {args.cc} builds the library (wall {build_wall:.2f} s)"] = (
             build_cpu,
             None,
             None,
@@ -494,29 +550,32 @@ def main():
             cache = tempfile.mkdtemp(dir=folder)
             if not args.skip_cold:
                 total, imported, first, warm, _, _ = run(
-                    FIRST_USE, "numba", library, recording, settings, ALTERNATIVES, cache=cache
+                    FIRST_USE, recording, settings, cache=cache, native=False
                 )
                 rows[f"numba {name}: cold process (= install)"] = (total, imported, first, warm)
                 total, imported, first, warm, _, _ = run(
-                    FIRST_USE, "numba", library, recording, settings, ALTERNATIVES, cache=cache
+                    FIRST_USE, recording, settings, cache=cache, native=False
                 )
                 rows[f"numba {name}: after install"] = (total, imported, first, warm)
                 filled = filled or cache
             empty = tempfile.mkdtemp(dir=folder)
             total, imported, first, warm, compiled, cached = run(
-                FIRST_USE, "c", library, recording, settings, ALTERNATIVES, cache=empty
+                FIRST_USE, recording, settings, cache=empty
             )
-            rows[f"C {name}: fresh process"] = (total, imported, first, warm)
-            checks[f"C {name}: numba compilations, cache files"] = (int(compiled), int(cached))
+            rows[f"C {name}: fresh process, empty cache"] = (total, imported, first, warm)
+            checks[f"C {name}: numba compilations, numba cache files"] = (
+                int(compiled),
+                int(cached),
+            )
         # this process: numba from the cache the cold process filled (else compiles here)
         # (with --skip-cold: NUMBA_CACHE_DIR if set, else compiled here into a temporary one)
         os.environ["NUMBA_CACHE_DIR"] = (
             filled or os.environ.get("NUMBA_CACHE_DIR") or str(folder / "numba")
         )
         warnings.simplefilter("ignore")
-        lib = dekf_ctypes.load(library)
-        speed = {name: steady(lib, dekf_ctypes, CONFIGS[name], args.repeats) for name in configs}
-        same = equality(lib, dekf_ctypes)
+        lib = port.load(library)
+        speed = {name: steady(lib, port, CONFIGS[name], args.repeats) for name in configs}
+        same = equality(lib, port)
 
     print(f"flags: {' '.join(flags)}")
     print(

@@ -5,7 +5,8 @@ stack of records (:mod:`~manualcontrol.estimators.filters.batch`) and steps all 
 on one sample each with the member's batched kernel (``_step_many_kernel``: its
 one-sample step in a compiled loop over the stack). Filter ``i`` gives exactly the
 numbers a single estimator of the same settings, reset alike and fed stream ``i``,
-gives, bit for bit: the step it runs is the same compiled function on the same types.
+gives, bit for bit: the step it runs is the same compiled function on the same types
+(or, for the DEKF, the same step's C port, where it builds: the same numbers again).
 
 It is what :class:`~manualcontrol.estimators.vector_observer.VectorEstimatorObserver`
 steps inside a vector environment; it serves anyone with many streams in step (a
@@ -99,6 +100,9 @@ class FilterBatch:
         self._records = stack_records(records, self.n)
         self._out = stack_records(row, self.n)
         self._entry = None
+        # the member's C port of the batched step where it has one and it builds
+        native = getattr(template, "_native_batch", None)
+        self._native = None if native is None else native(self._records, self._out, self.n)
         self._inputs = np.zeros((self.n, len(self._input_names)))
         self._all = np.ones(self.n, dtype=np.bool_)
         self._rows = np.arange(self.n, dtype=np.int64)
@@ -152,6 +156,13 @@ class FilterBatch:
                 copies = np.flatnonzero(np.isinf(values)).tolist()
                 raise ValueError(f"signal {name!r} is infinite for copies {copies}")
         active = self._all if active is None else np.asarray(active, dtype=np.bool_)
+        if active.shape != (self.n,):
+            raise ValueError(
+                f"active must hold {self.n} flags (one per copy), got shape {active.shape}"
+            )
+        if self._native is not None:
+            self._native.step(inputs, u, e, np.ascontiguousarray(active))
+            return
         arguments = (*self._records, inputs, u, e, active, self._rows, self._out)
         if self._entry is None:
             self._entry = compiled_entry(self._kernel, arguments)

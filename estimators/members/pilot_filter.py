@@ -216,6 +216,8 @@ class PilotFilter(FilterShell):
         self._resolved: ResolvedSettings | None = None
         # update_block's (records, row, their stack of one, compiled entry) of this reset
         self._block: tuple[Any, Any, Any, Any] | None = None
+        # a member's C port bound to (records, row) of this reset, where it has one
+        self._native: tuple[Any, Any, Any] | None = None
 
     # ----------------------------------------------------------------- access
 
@@ -438,8 +440,6 @@ class PilotFilter(FilterShell):
         (:meth:`latest`, :meth:`latest_plain`). The online observer feeds it the samples
         nobody read an estimate between.
         """
-        from manualcontrol.estimators.filters.batch import stack_of_one
-
         kernel = type(self)._step_many_kernel
         reason = self.batchable() if hasattr(self, "batchable") else ""
         if kernel is None or reason:
@@ -447,7 +447,7 @@ class PilotFilter(FilterShell):
                 f"{type(self).__name__} cannot step a block of samples in one call: "
                 + (reason or "it has no batched step")
             )
-        records = self._require_reset()
+        self._require_reset()
         values = np.asarray(values, dtype=np.float64)
         keys = self._sample_keys
         if values.ndim != 2 or values.shape[1] != len(keys):
@@ -461,27 +461,43 @@ class PilotFilter(FilterShell):
             raise ValueError(f"sample {int(row)} of the block has {keys[column]} infinite")
         k = len(values)
         if k:
-            block = self._block
-            if block is None or block[0] is not records or block[1] is not self._row:
-                block = (records, self._row, stack_of_one((records, self._row)), None)
-            stacked, out = block[2]
             n_inputs = len(self._inputs)
-            arguments = (
-                *stacked,
+            self._step_block(
                 np.ascontiguousarray(values[:, :n_inputs]),
                 np.ascontiguousarray(values[:, self._u_at]),
                 np.ascontiguousarray(values[:, self._e_at]),
-                np.ones(k, dtype=np.bool_),
-                np.zeros(k, dtype=np.int64),
-                out,
             )
-            if block[3] is None:
-                block = (*block[:3], compiled_entry(kernel, arguments))
-            else:
-                block[3](*arguments)
-            self._block = block
         self._k += k
         return self._t0 + (self._k - 1) * self._dt if t is None else float(t)
+
+    def _step_block(self, inputs: FloatArray, u: FloatArray, e: FloatArray) -> None:
+        """Step the filter through the samples in order, in one compiled call, into its row.
+
+        The batched kernel on this filter's records as a stack of one, every row index 0
+        (:meth:`update_block`).
+        """
+        from manualcontrol.estimators.filters.batch import stack_of_one
+
+        records = self._records
+        block = self._block
+        if block is None or block[0] is not records or block[1] is not self._row:
+            block = (records, self._row, stack_of_one((records, self._row)), None)
+        stacked, out = block[2]
+        k = len(u)
+        arguments = (
+            *stacked,
+            inputs,
+            u,
+            e,
+            np.ones(k, dtype=np.bool_),
+            np.zeros(k, dtype=np.int64),
+            out,
+        )
+        if block[3] is None:
+            block = (*block[:3], compiled_entry(type(self)._step_many_kernel, arguments))
+        else:
+            block[3](*arguments)
+        self._block = block
 
     # -------------------------------------------------------------- estimate
 

@@ -8,10 +8,13 @@ word, so each job is run here as the install runs it.
 import pytest
 
 from manualcontrol.bench.compile_kernels import JOBS, _run_job, main
+from manualcontrol.estimators.members import _native
 
 
 @pytest.mark.parametrize("name", list(JOBS))
 def test_each_compilation_job_runs(name):
+    if name.startswith("C ports") and _native._compiler() is None:
+        pytest.skip("no C compiler here: the C ports cannot be built (numba runs instead)")
     ran, seconds, failure = _run_job(name)
     assert ran == name and seconds >= 0.0
     assert failure is None, failure

@@ -1,12 +1,17 @@
 /*
- * dekf.c: a plain C99 port of the DEKF's compiled path, for a side-by-side measurement
- * against numba (benchmarks/numba_alternatives.py). Not used by the package.
+ * _dekf_native.c: the DEKF's compiled path in C, the numba kernels' numbers bit for bit.
  *
- * Ported operation for operation, in the order the numba kernels do them, so that the
- * results are bit-identical to numba's (which does not reassociate or contract to FMA
- * without fastmath). Build with IEEE semantics kept:
+ * The numba kernels (_dekf_core.py and what it calls) are the reference; this port does
+ * their arithmetic operation for operation, in the same order, so that the results are
+ * the same bytes (numba neither reassociates nor contracts to FMA without fastmath).
+ * It exists because it is built in under a CPU-second where numba compiles the same
+ * work for about thirty, and runs each sample in about half the time
+ * (benchmarks/numba_alternatives.py). _native.py builds it with IEEE semantics kept:
  *
- *     cc -std=c99 -O2 -fno-fast-math -ffp-contract=off -fPIC -shared dekf.c -o libdekf.so -lm
+ *     cc -std=c99 -O2 -fno-fast-math -ffp-contract=off -fPIC -shared ... -lm
+ *
+ * (-ffp-contract=off matters: allowed to fuse multiply-adds, GCC's results differ from
+ * the first samples on.) tests/estimators/test_dekf_native.py holds the two equal.
  *
  * Sources ported (manualcontrol/estimators/...):
  *   members/_dekf_core.py      dekf_step, dekf_run, _apply_phi, _apply_phi_transpose, _store_phi
@@ -20,8 +25,8 @@
  *
  * The records (namedtuples of numpy arrays) arrive as one struct of pointers to their
  * C-contiguous data plus the sizes the kernels read from the arrays' shapes; Python
- * fills it (benchmarks/alternatives/dekf_ctypes.py), with arrays shared between
- * records (the belief's p is the report's) passed as the same pointer.
+ * fills it (_dekf_native.py), with arrays shared between records (the belief's p is
+ * the report's) passed as the same pointer.
  *
  * Python's semantics kept where C differs: max(a, b) is "b if b > a else a" (numba's
  * lowering of the builtin, NaN-faithful); int(x) truncates; an int operand of a float
@@ -81,7 +86,7 @@ typedef struct {
 } KalmanWork;
 
 /* Every record of dekf_step: ModelKernel, DEKFConfig, DEKFBelief, PilotMonitor,
- * PilotReport, DEKFScratch and DEKFOutput. Field order must match dekf_ctypes.py. */
+ * PilotReport, DEKFScratch and DEKFOutput. Field order must match _dekf_native.py. */
 typedef struct {
     /* sizes */
     int64_t n_c;        /* canonical states: scratch.f.shape[0] */
@@ -1040,6 +1045,24 @@ void dekf_run(const DekfRecords *rec, const double *inputs, const double *u, con
 {
     for (int64_t k = 0; k < n; k++)
         dekf_step(rec, inputs + k * rec->n_in, u[k], e[k], k);
+}
+
+/* dekf_step_many on a stack of one (the online update_block): every sample into row 0 */
+void dekf_block(const DekfRecords *rec, const double *inputs, const double *u, const double *e,
+                int64_t n)
+{
+    for (int64_t k = 0; k < n; k++)
+        dekf_step(rec, inputs + k * rec->n_in, u[k], e[k], 0);
+}
+
+/* dekf_step_many on many filters (FilterBatch): sample i steps filter i where active[i],
+ * its estimate into row 0 of its own one-row output */
+void dekf_step_many(const DekfRecords *const *recs, const double *inputs, const double *u,
+                    const double *e, const uint8_t *active, int64_t n)
+{
+    for (int64_t i = 0; i < n; i++)
+        if (active[i])
+            dekf_step(recs[i], inputs + i * recs[i]->n_in, u[i], e[i], 0);
 }
 
 /* For the Python side to check the layout and the constants it was built against. */

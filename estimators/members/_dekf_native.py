@@ -1,38 +1,36 @@
-"""ctypes binding of ``dekf.c`` (the DEKF's compiled path ported to C), for benchmarks only.
+"""The DEKF's C port bound to its records: the fast path of ``DEKF`` where it builds.
 
-:func:`build` compiles ``dekf.c`` with the system C compiler into a shared library in a
-folder of your choice (timed: wall and CPU of the compiler process); :func:`load` opens
-it and checks that its constants (``CFG_*``, ``SC_*``, reasons, tolerances) are the ones
-the Python modules have now. :class:`CRecords` fills the C struct of pointers from the
-DEKF's own records (``DEKF._records``, built by the project's ``reset``/``_start``) and an
-output record, and checks every array's dtype, contiguity and shape on the way;
-:meth:`CRecords.run` is ``dekf_run`` over a recording, :meth:`CRecords.step` one sample.
-:func:`use_c` makes one ``DEKF`` instance run its whole-recording kernel in C: its
-``estimate`` builds everything in Python exactly as before and only the call of
-``_dekf_core.dekf_run`` is replaced.
+``_dekf_native.c`` is the DEKF's compiled path (:mod:`~manualcontrol.estimators.
+members._dekf_core` and what it calls) in C, the same numbers bit for bit
+(:mod:`~manualcontrol.estimators.members._native`: why, and how it is built).
+:func:`library` loads it once a process and checks (:func:`declare`), before its
+first use, that its layout and its constants (``CFG_*``, ``SC_*``, divergence codes,
+tolerances) are the Python modules' own. :class:`NativeRecords` fills its struct of
+pointers from a DEKF's records and an output record (every array's dtype, contiguity
+and shape checked) and steps one sample, a block in row 0, or a whole run, where
+numba's ``dekf_step``, ``dekf_step_many`` on a stack of one and ``dekf_run`` would.
+:class:`NativeBatch` does ``dekf_step_many`` on stacked records
+(:class:`~manualcontrol.estimators.batch.FilterBatch`).
 
-Nothing here imports numba or the package at import time; the constants check imports
-the two kernel modules that define them.
+The struct points into the records' arrays, so C reads and writes where numba would;
+a :class:`NativeRecords` is valid while those arrays are (one reset of the filter).
 """
 
 from __future__ import annotations
 
 import ctypes
-import os
-import resource
-import shutil
-import subprocess
-import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-SOURCE = Path(__file__).with_name("dekf.c")
-#: IEEE semantics: no fast-math, no FMA contraction (numba contracts only with fastmath).
-FLAGS = ("-std=c99", "-O2", "-fno-fast-math", "-ffp-contract=off", "-fPIC", "-shared")
-LIBRARY = "libdekf.so"
+from manualcontrol.estimators.members._native import native_library
+
+__all__ = ["NativeBatch", "NativeRecords", "declare", "library"]
+
+SOURCE = "_dekf_native.c"
+#: The layout version ``dekf_abi()`` returns: the struct below and the C one agree.
 ABI = 1
+_CHECKED: dict[int, bool] = {}
 
 _SIZES = (
     "n_c", "n_s", "n_g", "n_t", "n_p", "n_in", "n_terms", "n_chain", "n_branch", "longest",
@@ -78,26 +76,6 @@ class _Records(ctypes.Structure):
     )
 
 
-def build(folder: str | os.PathLike, cc: str = "cc", flags: tuple[str, ...] = FLAGS):
-    """Compile ``dekf.c`` in ``folder`` (copied there first); ``(library, wall s, CPU s)``.
-
-    The CPU seconds are the compiler's (its children included), from ``RUSAGE_CHILDREN``.
-    """
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    source = folder / SOURCE.name
-    shutil.copyfile(SOURCE, source)
-    library = folder / LIBRARY
-    command = [cc, *flags, source.name, "-o", library.name, "-lm"]
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    start = time.perf_counter()
-    subprocess.run(command, cwd=folder, check=True, capture_output=True, text=True)
-    wall = time.perf_counter() - start
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    return library, wall, cpu
-
-
 def _expected_constants() -> list[float]:
     from manualcontrol.estimators import _pilot_core as core
     from manualcontrol.estimators.filters import linalg, monitor
@@ -121,34 +99,55 @@ def _expected_constants() -> list[float]:
     ]
 
 
-def load(library: str | os.PathLike, check: bool = True) -> ctypes.CDLL:
-    """Open the built library, declare its functions and (``check``) its constants."""
-    lib = ctypes.CDLL(str(library))
+def library() -> ctypes.CDLL | None:
+    """The built C library, declared and checked (:func:`declare`), or None (numba runs)."""
+    lib = native_library(SOURCE)
+    if lib is None:
+        return None
+    return declare(lib)
+
+
+def declare(lib: ctypes.CDLL) -> ctypes.CDLL:
+    """Declare the functions of a loaded build of ``_dekf_native.c``; check it once.
+
+    Raises ``RuntimeError`` where its struct layout or its constants differ from this
+    module's and the Python modules' (a C edit without the Python one, or the reverse).
+    """
+    if id(lib) in _CHECKED:
+        return lib
     pointer = ctypes.POINTER(_Records)
-    lib.dekf_step.argtypes = [pointer, ctypes.c_void_p, ctypes.c_double, ctypes.c_double,
-                              ctypes.c_int64]  # fmt: skip
+    double, int64, address = ctypes.c_double, ctypes.c_int64, ctypes.c_void_p
+    lib.dekf_step.argtypes = [pointer, address, double, double, int64]
     lib.dekf_step.restype = None
-    lib.dekf_run.argtypes = [pointer, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
-                             ctypes.c_int64]  # fmt: skip
-    lib.dekf_run.restype = None
-    lib.dekf_abi.restype = ctypes.c_int64
-    lib.dekf_records_size.restype = ctypes.c_int64
-    lib.dekf_constants.argtypes = [ctypes.c_void_p]
-    lib.dekf_constants.restype = ctypes.c_int64
+    for name in ("dekf_run", "dekf_block"):
+        function = getattr(lib, name)
+        function.argtypes = [pointer, address, address, address, int64]
+        function.restype = None
+    lib.dekf_step_many.argtypes = [address, address, address, address, address, int64]
+    lib.dekf_step_many.restype = None
+    lib.dekf_abi.restype = int64
+    lib.dekf_records_size.restype = int64
+    lib.dekf_constants.argtypes = [address]
+    lib.dekf_constants.restype = int64
     if lib.dekf_abi() != ABI or lib.dekf_records_size() != ctypes.sizeof(_Records):
-        raise RuntimeError(f"{library} does not match this binding (rebuild it)")
-    if check:
-        values = np.zeros(lib.dekf_constants(None))
-        lib.dekf_constants(values.ctypes.data)
-        expected = _expected_constants()
-        if values.tolist() != [float(v) for v in expected]:
-            raise RuntimeError(
-                f"dekf.c's constants {values.tolist()} differ from the modules' {expected}"
-            )
+        raise RuntimeError(
+            f"{SOURCE}'s struct (layout {lib.dekf_abi()}, {lib.dekf_records_size()} "
+            f"bytes) differs from _dekf_native.py's (layout {ABI}, "
+            f"{ctypes.sizeof(_Records)} bytes): edit the two together"
+        )
+    values = np.zeros(lib.dekf_constants(None))
+    lib.dekf_constants(values.ctypes.data)
+    expected = [float(v) for v in _expected_constants()]
+    if values.tolist() != expected:
+        raise RuntimeError(
+            f"{SOURCE}'s constants {values.tolist()} differ from the Python modules' "
+            f"{expected}: edit the two together"
+        )
+    _CHECKED[id(lib)] = True
     return lib
 
 
-class CRecords:
+class NativeRecords:
     """The C struct of one DEKF's records and an output record (arrays checked, kept alive).
 
     ``records`` is ``(model, config, belief, monitor, report, scratch)`` as
@@ -255,43 +254,99 @@ class CRecords:
 
     def _pointer(self, name: str, array: Any, shape: tuple | None) -> int:
         if not isinstance(array, np.ndarray):
-            raise TypeError(f"{name} is not an array")
+            raise TypeError(f"the DEKF's record field {name} is not an array")
         kind = {"f": np.float64, "i": np.int64, "b": np.bool_}.get(array.dtype.kind)
         if kind is None or array.dtype != kind or not array.flags.c_contiguous:
-            raise ValueError(f"{name}: {array.dtype} {array.flags.c_contiguous}")
+            raise ValueError(
+                f"the DEKF's record field {name} is {array.dtype}"
+                f"{'' if array.flags.c_contiguous else ', not C-contiguous'}: the C port "
+                "reads C-contiguous float64, int64 or bool arrays"
+            )
         if shape is not None and array.shape != shape:
-            raise ValueError(f"{name} has shape {array.shape}, the C port reads {shape}")
+            raise ValueError(
+                f"the DEKF's record field {name} has shape {array.shape}, the C port reads {shape}"
+            )
         self._keep.append(array)
         return array.ctypes.data if array.size else 0
 
-    def run(self, inputs: np.ndarray, u: np.ndarray, e: np.ndarray) -> None:
-        """``dekf_run`` over ``len(u)`` samples (``inputs`` (n, n_in), C-contiguous)."""
+    def _check_samples(self, inputs: np.ndarray, u: np.ndarray, e: np.ndarray) -> int:
         n = u.shape[0]
-        for name, array, shape in (("inputs", inputs, (n, self.struct.n_in)),
-                                   ("u", u, (n,)), ("e", e, (n,))):  # fmt: skip
+        for name, array, shape in (
+            ("inputs", inputs, (n, self.struct.n_in)),
+            ("u", u, (n,)),
+            ("e", e, (n,)),
+        ):
             if array.dtype != np.float64 or not array.flags.c_contiguous or array.shape != shape:
-                raise ValueError(f"{name}: {array.dtype} {array.shape}, expected {shape}")
+                raise ValueError(
+                    f"{name} must be C-contiguous float64 of shape {shape}, "
+                    f"got {array.dtype} {array.shape}"
+                )
+        return n
+
+    def run(self, inputs: np.ndarray, u: np.ndarray, e: np.ndarray) -> None:
+        """``dekf_run``: sample ``k`` into output row ``k`` (``inputs`` ``(n, n_in)``)."""
+        n = self._check_samples(inputs, u, e)
         if n > self.rows or 0 < self.struct.store_rows < n:
-            raise ValueError("the output record has fewer rows than samples")
+            raise ValueError(f"the output record has {self.rows} rows for {n} samples")
         self._lib.dekf_run(self.ref, inputs.ctypes.data, u.ctypes.data, e.ctypes.data, n)
 
-    def step(self, inputs_k: np.ndarray, u_k: float, e_k: float, row: int = 0) -> None:
-        """``dekf_step`` on one sample into output row ``row`` (checks nothing: the thin path)."""
-        self._lib.dekf_step(self.ref, inputs_k.ctypes.data, u_k, e_k, row)
+    def block(self, inputs: np.ndarray, u: np.ndarray, e: np.ndarray) -> None:
+        """``dekf_step_many`` on a stack of one: every sample, in order, into row 0."""
+        n = self._check_samples(inputs, u, e)
+        self._lib.dekf_block(self.ref, inputs.ctypes.data, u.ctypes.data, e.ctypes.data, n)
+
+    def step(self, inputs_k: np.ndarray, u_k: float, e_k: float) -> None:
+        """``dekf_step`` on one sample into row 0 (unchecked: the online path's cost)."""
+        self._lib.dekf_step(self.ref, inputs_k.ctypes.data, u_k, e_k, 0)
+
+    def entry(self, inputs_k: np.ndarray) -> Any:
+        """``dekf_step`` as numba's entry point is called (records, inputs, u, e, row, out).
+
+        Bound to these records and to ``inputs_k``, whose values the caller sets before
+        each call: only ``u`` and ``e`` are read from the arguments.
+        """
+        call, ref, address = self._lib.dekf_step, self.ref, inputs_k.ctypes.data
+        self._keep.append(inputs_k)
+
+        def step(*arguments: Any) -> None:
+            call(ref, address, arguments[7], arguments[8], 0)
+
+        return step
 
 
-def use_c(estimator: Any, lib: ctypes.CDLL) -> Any:
-    """Make ``estimator`` (a DEKF) run ``dekf_run`` in C; its records stay the project's.
+class NativeBatch:
+    """``dekf_step_many`` on stacked records: one struct per filter, views of its row.
 
-    Replaces the instance's ``_run`` (what ``PilotFilter._pass`` calls with the inputs
-    and the fresh output record after ``reset``) with the C call on ``_records``;
-    ``estimator.c_calls`` counts the calls.
+    ``stacked`` and ``out`` as :class:`~manualcontrol.estimators.batch.FilterBatch`
+    stacks them (:func:`~manualcontrol.estimators.filters.batch.stack_records`): filter
+    ``i``'s records are row ``i`` of every array, its one-row output row ``i`` of
+    ``out``'s.
     """
 
-    def run(inputs: np.ndarray, u: np.ndarray, e: np.ndarray, out: Any) -> None:
-        CRecords(lib, estimator._records, out).run(inputs, u, e)
-        estimator.c_calls += 1
+    def __init__(self, lib: ctypes.CDLL, stacked: tuple, out: Any, n: int) -> None:
+        from manualcontrol.estimators.filters.batch import take
 
-    estimator._run = run
-    estimator.c_calls = 0
-    return estimator
+        self._lib = lib
+        self._filters = [
+            NativeRecords(
+                lib,
+                tuple(take(record, i) for record in stacked),
+                take(out, i),
+            )
+            for i in range(n)
+        ]
+        self._pointers = (ctypes.c_void_p * n)(
+            *(ctypes.addressof(one.struct) for one in self._filters)
+        )
+        self.n = n
+
+    def step(self, inputs: np.ndarray, u: np.ndarray, e: np.ndarray, active: np.ndarray) -> None:
+        """Filter ``i`` steps on sample ``i`` where ``active[i]`` (arrays checked by the caller)."""
+        self._lib.dekf_step_many(
+            ctypes.addressof(self._pointers),
+            inputs.ctypes.data,
+            u.ctypes.data,
+            e.ctypes.data,
+            active.ctypes.data,
+            self.n,
+        )

@@ -1,0 +1,180 @@
+"""Build and load the C ports of the compiled kernels, where a C compiler is at hand.
+
+Each estimator's numerics are numba kernels; numba compiles them on a machine's first
+use (the DEKF's about 30 CPU-s), where a C compiler builds the same arithmetic in under
+a second. A member with a C port (``_<member>_native.c`` beside its numba core, the same
+numbers bit for bit, held so by its tests) runs it wherever :func:`native_library`
+gives the built library, and its numba kernels elsewhere: which one ran never shows in
+a number.
+
+The library is built on first use, or at install (``manualcontrol compile``), with the
+system C compiler (``$CC``, else ``cc``) and the flags of :data:`FLAGS`, into the
+kernel cache: numba's (``$NUMBA_CACHE_DIR``) where one is set, else the source's
+``__pycache__`` folder beside numba's own files, else ``~/.cache/manualcontrol``. Its
+file name carries a hash of the source, the flags and the compiler's version, so an
+edited source or another compiler builds anew, and a build is written under a
+temporary name and renamed into place, so a failed or interrupted build leaves nothing
+half-written (two processes building at once each rename a whole library).
+
+Where no compiler is found or the build fails, the numba kernels run: the same
+numbers, after their compile. ``MANUALCONTROL_NATIVE=0`` runs the numba kernels
+everywhere (to compare the two, or where a compiler misbehaves).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+__all__ = [
+    "FLAGS",
+    "NativeBuildError",
+    "build_library",
+    "native_enabled",
+    "native_failure",
+    "native_library",
+]
+
+#: IEEE semantics as numba keeps them without fastmath: no reassociation, no fused
+#: multiply-add (GCC fuses by default in its GNU modes, clang within a statement).
+FLAGS: tuple[str, ...] = (
+    "-std=c99",
+    "-O2",
+    "-fno-fast-math",
+    "-ffp-contract=off",
+    "-fPIC",
+    "-shared",
+)
+
+_HERE = Path(__file__).resolve().parent
+#: Libraries loaded in this process, and why a source could not be built.
+_LOADED: dict[str, ctypes.CDLL] = {}
+_FAILED: dict[str, str] = {}
+
+
+class NativeBuildError(RuntimeError):
+    """The C compiler could not build a kernel library (its own message included)."""
+
+
+def native_enabled() -> bool:
+    """Whether C ports may run (``MANUALCONTROL_NATIVE`` is not ``0``)."""
+    return os.environ.get("MANUALCONTROL_NATIVE", "1").strip() != "0"
+
+
+def _compiler() -> str | None:
+    name = os.environ.get("CC", "cc").strip() or "cc"
+    return shutil.which(name)
+
+
+def _compiler_version(compiler: str) -> str:
+    try:
+        done = subprocess.run(
+            [compiler, "--version"], capture_output=True, text=True, timeout=30, check=False
+        )
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    return done.stdout.strip()
+
+
+def _suffix() -> str:
+    if sys.platform == "darwin":
+        return ".dylib"
+    return ".dll" if sys.platform == "win32" else ".so"
+
+
+def _cache_folders(source: Path) -> list[Path]:
+    """Where a built library may be kept, in order of preference (module docstring)."""
+    folders = []
+    numba_cache = os.environ.get("NUMBA_CACHE_DIR")
+    if numba_cache:
+        folders.append(Path(numba_cache) / "manualcontrol-native")
+    folders.append(source.parent / "__pycache__")
+    folders.append(Path.home() / ".cache" / "manualcontrol")
+    return folders
+
+
+def build_library(source: Path, compiler: str, folder: Path) -> Path:
+    """Build ``source`` with ``compiler`` into ``folder`` (atomically); the library's path.
+
+    The name carries a hash of the source, :data:`FLAGS` and the compiler's version; a
+    library of that name already there is the same build and is returned as it is.
+    Raises :class:`NativeBuildError` with the compiler's message where it fails.
+    """
+    digest = hashlib.sha256()
+    digest.update(source.read_bytes())
+    digest.update("\0".join(FLAGS).encode())
+    digest.update(_compiler_version(compiler).encode())
+    target = folder / f"lib{source.stem}-{digest.hexdigest()[:16]}{_suffix()}"
+    if target.is_file():
+        return target
+    folder.mkdir(parents=True, exist_ok=True)
+    handle, partial = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=folder)
+    os.close(handle)
+    try:
+        done = subprocess.run(
+            [compiler, *FLAGS, str(source), "-o", partial, "-lm"],
+            capture_output=True,
+            text=True,
+            timeout=300,
+            check=False,
+        )
+        if done.returncode != 0:
+            message = (done.stderr or done.stdout).strip().splitlines()
+            raise NativeBuildError(
+                f"{compiler} could not build {source.name} (exit code {done.returncode}): "
+                + (message[-1] if message else "no message")
+            )
+        os.replace(partial, target)
+    except BaseException:
+        Path(partial).unlink(missing_ok=True)
+        raise
+    return target
+
+
+def native_library(source_name: str) -> ctypes.CDLL | None:
+    """The built library of the C source ``source_name`` in this folder, or None.
+
+    None where C ports are disabled (``MANUALCONTROL_NATIVE=0``), no compiler is found
+    or the build failed (:func:`native_failure` says why); the numba kernels then run.
+    Built once per cache and loaded once per process.
+    """
+    if not native_enabled():
+        return None
+    library = _LOADED.get(source_name)
+    if library is not None or source_name in _FAILED:
+        return library
+    source = _HERE / source_name
+    compiler = _compiler()
+    if compiler is None:
+        _FAILED[source_name] = (
+            "no C compiler found ($CC or cc): the numba kernels run, compiled at first use"
+        )
+        return None
+    errors = []
+    for folder in _cache_folders(source):
+        try:
+            path = build_library(source, compiler, folder)
+        except NativeBuildError as error:
+            errors.append(str(error))
+            break  # the compiler's verdict does not depend on the folder
+        except OSError as error:  # a folder we may not write: try the next
+            errors.append(f"{folder}: {error}")
+            continue
+        library = ctypes.CDLL(str(path))
+        _LOADED[source_name] = library
+        return library
+    _FAILED[source_name] = "; ".join(errors) + ": the numba kernels run, compiled at first use"
+    return None
+
+
+def native_failure(source_name: str) -> str:
+    """Why :func:`native_library` gave None for ``source_name`` in this process ('' if not)."""
+    if not native_enabled():
+        return "MANUALCONTROL_NATIVE=0: the numba kernels run"
+    return _FAILED.get(source_name, "")
