@@ -2,7 +2,8 @@
 
 A researcher's first ``identify`` pays numba's compilation of the estimator's kernels.
 Each figure here is one fresh process with numba's on-disk cache pointed at an empty
-folder (a fresh clone's first run), timed as CPU seconds of that process:
+folder (a fresh clone's first run; a member with a C port builds it there, in a child
+process counted too), timed as CPU seconds of that process and its children:
 
 - ``import numpy, scipy, gymnasium``: the floor any tool on this stack pays;
 - ``import manualcontrol.estimators``: what importing the family adds;
@@ -46,9 +47,10 @@ print(usage.ru_utime + usage.ru_stime)
 FIRST_USE = """
 import resource, sys, time, warnings
 warnings.simplefilter("ignore")
-def cpu():
+def cpu():  # the process and its children (a C compiler building a member's C port)
     usage = resource.getrusage(resource.RUSAGE_SELF)
-    return usage.ru_utime + usage.ru_stime
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime + children.ru_utime + children.ru_stime
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import make_estimator
 recording = Recording.load(sys.argv[2])
