@@ -22,8 +22,9 @@ $(BIN)/python:
 # torch first and pinned: a local CPU wheel of 2.13.0 satisfies the `torch>=2.2` range
 # below, so pip never fetches another (multi-GB) build.
 # Then the kernels are compiled into numba's on-disk cache, split across the cores and
-# each once: the first identify, demo or test run loads them instead of compiling (a
-# job that fails is reported and only means its kernels compile at first use).
+# each once, and the C ports built where a C compiler is at hand: the first identify,
+# demo or test run loads them instead of compiling (a job that fails is reported and
+# only means its kernels compile at first use).
 $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet torch==2.13.0

@@ -1650,7 +1650,9 @@ def _cmd_compile(args: argparse.Namespace) -> int:
     if hasattr(os, "register_at_fork") and not getattr(_cmd_compile, "hooked", False):
         os.register_at_fork(after_in_child=_quiet_child)
         _cmd_compile.hooked = True  # type: ignore[attr-defined]
-    print("compiling the kernels into numba's cache (once per machine):", flush=True)
+    print(
+        "compiling the kernels into the kernel cache, C ports built (once per machine):", flush=True
+    )
     _QUIET_CHILDREN = True
     try:
         ok = compile_kernels(args.workers, lambda line: print(line, flush=True))

@@ -248,7 +248,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.workers is not None and args.workers < 1:
         parser.error(f"--workers must be a whole number >= 1, got {args.workers}")
-    print("compiling the kernels into numba's cache (once per machine):", flush=True)
+    print(
+        "compiling the kernels into the kernel cache, C ports built (once per machine):", flush=True
+    )
     return 0 if compile_kernels(args.workers, lambda line: print(line, flush=True)) else 1
 
 

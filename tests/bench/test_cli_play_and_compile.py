@@ -82,7 +82,7 @@ def test_compile_runs_compile_kernels_on_the_workers_asked(capsys, monkeypatch, 
     monkeypatch.setattr(compiling, "compile_kernels", fake)
     code, out, err = run(capsys, "compile", "--workers", "3")
     assert code == expected and calls == [3]
-    assert "compiling the kernels into numba's cache" in out and "compiled: dekf" in out
+    assert "compiling the kernels into the kernel cache" in out and "compiled: dekf" in out
     assert ("did not compile" in err) is not ok
     assert not cli._QUIET_CHILDREN
 

@@ -22,6 +22,7 @@ import os
 
 import numpy as np
 import pytest
+from scenarios import PREVIEW as TYPICAL_PREVIEW
 
 from manualcontrol.estimators import DEKF
 from manualcontrol.estimators._pilot_core import SC_SIZE
@@ -47,16 +48,8 @@ ARRAYS = (
 )
 
 
-PREVIEW = {
-    "K_f": 0.9,
-    "omega_f": 1.0,
-    "K_p": 0.24,
-    "K_v": 0.36,
-    "omega_nms": 8.0,
-    "zeta_nms": 0.45,
-    "tau_v": 0.3,
-    "tau_f": 0.6,
-}
+# the thesis's DI preview pilot, with a far-viewpoint anticipation delay
+PREVIEW = {**TYPICAL_PREVIEW["DI"], "tau_f": 0.6}
 PURSUIT = {name: value for name, value in PREVIEW.items() if name != "tau_f"}
 
 
