@@ -162,6 +162,8 @@ class DEKF(PilotFilter):
     settings_type = DEKFSettings
     _step_kernel = staticmethod(core.dekf_step)
     _step_many_kernel = staticmethod(core.dekf_step_many)
+    _run_kernel = staticmethod(core.dekf_run)
+    _native_binding = _dekf_native
 
     @property
     def settings(self) -> DEKFSettings:
@@ -253,56 +255,6 @@ class DEKF(PilotFilter):
             th_post=np.zeros((rows, n_t)),
             Pp_post=np.zeros((rows, n_t, n_t)),
         )
-
-    # The C port of the compiled path (_dekf_native.c) runs wherever it builds: the same
-    # numbers bit for bit as the numba kernels, which run elsewhere (members/_native.py).
-
-    def _native_records(self, out: core.DEKFOutput) -> Any:
-        """The C port bound to this reset's records and ``out``, or None (numba runs).
-
-        Decided once per reset and output record: a step pays no lookup.
-        """
-        bound = self._native
-        if bound is None or bound[0] is not self._records or bound[1] is not out:
-            lib = _dekf_native.library()
-            native = None if lib is None else _dekf_native.NativeRecords(lib, self._records, out)
-            bound = (self._records, out, native)
-            self._native = bound
-        return bound[2]
-
-    def _run(self, inputs: Any, u: Any, e: Any, out: core.DEKFOutput) -> None:
-        native = self._native_records(out)
-        if native is None:
-            core.dekf_run(*self._records, inputs, u, e, out)
-        else:
-            native.run(inputs, u, e)
-
-    def _call_step(self, kernel: Any, arguments: tuple) -> None:
-        """One sample through the C port where it runs (else numba's, as the shell does).
-
-        The online path (``update``: this filter's own input vector) then calls the C
-        step directly for the rest of the reset (``_entry``, as numba's entry point).
-        """
-        *_, inputs, u, e, _, out = arguments
-        native = self._native_records(out)
-        if native is None:
-            super()._call_step(kernel, arguments)
-            return
-        native.step(inputs, u, e)
-        if inputs is self._inputs:
-            self._entry = native.entry(inputs)
-
-    def _step_block(self, inputs: Any, u: Any, e: Any) -> None:
-        native = self._native_records(self._row)
-        if native is None:
-            super()._step_block(inputs, u, e)
-        else:
-            native.block(inputs, u, e)
-
-    def _native_batch(self, stacked: tuple, out: Any, n: int) -> Any:
-        """The C port of ``dekf_step_many`` over ``n`` stacked filters, or None (numba runs)."""
-        lib = _dekf_native.library()
-        return None if lib is None else _dekf_native.NativeBatch(lib, stacked, out, n)
 
     def _smoother_inputs(self, out: core.DEKFOutput) -> Any:
 

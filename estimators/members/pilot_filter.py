@@ -176,8 +176,9 @@ class PilotFilter(FilterShell):
     describing function and the restarts. Subclasses set :attr:`name` and
     :attr:`settings_type` and implement ``_start`` (build their records from the
     resolved settings), ``_new_output`` (output records for ``n`` rows, with smoother
-    storage or without), ``_step``/``_run`` (call the compiled kernels) and, for
-    smoothing, ``_smoother_inputs``.
+    storage or without), the compiled kernels (``_step_kernel``, ``_run_kernel``,
+    ``_step_many_kernel``; ``_native_binding``, their C port) and, for smoothing,
+    ``_smoother_inputs``.
     """
 
     settings_type: ClassVar[type[PilotFilterSettings]] = PilotFilterSettings
@@ -188,6 +189,13 @@ class PilotFilter(FilterShell):
     #: FilterBatch`), ``kernel(*stacked_records, inputs, u, e, active, rows, stacked_out)``;
     #: also this filter's :meth:`update_block` (a stack of one, every row 0).
     _step_many_kernel: ClassVar[Any] = None
+    #: The whole-recording kernel, ``kernel(*records, inputs, u, e, out)``.
+    _run_kernel: ClassVar[Any] = None
+    #: The binding module of the member's C port (``_<member>_native``: ``library()``,
+    #: ``NativeRecords``, ``NativeBatch``), or None. Where its library builds, every
+    #: kernel call above goes to C instead, the same numbers bit for bit
+    #: (:mod:`~manualcontrol.estimators.members._native`).
+    _native_binding: ClassVar[Any] = None
 
     def __init__(self, settings: PilotFilterSettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
@@ -372,7 +380,54 @@ class PilotFilter(FilterShell):
         self._call_step(self._step_kernel, (*self._records, inputs, u, e, 0, out))
 
     def _run(self, inputs: FloatArray, u: FloatArray, e: FloatArray, out: Any) -> None:
-        raise NotImplementedError
+        native = self._native_records(out)
+        if native is None:
+            type(self)._run_kernel(*self._records, inputs, u, e, out)
+        else:
+            native.run(inputs, u, e)
+
+    # ------------------------------------------------------------------ C ports
+
+    def _native_records(self, out: Any) -> Any:
+        """The member's C port bound to this reset's records and ``out``, or None.
+
+        None where the member has no C port or its library did not build (numba runs).
+        Decided once per reset and output record: a step pays no lookup.
+        """
+        binding = type(self)._native_binding
+        if binding is None:
+            return None
+        bound = self._native
+        if bound is None or bound[0] is not self._records or bound[1] is not out:
+            lib = binding.library()
+            native = None if lib is None else binding.NativeRecords(lib, self._records, out)
+            bound = (self._records, out, native)
+            self._native = bound
+        return bound[2]
+
+    def _call_step(self, kernel: Any, arguments: tuple) -> None:
+        """One sample through the C port where it runs, else numba's step (the shell's).
+
+        The online path (``update``, on this filter's own input vector) then calls the
+        C step directly for the rest of the reset (``_entry``, as numba's entry point).
+        """
+        *_, inputs, u, e, _, out = arguments
+        native = self._native_records(out)
+        if native is None:
+            super()._call_step(kernel, arguments)
+            return
+        native.step(inputs, u, e)
+        if inputs is self._inputs:
+            self._entry = native.entry(inputs)
+
+    def _native_batch(self, stacked: tuple, out: Any, n: int) -> Any:
+        """The C port's batched step over ``n`` stacked filters, or None (numba runs).
+
+        :class:`~manualcontrol.estimators.batch.FilterBatch` steps it where it is given.
+        """
+        binding = type(self)._native_binding
+        lib = None if binding is None else binding.library()
+        return None if lib is None else binding.NativeBatch(lib, stacked, out, n)
 
     def _smoother_inputs(self, out: Any) -> Any:
         raise NotImplementedError
@@ -473,9 +528,13 @@ class PilotFilter(FilterShell):
     def _step_block(self, inputs: FloatArray, u: FloatArray, e: FloatArray) -> None:
         """Step the filter through the samples in order, in one compiled call, into its row.
 
-        The batched kernel on this filter's records as a stack of one, every row index 0
-        (:meth:`update_block`).
+        The C port's block where it runs, else the batched kernel on this filter's
+        records as a stack of one, every row index 0 (:meth:`update_block`).
         """
+        native = self._native_records(self._row)
+        if native is not None:
+            native.block(inputs, u, e)
+            return
         from manualcontrol.estimators.filters.batch import stack_of_one
 
         records = self._records

@@ -199,6 +199,7 @@ from manualcontrol.estimators.analysis.fit_check import (
 from manualcontrol.estimators.analysis.frequency import response_error
 from manualcontrol.estimators.filters.kalman import kalman_work
 from manualcontrol.estimators.members import _rml_core as core
+from manualcontrol.estimators.members import _rml_native
 from manualcontrol.estimators.members.internal_model import (
     ANTICIPATED_PARAMETER,
     InternalModel,
@@ -691,6 +692,8 @@ class RML(PilotFilter):
     settings_type = RMLSettings
     _step_kernel = staticmethod(core.bank_step)
     _step_many_kernel = staticmethod(core.bank_step_many)
+    _run_kernel = staticmethod(core.bank_run)
+    _native_binding = _rml_native
 
     def __init__(self, settings: RMLSettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
@@ -1095,9 +1098,6 @@ class RML(PilotFilter):
             P_post=np.zeros((rows, n_t, n_t)),
             extra=np.zeros((n, 3)),
         )
-
-    def _run(self, inputs: Any, u: Any, e: Any, out: core.BankOutput) -> None:
-        core.bank_run(*self._records, inputs, u, e, out)
 
     def _state_traces(self, out: core.BankOutput) -> tuple[tuple[str, ...], Any]:
         """The centre filter's remnant estimate, the remnant intensity and break frequency."""
