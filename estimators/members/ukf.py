@@ -55,6 +55,7 @@ from manualcontrol.estimators.filters.unscented import (
     unscented_work,
 )
 from manualcontrol.estimators.members import _ukf_core as core
+from manualcontrol.estimators.members import _ukf_native
 from manualcontrol.estimators.members.pilot_filter import CommonArrays, PilotFilter
 from manualcontrol.estimators.members.pilot_rules import PilotFilterSettings, ResolvedSettings
 from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
@@ -126,6 +127,9 @@ def _sigma_config(common: CommonArrays, weights: Any) -> np.ndarray:
 
 class _UnscentedPilotFilter(PilotFilter):
     """What the joint and the dual filter share: scratch, outputs, the smoother blocks."""
+
+    # the C port of both filters' compiled path (_ukf_native.c), where it builds
+    _native_binding = _ukf_native
 
     def _scratch(self, n: int) -> core.UKFScratch:
         internal = self._internal
@@ -256,6 +260,7 @@ class JointUKF(_UnscentedPilotFilter):
     settings_type = UKFSettings
     _step_kernel = staticmethod(core.joint_step)
     _step_many_kernel = staticmethod(core.joint_step_many)
+    _run_kernel = staticmethod(core.joint_run)
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
         internal = self._internal
@@ -275,9 +280,6 @@ class JointUKF(_UnscentedPilotFilter):
         self._sizes = (n, 0)
         self._blocks = (names, ())
 
-    def _run(self, inputs: Any, u: Any, e: Any, out: core.UKFOutput) -> None:
-        core.joint_run(*self._records, inputs, u, e, out)
-
 
 class DualUKF(_UnscentedPilotFilter):
     """Dual unscented Kalman filter: a state filter and a parameter filter side by side.
@@ -293,6 +295,7 @@ class DualUKF(_UnscentedPilotFilter):
     settings_type = DualUKFSettings
     _step_kernel = staticmethod(core.dual_step)
     _step_many_kernel = staticmethod(core.dual_step_many)
+    _run_kernel = staticmethod(core.dual_run)
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
         internal = self._internal
@@ -330,6 +333,3 @@ class DualUKF(_UnscentedPilotFilter):
         self._records = (model, config, belief, common.monitor, common.report, scratch, theta_half)
         self._sizes = (n, n_t)
         self._blocks = (gains, theta)
-
-    def _run(self, inputs: Any, u: Any, e: Any, out: core.UKFOutput) -> None:
-        core.dual_run(*self._records, inputs, u, e, out)
