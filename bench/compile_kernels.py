@@ -15,7 +15,7 @@ environment and of the native vector envs, and every registered estimator's
 it reads, and the batched step of those that have one
 (:class:`~manualcontrol.estimators.batch.FilterBatch`): the pilot filters on the
 precision and the preview model. The members' C ports are built too
-(``estimators/members/_native.py``: the DEKF's, under a second), and the numba kernels
+(``estimators/members/_native.py``: under a second each), and the numba kernels
 of those members compiled all the same (the reference their tests compare with, and
 what runs where no compiler is found). Nothing is written but the kernel cache; a job
 that fails is reported and the rest go on (its kernels then compile at first use, as
@@ -183,29 +183,35 @@ def _numba_kernels(job: Callable[[], None]) -> Callable[[], None]:
 
 def _c_ports() -> None:
 
-    from manualcontrol.estimators.members import _dekf_native, _native
+    from manualcontrol.estimators.members import _native
 
-    if _dekf_native.library() is None:
-        raise RuntimeError(
-            "the DEKF's C port was not built: " + _native.native_failure(_dekf_native.SOURCE)
-        )
-    _estimator("dekf")  # the C path's own first run
+    failures = []
+    for name, entry in ESTIMATORS.items():
+        binding = getattr(type(entry.build({})), "_native_binding", None)
+        if binding is not None and binding.library() is None:
+            failures.append(f"{name}: " + _native.native_failure(binding.SOURCE))
+    if failures:
+        raise RuntimeError("C ports not built: " + "; ".join(dict.fromkeys(failures)))
+    for name in ESTIMATORS:  # each member's C path, once
+        if getattr(type(ESTIMATORS[name].build({})), "_native_binding", None) is not None:
+            _estimator(name)
 
 
 #: The jobs, the longest first (CPU-s on a fresh machine, roughly in this order).
 JOBS: dict[str, Callable[[], None]] = {
-    "rml": lambda: _estimator("rml"),
-    "dekf (numba)": _numba_kernels(lambda: _estimator("dekf")),
-    "joint-ukf": lambda: _estimator("joint-ukf"),
-    "dual-ukf": lambda: _estimator("dual-ukf"),
-    "schiess-roland": lambda: _estimator("schiess-roland"),
-    "zhao-ukf": lambda: _estimator("zhao-ukf"),
-    "zhao-multi-ukf": lambda: _estimator("zhao-multi-ukf"),
-    "rdi": lambda: _estimator("rdi"),
-    "rml on the preview model": _pilot_filter_on_preview("rml"),
-    "dekf (numba) on the preview model": _numba_kernels(_pilot_filter_on_preview("dekf")),
-    "C ports (the DEKF's)": _c_ports,
-    "joint-ukf on the preview model": _pilot_filter_on_preview("joint-ukf"),
+    # the estimators' numba kernels, C ports off (_numba_kernels), then the C ports
+    "rml": _numba_kernels(lambda: _estimator("rml")),
+    "dekf": _numba_kernels(lambda: _estimator("dekf")),
+    "joint-ukf": _numba_kernels(lambda: _estimator("joint-ukf")),
+    "dual-ukf": _numba_kernels(lambda: _estimator("dual-ukf")),
+    "schiess-roland": _numba_kernels(lambda: _estimator("schiess-roland")),
+    "zhao-ukf": _numba_kernels(lambda: _estimator("zhao-ukf")),
+    "zhao-multi-ukf": _numba_kernels(lambda: _estimator("zhao-multi-ukf")),
+    "rdi": _numba_kernels(lambda: _estimator("rdi")),
+    "rml on the preview model": _numba_kernels(_pilot_filter_on_preview("rml")),
+    "dekf on the preview model": _numba_kernels(_pilot_filter_on_preview("dekf")),
+    "joint-ukf on the preview model": _numba_kernels(_pilot_filter_on_preview("joint-ukf")),
+    "C ports": _c_ports,
     "tracking simulations": _tracking_runs,
     "environments": _environments,
     "lane-keeping simulation": _driving_run,
