@@ -68,6 +68,7 @@ from manualcontrol.estimators import _pilot_core as pilot_core
 from manualcontrol.estimators.analysis.metrics import observability_gramian
 from manualcontrol.estimators.filters.unscented import sigma_weights, unscented_work
 from manualcontrol.estimators.members import _zhao_core as core
+from manualcontrol.estimators.members import _zhao_native
 from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.estimators.protocol import EstimationResult, sample_floats
 from manualcontrol.estimators.settings import GuardSettings, SettingsRecord, limit_pair
@@ -504,9 +505,13 @@ class ZhaoUKF(FilterShell):
     # the driver model's inputs and outputs
     _sample_keys = _SAMPLE_KEYS
 
+    #: The binding of this member's C port (members/_native.py builds it).
+    _native_binding = _zhao_native
+
     def __init__(self, settings: ZhaoUKFSettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
         self._tuning: ZhaoTuning | None = None
+        self._native: tuple[Any, Any, Any] | None = None
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -648,6 +653,48 @@ class ZhaoUKF(FilterShell):
         inputs, outputs = _sample_arrays(sample, self._where)
         self._call_step(core.zhao_step, (*self._records, inputs, outputs, 0, self._row))
 
+    # The C port of the compiled path (_zhao_native.c) runs wherever it builds: the same
+    # numbers bit for bit as the numba kernels, which run elsewhere (members/_native.py).
+
+    def _native_records(self, out: core.ZhaoOutput) -> Any:
+        """The C port bound to this reset's records and ``out``, or None (numba runs).
+
+        Decided once per reset and output record: a step pays no lookup.
+        """
+        bound = self._native
+        if bound is None or bound[0] is not self._records or bound[1] is not out:
+            lib = _zhao_native.library()
+            native = None if lib is None else _zhao_native.NativeRecords(lib, self._records, out)
+            bound = (self._records, out, native)
+            self._native = bound
+        return bound[2]
+
+    def _run(self, inputs: Any, outputs: Any, out: core.ZhaoOutput) -> None:
+        native = self._native_records(out)
+        if native is None:
+            core.zhao_run(*self._records, inputs, outputs, out)
+        else:
+            native.run(inputs, outputs)
+
+    def _call_step(self, kernel: Any, arguments: tuple) -> None:
+        """One sample through the C port where it runs (else numba's, as the shell does).
+
+        The online path (``update``: the one-row output) then calls the C step directly
+        for the rest of the reset (``_entry``, as numba's entry point).
+        """
+        entry = self._entry
+        if entry is not None:
+            entry(*arguments)
+            return
+        *_, inputs, outputs, _, out = arguments
+        native = self._native_records(out)
+        if native is None:
+            super()._call_step(kernel, arguments)
+            return
+        native.step(inputs, outputs)
+        if out is self._row:
+            self._entry = native.entry()
+
     # -------------------------------------------------------------- estimate
 
     def estimate(
@@ -676,7 +723,7 @@ class ZhaoUKF(FilterShell):
         n = len(recording)
         store = bool(smoother_inputs or smooth)
         out = self._new_output(n, store)
-        core.zhao_run(*self._records, inputs, outputs, out)
+        self._run(inputs, outputs, out)
         self._k = n
         return self._finish(self._result(np.asarray(recording.t), out, store), smooth)
 
@@ -853,11 +900,15 @@ class MultiUKF(FilterShell):
     outputs = DRIVER_OUTPUTS
     _sample_keys = _SAMPLE_KEYS
 
+    #: The binding of this member's C port (members/_native.py builds it).
+    _native_binding = _zhao_native
+
     def __init__(self, settings: MultiUKFSettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
         slow, fast = self._settings.members()
         self._slow = ZhaoUKF(slow)
         self._fast = ZhaoUKF(fast)
+        self._native: tuple[Any, ...] | None = None
 
     parameter_names = ZhaoUKF.parameter_names
     signals = ZhaoUKF.signals
@@ -915,6 +966,54 @@ class MultiUKF(FilterShell):
         arguments = (*self._records, inputs, outputs, 0, *self._member_rows, self._row)
         self._call_step(core.multi_step, arguments)
 
+    # The C port (_zhao_native.c) runs wherever it builds, as ZhaoUKF's does.
+
+    def _native_records(self, out_slow: Any, out_fast: Any, out: core.MultiOutput) -> Any:
+        """The C port bound to this reset's records and outputs, or None (numba runs).
+
+        Decided once per reset and output records: a step pays no lookup.
+        """
+        bound = self._native
+        key = (self._records, out_slow, out_fast, out)
+        if bound is None or any(a is not b for a, b in zip(bound[:4], key, strict=True)):
+            lib = _zhao_native.library()
+            native = (
+                None
+                if lib is None
+                else _zhao_native.NativeMulti(lib, self._records, out_slow, out_fast, out)
+            )
+            bound = (*key, native)
+            self._native = bound
+        return bound[4]
+
+    def _run(
+        self, inputs: Any, outputs: Any, out_slow: Any, out_fast: Any, out: core.MultiOutput
+    ) -> None:
+        native = self._native_records(out_slow, out_fast, out)
+        if native is None:
+            core.multi_run(*self._records, inputs, outputs, out_slow, out_fast, out)
+        else:
+            native.run(inputs, outputs)
+
+    def _call_step(self, kernel: Any, arguments: tuple) -> None:
+        """One sample through the C port where it runs (else numba's, as the shell does).
+
+        The online path (``update``: the one-row outputs) then calls the C step directly
+        for the rest of the reset (``_entry``, as numba's entry point).
+        """
+        entry = self._entry
+        if entry is not None:
+            entry(*arguments)
+            return
+        *_, inputs, outputs, _, out_slow, out_fast, out = arguments
+        native = self._native_records(out_slow, out_fast, out)
+        if native is None:
+            super()._call_step(kernel, arguments)
+            return
+        native.step(inputs, outputs)
+        if out is self._row:
+            self._entry = native.entry()
+
     def _health(self, t: FloatArray, flag: NDArray[np.bool_], pinned: NDArray[np.bool_]) -> Any:
         """The slow member's health; the fast member's divergence when only it diverged."""
         pinned_time = self._settings.guard.pinned_time
@@ -951,7 +1050,7 @@ class MultiUKF(FilterShell):
         self.reset(recording.dt, speed=speed, output_max=output_max, t0=float(recording.t[0]))
         n = len(recording)
         out = self._new_output(n, False)
-        core.multi_run(*self._records, inputs, outputs, *self._member_outputs(n), out)
+        self._run(inputs, outputs, *self._member_outputs(n), out)
         self._k = n
         settings = self._settings
         names = settings.estimated
