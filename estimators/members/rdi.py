@@ -87,6 +87,7 @@ from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators.analysis.metrics import hold_last_finite
 from manualcontrol.estimators.filters.kalman import kalman_work
 from manualcontrol.estimators.members import _rdi_core as core
+from manualcontrol.estimators.members import _rdi_native
 from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.estimators.protocol import (
     EstimationResult,
@@ -330,11 +331,15 @@ class RDI(FilterShell):
     name = "rdi"
     settings_type = RDISettings
 
+    #: The binding of this member's C port (members/_native.py builds it).
+    _native_binding = _rdi_native
+
     def __init__(self, settings: RDISettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
         # the input and the output signal
         self._sample_keys = (self._settings.input, self._settings.output)
         self.outputs = (self._settings.output,)
+        self._native: Any = None
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -529,6 +534,47 @@ class RDI(FilterShell):
             core.rdi_step, (*self._records, values[keys[0]], values[keys[1]], 0, self._row)
         )
 
+    # The C port of the compiled path (_rdi_native.c) runs wherever it builds: the same
+    # numbers bit for bit as the numba kernels, which run elsewhere (members/_native.py).
+
+    def _native_records(self, out: core.RDIOutput) -> Any:
+        """The C port bound to this reset's records and ``out``, or None (numba runs).
+
+        Decided once per reset and output record: a step pays no lookup.
+        """
+        bound = self._native
+        if bound is None or bound[0] is not self._records or bound[1] is not out:
+            lib = _rdi_native.library()
+            native = None if lib is None else _rdi_native.NativeRecords(lib, self._records, out)
+            bound = (self._records, out, native)
+            self._native = bound
+        return bound[2]
+
+    def _run(self, r: FloatArray, y: FloatArray, out: core.RDIOutput) -> None:
+        native = self._native_records(out)
+        if native is None:
+            core.rdi_run(*self._records, r, y, out)
+        else:
+            native.run(r, y)
+
+    def _call_step(self, kernel: Any, arguments: tuple) -> None:
+        """One sample through the C port where it runs (else numba's, as the shell does).
+
+        The online path (``update``: the one-row output) then calls the C step directly
+        for the rest of the reset (``_entry``, as numba's entry point).
+        """
+        if self._entry is not None:
+            self._entry(*arguments)
+            return
+        *_, r, y, row, out = arguments
+        native = self._native_records(out)
+        if native is None:
+            super()._call_step(kernel, arguments)
+            return
+        native.step(r, y, row)
+        if out is self._row and row == 0:
+            self._entry = native.entry()
+
     def _reported_estimated(self) -> tuple[str, ...]:
         s = self._settings
         return tuple(s.report_names.get(symbol, symbol) for symbol in s.estimated_symbols)
@@ -587,7 +633,7 @@ class RDI(FilterShell):
         smooth = self._settings.smooth if smooth is None else check_bool("smooth", smooth)
         store = bool(smoother_inputs or smooth)
         out = self._new_output(len(recording), store=store)
-        core.rdi_run(*self._records, r, y, out)
+        self._run(r, y, out)
         self._k = len(recording)
         return self._finish(self._result(np.asarray(recording.t), out, store), smooth)
 

@@ -104,6 +104,7 @@ from manualcontrol.envs._validation import (
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import _pilot_core as pilot_core
 from manualcontrol.estimators.members import _schiess_roland_core as core
+from manualcontrol.estimators.members import _schiess_roland_native
 from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherInputs
 from manualcontrol.estimators.protocol import EstimationResult
 from manualcontrol.estimators.settings import GuardSettings, SettingsRecord, limit_pair
@@ -571,9 +572,13 @@ class SchiessRoland(FilterShell):
     # the forcing D, the stick and the plant output
     _sample_keys = ("ft", "u", "y")
 
+    #: The binding of this member's C port (members/_native.py builds it).
+    _native_binding = _schiess_roland_native
+
     def __init__(self, settings: SchiessRolandSettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
         self._start: dict[str, Any] = {}
+        self._native: Any = None
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -755,6 +760,52 @@ class SchiessRoland(FilterShell):
         arguments = (*self._records, values["ft"], values["u"], values["y"], 0, self._row)
         self._call_step(core.sr_step, arguments)
 
+    # The C port of the compiled path (_schiess_roland_native.c) runs wherever it builds:
+    # the same numbers bit for bit as the numba kernels, which run elsewhere
+    # (members/_native.py).
+
+    def _native_records(self, out: Any) -> Any:
+        """The C port bound to this reset's records and ``out``, or None (numba runs).
+
+        Decided once per reset and output record: a step pays no lookup.
+        """
+        bound = self._native
+        if bound is None or bound[0] is not self._records or bound[1] is not out:
+            lib = _schiess_roland_native.library()
+            native = (
+                None
+                if lib is None
+                else _schiess_roland_native.NativeRecords(lib, self._records, out)
+            )
+            bound = (self._records, out, native)
+            self._native = bound
+        return bound[2]
+
+    def _run(self, d: FloatArray, u: FloatArray, y: FloatArray, out: Any) -> None:
+        native = self._native_records(out)
+        if native is None:
+            core.sr_run(*self._records, d, u, y, out)
+        else:
+            native.run(d, u, y)
+
+    def _call_step(self, kernel: Any, arguments: tuple) -> None:
+        """One sample through the C port where it runs (else numba's, as the shell does).
+
+        The online path (``update``: the one-row output) then calls the C step directly
+        for the rest of the reset (``_entry``, as numba's entry point).
+        """
+        if self._entry is not None:
+            self._entry(*arguments)
+            return
+        *_, d, u, y, row, out = arguments
+        native = self._native_records(out)
+        if native is None:
+            super()._call_step(kernel, arguments)
+            return
+        native.step(d, u, y, row)
+        if out is self._row and row == 0:
+            self._entry = native.entry()
+
     # --------------------------------------------------------------- estimate
 
     def signals(self, recording: Recording) -> dict[str, FloatArray]:
@@ -811,7 +862,7 @@ class SchiessRoland(FilterShell):
             starts.append(self._start)
             last = number == settings.passes - 1
             out = self._new_output(n, store=store and last)
-            core.sr_run(*self._records, signals["ft"], signals["u"], signals["y"], out)
+            self._run(signals["ft"], signals["u"], signals["y"], out)
             pass_mean.append(out.mean[-1].copy())
             pass_std.append(out.std[-1].copy())
             if self._records[1].sc[pilot_core.SC_FROZEN] > 0.0:
