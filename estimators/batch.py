@@ -6,7 +6,7 @@ on one sample each with the member's batched kernel (``_step_many_kernel``: its
 one-sample step in a compiled loop over the stack). Filter ``i`` gives exactly the
 numbers a single estimator of the same settings, reset alike and fed stream ``i``,
 gives, bit for bit: the step it runs is the same compiled function on the same types
-(or, for the DEKF, the same step's C port, where it builds: the same numbers again).
+(or the same step's C port, where the member has one and it builds: the same numbers).
 
 It is what :class:`~manualcontrol.estimators.vector_observer.VectorEstimatorObserver`
 steps inside a vector environment; it serves anyone with many streams in step (a
