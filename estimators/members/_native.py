@@ -8,13 +8,15 @@ gives the built library, and its numba kernels elsewhere: which one ran never sh
 a number.
 
 The library is built on first use, or at install (``manualcontrol compile``), with the
-system C compiler (``$CC``, else ``cc``) and the flags of :data:`FLAGS`, into the
-kernel cache: numba's (``$NUMBA_CACHE_DIR``) where one is set, else the source's
-``__pycache__`` folder beside numba's own files, else ``~/.cache/manualcontrol``. Its
-file name carries a hash of the source, the flags and the compiler's version, so an
-edited source or another compiler builds anew, and a build is written under a
-temporary name and renamed into place, so a failed or interrupted build leaves nothing
-half-written (two processes building at once each rename a whole library).
+system C compiler (``$CC``, its words a command such as ``ccache cc``, else ``cc``) and
+the flags of :data:`FLAGS`, into the kernel cache: numba's (``$NUMBA_CACHE_DIR``) where
+one is set, else the source's ``__pycache__`` folder beside numba's own files, else
+``~/.cache/manualcontrol`` (the next where one cannot be written, or its library cannot
+be loaded). Its file name carries a hash of the source, the flags, the compiler and its
+target and the platform, so an edited source, another compiler or another machine
+sharing the folder builds anew, and a build is written under a temporary name and
+renamed into place, so a failed or interrupted build leaves nothing half-written (two
+processes building at once each rename a whole library).
 
 Where no compiler is found or the build fails, the numba kernels run: the same
 numbers, after their compile. ``MANUALCONTROL_NATIVE=0`` runs the numba kernels
@@ -26,6 +28,8 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import os
+import platform
+import shlex
 import shutil
 import subprocess
 import sys
@@ -67,19 +71,28 @@ def native_enabled() -> bool:
     return os.environ.get("MANUALCONTROL_NATIVE", "1").strip() != "0"
 
 
-def _compiler() -> str | None:
-    name = os.environ.get("CC", "cc").strip() or "cc"
-    return shutil.which(name)
+def _compiler() -> list[str] | None:
+    """The compiler command: ``$CC`` (words, e.g. ``ccache cc``), else ``cc``; None if absent."""
+    for command in (shlex.split(os.environ.get("CC", "")), ["cc"]):
+        if command:
+            found = shutil.which(command[0])
+            if found is not None:
+                return [found, *command[1:]]
+    return None
 
 
-def _compiler_version(compiler: str) -> str:
-    try:
-        done = subprocess.run(
-            [compiler, "--version"], capture_output=True, text=True, timeout=30, check=False
-        )
-    except (OSError, subprocess.SubprocessError):
-        return ""
-    return done.stdout.strip()
+def _compiler_identity(compiler: list[str]) -> str:
+    """What a build depends on besides its source and flags: compiler, target, platform."""
+    words = [sys.platform, platform.machine(), str(ctypes.sizeof(ctypes.c_void_p))]
+    for option in ("--version", "-dumpmachine"):
+        try:
+            done = subprocess.run(
+                [*compiler, option], capture_output=True, text=True, timeout=30, check=False
+            )
+        except (OSError, subprocess.SubprocessError):
+            continue
+        words.append(done.stdout.strip())
+    return "\0".join(words)
 
 
 def _suffix() -> str:
@@ -95,21 +108,25 @@ def _cache_folders(source: Path) -> list[Path]:
     if numba_cache:
         folders.append(Path(numba_cache) / "manualcontrol-native")
     folders.append(source.parent / "__pycache__")
-    folders.append(Path.home() / ".cache" / "manualcontrol")
+    try:
+        folders.append(Path.home() / ".cache" / "manualcontrol")
+    except RuntimeError:  # no home folder (a container's arbitrary user)
+        pass
     return folders
 
 
-def build_library(source: Path, compiler: str, folder: Path) -> Path:
+def build_library(source: Path, compiler: list[str], folder: Path) -> Path:
     """Build ``source`` with ``compiler`` into ``folder`` (atomically); the library's path.
 
-    The name carries a hash of the source, :data:`FLAGS` and the compiler's version; a
-    library of that name already there is the same build and is returned as it is.
-    Raises :class:`NativeBuildError` with the compiler's message where it fails.
+    The name carries a hash of the source, :data:`FLAGS`, the compiler's command,
+    version and target and the platform; a library of that name already there is the
+    same build and is returned as it is. Raises :class:`NativeBuildError` with the
+    compiler's message where it fails or does not finish in five minutes.
     """
     digest = hashlib.sha256()
     digest.update(source.read_bytes())
-    digest.update("\0".join(FLAGS).encode())
-    digest.update(_compiler_version(compiler).encode())
+    digest.update("\0".join((*FLAGS, *compiler)).encode())
+    digest.update(_compiler_identity(compiler).encode())
     target = folder / f"lib{source.stem}-{digest.hexdigest()[:16]}{_suffix()}"
     if target.is_file():
         return target
@@ -117,17 +134,22 @@ def build_library(source: Path, compiler: str, folder: Path) -> Path:
     handle, partial = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=folder)
     os.close(handle)
     try:
-        done = subprocess.run(
-            [compiler, *FLAGS, str(source), "-o", partial, "-lm"],
-            capture_output=True,
-            text=True,
-            timeout=300,
-            check=False,
-        )
+        try:
+            done = subprocess.run(
+                [*compiler, *FLAGS, str(source), "-o", partial, "-lm"],
+                capture_output=True,
+                text=True,
+                timeout=300,
+                check=False,
+            )
+        except subprocess.TimeoutExpired:
+            raise NativeBuildError(
+                f"{compiler[0]} did not build {source.name} within 300 s"
+            ) from None
         if done.returncode != 0:
             message = (done.stderr or done.stdout).strip().splitlines()
             raise NativeBuildError(
-                f"{compiler} could not build {source.name} (exit code {done.returncode}): "
+                f"{compiler[0]} could not build {source.name} (exit code {done.returncode}): "
                 + (message[-1] if message else "no message")
             )
         os.replace(partial, target)
@@ -166,7 +188,11 @@ def native_library(source_name: str) -> ctypes.CDLL | None:
         except OSError as error:  # a folder we may not write: try the next
             errors.append(f"{folder}: {error}")
             continue
-        library = ctypes.CDLL(str(path))
+        try:
+            library = ctypes.CDLL(str(path))
+        except OSError as error:  # built but not loadable (a noexec folder): the next
+            errors.append(f"{path} does not load: {error}")
+            continue
         _LOADED[source_name] = library
         return library
     _FAILED[source_name] = "; ".join(errors) + ": the numba kernels run, compiled at first use"

@@ -887,7 +887,10 @@ static double read_line(const RmlRecords *rec, int64_t row, int64_t newest, doub
         return hist[newest % size];
     if (position <= (double)oldest)
         return hist[oldest % size];
-    int64_t n = (int64_t)position; /* position > oldest >= 0: truncation is the floor */
+    /* position > oldest >= 0: truncation is the floor. A NaN position (no comparison
+     * holds) reads a row inside the window: its NaN weights make the value NaN, as
+     * numba's, without the undefined conversion of NaN to an integer. */
+    int64_t n = position == position ? (int64_t)position : oldest;
     double d = position - (double)n;
     /* envs/_interpolation.bicubic_weights */
     double e = 1.0 - d;

@@ -385,6 +385,7 @@ class PilotFilter(FilterShell):
             type(self)._run_kernel(*self._records, inputs, u, e, out)
         else:
             native.run(inputs, u, e)
+            self._native = None  # the binding would keep a whole run's output alive
 
     # ------------------------------------------------------------------ C ports
 
@@ -408,8 +409,9 @@ class PilotFilter(FilterShell):
     def _call_step(self, kernel: Any, arguments: tuple) -> None:
         """One sample through the C port where it runs, else numba's step (the shell's).
 
-        The online path (``update``, on this filter's own input vector) then calls the
-        C step directly for the rest of the reset (``_entry``, as numba's entry point).
+        The online path (``update``, on this filter's own input vector and row, where
+        ``_step`` is this class's) then calls the C step directly for the rest of the
+        reset (``_entry``, as numba's entry point).
         """
         *_, inputs, u, e, _, out = arguments
         native = self._native_records(out)
@@ -417,7 +419,7 @@ class PilotFilter(FilterShell):
             super()._call_step(kernel, arguments)
             return
         native.step(inputs, u, e)
-        if inputs is self._inputs:
+        if self._direct and inputs is self._inputs and out is self._row:
             self._entry = native.entry(inputs)
 
     def _native_batch(self, stacked: tuple, out: Any, n: int) -> Any:

@@ -556,6 +556,7 @@ class RDI(FilterShell):
             core.rdi_run(*self._records, r, y, out)
         else:
             native.run(r, y)
+            self._native = None  # the binding would keep a whole run's output alive
 
     def _call_step(self, kernel: Any, arguments: tuple) -> None:
         """One sample through the C port where it runs (else numba's, as the shell does).

@@ -787,6 +787,7 @@ class SchiessRoland(FilterShell):
             core.sr_run(*self._records, d, u, y, out)
         else:
             native.run(d, u, y)
+            self._native = None  # the binding would keep a whole run's output alive
 
     def _call_step(self, kernel: Any, arguments: tuple) -> None:
         """One sample through the C port where it runs (else numba's, as the shell does).

@@ -675,6 +675,7 @@ class ZhaoUKF(FilterShell):
             core.zhao_run(*self._records, inputs, outputs, out)
         else:
             native.run(inputs, outputs)
+            self._native = None  # the binding would keep a whole run's output alive
 
     def _call_step(self, kernel: Any, arguments: tuple) -> None:
         """One sample through the C port where it runs (else numba's, as the shell does).
@@ -994,6 +995,7 @@ class MultiUKF(FilterShell):
             core.multi_run(*self._records, inputs, outputs, out_slow, out_fast, out)
         else:
             native.run(inputs, outputs)
+            self._native = None  # the binding would keep a whole run's output alive
 
     def _call_step(self, kernel: Any, arguments: tuple) -> None:
         """One sample through the C port where it runs (else numba's, as the shell does).

@@ -234,6 +234,7 @@ def test_without_a_compiler_numba_runs_the_same_numbers_and_says_why(
     runs, monkeypatch, tmp_path, fresh_build_state
 ):
     monkeypatch.setenv("CC", str(tmp_path / "no-such-compiler"))
+    monkeypatch.setenv("PATH", str(tmp_path))  # and no cc either
     monkeypatch.setenv("NUMBA_CACHE_DIR", os.environ.get("NUMBA_CACHE_DIR", ""))
     assert _dekf_native.library() is None
     assert "no C compiler found" in _native.native_failure(_dekf_native.SOURCE)
@@ -280,3 +281,40 @@ def test_a_c_port_whose_constants_differ_from_the_modules_is_refused(
     monkeypatch.setattr(_pilot_core, "SC_SIZE", SC_SIZE + 1)
     with pytest.raises(RuntimeError, match=r"constants .* differ .* edit the two together"):
         _dekf_native.library()
+
+
+@needs_compiler
+def test_a_compiler_command_of_several_words_builds_and_names_its_own_library(
+    tmp_path, monkeypatch
+):
+    source = tmp_path / "tiny.c"
+    source.write_text("int answer(void) { return ANSWER; }\n")
+    folder = tmp_path / "cache"
+    monkeypatch.setenv("CC", "cc -DANSWER=42")
+    compiler = _native._compiler()
+    assert compiler[1:] == ["-DANSWER=42"]
+    built = _native.build_library(source, compiler, folder)
+    assert ctypes.CDLL(str(built)).answer() == 42
+    # the machine is part of the name: another one sharing the folder builds its own
+    monkeypatch.setattr(_native.platform, "machine", lambda: "another-machine")
+    assert _native.build_library(source, compiler, folder) != built
+
+
+@needs_compiler
+def test_a_library_that_does_not_load_is_built_in_the_next_folder(
+    tmp_path, monkeypatch, fresh_build_state
+):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "noexec"))
+    load = ctypes.CDLL
+    refused = []
+
+    def no_exec_in_numba_cache(path, *arguments, **options):
+        if str(tmp_path / "noexec") in str(path):
+            refused.append(path)
+            raise OSError("failed to map segment from shared object")
+        return load(path, *arguments, **options)
+
+    monkeypatch.setattr(_native.ctypes, "CDLL", no_exec_in_numba_cache)
+    assert _dekf_native.library() is not None
+    assert len(refused) == 1
+    assert _native.native_failure(_dekf_native.SOURCE) == ""

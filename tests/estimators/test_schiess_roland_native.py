@@ -224,6 +224,7 @@ def test_without_a_compiler_numba_runs_the_same_numbers_and_says_why(
     runs, monkeypatch, tmp_path, fresh_build_state
 ):
     monkeypatch.setenv("CC", str(tmp_path / "no-such-compiler"))
+    monkeypatch.setenv("PATH", "/nonexistent")  # and no cc either
     assert _schiess_roland_native.library() is None
     assert "no C compiler found" in _native.native_failure(_schiess_roland_native.SOURCE)
     result = SchiessRoland().estimate(runs["base"])

@@ -132,23 +132,52 @@ def numba_only(monkeypatch):
     monkeypatch.setenv("MANUALCONTROL_NATIVE", "0")
 
 
+def kept_outputs(estimator):
+    """The arguments of every ``_run`` (C port's or numba's): the run's output records."""
+    kept = []
+    run = estimator._run
+
+    def spy(*arguments):
+        run(*arguments)
+        kept.append(arguments)
+
+    estimator._run = spy
+    return kept
+
+
+def counted(monkeypatch, binding_class):
+    """Calls of ``binding_class.run`` from now on: the C port's whole runs."""
+    calls = []
+    run = binding_class.run
+
+    def counting(self, *arguments):
+        calls.append(1)
+        return run(self, *arguments)
+
+    monkeypatch.setattr(binding_class, "run", counting)
+    return calls
+
+
 @needs_compiler
 @pytest.mark.parametrize("case", list(CASES))
 def test_the_c_port_estimates_what_numba_does_bit_for_bit(case, runs, monkeypatch):
     run, settings, options = CASES[case]
     recording = runs[run]
+    c_runs = counted(monkeypatch, _zhao_native.NativeRecords)
     estimator = ZhaoUKF(**settings)
+    runs_kept = kept_outputs(estimator)
     native = estimator.estimate(recording, **options)
     assert _zhao_native.library() is not None
-    assert estimator._native[2] is not None
-    native_out = estimator._native[1]
+    assert len(c_runs) == 1
+    native_out = runs_kept[-1][-1]
     numba_only(monkeypatch)
     assert _zhao_native.library() is None
     other = ZhaoUKF(**settings)
+    runs_kept = kept_outputs(other)
     numba = other.estimate(recording, **options)
-    assert other._native[2] is None
+    assert len(c_runs) == 1  # no C run this time
     assert_same_result(native, numba)
-    numba_out = other._native[1]
+    numba_out = runs_kept[-1][-1]
     for name in native_out._fields:
         assert same_bytes(getattr(native_out, name), getattr(numba_out, name)), name
     assert same_bytes(estimator._records[1].x, other._records[1].x)
@@ -227,11 +256,12 @@ def test_a_c_port_whose_constants_differ_from_the_modules_is_refused(
 
 def test_without_a_compiler_numba_runs_and_says_why(runs, monkeypatch, fresh_build_state):
     monkeypatch.setenv("CC", "/nonexistent/no-such-compiler")
+    monkeypatch.setenv("PATH", "/nonexistent")  # and no cc either
     assert _zhao_native.library() is None
     assert "no C compiler found" in _native.native_failure(_zhao_native.SOURCE)
-    estimator = ZhaoUKF()
-    estimator.estimate(runs["base"])
-    assert estimator._native[2] is None
+    c_runs = counted(monkeypatch, _zhao_native.NativeRecords)
+    ZhaoUKF().estimate(runs["base"])
+    assert c_runs == []
 
 
 # ---------------------------------------------------------------------- multi-UKF
@@ -275,16 +305,19 @@ MULTI_CASES = {
 def test_the_c_port_runs_the_multi_ukf_as_numba_does_bit_for_bit(case, runs, monkeypatch):
     run, settings = MULTI_CASES[case]
     recording = runs[run]
+    c_runs = counted(monkeypatch, _zhao_native.NativeMulti)
     estimator = MultiUKF(**settings)
+    runs_kept = kept_outputs(estimator)
     native = estimator.estimate(recording)
-    assert estimator._native[4] is not None
-    native_outs = estimator._native[1:4]
+    assert len(c_runs) == 1
+    native_outs = runs_kept[-1][2:5]
     numba_only(monkeypatch)
     other = MultiUKF(**settings)
+    runs_kept = kept_outputs(other)
     numba = other.estimate(recording)
-    assert other._native[4] is None
+    assert len(c_runs) == 1  # no C run this time
     assert_same_result(native, numba)
-    for mine, theirs in zip(native_outs, other._native[1:4], strict=True):
+    for mine, theirs in zip(native_outs, runs_kept[-1][2:5], strict=True):
         for name in mine._fields:
             assert same_bytes(getattr(mine, name), getattr(theirs, name)), name
     for member in ("_slow", "_fast"):
