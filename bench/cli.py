@@ -5,8 +5,8 @@ person flies a task -> a recording), ``identify`` (a recording or an experiment 
 parameter traces and plots), ``describe`` (a compensatory trial -> its describing
 function, crossover and a fitted model), ``bench`` (a suite -> results table and report),
 ``suites`` (list them), ``train`` (an RL surrogate operator), ``evaluate`` (a trained
-agent -> report) and ``compile`` (the kernels into numba's cache). ``manualcontrol
-COMMAND --help`` explains every option.
+agent -> report) and ``compile`` (the kernels into numba's cache, the C ports built).
+``manualcontrol COMMAND --help`` explains every option.
 
 Each command imports what it runs when it runs (``play``'s flags too: its parser is
 filled when ``play`` is the command), so ``--help`` and the listings start at once.
@@ -2233,10 +2233,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = commands.add_parser(
         "compile",
-        help="compile the kernels into numba's cache now (make does it at install)",
+        help="compile the kernels into numba's cache and build the C ports now (make does "
+        "it at install)",
         description="Compile the package's kernels into numba's on-disk cache, split across "
-        "the cores, so that the first identify, bench or test loads them instead of "
-        "compiling (20-40 CPU-s per estimator). `make install` runs this.",
+        "the cores, and build the estimators' C ports (where a C compiler is at hand; "
+        "they run instead of numba's kernels), so that the first identify, bench or test "
+        "loads them instead of compiling. `make install` runs this.",
         epilog="Exit codes: 0 all compiled; 3 some jobs failed (their kernels compile at "
         "first use instead); 130 Ctrl-C.",
     )

@@ -26,7 +26,7 @@ def test_the_command_lists_play_and_compile(capsys):
     out = " ".join(out.split())  # argparse wraps the lines
     assert code == EXIT_OK
     assert "fly a task yourself with a mouse, keyboard or joystick" in out
-    assert "compile the kernels into numba's cache now (make does it at install)" in out
+    assert "compile the kernels into numba's cache and build the C ports now" in out
     assert "130 interrupted (Ctrl-C)" in out
 
 
