@@ -26,6 +26,7 @@ everywhere (to compare the two, or where a compiler misbehaves).
 from __future__ import annotations
 
 import ctypes
+import functools
 import hashlib
 import os
 import platform
@@ -82,8 +83,17 @@ def _compiler() -> list[str] | None:
 
 
 def _compiler_identity(compiler: list[str]) -> str:
-    """What a build depends on besides its source and flags: compiler, target, platform."""
-    words = [sys.platform, platform.machine(), str(ctypes.sizeof(ctypes.c_void_p))]
+    """What a build depends on besides its source and flags: compiler, target, platform.
+
+    Asked of the compiler once a process (each C port's first use would otherwise pay
+    two compiler processes).
+    """
+    return _identity_of(tuple(compiler), platform.machine())
+
+
+@functools.lru_cache(maxsize=8)
+def _identity_of(compiler: tuple[str, ...], machine: str) -> str:
+    words = [sys.platform, machine, str(ctypes.sizeof(ctypes.c_void_p))]
     for option in ("--version", "-dumpmachine"):
         try:
             done = subprocess.run(
