@@ -36,11 +36,16 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 __all__ = [
     "FLAGS",
     "NativeBuildError",
+    "array_address",
     "build_library",
+    "check_port",
     "native_enabled",
     "native_failure",
     "native_library",
@@ -214,3 +219,83 @@ def native_failure(source_name: str) -> str:
     if not native_enabled():
         return "MANUALCONTROL_NATIVE=0: the numba kernels run"
     return _FAILED.get(source_name, "")
+
+
+# ------------------------------------------------------------------ the bindings' checks
+
+
+def check_port(
+    lib: ctypes.CDLL,
+    prefix: str,
+    source: str,
+    layout: int,
+    sizes: dict[str, int],
+    constants: list[float],
+) -> None:
+    """Check a loaded C port against its binding and the Python modules, or raise.
+
+    ``<prefix>_abi()`` must return the binding's ``layout``, each ``<prefix>_<name>()``
+    of ``sizes`` the size of the binding's struct of that name, and
+    ``<prefix>_constants()`` the values of ``constants`` (the ``CFG_*``, ``SC_*``, codes
+    and tolerances the C repeats): a C edit without the Python one, or the reverse,
+    raises ``RuntimeError`` naming what differs before any number is computed.
+    """
+    int64, address = ctypes.c_int64, ctypes.c_void_p
+    abi = getattr(lib, f"{prefix}_abi")
+    abi.restype = int64
+    found = {}
+    for name in sizes:
+        function = getattr(lib, f"{prefix}_{name}")
+        function.restype = int64
+        found[name] = function()
+    if abi() != layout or found != sizes:
+        raise RuntimeError(
+            f"{source}'s structs (layout {abi()}, sizes {found}) differ from its binding's "
+            f"(layout {layout}, sizes {sizes}): edit the two together"
+        )
+    count = getattr(lib, f"{prefix}_constants")
+    count.argtypes = [address]
+    count.restype = int64
+    values = np.zeros(count(None))
+    count(values.ctypes.data)
+    expected = [float(v) for v in constants]
+    if values.tolist() != expected:
+        raise RuntimeError(
+            f"{source}'s constants {values.tolist()} differ from the Python modules' "
+            f"{expected}: edit the two together"
+        )
+
+
+_KINDS = {"f": np.float64, "i": np.int64, "b": np.bool_}
+
+
+def array_address(
+    member: str,
+    name: str,
+    array: Any,
+    shape: tuple | None,
+    keep: list,
+    dtype: Any = None,
+) -> int:
+    """The address of a record field's data for a C struct, the array checked and kept alive.
+
+    The C port reads ``array`` as C-contiguous ``dtype`` (default: float64, int64 or
+    bool by its kind) of ``shape`` (None: any); anything else raises naming the
+    ``member``'s field. ``keep`` holds the array as long as the struct points into it.
+    """
+    if not isinstance(array, np.ndarray):
+        raise TypeError(f"the {member}'s record field {name} is not an array")
+    kind = _KINDS.get(array.dtype.kind) if dtype is None else np.dtype(dtype)
+    if kind is None or array.dtype != kind or not array.flags.c_contiguous:
+        wanted = "float64, int64 or bool" if dtype is None else np.dtype(dtype).name
+        raise ValueError(
+            f"the {member}'s record field {name} is {array.dtype}"
+            f"{'' if array.flags.c_contiguous else ', not C-contiguous'}: the C port "
+            f"reads it as C-contiguous {wanted}"
+        )
+    if shape is not None and array.shape != shape:
+        raise ValueError(
+            f"the {member}'s record field {name} has shape {array.shape}, the C port reads {shape}"
+        )
+    keep.append(array)
+    return array.ctypes.data if array.size else 0

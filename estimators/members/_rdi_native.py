@@ -22,7 +22,11 @@ from typing import Any
 
 import numpy as np
 
-from manualcontrol.estimators.members._native import native_library
+from manualcontrol.estimators.members._native import (
+    array_address,
+    check_port,
+    native_library,
+)
 
 __all__ = ["NativeRecords", "declare", "library"]
 
@@ -100,24 +104,8 @@ def declare(lib: ctypes.CDLL) -> ctypes.CDLL:
     lib.rdi_step.restype = None
     lib.rdi_run.argtypes = [pointer, address, address, int64]
     lib.rdi_run.restype = None
-    lib.rdi_abi.restype = int64
-    lib.rdi_records_size.restype = int64
-    lib.rdi_constants.argtypes = [address]
-    lib.rdi_constants.restype = int64
-    if lib.rdi_abi() != ABI or lib.rdi_records_size() != ctypes.sizeof(_Records):
-        raise RuntimeError(
-            f"{SOURCE}'s struct (layout {lib.rdi_abi()}, {lib.rdi_records_size()} "
-            f"bytes) differs from _rdi_native.py's (layout {ABI}, "
-            f"{ctypes.sizeof(_Records)} bytes): edit the two together"
-        )
-    values = np.zeros(lib.rdi_constants(None))
-    lib.rdi_constants(values.ctypes.data)
-    expected = [float(v) for v in _expected_constants()]
-    if values.tolist() != expected:
-        raise RuntimeError(
-            f"{SOURCE}'s constants {values.tolist()} differ from the Python modules' "
-            f"{expected}: edit the two together"
-        )
+    sizes = {"records_size": ctypes.sizeof(_Records)}
+    check_port(lib, "rdi", SOURCE, ABI, sizes, _expected_constants())
     _CHECKED[id(lib)] = True
     return lib
 
@@ -187,21 +175,8 @@ class NativeRecords:
         self.ref = ctypes.pointer(struct)
 
     def _pointer(self, name: str, array: Any, shape: tuple) -> int:
-        if not isinstance(array, np.ndarray):
-            raise TypeError(f"the RDI's record field {name} is not an array")
         kind = np.int64 if name in _INTS else np.bool_ if name in _BOOLS else np.float64
-        if array.dtype != kind or not array.flags.c_contiguous:
-            raise ValueError(
-                f"the RDI's record field {name} is {array.dtype}"
-                f"{'' if array.flags.c_contiguous else ', not C-contiguous'}: the C port "
-                f"reads it as C-contiguous {np.dtype(kind).name}"
-            )
-        if array.shape != shape:
-            raise ValueError(
-                f"the RDI's record field {name} has shape {array.shape}, the C port reads {shape}"
-            )
-        self._keep.append(array)
-        return array.ctypes.data if array.size else 0
+        return array_address("RDI", name, array, shape, self._keep, kind)
 
     def run(self, r: np.ndarray, y: np.ndarray) -> None:
         """``rdi_run``: sample ``k`` into output row ``k``."""

@@ -25,7 +25,11 @@ from typing import Any
 
 import numpy as np
 
-from manualcontrol.estimators.members._native import native_library
+from manualcontrol.estimators.members._native import (
+    array_address,
+    check_port,
+    native_library,
+)
 
 __all__ = ["NativeBatch", "NativeRecords", "declare", "library"]
 
@@ -151,24 +155,8 @@ def declare(lib: ctypes.CDLL) -> ctypes.CDLL:
         function.restype = None
     lib.bank_step_many.argtypes = [address, address, address, address, address, int64]
     lib.bank_step_many.restype = None
-    lib.rml_abi.restype = int64
-    lib.rml_records_size.restype = int64
-    lib.rml_constants.argtypes = [address]
-    lib.rml_constants.restype = int64
-    if lib.rml_abi() != ABI or lib.rml_records_size() != ctypes.sizeof(_Records):
-        raise RuntimeError(
-            f"{SOURCE}'s struct (layout {lib.rml_abi()}, {lib.rml_records_size()} "
-            f"bytes) differs from _rml_native.py's (layout {ABI}, "
-            f"{ctypes.sizeof(_Records)} bytes): edit the two together"
-        )
-    values = np.zeros(lib.rml_constants(None))
-    lib.rml_constants(values.ctypes.data)
-    expected = [float(v) for v in _expected_constants()]
-    if values.tolist() != expected:
-        raise RuntimeError(
-            f"{SOURCE}'s constants {values.tolist()} differ from the Python modules' "
-            f"{expected}: edit the two together"
-        )
+    sizes = {"records_size": ctypes.sizeof(_Records)}
+    check_port(lib, "rml", SOURCE, ABI, sizes, _expected_constants())
     _CHECKED[id(lib)] = True
     return lib
 
@@ -301,21 +289,7 @@ class NativeRecords:
         self.ref = ctypes.pointer(struct)
 
     def _pointer(self, name: str, array: Any, shape: tuple | None) -> int:
-        if not isinstance(array, np.ndarray):
-            raise TypeError(f"the RML's record field {name} is not an array")
-        kind = {"f": np.float64, "i": np.int64, "b": np.bool_}.get(array.dtype.kind)
-        if kind is None or array.dtype != kind or not array.flags.c_contiguous:
-            raise ValueError(
-                f"the RML's record field {name} is {array.dtype}"
-                f"{'' if array.flags.c_contiguous else ', not C-contiguous'}: the C port "
-                "reads C-contiguous float64, int64 or bool arrays"
-            )
-        if shape is not None and array.shape != shape:
-            raise ValueError(
-                f"the RML's record field {name} has shape {array.shape}, the C port reads {shape}"
-            )
-        self._keep.append(array)
-        return array.ctypes.data if array.size else 0
+        return array_address("RML", name, array, shape, self._keep)
 
     def _check_samples(self, inputs: np.ndarray, u: np.ndarray, e: np.ndarray) -> int:
         n = u.shape[0]

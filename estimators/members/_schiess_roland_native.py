@@ -22,7 +22,11 @@ from typing import Any
 
 import numpy as np
 
-from manualcontrol.estimators.members._native import native_library
+from manualcontrol.estimators.members._native import (
+    array_address,
+    check_port,
+    native_library,
+)
 
 __all__ = ["NativeRecords", "declare", "library"]
 
@@ -118,24 +122,8 @@ def declare(lib: ctypes.CDLL) -> ctypes.CDLL:
     lib.sr_step.restype = None
     lib.sr_run.argtypes = [pointer, address, address, address, int64]
     lib.sr_run.restype = None
-    lib.sr_abi.restype = int64
-    lib.sr_records_size.restype = int64
-    lib.sr_constants.argtypes = [address]
-    lib.sr_constants.restype = int64
-    if lib.sr_abi() != ABI or lib.sr_records_size() != ctypes.sizeof(_Records):
-        raise RuntimeError(
-            f"{SOURCE}'s struct (layout {lib.sr_abi()}, {lib.sr_records_size()} "
-            f"bytes) differs from _schiess_roland_native.py's (layout {ABI}, "
-            f"{ctypes.sizeof(_Records)} bytes): edit the two together"
-        )
-    values = np.zeros(lib.sr_constants(None))
-    lib.sr_constants(values.ctypes.data)
-    expected = [float(v) for v in _expected_constants()]
-    if values.tolist() != expected:
-        raise RuntimeError(
-            f"{SOURCE}'s constants {values.tolist()} differ from the Python modules' "
-            f"{expected}: edit the two together"
-        )
+    sizes = {"records_size": ctypes.sizeof(_Records)}
+    check_port(lib, "sr", SOURCE, ABI, sizes, _expected_constants())
     _CHECKED[id(lib)] = True
     return lib
 
@@ -229,22 +217,8 @@ class NativeRecords:
         self.ref = ctypes.pointer(struct)
 
     def _pointer(self, name: str, array: Any, shape: tuple) -> int:
-        if not isinstance(array, np.ndarray):
-            raise TypeError(f"the filter's record field {name} is not an array")
         kind = np.int64 if name in _INTS else np.bool_ if name in _BOOLS else np.float64
-        if array.dtype != kind or not array.flags.c_contiguous:
-            raise ValueError(
-                f"the filter's record field {name} is {array.dtype}"
-                f"{'' if array.flags.c_contiguous else ', not C-contiguous'}: the C port "
-                f"reads it as C-contiguous {np.dtype(kind).name}"
-            )
-        if array.shape != shape:
-            raise ValueError(
-                f"the filter's record field {name} has shape {array.shape}, "
-                f"the C port reads {shape}"
-            )
-        self._keep.append(array)
-        return array.ctypes.data if array.size else 0
+        return array_address("Schiess-Roland filter", name, array, shape, self._keep, kind)
 
     def run(self, d: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:
         """``sr_run``: sample ``k`` into output row ``k``."""

@@ -26,7 +26,11 @@ from typing import Any
 
 import numpy as np
 
-from manualcontrol.estimators.members._native import native_library
+from manualcontrol.estimators.members._native import (
+    array_address,
+    check_port,
+    native_library,
+)
 
 __all__ = ["NativeBatch", "NativeRecords", "declare", "library"]
 
@@ -146,24 +150,8 @@ def declare(lib: ctypes.CDLL) -> ctypes.CDLL:
         function.restype = None
     lib.ukf_step_many.argtypes = [address, address, address, address, address, int64]
     lib.ukf_step_many.restype = None
-    lib.ukf_abi.restype = int64
-    lib.ukf_records_size.restype = int64
-    lib.ukf_constants.argtypes = [address]
-    lib.ukf_constants.restype = int64
-    if lib.ukf_abi() != ABI or lib.ukf_records_size() != ctypes.sizeof(_Records):
-        raise RuntimeError(
-            f"{SOURCE}'s struct (layout {lib.ukf_abi()}, {lib.ukf_records_size()} "
-            f"bytes) differs from _ukf_native.py's (layout {ABI}, "
-            f"{ctypes.sizeof(_Records)} bytes): edit the two together"
-        )
-    values = np.zeros(lib.ukf_constants(None))
-    lib.ukf_constants(values.ctypes.data)
-    expected = [float(v) for v in _expected_constants()]
-    if values.tolist() != expected:
-        raise RuntimeError(
-            f"{SOURCE}'s constants {values.tolist()} differ from the Python modules' "
-            f"{expected}: edit the two together"
-        )
+    sizes = {"records_size": ctypes.sizeof(_Records)}
+    check_port(lib, "ukf", SOURCE, ABI, sizes, _expected_constants())
     _CHECKED[id(lib)] = True
     return lib
 
@@ -336,21 +324,7 @@ class NativeRecords:
             setattr(target, name, self._pointer(name, getattr(work, name), shapes[name]))
 
     def _pointer(self, name: str, array: Any, shape: tuple | None) -> int:
-        if not isinstance(array, np.ndarray):
-            raise TypeError(f"the UKF's record field {name} is not an array")
-        kind = {"f": np.float64, "i": np.int64, "b": np.bool_}.get(array.dtype.kind)
-        if kind is None or array.dtype != kind or not array.flags.c_contiguous:
-            raise ValueError(
-                f"the UKF's record field {name} is {array.dtype}"
-                f"{'' if array.flags.c_contiguous else ', not C-contiguous'}: the C port "
-                "reads C-contiguous float64, int64 or bool arrays"
-            )
-        if shape is not None and array.shape != shape:
-            raise ValueError(
-                f"the UKF's record field {name} has shape {array.shape}, the C port reads {shape}"
-            )
-        self._keep.append(array)
-        return array.ctypes.data if array.size else 0
+        return array_address("UKF", name, array, shape, self._keep)
 
     def _check_samples(self, inputs: np.ndarray, u: np.ndarray, e: np.ndarray) -> int:
         n = u.shape[0]

@@ -21,7 +21,11 @@ from typing import Any
 
 import numpy as np
 
-from manualcontrol.estimators.members._native import native_library
+from manualcontrol.estimators.members._native import (
+    array_address,
+    check_port,
+    native_library,
+)
 
 __all__ = ["NativeMulti", "NativeRecords", "declare", "library"]
 
@@ -145,50 +149,14 @@ def declare(lib: ctypes.CDLL) -> ctypes.CDLL:
     lib.multi_step_values.restype = None
     lib.multi_run.argtypes = [pointer, pointer, ctypes.POINTER(_Fusion), address, address, int64]
     lib.multi_run.restype = None
-    lib.zhao_abi.restype = int64
-    lib.zhao_records_size.restype = int64
-    lib.zhao_fusion_size.restype = int64
-    lib.zhao_constants.argtypes = [address]
-    lib.zhao_constants.restype = int64
-    if (
-        lib.zhao_abi() != ABI
-        or lib.zhao_records_size() != ctypes.sizeof(_Records)
-        or lib.zhao_fusion_size() != ctypes.sizeof(_Fusion)
-    ):
-        raise RuntimeError(
-            f"{SOURCE}'s structs (layout {lib.zhao_abi()}, {lib.zhao_records_size()} and "
-            f"{lib.zhao_fusion_size()} bytes) differ from _zhao_native.py's (layout {ABI}, "
-            f"{ctypes.sizeof(_Records)} and {ctypes.sizeof(_Fusion)} bytes): edit the two "
-            "together"
-        )
-    values = np.zeros(lib.zhao_constants(None))
-    lib.zhao_constants(values.ctypes.data)
-    expected = [float(v) for v in _expected_constants()]
-    if values.tolist() != expected:
-        raise RuntimeError(
-            f"{SOURCE}'s constants {values.tolist()} differ from the Python modules' "
-            f"{expected}: edit the two together"
-        )
+    sizes = {"records_size": ctypes.sizeof(_Records), "fusion_size": ctypes.sizeof(_Fusion)}
+    check_port(lib, "zhao", SOURCE, ABI, sizes, _expected_constants())
     _CHECKED[id(lib)] = True
     return lib
 
 
 def _pointer(keep: list, name: str, array: Any, shape: tuple) -> int:
-    if not isinstance(array, np.ndarray):
-        raise TypeError(f"the ZhaoUKF's record field {name} is not an array")
-    kind = {"f": np.float64, "i": np.int64, "b": np.bool_}.get(array.dtype.kind)
-    if kind is None or array.dtype != kind or not array.flags.c_contiguous:
-        raise ValueError(
-            f"the ZhaoUKF's record field {name} is {array.dtype}"
-            f"{'' if array.flags.c_contiguous else ', not C-contiguous'}: the C port "
-            "reads C-contiguous float64, int64 or bool arrays"
-        )
-    if array.shape != shape:
-        raise ValueError(
-            f"the ZhaoUKF's record field {name} has shape {array.shape}, the C port reads {shape}"
-        )
-    keep.append(array)
-    return array.ctypes.data if array.size else 0
+    return array_address("ZhaoUKF", name, array, shape, keep)
 
 
 class NativeRecords:
