@@ -185,16 +185,20 @@ def _c_ports() -> None:
 
     from manualcontrol.estimators.members import _native
 
-    failures = []
+    ported = {}  # estimator name -> its C port's binding
     for name, entry in ESTIMATORS.items():
-        binding = getattr(type(entry.build({})), "_native_binding", None)
-        if binding is not None and binding.library() is None:
-            failures.append(f"{name}: " + _native.native_failure(binding.SOURCE))
+        binding = getattr(type(entry.build({})), "_native_binding", None)  # not all shells
+        if binding is not None:
+            ported[name] = binding
+    failures = [
+        f"{name}: " + _native.native_failure(binding.SOURCE)
+        for name, binding in ported.items()
+        if binding.library() is None
+    ]
     if failures:
-        raise RuntimeError("C ports not built: " + "; ".join(dict.fromkeys(failures)))
-    for name in ESTIMATORS:  # each member's C path, once
-        if getattr(type(ESTIMATORS[name].build({})), "_native_binding", None) is not None:
-            _estimator(name)
+        raise RuntimeError("C ports not built: " + "; ".join(failures))
+    for name in ported:  # each member's C path, once
+        _estimator(name)
 
 
 #: The jobs, the longest first (CPU-s on a fresh machine, roughly in this order).

@@ -177,6 +177,11 @@ class FilterShell:
     settings_type: ClassVar[type] = object
     #: The measured outputs, primary first.
     outputs: ClassVar[tuple[str, ...]] = ("u",)
+    #: The binding module of the member's C port (``members/_<member>_native.py``:
+    #: ``library()``, ``NativeRecords``), or None. Where its library builds, the member's
+    #: kernel calls go to C instead, the same numbers bit for bit
+    #: (:mod:`~manualcontrol.estimators.members._native`).
+    _native_binding: ClassVar[Any] = None
     #: Keys :meth:`update` reads (a member sets it, on the class or at construction).
     _sample_keys: tuple[str, ...] = ()
 
@@ -192,6 +197,8 @@ class FilterShell:
         self._records: Any = None
         self._row: Any = None
         self._entry: Any = None
+        # the C port bound to (records, output) of this reset, where the member has one
+        self._native: tuple[Any, ...] | None = None
         self._estimated: tuple[str, ...] = ()
         self._healths: dict[bytes, EstimateHealth] = {}
         self._where = f"{type(self).__name__}.update sample"
@@ -334,6 +341,23 @@ class FilterShell:
             self._entry = compiled_entry(kernel, arguments)
         else:
             self._entry(*arguments)
+
+    def _native_records(self, out: Any) -> Any:
+        """The member's C port bound to this reset's records and ``out``, or None.
+
+        None where the member has no C port or its library did not build (numba runs).
+        Decided once per reset and output record: a step pays no lookup.
+        """
+        binding = type(self)._native_binding
+        if binding is None:
+            return None
+        bound = self._native
+        if bound is None or bound[0] is not self._records or bound[1] is not out:
+            lib = binding.library()
+            native = None if lib is None else binding.NativeRecords(lib, self._records, out)
+            bound = (self._records, out, native)
+            self._native = bound
+        return bound[2]
 
     def _primary_of_row(self) -> tuple[float, float, float]:
         """Prediction, innovation and its variance of the primary output in the row."""

@@ -191,11 +191,6 @@ class PilotFilter(FilterShell):
     _step_many_kernel: ClassVar[Any] = None
     #: The whole-recording kernel, ``kernel(*records, inputs, u, e, out)``.
     _run_kernel: ClassVar[Any] = None
-    #: The binding module of the member's C port (``_<member>_native``: ``library()``,
-    #: ``NativeRecords``, ``NativeBatch``), or None. Where its library builds, every
-    #: kernel call above goes to C instead, the same numbers bit for bit
-    #: (:mod:`~manualcontrol.estimators.members._native`).
-    _native_binding: ClassVar[Any] = None
 
     def __init__(self, settings: PilotFilterSettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
@@ -224,8 +219,6 @@ class PilotFilter(FilterShell):
         self._resolved: ResolvedSettings | None = None
         # update_block's (records, row, their stack of one, compiled entry) of this reset
         self._block: tuple[Any, Any, Any, Any] | None = None
-        # a member's C port bound to (records, row) of this reset, where it has one
-        self._native: tuple[Any, Any, Any] | None = None
 
     # ----------------------------------------------------------------- access
 
@@ -388,23 +381,6 @@ class PilotFilter(FilterShell):
             self._native = None  # the binding would keep a whole run's output alive
 
     # ------------------------------------------------------------------ C ports
-
-    def _native_records(self, out: Any) -> Any:
-        """The member's C port bound to this reset's records and ``out``, or None.
-
-        None where the member has no C port or its library did not build (numba runs).
-        Decided once per reset and output record: a step pays no lookup.
-        """
-        binding = type(self)._native_binding
-        if binding is None:
-            return None
-        bound = self._native
-        if bound is None or bound[0] is not self._records or bound[1] is not out:
-            lib = binding.library()
-            native = None if lib is None else binding.NativeRecords(lib, self._records, out)
-            bound = (self._records, out, native)
-            self._native = bound
-        return bound[2]
 
     def _call_step(self, kernel: Any, arguments: tuple) -> None:
         """One sample through the C port where it runs, else numba's step (the shell's).

@@ -339,7 +339,6 @@ class RDI(FilterShell):
         # the input and the output signal
         self._sample_keys = (self._settings.input, self._settings.output)
         self.outputs = (self._settings.output,)
-        self._native: Any = None
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -536,19 +535,6 @@ class RDI(FilterShell):
 
     # The C port of the compiled path (_rdi_native.c) runs wherever it builds: the same
     # numbers bit for bit as the numba kernels, which run elsewhere (members/_native.py).
-
-    def _native_records(self, out: core.RDIOutput) -> Any:
-        """The C port bound to this reset's records and ``out``, or None (numba runs).
-
-        Decided once per reset and output record: a step pays no lookup.
-        """
-        bound = self._native
-        if bound is None or bound[0] is not self._records or bound[1] is not out:
-            lib = _rdi_native.library()
-            native = None if lib is None else _rdi_native.NativeRecords(lib, self._records, out)
-            bound = (self._records, out, native)
-            self._native = bound
-        return bound[2]
 
     def _run(self, r: FloatArray, y: FloatArray, out: core.RDIOutput) -> None:
         native = self._native_records(out)

@@ -578,7 +578,6 @@ class SchiessRoland(FilterShell):
     def __init__(self, settings: SchiessRolandSettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
         self._start: dict[str, Any] = {}
-        self._native: Any = None
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -763,23 +762,6 @@ class SchiessRoland(FilterShell):
     # The C port of the compiled path (_schiess_roland_native.c) runs wherever it builds:
     # the same numbers bit for bit as the numba kernels, which run elsewhere
     # (members/_native.py).
-
-    def _native_records(self, out: Any) -> Any:
-        """The C port bound to this reset's records and ``out``, or None (numba runs).
-
-        Decided once per reset and output record: a step pays no lookup.
-        """
-        bound = self._native
-        if bound is None or bound[0] is not self._records or bound[1] is not out:
-            lib = _schiess_roland_native.library()
-            native = (
-                None
-                if lib is None
-                else _schiess_roland_native.NativeRecords(lib, self._records, out)
-            )
-            bound = (self._records, out, native)
-            self._native = bound
-        return bound[2]
 
     def _run(self, d: FloatArray, u: FloatArray, y: FloatArray, out: Any) -> None:
         native = self._native_records(out)

@@ -511,7 +511,6 @@ class ZhaoUKF(FilterShell):
     def __init__(self, settings: ZhaoUKFSettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
         self._tuning: ZhaoTuning | None = None
-        self._native: tuple[Any, Any, Any] | None = None
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -655,19 +654,6 @@ class ZhaoUKF(FilterShell):
 
     # The C port of the compiled path (_zhao_native.c) runs wherever it builds: the same
     # numbers bit for bit as the numba kernels, which run elsewhere (members/_native.py).
-
-    def _native_records(self, out: core.ZhaoOutput) -> Any:
-        """The C port bound to this reset's records and ``out``, or None (numba runs).
-
-        Decided once per reset and output record: a step pays no lookup.
-        """
-        bound = self._native
-        if bound is None or bound[0] is not self._records or bound[1] is not out:
-            lib = _zhao_native.library()
-            native = None if lib is None else _zhao_native.NativeRecords(lib, self._records, out)
-            bound = (self._records, out, native)
-            self._native = bound
-        return bound[2]
 
     def _run(self, inputs: Any, outputs: Any, out: core.ZhaoOutput) -> None:
         native = self._native_records(out)
@@ -909,7 +895,6 @@ class MultiUKF(FilterShell):
         slow, fast = self._settings.members()
         self._slow = ZhaoUKF(slow)
         self._fast = ZhaoUKF(fast)
-        self._native: tuple[Any, ...] | None = None
 
     parameter_names = ZhaoUKF.parameter_names
     signals = ZhaoUKF.signals
@@ -969,7 +954,7 @@ class MultiUKF(FilterShell):
 
     # The C port (_zhao_native.c) runs wherever it builds, as ZhaoUKF's does.
 
-    def _native_records(self, out_slow: Any, out_fast: Any, out: core.MultiOutput) -> Any:
+    def _native_multi(self, out_slow: Any, out_fast: Any, out: core.MultiOutput) -> Any:
         """The C port bound to this reset's records and outputs, or None (numba runs).
 
         Decided once per reset and output records: a step pays no lookup.
@@ -990,7 +975,7 @@ class MultiUKF(FilterShell):
     def _run(
         self, inputs: Any, outputs: Any, out_slow: Any, out_fast: Any, out: core.MultiOutput
     ) -> None:
-        native = self._native_records(out_slow, out_fast, out)
+        native = self._native_multi(out_slow, out_fast, out)
         if native is None:
             core.multi_run(*self._records, inputs, outputs, out_slow, out_fast, out)
         else:
@@ -1008,7 +993,7 @@ class MultiUKF(FilterShell):
             entry(*arguments)
             return
         *_, inputs, outputs, _, out_slow, out_fast, out = arguments
-        native = self._native_records(out_slow, out_fast, out)
+        native = self._native_multi(out_slow, out_fast, out)
         if native is None:
             super()._call_step(kernel, arguments)
             return
