@@ -668,13 +668,15 @@ def _check_result_folder(out: Path, mine: str, overwrite: bool) -> None:
 
 
 @contextlib.contextmanager
-def _staged(out: Path) -> Iterator[Path]:
+def _staged(out: Path, stale: Sequence[str] = ()) -> Iterator[Path]:
     """A new folder beside ``out`` to write a result into; its files then replace out's.
 
     Until everything is written nothing in ``out`` changes: a failure or Ctrl-C leaves the
     earlier result there whole, never part of the old beside part of the new. The files
     move into ``out`` at the end with Ctrl-C held off meanwhile (an absent ``out`` is the
-    staged folder renamed); files of ``out`` that this command does not write stay.
+    staged folder renamed); files of ``out`` that this command does not write stay, except
+    those named in ``stale`` (files of an earlier result this one leaves out, such as its
+    figure, which would no longer match), removed in the same moment.
     """
     import shutil
     import tempfile
@@ -696,6 +698,8 @@ def _staged(out: Path) -> Iterator[Path]:
             else:
                 for path in sorted(stage.iterdir()):
                     os.replace(path, out / path.name)
+                for name in stale:
+                    (out / name).unlink(missing_ok=True)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
 
@@ -758,7 +762,6 @@ _WHITENESS_GUIDE = (
 
 
 def _cmd_identify(args: argparse.Namespace) -> int:
-    from manualcontrol.bench.report import plot_estimation
     from manualcontrol.envs._files import atomic_write
     from manualcontrol.estimators.analysis.fit_check import WHITENESS_LIMIT
     from manualcontrol.estimators.analysis.identification import build_estimator, identify
@@ -852,12 +855,16 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     injection = summary.get("remnant_injection")  # the RML's "choose": the model kept
     assumed = identification.held_at_generic_values  # held at values no one measured
     truth = identification.truth  # a simulation's true parameters: the errors against them
-    with _staged(out) as stage:
+    with _staged(out, stale=("parameters.png",) if args.no_plot else ()) as stage:
         result.save(stage / "estimation.npz")
         text = json.dumps(summary, indent=2)
         atomic_write(stage / "summary.json", lambda p: p.write_text(text))
-        plot_estimation(recording, result, stage / "parameters.png", model_output=model_output)
-    path, figure = out / "estimation.npz", out / "parameters.png"
+        if not args.no_plot:
+            from manualcontrol.bench.report import plot_estimation
+
+            plot_estimation(recording, result, stage / "parameters.png", model_output=model_output)
+    path = out / "estimation.npz"
+    written = [path, out / "summary.json"] + ([] if args.no_plot else [out / "parameters.png"])
     print(f"estimated {', '.join(result.estimated)}; final values {final}")
     if assumed:
         listed = ", ".join(f"{name} {value:.4g}" for name, value in assumed.items())
@@ -938,7 +945,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             f"remnant model: at the {where[injection['chosen']]}, the pass nearer the "
             f"describing function ({gaps})"
         )
-    print(f"wrote {path}, {out / 'summary.json'}, {figure}")
+    print(f"wrote {', '.join(map(str, written))}")
     for warning in check.warnings:
         print(f"manualcontrol identify: warning: {cli_words(warning, 'identify')}", file=sys.stderr)
     code = EXIT_OK
@@ -1976,6 +1983,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=Path("results/identify"),
         help="output folder: estimation.npz, summary.json and parameters.png replace the "
         "ones there once all are written (default results/identify)",
+    )
+    p.add_argument(
+        "--no-plot",
+        action="store_true",
+        help="skip parameters.png (an earlier one in --out is removed, as it would not match): "
+        "drawing it is most of a warm identify's time, worth saving over many recordings",
     )
     p.add_argument(
         "--overwrite",

@@ -14,17 +14,19 @@ import json
 import math
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from manualcontrol.bench.papers import section_writer
-from manualcontrol.bench.scenarios import Suite, scenario_from_dict
 from manualcontrol.envs._files import atomic_path, atomic_write
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators.protocol import report_progress
 from manualcontrol.pilots.models import MODEL_NAMES, make_model
+
+if TYPE_CHECKING:  # the suites import the driving env and numba, which plots never need
+    from manualcontrol.bench.scenarios import Suite
 
 __all__ = [
     "best_estimators",
@@ -807,6 +809,8 @@ def _comparison_figure(
     names: list[str] = []
     for results in by_estimator.values():
         names += [n for n in results[0].estimated if n not in names]
+    from manualcontrol.bench.scenarios import scenario_from_dict
+
     scenario = scenario_from_dict(ok[0]["scenario"])
     truth = {
         name: schedule(first.t) for name, schedule in scenario.build_pilot().parameters.items()
@@ -851,6 +855,8 @@ def _trace_figure(
         return None
     first = results[0]
     names = list(first.estimated)
+    from manualcontrol.bench.scenarios import scenario_from_dict
+
     scenario = scenario_from_dict(ok[0]["scenario"])
     pilot = scenario.build_pilot().parameters if scenario.system is None else {}
     truth = {name: schedule(first.t) for name, schedule in pilot.items()}

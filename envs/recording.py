@@ -82,8 +82,6 @@ from types import MappingProxyType
 from typing import Any
 
 import numpy as np
-import scipy.io
-import scipy.io.matlab
 from numpy.typing import ArrayLike, NDArray
 
 from manualcontrol.envs._files import atomic_write
@@ -1025,6 +1023,8 @@ def _write_mat(recording: Recording, path: Path) -> None:
         "metadata": recording.metadata_json(),
         **_file_entries(recording),
     }
+    import scipy.io  # only for .mat files: a tenth of a second of every start-up otherwise
+
     with open(path, "wb") as handle:
         scipy.io.savemat(handle, variables, format="5", oned_as="column", do_compression=False)
 
@@ -1197,6 +1197,9 @@ def _npz_table(path: Path, archive: Any) -> _FileTable:
 
 
 def _read_mat(path: Path) -> _FileTable:
+    import scipy.io  # only for .mat files: a tenth of a second of every start-up otherwise
+    import scipy.io.matlab
+
     try:
         variables = scipy.io.loadmat(path, squeeze_me=False, chars_as_strings=True)
     except NotImplementedError as error:

@@ -34,7 +34,6 @@ from functools import cached_property
 from typing import Any, ClassVar
 
 import numpy as np
-import scipy.special
 from numpy.typing import ArrayLike, NDArray
 
 from manualcontrol.envs._validation import (
@@ -230,6 +229,8 @@ class Sigmoid(Schedule):
         return _LOG_199_TWICE / self.transition_time
 
     def _evaluate(self, t: FloatArray) -> FloatArray:
+        import scipy.special  # a sixth of a second at import, for the first sigmoid only
+
         return self.start + (self.end - self.start) * scipy.special.expit(
             self.rate_g * (t - self.t_mid)
         )

@@ -126,6 +126,24 @@ def test_identify_refuses_another_estimators_result_unless_overwrite(simulation,
     assert code == EXIT_USAGE and "the folder holds a rml identification" in err
 
 
+def test_no_plot_writes_the_same_result_without_a_figure_and_removes_a_stale_one(
+    simulation, tmp_path, capsys
+):
+    drawn, bare = tmp_path / "drawn", tmp_path / "bare"
+    assert run(capsys, "identify", simulation, "--out", drawn)[0] == EXIT_OK
+    code, out, err = run(capsys, "identify", simulation, "--no-plot", "--out", bare)
+    assert code == EXIT_OK, err
+    assert listing(bare) == ["estimation.npz", "summary.json"]
+    assert "parameters.png" not in out and f"wrote {bare / 'estimation.npz'}" in out
+    assert (bare / "summary.json").read_bytes() == (drawn / "summary.json").read_bytes()
+    for name, values in np.load(drawn / "estimation.npz").items():
+        assert values.tobytes() == np.load(bare / "estimation.npz")[name].tobytes(), name
+    # over an earlier result with a figure: the figure, which no longer matches, goes
+    (drawn / "notes.txt").write_text("mine")
+    assert run(capsys, "identify", simulation, "--no-plot", "--out", drawn)[0] == EXIT_OK
+    assert listing(drawn) == ["estimation.npz", "notes.txt", "summary.json"]
+
+
 def test_an_interrupted_identify_leaves_the_earlier_result_whole(
     simulation, tmp_path, capsys, monkeypatch
 ):
