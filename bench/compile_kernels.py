@@ -14,10 +14,12 @@ environment and of the native vector envs, and every registered estimator's
 ``estimate`` (smoothed where it can be) and ``update`` on a short recording of the kind
 it reads, and the batched step of those that have one
 (:class:`~manualcontrol.estimators.batch.FilterBatch`): the pilot filters on the
-precision and the preview model. The members' C ports are built too
-(``estimators/members/_native.py``: under a second each), and the numba kernels
-of those members compiled all the same (the reference their tests compare with, and
-what runs where no compiler is found). Nothing is written but the kernel cache; a job
+precision and the preview model; and the isolated pilot of a resimulation, which
+discretises and runs the LPV toolkit's kernels. The C ports, the members' and the LPV
+toolkit's (matrix exponentials and LPV runs, ``envs/_dynamics_native.c``), are built too
+(``envs/_native.py``: under a second each), and the numba kernels they replace compiled
+all the same (the reference their tests compare with, and what runs where no compiler
+is found). Nothing is written but the kernel cache; a job
 that fails is reported and the rest go on (its kernels then compile at first use, as
 without this step).
 
@@ -159,12 +161,24 @@ def _pilot_filter_on_preview(name: str) -> Callable[[], None]:
     return job
 
 
-def _numba_kernels(job: Callable[[], None]) -> Callable[[], None]:
-    """``job`` with the members' C ports off: their numba kernels compile as well.
+def _lpv_toolkit() -> None:
 
-    A member with a C port runs it wherever it builds, but its numba kernels are the
+    from manualcontrol.estimators.analysis.metrics import resimulate_parameters
+
+    recording = simulate(
+        Pilot("precision"), "popovici2017", "popovici2017", measurement_time=2.0, seed=0
+    )
+    traces = {"K_p": 1.5 + 0.01 * np.arange(len(recording)) / len(recording)}
+    parameters = {"K_v": 0.5, "tau_v": 0.2, "omega_nms": 8.0, "zeta_nms": 0.3, **traces}
+    resimulate_parameters("precision", parameters, recording)
+
+
+def _numba_kernels(job: Callable[[], None]) -> Callable[[], None]:
+    """``job`` with the C ports off: the numba kernels they replace compile as well.
+
+    A kernel with a C port runs it wherever it builds, but its numba kernels are the
     reference its tests compare it with and what runs where no compiler is found
-    (``estimators/members/_native.py``).
+    (``envs/_native.py``).
     """
 
     def numba_job() -> None:
@@ -183,9 +197,9 @@ def _numba_kernels(job: Callable[[], None]) -> Callable[[], None]:
 
 def _c_ports() -> None:
 
-    from manualcontrol.estimators.members import _native
+    from manualcontrol.envs import _dynamics_native, _native
 
-    ported = {}  # estimator name -> its C port's binding
+    ported = {"LPV toolkit": _dynamics_native}  # name -> its C port's binding
     for name, entry in ESTIMATORS.items():
         binding = getattr(type(entry.build({})), "_native_binding", None)  # not all shells
         if binding is not None:
@@ -197,13 +211,16 @@ def _c_ports() -> None:
     ]
     if failures:
         raise RuntimeError("C ports not built: " + "; ".join(failures))
+    _lpv_toolkit()
     for name in ported:  # each member's C path, once
-        _estimator(name)
+        if name in ESTIMATORS:
+            _estimator(name)
 
 
 #: The jobs, the longest first (CPU-s on a fresh machine, roughly in this order).
 JOBS: dict[str, Callable[[], None]] = {
-    # the estimators' numba kernels, C ports off (_numba_kernels), then the C ports
+    # the numba kernels of the estimators and the LPV toolkit, C ports off
+    # (_numba_kernels), then the C ports
     "rml": _numba_kernels(lambda: _estimator("rml")),
     "dekf": _numba_kernels(lambda: _estimator("dekf")),
     "joint-ukf": _numba_kernels(lambda: _estimator("joint-ukf")),
@@ -216,6 +233,7 @@ JOBS: dict[str, Callable[[], None]] = {
     "dekf on the preview model": _numba_kernels(_pilot_filter_on_preview("dekf")),
     "joint-ukf on the preview model": _numba_kernels(_pilot_filter_on_preview("joint-ukf")),
     "C ports": _c_ports,
+    "LPV toolkit": _numba_kernels(_lpv_toolkit),
     "tracking simulations": _tracking_runs,
     "environments": _environments,
     "lane-keeping simulation": _driving_run,

@@ -6,7 +6,7 @@ extension built at install, on one estimator: ``estimators/members/_dekf_native.
 a plain C99 port of the DEKF's compiled path (``_dekf_core.dekf_step``/``dekf_run``
 and everything they call), operation for operation, which the package builds with the
 system ``cc`` and calls through ``ctypes`` on the records the project's own
-``DEKF.estimate`` builds (``_dekf_native.py``; ``_native.py`` builds it). Since this
+``DEKF.estimate`` builds (``_dekf_native.py``; ``envs/_native.py`` builds it). Since this
 measurement the DEKF runs it wherever it builds; ``MANUALCONTROL_NATIVE=0`` runs
 numba, which is how the numba figures here are taken.
 On a 30-s simulated run (precision pilot, ``popovici2017``, seed 0, as
@@ -138,10 +138,10 @@ class CPort:
     """The C port as this script drives it: built with chosen flags, bound to one estimator."""
 
     def __init__(self, flags):
-        from manualcontrol.estimators.members import _dekf_native, _native
+        from manualcontrol.estimators.members import _dekf_native
 
         self.flags = flags
-        self.source = Path(_native.__file__).with_name(_dekf_native.SOURCE)
+        self.source = _dekf_native.SOURCE
         self.binding = _dekf_native
 
     def build(self, folder, cc):
@@ -504,7 +504,7 @@ def steady(lib, port, settings, repeats):
 
 
 def _native_flags():
-    from manualcontrol.estimators.members._native import FLAGS
+    from manualcontrol.envs._native import FLAGS
 
     return FLAGS
 

@@ -20,15 +20,20 @@ on the badly scaled canonical forms of high-order Padé delays (entries from 1e-
 Both then agree to rounding (tested to 1e-12 relative). scipy also special-cases
 triangular inputs in the squaring phase; that matters only for large norms of badly
 scaled triangular matrices, never reached at our sample times.
+
+The computation runs in C (``_dynamics_native.c``, bound in
+:mod:`~manualcontrol.envs._dynamics_native`) wherever it builds, and as numba's
+:func:`~manualcontrol.envs._dynamics_kernels.expm_batch_kernel` elsewhere: the same
+numbers bit for bit, and a process that only discretises never imports numba. This
+module holds the tables both read.
 """
 
 from __future__ import annotations
 
-import math
-
-import numba
 import numpy as np
 from numpy.typing import NDArray
+
+from manualcontrol.envs import _dynamics_native
 
 __all__ = ["expm_batch"]
 
@@ -73,7 +78,7 @@ _B13 = np.array(
 # theta_m of Al-Mohy & Higham (2009), Table 3.1 (theta_13 = 4.25 in their Algorithm 3.1),
 # 1/|c_{2m+1}| of the backward-error bound ell(A, m) (their eq. 3.11, scipy's _ell),
 # for m = 3, 5, 7, 9, 13
-_ORDERS = np.array([3, 5, 7, 9, 13])
+_ORDERS = np.array([3, 5, 7, 9, 13], dtype=np.int64)
 _THETA = np.array(
     [1.495585217958292e-2, 2.539398330063230e-1, 9.504178996162932e-1, 2.097847961257068e0, 4.25]
 )
@@ -111,222 +116,6 @@ _COEFFICIENTS = _coefficient_table()
 _UNIT_ROUNDOFF = 2.0**-53
 
 
-@numba.njit(cache=True)
-def _matmul(a: FloatArray, b: FloatArray, out: FloatArray) -> None:
-    n = a.shape[0]
-    for i in range(n):
-        for j in range(n):
-            out[i, j] = 0.0
-        for k in range(n):
-            aik = a[i, k]
-            if aik != 0.0:
-                for j in range(n):
-                    out[i, j] += aik * b[k, j]
-
-
-@numba.njit(cache=True)
-def _norm1(a: FloatArray) -> float:
-    """Maximum absolute column sum."""
-    n = a.shape[0]
-    best = 0.0
-    for j in range(n):
-        total = 0.0
-        for i in range(n):
-            total += abs(a[i, j])
-        best = max(best, total)
-    return best
-
-
-@numba.njit(cache=True)
-def _ell(
-    a: FloatArray,
-    scale: float,
-    norm_a: float,
-    power: int,
-    recip: float,
-    v: FloatArray,
-    w: FloatArray,
-) -> int:
-    """Al-Mohy & Higham's ell(scale A, m) with ``power = 2m + 1``.
-
-    ``|| |A|^p ||_1`` of a non-negative matrix is the largest entry of ``1^T |A|^p``,
-    computed exactly by ``p`` vector-matrix products.
-    """
-    n = a.shape[0]
-    for j in range(n):
-        v[j] = 1.0
-    for _ in range(power):
-        for j in range(n):
-            total = 0.0
-            for i in range(n):
-                total += v[i] * abs(a[i, j])
-            w[j] = scale * total
-        for j in range(n):
-            v[j] = w[j]
-    abs_norm = 0.0
-    for j in range(n):
-        abs_norm = max(abs_norm, v[j])
-    if abs_norm == 0.0:
-        return 0
-    alpha = abs_norm / (scale * norm_a * recip)
-    value = math.ceil(math.log2(alpha / _UNIT_ROUNDOFF) / (power - 1))
-    return max(int(value), 0)
-
-
-@numba.njit(cache=True)
-def _polynomial(out: FloatArray, add: bool, coefficients: FloatArray, powers: FloatArray) -> None:
-    """``out (+)= sum_p c_p A^(2p)`` over ``p = 0 .. 4`` (``A^0 = I``), highest power last.
-
-    Powers above the highest non-zero coefficient are skipped, not multiplied by
-    zero: a power not computed holds whatever was there.
-    """
-    n = out.shape[0]
-    top = 1
-    for p in range(2, 5):
-        if coefficients[p] != 0.0:
-            top = p
-    for i in range(n):
-        for j in range(n):
-            total = coefficients[0] if i == j else 0.0
-            for p in range(1, top + 1):
-                total = coefficients[p] * powers[p, i, j] + total
-            out[i, j] = out[i, j] + total if add else total
-
-
-@numba.njit(cache=True)
-def _solve_in_place(p: FloatArray, q: FloatArray) -> None:
-    """``q <- p^{-1} q`` by Gaussian elimination with partial pivoting (``p`` destroyed)."""
-    n = p.shape[0]
-    for col in range(n):
-        pivot = col
-        biggest = abs(p[col, col])
-        for r in range(col + 1, n):
-            if abs(p[r, col]) > biggest:
-                biggest = abs(p[r, col])
-                pivot = r
-        if pivot != col:
-            for j in range(n):
-                p[col, j], p[pivot, j] = p[pivot, j], p[col, j]
-                q[col, j], q[pivot, j] = q[pivot, j], q[col, j]
-        inverse = 1.0 / p[col, col]
-        for r in range(col + 1, n):
-            factor = p[r, col] * inverse
-            if factor != 0.0:
-                for j in range(col + 1, n):
-                    p[r, j] -= factor * p[col, j]
-                for j in range(n):
-                    q[r, j] -= factor * q[col, j]
-    for col in range(n - 1, -1, -1):
-        inverse = 1.0 / p[col, col]
-        for j in range(n):
-            total = q[col, j]
-            for k in range(col + 1, n):
-                total -= p[col, k] * q[k, j]
-            q[col, j] = total * inverse
-
-
-@numba.njit(cache=True)
-def _expm_batch(matrices: FloatArray, coefficients: FloatArray) -> FloatArray:
-    """Algorithm 3.1 on every matrix (runs of equal ones once), in one compiled body.
-
-    exp(A) = exp(A^T)^T: each matrix is transposed in and out and the algorithm run
-    on the transpose, as scipy does (see the module docstring). One body with its
-    helpers called from few places: LLVM inlines every call site, and a copy per
-    call site had made this the slowest kernel of the package to compile.
-    """
-    count, n = matrices.shape[0], matrices.shape[1]
-    result = np.empty_like(matrices)
-    # powers[0..4] = A, A^2, A^4, A^6, A^8 (order 13: the scaled B, B^2, B^4, B^6, 2^-s A)
-    powers = np.empty((5, n, n))
-    work = np.empty((3, n, n))  # U, V and a scratch matrix
-    out = np.empty((n, n))
-    v = np.empty(n)
-    w = np.empty(n)
-    for k in range(count):
-        if k > 0:
-            same = True
-            for i in range(n):
-                for j in range(n):
-                    if matrices[k, i, j] != matrices[k - 1, i, j]:
-                        same = False
-                        break
-                if not same:
-                    break
-            if same:
-                # element by element: a slice assignment would compile numba's shape
-                # error message (about 4 CPU-s in every process that compiles this)
-                for i in range(n):
-                    for j in range(n):
-                        result[k, i, j] = result[k - 1, i, j]
-                continue
-        a = powers[0]
-        for i in range(n):
-            for j in range(n):
-                a[i, j] = matrices[k, j, i]
-        for step in range(3):  # A^2 = A A, A^4 = A^2 A^2, A^6 = A^2 A^4
-            _matmul(powers[1 if step else 0], powers[step], powers[step + 1])
-        norm_a = _norm1(a)
-        if norm_a == 0.0:
-            for i in range(n):
-                for j in range(n):
-                    result[k, i, j] = 1.0 if i == j else 0.0
-            continue
-        d6 = _norm1(powers[3]) ** (1.0 / 6.0)
-        eta = max(_norm1(powers[2]) ** 0.25, d6)
-        choice = -1
-        s = 0
-        d8 = 0.0
-        for option in range(4):
-            if option == 2:  # orders 7 and 9 judge by eta_3 = max(d6, d8)
-                _matmul(powers[2], powers[2], powers[4])
-                d8 = _norm1(powers[4]) ** 0.125
-                eta = max(d6, d8)
-            if eta < _THETA[option] and (
-                _ell(a, 1.0, norm_a, 2 * _ORDERS[option] + 1, _ELL_RECIPROCAL[option], v, w) == 0
-            ):
-                choice = option
-                break
-        if choice < 0:
-            choice = 4
-            _matmul(powers[2], powers[3], work[2])
-            eta5 = min(eta, max(d8, _norm1(work[2]) ** 0.1))
-            if eta5 > 0.0:
-                s = max(math.ceil(math.log2(eta5 / _THETA[4])), 0)
-            s += _ell(a, 2.0**-s, norm_a, 27, _ELL_RECIPROCAL[4], v, w)
-            for i in range(n):
-                for j in range(n):
-                    powers[1, i, j] *= 2.0 ** (-2 * s)
-                    powers[2, i, j] *= 2.0 ** (-4 * s)
-                    powers[3, i, j] *= 2.0 ** (-6 * s)
-                    powers[4, i, j] = 2.0**-s * a[i, j]
-            # U = B [B6 (b13 B6 + b11 B4 + b9 B2) + b7 B6 + ... + b1 I], V likewise
-            for part in range(2):
-                _polynomial(out, False, coefficients[8 + 2 * part], powers)
-                _matmul(powers[3], out, work[part])
-                _polynomial(work[part], True, coefficients[9 + 2 * part], powers)
-        else:
-            # U without its leading A into work[0], V into work[1]
-            for part in range(2):
-                _polynomial(work[part], False, coefficients[2 * choice + part], powers)
-        # U = A (odd part); r_m = (V - U)^{-1} (V + U)
-        _matmul(powers[4] if choice == 4 else a, work[0], work[2])
-        u, vv, scratch = work[2], work[1], work[0]
-        for i in range(n):
-            for j in range(n):
-                scratch[i, j] = vv[i, j] - u[i, j]
-                out[i, j] = vv[i, j] + u[i, j]
-        _solve_in_place(scratch, out)
-        for _ in range(s):
-            _matmul(out, out, scratch)
-            for i in range(n):
-                for j in range(n):
-                    out[i, j] = scratch[i, j]
-        for i in range(n):
-            for j in range(n):
-                result[k, i, j] = out[j, i]
-    return result
-
-
 def expm_batch(matrices: FloatArray) -> FloatArray:
     """``exp`` of each square matrix of ``matrices`` (shape ``(count, n, n)``, float64).
 
@@ -339,5 +128,10 @@ def expm_batch(matrices: FloatArray) -> FloatArray:
         raise ValueError("matrices must be finite")
     if matrices.shape[0] == 0 or matrices.shape[1] == 0:
         return matrices.copy()
-    # the table is an argument: numba will not cache a kernel that reads a 2-D global
-    return _expm_batch(matrices, _COEFFICIENTS)
+    tables = (_COEFFICIENTS, _THETA, _ORDERS, _ELL_RECIPROCAL, _UNIT_ROUNDOFF)
+    lib = _dynamics_native.library()
+    if lib is not None:
+        return _dynamics_native.expm_batch(lib, matrices, *tables)
+    from manualcontrol.envs._dynamics_kernels import expm_batch_kernel
+
+    return expm_batch_kernel(matrices, *tables)

@@ -11,11 +11,19 @@ Everything the other packages need to turn a block diagram into sampled signals:
   (ramp) input matrix, batched, by one matrix exponential of an augmented matrix.
 * :func:`simulate_lpv` -- compiled stepping of a discrete LPV system whose matrices may
   change every sample, with delay channels read from a fractional delay line.
+* :func:`lpv_output_step`, :func:`lpv_state_step`, :func:`read_smooth`,
+  :func:`read_held` -- the numba kernels of one sample, for kernels elsewhere that step
+  the same way (they live in :mod:`~manualcontrol.envs._dynamics_kernels`).
 * :class:`DelayLine` -- bounded-memory online delay line with bicubic interpolation
   of value and derivative (Boer & Kenyon 1998, Appendix).
 
 Conventions: polynomial coefficients in descending powers of ``s`` (as scipy.signal);
 state-space arrays may carry leading batch axes, ``A`` of shape ``(..., n, n)``.
+
+The exponentials and the LPV loop run in C (``_dynamics_native.c``) wherever it builds
+and as numba kernels elsewhere (``MANUALCONTROL_NATIVE=0``, no compiler), the same
+numbers bit for bit; this module imports numba only when it needs those kernels, so a
+process that discretises and simulates through the C port never pays for it.
 """
 
 from __future__ import annotations
@@ -23,15 +31,22 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
-import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from manualcontrol.envs import _dynamics_native
 from manualcontrol.envs._expm import expm_batch
-from manualcontrol.envs._interpolation import bicubic_weights, interpolate_at
 from manualcontrol.envs._validation import check_choice, check_int, check_positive
+
+if TYPE_CHECKING:
+    from manualcontrol.envs._dynamics_kernels import (
+        lpv_output_step,
+        lpv_state_step,
+        read_held,
+        read_smooth,
+    )
 
 __all__ = [
     "Block",
@@ -55,6 +70,20 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
+
+#: The numba kernels exported here, imported from their module on first use (PEP 562).
+_KERNELS = ("lpv_output_step", "lpv_state_step", "read_held", "read_smooth")
+
+
+def __getattr__(name: str) -> object:
+    """One of :data:`_KERNELS`, from :mod:`~manualcontrol.envs._dynamics_kernels`."""
+    if name in _KERNELS:
+        from manualcontrol.envs import _dynamics_kernels
+
+        value = getattr(_dynamics_kernels, name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 # --------------------------------------------------------------------------- Padé
@@ -528,224 +557,6 @@ def _discretize_block(
 # ------------------------------------------------------------------ LPV stepping
 
 
-@numba.njit(cache=True)
-def read_smooth(history: FloatArray, newest: int, position: float) -> float:
-    """Bicubic read of ``history[0..newest]`` at fractional index ``position``.
-
-    For the part of a delayed signal that is a smooth function of time. Samples
-    beyond ``newest`` are not yet known and are replaced by the newest one, so delays
-    shorter than about three samples lose interpolation order instead of reading the
-    future.
-    """
-    if position <= 0.0:
-        return history[0]
-    n = int(np.floor(position))
-    if n >= newest:
-        return history[newest]
-    d = position - n
-    i_m1 = n - 1 if n >= 1 else 0
-    i_1 = n + 1 if n + 1 <= newest else newest
-    i_2 = n + 2 if n + 2 <= newest else newest
-    a, b, c, w = bicubic_weights(d)
-    return a * history[i_m1] + b * history[n] + c * history[i_1] + w * history[i_2]
-
-
-@numba.njit(cache=True)
-def read_held(history: FloatArray, newest: int, position: float) -> float:
-    """Mean of a delayed staircase over one sample, starting at fractional ``position``.
-
-    ``history[j]`` is held over ``[j, j + 1)``; its mean over ``[p, p + 1]`` is the
-    linear interpolation at ``p``: exact for held signals, so delaying a zero-order-
-    hold input by a whole number of samples is exact.
-    """
-    if position <= 0.0:
-        return history[0]
-    n = int(np.floor(position))
-    if n >= newest:
-        return history[newest]
-    d = position - n
-    return (1.0 - d) * history[n] + d * history[n + 1]
-
-
-@numba.njit(cache=True)
-def lpv_output_step(
-    c: FloatArray,
-    d: FloatArray,
-    x: FloatArray,
-    u: FloatArray,
-    smooth: FloatArray,
-    held: FloatArray,
-    newest: int,
-    delay_inputs: NDArray[np.int64],
-    delay_outputs: NDArray[np.int64],
-    delay_now: FloatArray,
-    smooth_now: FloatArray,
-    held_state: NDArray[np.bool_],
-    outputs: FloatArray,
-    fill_past: bool = False,
-) -> None:
-    """First half of one :func:`simulate_lpv` sample: delayed inputs, then outputs.
-
-    Writes the delay sources of this sample into the histories ``smooth`` and ``held``
-    at column ``newest``, the delayed inputs into ``u`` (the smooth part was read one
-    step ago, ``smooth_now``; the held part now, ``delay_now`` samples back) and
-    ``y = C x + D u`` into ``outputs``. Shared by the whole-run loop and the pilot
-    acting in an environment (:class:`~manualcontrol.pilots.controller.PilotController`),
-    so both give the same numbers. ``fill_past`` (the first sample of a run started from
-    a state that had a past, ``history="initial"``): the histories before ``newest``
-    take this sample's values.
-    """
-    n_x = x.shape[0]
-    n_u = u.shape[0]
-    for i in range(delay_inputs.shape[0]):
-        r = delay_outputs[i]
-        acc = 0.0
-        held_value = 0.0
-        for j in range(n_x):
-            if held_state[j]:
-                held_value += c[r, j] * x[j]
-            else:
-                acc += c[r, j] * x[j]
-        smooth[i, newest] = acc
-        for j in range(n_u):
-            if j != delay_inputs[i]:
-                held_value += d[r, j] * u[j]
-        held[i, newest] = held_value
-        if fill_past:
-            for j in range(newest):
-                smooth[i, j] = acc
-                held[i, j] = held_value
-            smooth_now[i] = acc
-        position = newest - delay_now[i]
-        u[delay_inputs[i]] = smooth_now[i] + read_held(held[i], newest, position)
-    for r in range(c.shape[0]):
-        acc = 0.0
-        for j in range(n_x):
-            acc += c[r, j] * x[j]
-        for j in range(n_u):
-            acc += d[r, j] * u[j]
-        outputs[r] = acc
-
-
-@numba.njit(cache=True)
-def lpv_state_step(
-    phi: FloatArray,
-    gamma: FloatArray,
-    gamma_ramp: FloatArray,
-    x: FloatArray,
-    u: FloatArray,
-    smooth: FloatArray,
-    newest: int,
-    delay_inputs: NDArray[np.int64],
-    delay_next: FloatArray,
-    smooth_now: FloatArray,
-    smooth_next: FloatArray,
-    x_next: FloatArray,
-) -> None:
-    """Second half of one :func:`simulate_lpv` sample: the state (and delay reads) advanced.
-
-    ``x <- phi x + gamma u + gamma_ramp (s_next - s_now)`` with the smooth delayed
-    parts read ``delay_next`` samples before the next sample; ``smooth_next`` and
-    ``x_next`` are work arrays.
-    """
-    n_x = x.shape[0]
-    n_u = u.shape[0]
-    n_delay = delay_inputs.shape[0]
-    for i in range(n_delay):
-        position = newest + 1.0 - delay_next[i]
-        smooth_next[i] = read_smooth(smooth[i], newest, position)
-    for r in range(n_x):
-        acc = 0.0
-        for j in range(n_x):
-            acc += phi[r, j] * x[j]
-        for j in range(n_u):
-            acc += gamma[r, j] * u[j]
-        for i in range(n_delay):
-            acc += gamma_ramp[r, delay_inputs[i]] * (smooth_next[i] - smooth_now[i])
-        x_next[r] = acc
-    for r in range(n_x):
-        x[r] = x_next[r]
-    for i in range(n_delay):
-        smooth_now[i] = smooth_next[i]
-
-
-@numba.njit(cache=True)
-def _simulate_lpv(
-    phi: FloatArray,
-    gamma: FloatArray,
-    gamma_ramp: FloatArray,
-    c: FloatArray,
-    d: FloatArray,
-    inputs: FloatArray,
-    x0: FloatArray,
-    delay_inputs: NDArray[np.int64],
-    delay_outputs: NDArray[np.int64],
-    delay_samples: FloatArray,
-    history_pad: int,
-    held_state: NDArray[np.bool_],
-    history_initial: bool = False,
-) -> tuple[FloatArray, FloatArray]:
-    n_samples = inputs.shape[0]
-    n_x = phi.shape[1]
-    n_u = gamma.shape[2]
-    n_y = c.shape[1]
-    n_delay = delay_inputs.shape[0]
-    states = np.empty((n_samples, n_x))
-    outputs = np.empty((n_samples, n_y))
-    # Each delayed source y_r = C_r x + D_r u has a smooth part C_r x and a part D_r u
-    # held over the sample; both histories start at rest (zeros before t = 0).
-    smooth = np.zeros((n_delay, history_pad + n_samples))
-    held = np.zeros((n_delay, history_pad + n_samples))
-    u = np.empty(n_u)
-    x = x0.copy()
-    x_next = np.empty(n_x)
-    smooth_now = np.zeros(n_delay)
-    smooth_next = np.zeros(n_delay)
-    for k in range(n_samples):
-        kp = k if phi.shape[0] > 1 else 0
-        kg = k if gamma.shape[0] > 1 else 0
-        kc = k if c.shape[0] > 1 else 0
-        kd = k if d.shape[0] > 1 else 0
-        for j in range(n_u):
-            u[j] = inputs[k, j]
-        newest = history_pad + k
-        for r in range(n_x):
-            states[k, r] = x[r]
-        lpv_output_step(
-            c[kc],
-            d[kd],
-            x,
-            u,
-            smooth,
-            held,
-            newest,
-            delay_inputs,
-            delay_outputs,
-            delay_samples[k],
-            smooth_now,
-            held_state,
-            outputs[k],
-            k == 0 and history_initial,
-        )
-        if k == n_samples - 1:
-            break
-        lpv_state_step(
-            phi[kp],
-            gamma[kg],
-            gamma_ramp[kg],
-            x,
-            u,
-            smooth,
-            newest,
-            delay_inputs,
-            delay_samples[k + 1],
-            smooth_now,
-            smooth_next,
-            x_next,
-        )
-    return states, outputs
-
-
 def _per_sample(name: str, array: ArrayLike, n_samples: int, trailing: int) -> FloatArray:
     """Give ``array`` a leading time axis of length 1 (shared) or ``n_samples``."""
     array = np.asarray(array, dtype=np.float64)
@@ -844,21 +655,44 @@ def simulate_lpv(
     held_mask = np.zeros(n_x, dtype=np.bool_)
     held_mask[np.asarray(held_states, dtype=np.int64)] = True
     check_choice("history", history, ("rest", "initial"))
-    return _simulate_lpv(
+    if gamma_ramp.shape[0] != gamma.shape[0]:
+        # the kernels index both with gamma's sample: one shared, the other per sample
+        count = max(gamma.shape[0], gamma_ramp.shape[0])
+        gamma = np.ascontiguousarray(np.broadcast_to(gamma, (count, *gamma.shape[1:])))
+        gamma_ramp = np.ascontiguousarray(
+            np.broadcast_to(gamma_ramp, (count, *gamma_ramp.shape[1:]))
+        )
+    arguments = (
         phi,
         gamma,
         gamma_ramp,
         C,
         D,
         np.ascontiguousarray(inputs),
-        x0,
-        delay_inputs_array,
-        delay_outputs_array,
+        np.ascontiguousarray(x0),
+        _channel_indices("delay_inputs", delay_inputs_array, n_u),
+        _channel_indices("delay_outputs", delay_outputs_array, C.shape[1]),
         delay_samples,
         history_pad,
         held_mask,
         history == "initial",
     )
+    lib = _dynamics_native.library()
+    if lib is not None:
+        return _dynamics_native.simulate_lpv(lib, *arguments)
+    from manualcontrol.envs._dynamics_kernels import simulate_lpv_kernel
+
+    return simulate_lpv_kernel(*arguments)
+
+
+def _channel_indices(name: str, indices: NDArray[np.int64], size: int) -> NDArray[np.int64]:
+    """Delay-channel indices into ``size`` signals, negative ones counted from the end.
+
+    The kernels index with them unchecked; one outside the signals raises here.
+    """
+    if np.any((indices < -size) | (indices >= size)):
+        raise ValueError(f"{name} must be indices into {size} signals, got {indices.tolist()}")
+    return np.ascontiguousarray(np.where(indices < 0, indices + size, indices))
 
 
 # ------------------------------------------------------------------- delay line
@@ -909,11 +743,15 @@ class DelayLine:
 
     def read(self, delay: float) -> float:
         """Signal value ``delay`` seconds before the newest sample."""
+        from manualcontrol.envs._interpolation import interpolate_at
+
         ordered, position = self._window(delay)
         return float(interpolate_at(ordered, position)[0])
 
     def read_with_derivative(self, delay: float) -> tuple[float, float]:
         """Value and time derivative ``delay`` seconds before the newest sample."""
+        from manualcontrol.envs._interpolation import interpolate_at
+
         ordered, position = self._window(delay)
         value, slope = interpolate_at(ordered, position)
         return float(value), float(slope) / self.dt

@@ -180,7 +180,7 @@ class FilterShell:
     #: The binding module of the member's C port (``members/_<member>_native.py``:
     #: ``library()``, ``NativeRecords``), or None. Where its library builds, the member's
     #: kernel calls go to C instead, the same numbers bit for bit
-    #: (:mod:`~manualcontrol.estimators.members._native`).
+    #: (:mod:`~manualcontrol.envs._native`).
     _native_binding: ClassVar[Any] = None
     #: Keys :meth:`update` reads (a member sets it, on the class or at construction).
     _sample_keys: tuple[str, ...] = ()

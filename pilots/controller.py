@@ -15,8 +15,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from manualcontrol.envs._dynamics_kernels import lpv_output_step, lpv_state_step
 from manualcontrol.envs._interpolation import interpolate_at
-from manualcontrol.envs.dynamics import lpv_output_step, lpv_state_step
 from manualcontrol.envs.tasks import task_named
 from manualcontrol.pilots._random import as_generator
 from manualcontrol.pilots.loop import SimulationSetup, discrete_pilot

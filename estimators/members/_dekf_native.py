@@ -2,7 +2,7 @@
 
 ``_dekf_native.c`` is the DEKF's compiled path (:mod:`~manualcontrol.estimators.
 members._dekf_core` and what it calls) in C, the same numbers bit for bit
-(:mod:`~manualcontrol.estimators.members._native`: why, and how it is built).
+(:mod:`~manualcontrol.envs._native`: why, and how it is built).
 :func:`library` loads it once a process and checks (:func:`declare`), before its
 first use, that its layout and its constants (``CFG_*``, ``SC_*``, divergence codes,
 tolerances) are the Python modules' own. :class:`NativeRecords` fills its struct of
@@ -19,11 +19,12 @@ a :class:`NativeRecords` is valid while those arrays are (one reset of the filte
 from __future__ import annotations
 
 import ctypes
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from manualcontrol.estimators.members._native import (
+from manualcontrol.envs._native import (
     array_address,
     check_port,
     native_library,
@@ -31,7 +32,7 @@ from manualcontrol.estimators.members._native import (
 
 __all__ = ["NativeBatch", "NativeRecords", "declare", "library"]
 
-SOURCE = "_dekf_native.c"
+SOURCE = Path(__file__).with_name("_dekf_native.c")
 #: The layout version ``dekf_abi()`` returns: the struct below and the C one agree.
 ABI = 1
 _CHECKED: dict[int, bool] = {}
@@ -130,7 +131,7 @@ def declare(lib: ctypes.CDLL) -> ctypes.CDLL:
     lib.dekf_step_many.argtypes = [address, address, address, address, address, int64]
     lib.dekf_step_many.restype = None
     sizes = {"records_size": ctypes.sizeof(_Records)}
-    check_port(lib, "dekf", SOURCE, ABI, sizes, _expected_constants())
+    check_port(lib, "dekf", SOURCE.name, ABI, sizes, _expected_constants())
     _CHECKED[id(lib)] = True
     return lib
 

@@ -2,7 +2,7 @@
 
 ``_rdi_native.c`` is the RDI's compiled path (:func:`~manualcontrol.estimators.members.
 _rdi_core.rdi_step`, ``rdi_run`` and what they call) in C, the same numbers bit for bit
-(:mod:`~manualcontrol.estimators.members._native`: why, and how it is built).
+(:mod:`~manualcontrol.envs._native`: why, and how it is built).
 :func:`library` loads it once a process and checks (:func:`declare`), before its first
 use, that its layout and its constants (``CFG_*``, ``SC_*``, divergence codes,
 tolerances) are the Python modules' own. :class:`NativeRecords` fills its struct of
@@ -18,11 +18,12 @@ a :class:`NativeRecords` is valid while those arrays are (one reset of the filte
 from __future__ import annotations
 
 import ctypes
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from manualcontrol.estimators.members._native import (
+from manualcontrol.envs._native import (
     array_address,
     check_port,
     native_library,
@@ -30,7 +31,7 @@ from manualcontrol.estimators.members._native import (
 
 __all__ = ["NativeRecords", "declare", "library"]
 
-SOURCE = "_rdi_native.c"
+SOURCE = Path(__file__).with_name("_rdi_native.c")
 #: The layout version ``rdi_abi()`` returns: the struct below and the C one agree.
 ABI = 1
 #: Columns of ``scratch.flags`` and ``out.flag`` the C port writes.
@@ -105,7 +106,7 @@ def declare(lib: ctypes.CDLL) -> ctypes.CDLL:
     lib.rdi_run.argtypes = [pointer, address, address, int64]
     lib.rdi_run.restype = None
     sizes = {"records_size": ctypes.sizeof(_Records)}
-    check_port(lib, "rdi", SOURCE, ABI, sizes, _expected_constants())
+    check_port(lib, "rdi", SOURCE.name, ABI, sizes, _expected_constants())
     _CHECKED[id(lib)] = True
     return lib
 

@@ -2,7 +2,7 @@
 
 ``_rml_native.c`` is the RML filter bank's compiled path (:mod:`~manualcontrol.estimators.
 members._rml_core` and what it calls) in C, the same numbers bit for bit
-(:mod:`~manualcontrol.estimators.members._native`: why, and how it is built).
+(:mod:`~manualcontrol.envs._native`: why, and how it is built).
 :func:`library` loads it once a process and checks (:func:`declare`), before its
 first use, that its layout and its constants (``CFG_*``, ``SC_*``, divergence codes,
 tolerances, the bank's slot and injection codes, the drift rule's ``_FILLED``) are the
@@ -21,11 +21,12 @@ valid while those arrays are (one reset of the filter).
 from __future__ import annotations
 
 import ctypes
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from manualcontrol.estimators.members._native import (
+from manualcontrol.envs._native import (
     array_address,
     check_port,
     native_library,
@@ -33,7 +34,7 @@ from manualcontrol.estimators.members._native import (
 
 __all__ = ["NativeBatch", "NativeRecords", "declare", "library"]
 
-SOURCE = "_rml_native.c"
+SOURCE = Path(__file__).with_name("_rml_native.c")
 #: The layout version ``rml_abi()`` returns: the struct below and the C one agree.
 ABI = 1
 _CHECKED: dict[int, bool] = {}
@@ -156,7 +157,7 @@ def declare(lib: ctypes.CDLL) -> ctypes.CDLL:
     lib.bank_step_many.argtypes = [address, address, address, address, address, int64]
     lib.bank_step_many.restype = None
     sizes = {"records_size": ctypes.sizeof(_Records)}
-    check_port(lib, "rml", SOURCE, ABI, sizes, _expected_constants())
+    check_port(lib, "rml", SOURCE.name, ABI, sizes, _expected_constants())
     _CHECKED[id(lib)] = True
     return lib
 

@@ -3,7 +3,7 @@
 ``_schiess_roland_native.c`` is the filter's compiled path
 (:func:`~manualcontrol.estimators.members._schiess_roland_core.sr_step`, ``sr_run`` and
 what they call) in C, the same numbers bit for bit
-(:mod:`~manualcontrol.estimators.members._native`: why, and how it is built).
+(:mod:`~manualcontrol.envs._native`: why, and how it is built).
 :func:`library` loads it once a process and checks (:func:`declare`), before its first
 use, that its layout and its constants (the state layout, ``CFG_*``, ``SC_*``, the
 Taylor series' columns and limits, divergence codes, tolerances) are the Python
@@ -18,11 +18,12 @@ a :class:`NativeRecords` is valid while those arrays are (one reset of the filte
 from __future__ import annotations
 
 import ctypes
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from manualcontrol.estimators.members._native import (
+from manualcontrol.envs._native import (
     array_address,
     check_port,
     native_library,
@@ -30,7 +31,7 @@ from manualcontrol.estimators.members._native import (
 
 __all__ = ["NativeRecords", "declare", "library"]
 
-SOURCE = "_schiess_roland_native.c"
+SOURCE = Path(__file__).with_name("_schiess_roland_native.c")
 #: The layout version ``sr_abi()`` returns: the struct below and the C one agree.
 ABI = 1
 _CHECKED: dict[int, bool] = {}
@@ -123,7 +124,7 @@ def declare(lib: ctypes.CDLL) -> ctypes.CDLL:
     lib.sr_run.argtypes = [pointer, address, address, address, int64]
     lib.sr_run.restype = None
     sizes = {"records_size": ctypes.sizeof(_Records)}
-    check_port(lib, "sr", SOURCE, ABI, sizes, _expected_constants())
+    check_port(lib, "sr", SOURCE.name, ABI, sizes, _expected_constants())
     _CHECKED[id(lib)] = True
     return lib
 

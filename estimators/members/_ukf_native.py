@@ -4,7 +4,7 @@ The fast path of the two where it builds.
 
 ``_ukf_native.c`` is their compiled path (:mod:`~manualcontrol.estimators.members.
 _ukf_core` and what it calls) in C, the same numbers bit for bit
-(:mod:`~manualcontrol.estimators.members._native`: why, and how it is built).
+(:mod:`~manualcontrol.envs._native`: why, and how it is built).
 :func:`library` loads it once a process and checks (:func:`declare`), before its
 first use, that its layout and its constants (``CFG_*``, ``SC_*``, divergence codes,
 tolerances, the sensitivity step) are the Python modules' own. :class:`NativeRecords`
@@ -22,11 +22,12 @@ a :class:`NativeRecords` is valid while those arrays are (one reset of the filte
 from __future__ import annotations
 
 import ctypes
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from manualcontrol.estimators.members._native import (
+from manualcontrol.envs._native import (
     array_address,
     check_port,
     native_library,
@@ -34,7 +35,7 @@ from manualcontrol.estimators.members._native import (
 
 __all__ = ["NativeBatch", "NativeRecords", "declare", "library"]
 
-SOURCE = "_ukf_native.c"
+SOURCE = Path(__file__).with_name("_ukf_native.c")
 #: The layout version ``ukf_abi()`` returns: the struct below and the C one agree.
 ABI = 1
 _CHECKED: dict[int, bool] = {}
@@ -151,7 +152,7 @@ def declare(lib: ctypes.CDLL) -> ctypes.CDLL:
     lib.ukf_step_many.argtypes = [address, address, address, address, address, int64]
     lib.ukf_step_many.restype = None
     sizes = {"records_size": ctypes.sizeof(_Records)}
-    check_port(lib, "ukf", SOURCE, ABI, sizes, _expected_constants())
+    check_port(lib, "ukf", SOURCE.name, ABI, sizes, _expected_constants())
     _CHECKED[id(lib)] = True
     return lib
 

@@ -2,7 +2,7 @@
 
 ``_zhao_native.c`` is the ZhaoUKF's compiled path (:mod:`~manualcontrol.estimators.
 members._zhao_core`'s ``zhao_step``/``zhao_run`` and what they call) in C, the same
-numbers bit for bit (:mod:`~manualcontrol.estimators.members._native`: why, and how it
+numbers bit for bit (:mod:`~manualcontrol.envs._native`: why, and how it
 is built). :func:`library` loads it once a process and checks (:func:`declare`), before
 its first use, that its layout and its constants (``CFG_*``, ``SC_*``, sizes,
 divergence codes, tolerances) are the Python modules' own. :class:`NativeRecords`
@@ -17,11 +17,12 @@ a :class:`NativeRecords` is valid while those arrays are (one reset of the filte
 from __future__ import annotations
 
 import ctypes
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from manualcontrol.estimators.members._native import (
+from manualcontrol.envs._native import (
     array_address,
     check_port,
     native_library,
@@ -29,7 +30,7 @@ from manualcontrol.estimators.members._native import (
 
 __all__ = ["NativeMulti", "NativeRecords", "declare", "library"]
 
-SOURCE = "_zhao_native.c"
+SOURCE = Path(__file__).with_name("_zhao_native.c")
 #: The layout version ``zhao_abi()`` returns: the struct below and the C one agree.
 ABI = 1
 _CHECKED: dict[int, bool] = {}
@@ -150,7 +151,7 @@ def declare(lib: ctypes.CDLL) -> ctypes.CDLL:
     lib.multi_run.argtypes = [pointer, pointer, ctypes.POINTER(_Fusion), address, address, int64]
     lib.multi_run.restype = None
     sizes = {"records_size": ctypes.sizeof(_Records), "fusion_size": ctypes.sizeof(_Fusion)}
-    check_port(lib, "zhao", SOURCE, ABI, sizes, _expected_constants())
+    check_port(lib, "zhao", SOURCE.name, ABI, sizes, _expected_constants())
     _CHECKED[id(lib)] = True
     return lib
 

@@ -331,7 +331,7 @@ class RDI(FilterShell):
     name = "rdi"
     settings_type = RDISettings
 
-    #: The binding of this member's C port (members/_native.py builds it).
+    #: The binding of this member's C port (envs/_native.py builds it).
     _native_binding = _rdi_native
 
     def __init__(self, settings: RDISettings | None = None, **changes: Any) -> None:
@@ -534,7 +534,7 @@ class RDI(FilterShell):
         )
 
     # The C port of the compiled path (_rdi_native.c) runs wherever it builds: the same
-    # numbers bit for bit as the numba kernels, which run elsewhere (members/_native.py).
+    # numbers bit for bit as the numba kernels, which run elsewhere (envs/_native.py).
 
     def _run(self, r: FloatArray, y: FloatArray, out: core.RDIOutput) -> None:
         native = self._native_records(out)

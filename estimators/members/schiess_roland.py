@@ -572,7 +572,7 @@ class SchiessRoland(FilterShell):
     # the forcing D, the stick and the plant output
     _sample_keys = ("ft", "u", "y")
 
-    #: The binding of this member's C port (members/_native.py builds it).
+    #: The binding of this member's C port (envs/_native.py builds it).
     _native_binding = _schiess_roland_native
 
     def __init__(self, settings: SchiessRolandSettings | None = None, **changes: Any) -> None:
@@ -761,7 +761,7 @@ class SchiessRoland(FilterShell):
 
     # The C port of the compiled path (_schiess_roland_native.c) runs wherever it builds:
     # the same numbers bit for bit as the numba kernels, which run elsewhere
-    # (members/_native.py).
+    # (envs/_native.py).
 
     def _run(self, d: FloatArray, u: FloatArray, y: FloatArray, out: Any) -> None:
         native = self._native_records(out)

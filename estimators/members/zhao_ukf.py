@@ -505,7 +505,7 @@ class ZhaoUKF(FilterShell):
     # the driver model's inputs and outputs
     _sample_keys = _SAMPLE_KEYS
 
-    #: The binding of this member's C port (members/_native.py builds it).
+    #: The binding of this member's C port (envs/_native.py builds it).
     _native_binding = _zhao_native
 
     def __init__(self, settings: ZhaoUKFSettings | None = None, **changes: Any) -> None:
@@ -653,7 +653,7 @@ class ZhaoUKF(FilterShell):
         self._call_step(core.zhao_step, (*self._records, inputs, outputs, 0, self._row))
 
     # The C port of the compiled path (_zhao_native.c) runs wherever it builds: the same
-    # numbers bit for bit as the numba kernels, which run elsewhere (members/_native.py).
+    # numbers bit for bit as the numba kernels, which run elsewhere (envs/_native.py).
 
     def _run(self, inputs: Any, outputs: Any, out: core.ZhaoOutput) -> None:
         native = self._native_records(out)
@@ -887,7 +887,7 @@ class MultiUKF(FilterShell):
     outputs = DRIVER_OUTPUTS
     _sample_keys = _SAMPLE_KEYS
 
-    #: The binding of this member's C port (members/_native.py builds it).
+    #: The binding of this member's C port (envs/_native.py builds it).
     _native_binding = _zhao_native
 
     def __init__(self, settings: MultiUKFSettings | None = None, **changes: Any) -> None:

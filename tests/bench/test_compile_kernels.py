@@ -8,7 +8,7 @@ word, so each job is run here as the install runs it.
 import pytest
 
 from manualcontrol.bench.compile_kernels import JOBS, _run_job, main
-from manualcontrol.estimators.members import _native
+from manualcontrol.envs import _native
 
 
 @pytest.mark.parametrize("name", list(JOBS))

@@ -24,10 +24,11 @@ import numpy as np
 import pytest
 from scenarios import PREVIEW as TYPICAL_PREVIEW
 
+from manualcontrol.envs import _native
 from manualcontrol.estimators import DEKF
 from manualcontrol.estimators._pilot_core import SC_SIZE
 from manualcontrol.estimators.batch import FilterBatch
-from manualcontrol.estimators.members import _dekf_native, _native
+from manualcontrol.estimators.members import _dekf_native
 from manualcontrol.pilots import Pilot, simulate
 
 needs_compiler = pytest.mark.skipif(

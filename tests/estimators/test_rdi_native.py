@@ -14,9 +14,10 @@ stops (non-finite values, a covariance blow-up).
 import numpy as np
 import pytest
 
+from manualcontrol.envs import _native
 from manualcontrol.envs.schedules import BandLimitedRandomWalk
 from manualcontrol.estimators import RDI, RDISettings
-from manualcontrol.estimators.members import _native, _rdi_core, _rdi_native
+from manualcontrol.estimators.members import _rdi_core, _rdi_native
 from manualcontrol.pilots import Pilot, simulate
 from manualcontrol.pilots.open_loop import ARMAXSystem, simulate_open_loop
 

@@ -13,7 +13,7 @@ its anticipation delay, the causal choice between the two injections, and the tw
 a filter stops (non-finite values, a covariance blow-up).
 
 The build itself is tested once, for the DEKF's port (``test_dekf_native.py``): the
-RML's goes through the same :mod:`~manualcontrol.estimators.members._native`; here only
+RML's goes through the same :mod:`~manualcontrol.envs._native`; here only
 the check of its own constants.
 """
 
@@ -21,11 +21,12 @@ import numpy as np
 import pytest
 from scenarios import PREVIEW as TYPICAL_PREVIEW
 
+from manualcontrol.envs import _native
 from manualcontrol.envs.signals import ForcingPair
 from manualcontrol.estimators import RML
 from manualcontrol.estimators._pilot_core import SC_SIZE
 from manualcontrol.estimators.batch import FilterBatch
-from manualcontrol.estimators.members import _native, _rml_native
+from manualcontrol.estimators.members import _rml_native
 from manualcontrol.pilots import Pilot, simulate
 
 pytestmark = pytest.mark.skipif(

@@ -16,7 +16,8 @@ import math
 import numpy as np
 import pytest
 
-from manualcontrol.estimators.members import _native, _schiess_roland_core, _schiess_roland_native
+from manualcontrol.envs import _native
+from manualcontrol.estimators.members import _schiess_roland_core, _schiess_roland_native
 from manualcontrol.estimators.members.schiess_roland import PARAMETER_NAMES, SchiessRoland
 from manualcontrol.pilots import Pilot, simulate
 

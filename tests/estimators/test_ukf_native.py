@@ -20,10 +20,11 @@ import numpy as np
 import pytest
 from scenarios import PREVIEW as TYPICAL_PREVIEW
 
+from manualcontrol.envs import _native
 from manualcontrol.estimators import DualUKF, JointUKF
 from manualcontrol.estimators._pilot_core import SC_SIZE
 from manualcontrol.estimators.batch import FilterBatch
-from manualcontrol.estimators.members import _native, _ukf_native
+from manualcontrol.estimators.members import _ukf_native
 from manualcontrol.pilots import Pilot, simulate
 
 needs_compiler = pytest.mark.skipif(

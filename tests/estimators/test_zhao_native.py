@@ -15,9 +15,10 @@ ways a filter stops (non-finite values, a covariance blow-up).
 import numpy as np
 import pytest
 
+from manualcontrol.envs import _native
 from manualcontrol.envs.schedules import Ramp
 from manualcontrol.estimators import MultiUKF, ZhaoUKF
-from manualcontrol.estimators.members import _native, _zhao_native
+from manualcontrol.estimators.members import _zhao_native
 from manualcontrol.estimators.members.zhao_ukf import _SAMPLE_KEYS
 from manualcontrol.pilots.driver import Driver
 from manualcontrol.pilots.driving import simulate_driving

@@ -1,11 +1,14 @@
 """Build and load the C ports of the compiled kernels, where a C compiler is at hand.
 
-Each estimator's numerics are numba kernels; numba compiles them on a machine's first
-use (the DEKF's about 30 CPU-s), where a C compiler builds the same arithmetic in under
-a second. A member with a C port (``_<member>_native.c`` beside its numba core, the same
-numbers bit for bit, held so by its tests) runs it wherever :func:`native_library`
-gives the built library, and its numba kernels elsewhere: which one ran never shows in
-a number.
+The package's numerics are numba kernels; numba compiles them on a machine's first use
+(the DEKF's about 30 CPU-s) and every process pays for importing numba and loading its
+cache (most of a short command), where a C compiler builds the same arithmetic in under
+a second and a loaded library costs nothing more. A kernel with a C port (a
+``_<name>_native.c`` beside its numba kernels, in any subpackage: the estimators'
+members, the LPV simulation of :mod:`~manualcontrol.envs.dynamics`; the same numbers bit
+for bit, held so by its tests) runs it wherever :func:`native_library` gives the built
+library, and its numba kernels elsewhere: which one ran never shows in a number. The
+builder lives in ``envs``, the lowest layer, so that every subpackage above can use it.
 
 The library is built on first use, or at install (``manualcontrol compile``), with the
 system C compiler (``$CC``, its words a command such as ``ccache cc``, else ``cc``) and
@@ -62,8 +65,7 @@ FLAGS: tuple[str, ...] = (
     "-shared",
 )
 
-_HERE = Path(__file__).resolve().parent
-#: Libraries loaded in this process, and why a source could not be built.
+#: Libraries loaded in this process, and why a source could not be built (by source path).
 _LOADED: dict[str, ctypes.CDLL] = {}
 _FAILED: dict[str, str] = {}
 
@@ -174,8 +176,8 @@ def build_library(source: Path, compiler: list[str], folder: Path) -> Path:
     return target
 
 
-def native_library(source_name: str) -> ctypes.CDLL | None:
-    """The built library of the C source ``source_name`` in this folder, or None.
+def native_library(source: Path) -> ctypes.CDLL | None:
+    """The built library of the C source file ``source`` (a path, in any folder), or None.
 
     None where C ports are disabled (``MANUALCONTROL_NATIVE=0``), no compiler is found
     or the build failed (:func:`native_failure` says why); the numba kernels then run.
@@ -183,13 +185,14 @@ def native_library(source_name: str) -> ctypes.CDLL | None:
     """
     if not native_enabled():
         return None
-    library = _LOADED.get(source_name)
-    if library is not None or source_name in _FAILED:
+    key = str(source)
+    library = _LOADED.get(key)
+    if library is not None or key in _FAILED:
         return library
-    source = _HERE / source_name
+    source = Path(source)
     compiler = _compiler()
     if compiler is None:
-        _FAILED[source_name] = (
+        _FAILED[key] = (
             "no C compiler found ($CC or cc): the numba kernels run, compiled at first use"
         )
         return None
@@ -208,17 +211,17 @@ def native_library(source_name: str) -> ctypes.CDLL | None:
         except OSError as error:  # built but not loadable (a noexec folder): the next
             errors.append(f"{path} does not load: {error}")
             continue
-        _LOADED[source_name] = library
+        _LOADED[key] = library
         return library
-    _FAILED[source_name] = "; ".join(errors) + ": the numba kernels run, compiled at first use"
+    _FAILED[key] = "; ".join(errors) + ": the numba kernels run, compiled at first use"
     return None
 
 
-def native_failure(source_name: str) -> str:
-    """Why :func:`native_library` gave None for ``source_name`` in this process ('' if not)."""
+def native_failure(source: Path) -> str:
+    """Why :func:`native_library` gave None for ``source`` in this process ('' if not)."""
     if not native_enabled():
         return "MANUALCONTROL_NATIVE=0: the numba kernels run"
-    return _FAILED.get(source_name, "")
+    return _FAILED.get(str(source), "")
 
 
 # ------------------------------------------------------------------ the bindings' checks
