@@ -1658,11 +1658,16 @@ def _cmd_compile(args: argparse.Namespace) -> int:
         os.register_at_fork(after_in_child=_quiet_child)
         _cmd_compile.hooked = True  # type: ignore[attr-defined]
     print(
-        "compiling the kernels into the kernel cache, C ports built (once per machine):", flush=True
+        "compiling the numba kernels the C ports replace (the tests' reference):"
+        if args.numba_reference
+        else "compiling the kernels into the kernel cache, C ports built (once per machine):",
+        flush=True,
     )
     _QUIET_CHILDREN = True
     try:
-        ok = compile_kernels(args.workers, lambda line: print(line, flush=True))
+        ok = compile_kernels(
+            args.workers, lambda line: print(line, flush=True), args.numba_reference
+        )
     finally:
         _QUIET_CHILDREN = False
     if not ok:
@@ -2248,10 +2253,11 @@ def build_parser() -> argparse.ArgumentParser:
         "compile",
         help="compile the kernels into numba's cache and build the C ports now (make does "
         "it at install)",
-        description="Compile the package's kernels into numba's on-disk cache, split across "
-        "the cores, and build the estimators' C ports (where a C compiler is at hand; "
-        "they run instead of numba's kernels), so that the first identify, bench or test "
-        "loads them instead of compiling. `make install` runs this.",
+        description="Build the C ports of the estimators and the LPV toolkit (where a C "
+        "compiler is at hand; they run instead of numba's kernels) and compile the other "
+        "kernels into numba's on-disk cache, split across the cores, so that the first "
+        "identify, bench or test loads them instead of compiling. The Makefile's install "
+        "step runs this.",
         epilog="Exit codes: 0 all compiled; 3 some jobs failed (their kernels compile at "
         "first use instead); 130 Ctrl-C.",
     )
@@ -2260,6 +2266,13 @@ def build_parser() -> argparse.ArgumentParser:
         type=positive_int,
         default=None,
         help="processes compiling side by side (default: all cores)",
+    )
+    p.add_argument(
+        "--numba-reference",
+        action="store_true",
+        help="compile only the numba kernels the C ports replace, which run where a C "
+        "port does not build and are the reference the tests compare the ports with "
+        "(make test runs this before pytest)",
     )
     p.set_defaults(run=_cmd_compile)
     return parser

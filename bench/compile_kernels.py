@@ -18,12 +18,15 @@ precision and the preview model; and the isolated pilot of a resimulation, which
 discretises and runs the LPV toolkit's kernels. The C ports, the members' and the LPV
 toolkit's (matrix exponentials and LPV runs, ``envs/_dynamics_native.c``), are built too
 (``envs/_native.py``: under a second each), and the numba kernels they replace compiled
-all the same (the reference their tests compare with, and what runs where no compiler
-is found). Nothing is written but the kernel cache; a job
-that fails is reported and the rest go on (its kernels then compile at first use, as
-without this step).
+only where they are needed: where no C compiler is found (or ``MANUALCONTROL_NATIVE=0``)
+they are what runs, so the install step compiles them; elsewhere they are only the
+reference the C ports' tests compare with, two of the three minutes of a fresh
+machine's compiling, so ``--numba-reference`` compiles them alone (``make test`` runs
+it before pytest, and ``make demo`` never waits for it). Nothing is written but the
+kernel cache; a job that fails is reported and the rest go on (its kernels then
+compile at first use, as without this step).
 
-Run: ``python -m manualcontrol.bench.compile_kernels [--workers N]``.
+Run: ``python -m manualcontrol.bench.compile_kernels [--workers N] [--numba-reference]``.
 """
 
 from __future__ import annotations
@@ -192,6 +195,7 @@ def _numba_kernels(job: Callable[[], None]) -> Callable[[], None]:
             else:
                 os.environ["MANUALCONTROL_NATIVE"] = before
 
+    numba_job.numba_reference = True  # type: ignore[attr-defined]
     return numba_job
 
 
@@ -240,6 +244,27 @@ JOBS: dict[str, Callable[[], None]] = {
 }
 
 
+#: The jobs that compile only numba kernels a C port replaces (module docstring).
+NUMBA_REFERENCE: tuple[str, ...] = tuple(
+    name for name, job in JOBS.items() if getattr(job, "numba_reference", False)
+)
+
+
+def selected_jobs(numba_reference: bool = False) -> list[str]:
+    """The jobs to run, in :data:`JOBS` order.
+
+    ``numba_reference``: those of :data:`NUMBA_REFERENCE` alone. Otherwise every other
+    job, and those too where the C ports cannot run here (no compiler, or
+    ``MANUALCONTROL_NATIVE=0``): there the numba kernels are what runs.
+    """
+    if numba_reference:
+        return list(NUMBA_REFERENCE)
+    from manualcontrol.envs import _native
+
+    ports_run = _native.native_enabled() and _native._compiler() is not None
+    return [name for name in JOBS if not (ports_run and name in NUMBA_REFERENCE)]
+
+
 def _run_job(name: str) -> tuple[str, float, str | None]:
     start = time.process_time()
     try:
@@ -251,13 +276,18 @@ def _run_job(name: str) -> tuple[str, float, str | None]:
     return name, time.process_time() - start, None
 
 
-def compile_kernels(workers: int | None = None, report: Callable[[str], None] = print) -> bool:
-    """Run every job of :data:`JOBS` on ``workers`` processes; True if all succeeded."""
+def compile_kernels(
+    workers: int | None = None,
+    report: Callable[[str], None] = print,
+    numba_reference: bool = False,
+) -> bool:
+    """Run the jobs :func:`selected_jobs` picks on ``workers`` processes; True if all succeeded."""
     workers = workers or os.cpu_count() or 1
     start = time.perf_counter()
     ok = True
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(_run_job, name) for name in JOBS]
+    names = selected_jobs(numba_reference)
+    with ProcessPoolExecutor(max_workers=max(1, min(workers, len(names)))) as pool:
+        futures = [pool.submit(_run_job, name) for name in names]
         for future in as_completed(futures):
             name, seconds, failure = future.result()
             if failure is None:
@@ -266,6 +296,12 @@ def compile_kernels(workers: int | None = None, report: Callable[[str], None] = 
                 ok = False
                 report(f"  not compiled: {name} (compiles at first use instead)\n{failure}")
     report(f"kernels compiled in {time.perf_counter() - start:.0f} s on {workers} processes")
+    if not numba_reference and any(name not in names for name in NUMBA_REFERENCE):
+        report(
+            "  the numba kernels the C ports replace are left to compile when first used "
+            "(where a C port does not build or MANUALCONTROL_NATIVE=0, and by the tests, "
+            "which compare the two; --numba-reference compiles them now)"
+        )
     return ok
 
 
@@ -273,13 +309,23 @@ def main(argv: list[str] | None = None) -> int:
     """The command: compile, print a line per job; exit status 1 if a job failed."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workers", type=int, default=None, help="processes (default: cores)")
+    parser.add_argument(
+        "--numba-reference",
+        action="store_true",
+        help="compile only the numba kernels the C ports replace: the reference their "
+        "tests compare with (make test runs this before pytest)",
+    )
     args = parser.parse_args(argv)
     if args.workers is not None and args.workers < 1:
         parser.error(f"--workers must be a whole number >= 1, got {args.workers}")
     print(
-        "compiling the kernels into the kernel cache, C ports built (once per machine):", flush=True
+        "compiling the numba kernels the C ports replace (the tests' reference):"
+        if args.numba_reference
+        else "compiling the kernels into the kernel cache, C ports built (once per machine):",
+        flush=True,
     )
-    return 0 if compile_kernels(args.workers, lambda line: print(line, flush=True)) else 1
+    done = compile_kernels(args.workers, lambda line: print(line, flush=True), args.numba_reference)
+    return 0 if done else 1
 
 
 if __name__ == "__main__":

@@ -74,17 +74,20 @@ def test_compile_runs_compile_kernels_on_the_workers_asked(capsys, monkeypatch, 
 
     calls = []
 
-    def fake(workers, report):
-        calls.append(workers)
+    def fake(workers, report, numba_reference):
+        calls.append((workers, numba_reference))
         report("  compiled: dekf (1 CPU-s)")
         return ok
 
     monkeypatch.setattr(compiling, "compile_kernels", fake)
     code, out, err = run(capsys, "compile", "--workers", "3")
-    assert code == expected and calls == [3]
+    assert code == expected and calls == [(3, False)]
     assert "compiling the kernels into the kernel cache" in out and "compiled: dekf" in out
     assert ("did not compile" in err) is not ok
     assert not cli._QUIET_CHILDREN
+    code, out, _ = run(capsys, "compile", "--numba-reference")
+    assert code == expected and calls[-1] == (None, True)
+    assert "compiling the numba kernels the C ports replace" in out
 
 
 def test_compile_refuses_zero_workers(capsys):

@@ -7,8 +7,15 @@ word, so each job is run here as the install runs it.
 
 import pytest
 
-from manualcontrol.bench.compile_kernels import JOBS, _run_job, main
+from manualcontrol.bench.compile_kernels import (
+    JOBS,
+    NUMBA_REFERENCE,
+    _run_job,
+    main,
+    selected_jobs,
+)
 from manualcontrol.envs import _native
+from manualcontrol.estimators.registry import ESTIMATORS
 
 
 @pytest.mark.parametrize("name", list(JOBS))
@@ -25,3 +32,41 @@ def test_a_bad_worker_count_is_refused_naming_the_flag(capsys):
         main(["--workers", "0"])
     assert exit_.value.code == 2
     assert "--workers must be a whole number >= 1, got 0" in capsys.readouterr().err
+
+
+def test_every_c_ported_estimators_numba_job_is_a_reference_job():
+    ported = [
+        name
+        for name, entry in ESTIMATORS.items()
+        if getattr(type(entry.build({})), "_native_binding", None) is not None
+    ]
+    assert ported and set(ported) <= set(NUMBA_REFERENCE)
+    assert "LPV toolkit" in NUMBA_REFERENCE
+    assert not {"C ports", "tracking simulations", "environments"} & set(NUMBA_REFERENCE)
+
+
+def test_the_install_step_compiles_the_replaced_numba_kernels_only_where_no_port_runs(
+    monkeypatch,
+):
+    monkeypatch.delenv("MANUALCONTROL_NATIVE", raising=False)
+    monkeypatch.setattr(_native, "_compiler", lambda: ["cc"])
+    assert selected_jobs() == [name for name in JOBS if name not in NUMBA_REFERENCE]
+    assert selected_jobs(numba_reference=True) == list(NUMBA_REFERENCE)
+    monkeypatch.setattr(_native, "_compiler", lambda: None)  # no compiler: numba runs
+    assert selected_jobs() == list(JOBS)
+    monkeypatch.setattr(_native, "_compiler", lambda: ["cc"])
+    monkeypatch.setenv("MANUALCONTROL_NATIVE", "0")
+    assert selected_jobs() == list(JOBS)
+
+
+def test_the_install_step_says_what_it_left_to_the_tests(monkeypatch, capsys):
+    import manualcontrol.bench.compile_kernels as compiling
+
+    monkeypatch.delenv("MANUALCONTROL_NATIVE", raising=False)
+    monkeypatch.setattr(_native, "_compiler", lambda: ["cc"])
+    monkeypatch.setattr(
+        compiling, "JOBS", {"C ports": lambda: None, **dict.fromkeys(NUMBA_REFERENCE)}
+    )
+    assert compiling.compile_kernels(1, print)
+    out = capsys.readouterr().out
+    assert "compiled: C ports" in out and "--numba-reference compiles them now" in out
