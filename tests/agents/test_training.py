@@ -99,6 +99,35 @@ def test_ppo_trains_too_and_writes_nothing_outside_its_folder(tmp_path, monkeypa
     assert (tmp_path / "agent" / "policy.pt").is_file()
 
 
+def test_the_training_envs_pass_no_step_info_and_train_as_with_it(tmp_path, monkeypatch):
+    """SB3 deep-copies every env's info each step; training reads none of ours, so it goes.
+
+    The same PPO run with the info passed on (the wrapper made a no-op) ends in the same
+    weights, bit for bit, and what PPO reads (the Monitor's episodes) is still there.
+    """
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from manualcontrol.agents import training
+
+    config = TrainingConfig(**TINY_PPO)
+    vec_env = make_vec_env(lambda: training._NoStepInfo(make_env(config)), n_envs=1, seed=0)
+    vec_env.reset()
+    infos = []
+    for _ in range(250):  # past the end of a 2-s episode
+        infos += vec_env.step(np.zeros((1, 1)))[3]
+    vec_env.close()
+    assert set().union(*infos) <= {"episode", "terminal_observation", "TimeLimit.truncated"}
+    assert any("episode" in info for info in infos)
+
+    def weights(folder):
+        state = train(config, folder, report=None).policy.state_dict()
+        return {name: value.numpy().tobytes() for name, value in state.items()}
+
+    slim = weights(tmp_path / "slim")
+    monkeypatch.setattr(training, "_NoStepInfo", lambda env: env)
+    assert weights(tmp_path / "full") == slim
+
+
 def test_training_computes_on_one_torch_thread_and_restores_the_count(tmp_path):
     # the same seed must train the same weights whatever the machine's core count
     before = torch.get_num_threads()
