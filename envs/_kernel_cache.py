@@ -27,8 +27,11 @@ from kernel modules alone, so a module that compiles nothing cannot put code int
 cached kernel, and editing one (a docstring, an env, a CLI) keeps every cache. The one
 thing it could put there is a global constant a compiled function reads, which numba
 freezes at compile time; no compiled function of the package reads a name imported
-from a module that compiles nothing (keep it so: put such a constant in a kernel
-module). Importing ``a.b.c`` does not name the packages ``a`` and ``a.b`` whose
+from a module that compiles nothing, unless that module declares itself a kernel
+module by the line :data:`CONSTANTS_MARKER` (a numba-free module that holds the record
+layouts and constants both its kernels and the C ports read, so a process on the C
+path never imports numba; keep it so: put such a constant in a kernel module or mark
+its module). Importing ``a.b.c`` does not name the packages ``a`` and ``a.b`` whose
 initialisers Python runs first: a kernel uses what it imports, and counting them would
 tie kernels together through package initialisers they never use. A module loaded by
 a name built at run time (``importlib.import_module(f"...{x}")``) is not seen.
@@ -65,7 +68,13 @@ _OLD_STAMP = "manualcontrol-kernel-sources.stamp"  # the single stamp of earlier
 _FORMAT = 1
 #: What marks a kernel source: a file that imports or compiles with numba, not one that
 #: only mentions it (a kernel may be built with ``vectorize``, ``cfunc``, ``overload``).
-_KERNEL = re.compile(rb"^\s*(?:import numba\b|from numba\b)|numba\.n?jit\b|^\s*@n?jit\b", re.M)
+#: A line that makes a module a kernel module without numba: numba kernels read its globals.
+CONSTANTS_MARKER = "# numba kernels read this module's constants"
+_KERNEL = re.compile(
+    rb"^\s*(?:import numba\b|from numba\b)|numba\.n?jit\b|^\s*@n?jit\b"
+    rb"|^# numba kernels read this module's constants$",
+    re.M,
+)
 #: A string constant that is a package module's full name (a lazy export's home).
 _MODULE_NAME = re.compile(r"manualcontrol(?:\.[A-Za-z_]\w*)+")
 #: A numba cache file: ``[prefix-]<file stem>.<qualname>-<line>.py<ver>.nbi`` or
@@ -87,7 +96,7 @@ def _roots() -> list[Path]:
 
 
 def _is_kernel_source(text: bytes) -> bool:
-    """Whether ``text`` matches :data:`_KERNEL`.
+    """Whether ``text`` matches :data:`_KERNEL` (numba, or :data:`CONSTANTS_MARKER`).
 
     Every form it matches names ``numba`` or ``jit``, so a file naming neither is
     passed over without the regular expression, which is slow on a file it does not

@@ -16,7 +16,7 @@ import importlib
 from collections.abc import Callable, Mapping, MutableMapping, Sequence
 from typing import Any
 
-__all__ = ["lazy_exports"]
+__all__ = ["LazyKernel", "kernels_on_first_use", "lazy_exports"]
 
 
 def lazy_exports(
@@ -44,3 +44,50 @@ def lazy_exports(
         return sorted({*namespace, *home})
 
     return get_attribute, names
+
+
+def kernels_on_first_use(
+    namespace: MutableMapping[str, Any], module: str, names: Sequence[str]
+) -> Callable[[str], Any]:
+    """The ``__getattr__`` of a numba-free module whose numba kernels live in ``module``.
+
+    A module that keeps the record layouts, constants and builders a C port needs moves
+    its numba kernels to a kernel module (its full name, ``module``) that only the
+    fallback imports; this keeps them importable from the old home: ``names`` are
+    imported from ``module`` on first use (PEP 562) and kept in ``namespace``.
+    """
+    home = namespace["__name__"]
+    kernels = frozenset(names)
+
+    def get_attribute(name: str) -> Any:
+        if name not in kernels:
+            raise AttributeError(f"module {home!r} has no attribute {name!r}")
+        value = getattr(importlib.import_module(module), name)
+        namespace[name] = value
+        return value
+
+    return get_attribute
+
+
+class LazyKernel:
+    """A class attribute naming a numba kernel, imported from its module on first read.
+
+    ``_step_kernel = LazyKernel("manualcontrol.x._kernels", "step")`` reads as the kernel
+    (the dispatcher itself, as ``staticmethod(step)`` did) on the class and on its
+    instances, but imports the kernel module (and numba) only when first read: a filter
+    whose C port runs never reads it.
+    """
+
+    def __init__(self, module: str, name: str) -> None:
+        self.module = module
+        self.name = name
+        self._kernel: Any = None
+
+    def __get__(self, instance: Any, owner: type | None = None) -> Any:
+        kernel = self._kernel
+        if kernel is None:
+            kernel = self._kernel = getattr(importlib.import_module(self.module), self.name)
+        return kernel
+
+    def __repr__(self) -> str:
+        return f"LazyKernel({self.module!r}, {self.name!r})"

@@ -34,7 +34,6 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from manualcontrol.envs._interpolation import interpolate_many
 from manualcontrol.envs._validation import (
     check_choice,
     check_int,
@@ -65,6 +64,21 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+
+
+def __getattr__(name: str) -> object:
+    """``interpolate_many``, the numba kernel, imported on first use (PEP 562).
+
+    A sampled signal reads itself through it; the other forcing functions never do, so
+    a process that uses them alone never imports numba.
+    """
+    if name == "interpolate_many":
+        from manualcontrol.envs._interpolation import interpolate_many
+
+        globals()[name] = interpolate_many
+        return interpolate_many
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 #: Harmonic numbers ``ω T_m / 2π`` must be this close to integers.
 _HARMONIC_TOLERANCE = 1e-6
@@ -729,6 +743,8 @@ class SampledSignal:
         positions = (times.ravel() - self.t0) / self.dt
         if self.periodic:
             positions = np.mod(positions, self.values.shape[0]) + 1.0
+        from manualcontrol.envs._interpolation import interpolate_many
+
         values, slopes = interpolate_many(self._padded, np.ascontiguousarray(positions))
         return times, values.reshape(times.shape), slopes.reshape(times.shape)
 

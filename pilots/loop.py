@@ -15,11 +15,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from manualcontrol.envs._interpolation import interpolate_at
 from manualcontrol.envs._validation import (
     check_choice,
     check_duration,
@@ -76,22 +74,19 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 
 
-@numba.njit(cache=True)
-def _read_preview(
-    target: FloatArray, positions: FloatArray, window: int
-) -> tuple[FloatArray, FloatArray]:
-    """Target value and rate at ``positions`` samples ahead, within the visible window.
+def __getattr__(name: str) -> object:
+    """The numba kernel ``_read_preview`` (and ``interpolate_at``), imported on first use.
 
-    Sample ``k`` sees ``target[k : k + window]`` (what a preview display shows);
-    reading near its far edge repeats the last visible sample instead of looking
-    beyond it, exactly as a pilot reading the display would.
+    They live in :mod:`~manualcontrol.pilots._kernels` (PEP 562): only a preview task's
+    simulation reads the target ahead, so the others never import numba.
     """
-    n = positions.shape[0]
-    values = np.empty(n)
-    rates = np.empty(n)
-    for k in range(n):
-        values[k], rates[k] = interpolate_at(target[k : k + window], positions[k])
-    return values, rates
+    if name in ("_read_preview", "interpolate_at"):
+        from manualcontrol.pilots import _kernels
+
+        value = getattr(_kernels, name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 @dataclass(frozen=True)
@@ -258,6 +253,8 @@ class SimulationSetup:
         window = self.preview_window
         target_ahead, fd = self.sampled_forcing() if sampled is None else sampled
         signals = {"ft": target_ahead[:n].copy(), "fd": fd[:n].copy()}
+        if {"ft_far", "ft_near_rate"} & set(self.pilot.model.perceptions):
+            from manualcontrol.pilots._kernels import _read_preview
         if "ft_far" in self.pilot.model.perceptions:
             target_ahead = np.ascontiguousarray(target_ahead)
             signals["ft_far"] = _read_preview(target_ahead, traces["tau_f"] / self.dt, window)[0]

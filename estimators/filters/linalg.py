@@ -4,12 +4,29 @@ Everything works in place on caller-owned arrays (numba with ``_nrt=False``: no 
 is allocated or reference counted inside a step). Covariances are kept symmetric by
 :func:`symmetrise` after every update; systems are solved through a Cholesky factor,
 never by forming an inverse (as dynamax's ``psd_solve``).
+
+The kernels live in :mod:`~manualcontrol.estimators.filters._linalg_kernels`, imported
+on first use (a process whose filters run in C never imports numba); the constants they
+read stay here.
 """
 
 from __future__ import annotations
 
-import numba
-import numpy as np
+from typing import TYPE_CHECKING
+
+from manualcontrol.envs._lazy import kernels_on_first_use
+
+if TYPE_CHECKING:  # what tools read; at run time each kernel is imported on first use
+    from manualcontrol.estimators.filters._linalg_kernels import (
+        add_product,
+        cholesky,
+        cholesky_semidefinite,
+        cholesky_solve_rows,
+        log_determinant,
+        matmul,
+        matmul_transposed,
+        symmetrise,
+    )
 
 __all__ = [
     "TINY",
@@ -23,6 +40,7 @@ __all__ = [
     "symmetrise",
 ]
 
+# numba kernels read this module's constants
 #: Magnitude below which covariance entries are flushed to zero (subnormal range).
 #: A state without process noise that the measurements pin down has a variance that
 #: decays towards zero; left alone it reaches subnormal numbers, whose arithmetic is a
@@ -30,151 +48,22 @@ __all__ = [
 TINY = 1e-290
 
 
-@numba.njit(cache=True, _nrt=False)
-def symmetrise(P):
-    """``P <- (P + P^T)/2`` in place, flushing entries below :data:`TINY` to zero."""
-    n = P.shape[0]
-    for i in range(n):
-        if abs(P[i, i]) < TINY:
-            P[i, i] = 0.0
-        for j in range(i + 1, n):
-            v = 0.5 * (P[i, j] + P[j, i])
-            if abs(v) < TINY:
-                v = 0.0
-            P[i, j] = v
-            P[j, i] = v
-
-
-@numba.njit(cache=True, _nrt=False)
-def cholesky(A, L):
-    """Lower Cholesky factor of the symmetric ``A`` into ``L`` (``A = L L^T``).
-
-    Returns False (``L`` then undefined) when ``A`` is not positive definite or not
-    finite. Reads the lower triangle of ``A`` only.
-    """
-    n = A.shape[0]
-    for j in range(n):
-        s = A[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not s > 0.0 or not np.isfinite(s):
-            return False
-        d = np.sqrt(s)
-        L[j, j] = d
-        for i in range(j + 1, n):
-            s = A[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            L[i, j] = s / d
-        for i in range(j):
-            L[i, j] = 0.0
-    return True
-
-
 #: Pivots below this fraction of the largest diagonal entry count as zero in
 #: :func:`cholesky_semidefinite` (a few hundred times the double precision epsilon).
 SEMIDEFINITE_TOLERANCE = 1e-13
 
 
-@numba.njit(cache=True, _nrt=False)
-def cholesky_semidefinite(A, L):
-    """A factor ``L`` (lower, ``A = L L^T``) of a positive *semi*definite ``A``.
-
-    Directions whose variance the data have driven to zero (a state without process
-    noise that the measurements pin down) leave pivots at rounding level, possibly
-    below zero; a pivot under :data:`SEMIDEFINITE_TOLERANCE` times the largest diagonal
-    entry is taken as zero and its column left zero. Returns False for a clearly
-    negative pivot or non-finite entries.
-    """
-    n = A.shape[0]
-    largest = 0.0
-    for i in range(n):
-        if not np.isfinite(A[i, i]):
-            return False
-        largest = max(largest, A[i, i])
-    floor = SEMIDEFINITE_TOLERANCE * largest
-    for j in range(n):
-        s = A[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        for i in range(j):
-            L[i, j] = 0.0
-        if s <= floor:
-            if s < -1e3 * floor - 1e-300:
-                return False
-            for i in range(j, n):
-                L[i, j] = 0.0
-            continue
-        d = np.sqrt(s)
-        L[j, j] = d
-        for i in range(j + 1, n):
-            s = A[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            L[i, j] = s / d
-    return True
-
-
-@numba.njit(cache=True, _nrt=False)
-def cholesky_solve_rows(L, B, X):
-    """Solve ``X S = B`` for ``X`` (rows of ``B``), ``S = L L^T`` symmetric.
-
-    ``B`` and ``X`` have shape ``(r, m)``; ``X`` may be ``B``. This is the Kalman gain
-    ``K = P H^T S^-1`` without an inverse: each row solves ``S k = b`` (S symmetric)
-    by a forward and a backward substitution.
-    """
-    m = L.shape[0]
-    for r in range(B.shape[0]):
-        # forward: L z = b
-        for i in range(m):
-            s = B[r, i]
-            for k in range(i):
-                s -= L[i, k] * X[r, k]
-            X[r, i] = s / L[i, i]
-        # backward: L^T k = z
-        for i in range(m - 1, -1, -1):
-            s = X[r, i]
-            for k in range(i + 1, m):
-                s -= L[k, i] * X[r, k]
-            X[r, i] = s / L[i, i]
-
-
-@numba.njit(cache=True, _nrt=False)
-def log_determinant(L):
-    """``log det(L L^T)`` from a Cholesky factor."""
-    total = 0.0
-    for i in range(L.shape[0]):
-        total += np.log(L[i, i])
-    return 2.0 * total
-
-
-@numba.njit(cache=True, _nrt=False)
-def matmul(A, B, out):
-    """``out = A B`` (``out`` must not alias ``A`` or ``B``)."""
-    for i in range(A.shape[0]):
-        for j in range(B.shape[1]):
-            acc = 0.0
-            for k in range(A.shape[1]):
-                acc += A[i, k] * B[k, j]
-            out[i, j] = acc
-
-
-@numba.njit(cache=True, _nrt=False)
-def matmul_transposed(A, B, out):
-    """``out = A B^T`` (``out`` must not alias ``A`` or ``B``)."""
-    for i in range(A.shape[0]):
-        for j in range(B.shape[0]):
-            acc = 0.0
-            for k in range(A.shape[1]):
-                acc += A[i, k] * B[j, k]
-            out[i, j] = acc
-
-
-@numba.njit(cache=True, _nrt=False)
-def add_product(x, K, r):
-    """``x += K r`` for a matrix ``K`` and vector ``r`` (the Kalman mean update)."""
-    for i in range(K.shape[0]):
-        acc = 0.0
-        for a in range(K.shape[1]):
-            acc += K[i, a] * r[a]
-        x[i] += acc
+#: The numba kernels (and what they import), imported from their module on first use.
+_KERNELS = (
+    "symmetrise",
+    "cholesky",
+    "cholesky_semidefinite",
+    "cholesky_solve_rows",
+    "log_determinant",
+    "matmul",
+    "matmul_transposed",
+    "add_product",
+)
+__getattr__ = kernels_on_first_use(
+    globals(), "manualcontrol.estimators.filters._linalg_kernels", _KERNELS
+)

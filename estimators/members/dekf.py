@@ -61,6 +61,7 @@ from typing import Any
 
 import numpy as np
 
+from manualcontrol.envs._lazy import LazyKernel
 from manualcontrol.envs._validation import check_choice, check_positive
 from manualcontrol.estimators._pilot_core import euler_substeps
 from manualcontrol.estimators.filters.kalman import kalman_work
@@ -160,9 +161,12 @@ class DEKF(PilotFilter):
 
     name = "dekf"
     settings_type = DEKFSettings
-    _step_kernel = staticmethod(core.dekf_step)
-    _step_many_kernel = staticmethod(core.dekf_step_many)
-    _run_kernel = staticmethod(core.dekf_run)
+    # the numba kernels, imported (with numba) on first read: the C port runs without them
+    _step_kernel = LazyKernel("manualcontrol.estimators.members._dekf_kernels", "dekf_step")
+    _step_many_kernel = LazyKernel(
+        "manualcontrol.estimators.members._dekf_kernels", "dekf_step_many"
+    )
+    _run_kernel = LazyKernel("manualcontrol.estimators.members._dekf_kernels", "dekf_run")
     _native_binding = _dekf_native
 
     @property

@@ -183,7 +183,9 @@ class PilotFilter(FilterShell):
 
     settings_type: ClassVar[type[PilotFilterSettings]] = PilotFilterSettings
     #: The compiled one-sample kernel, ``kernel(*records, inputs, u, e, row, out)``
-    #: (a ``staticmethod``: numba's dispatchers bind to instances like functions).
+    #: (a ``staticmethod``: numba's dispatchers bind to instances like functions; or a
+    #: :class:`~manualcontrol.envs._lazy.LazyKernel`, which imports it and numba on first
+    #: read, so a filter whose C port runs never does).
     _step_kernel: ClassVar[Any] = None
     #: The same step over a stack of filters (:class:`~manualcontrol.estimators.batch.
     #: FilterBatch`), ``kernel(*stacked_records, inputs, u, e, active, rows, stacked_out)``;

@@ -28,16 +28,21 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from manualcontrol.envs._lazy import kernels_on_first_use
 from manualcontrol.estimators.filters.smoothers import (
     LINK_CROSS,
     LINK_RANDOM_WALK,
     LINK_TRANSITION,
-    rts_smooth,
     smoother_work,
 )
 from manualcontrol.estimators.protocol import EstimationResult
 
 __all__ = ["BLOCK_KINDS", "SmootherBlock", "SmootherInputs", "smooth"]
+
+#: The smoother's numba kernel, imported from its module on first use (PEP 562).
+__getattr__ = kernels_on_first_use(
+    globals(), "manualcontrol.estimators.filters._smoother_kernels", ("rts_smooth",)
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -182,6 +187,8 @@ def smooth(result: EstimationResult) -> EstimationResult:
     n_rows = len(result)
     if result.health.stopped:
         n_rows = int(np.argmin(result.finite)) if not result.finite.all() else n_rows
+    from manualcontrol.estimators.filters._smoother_kernels import rts_smooth
+
     for block in inputs.blocks:
         n = block.x_filtered.shape[1]
         x_s = np.zeros((n_rows, n))

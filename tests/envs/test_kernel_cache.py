@@ -136,6 +136,29 @@ def test_editing_a_file_that_compiles_nothing_keeps_every_cache(package):
     assert cached(root) == set(CACHES)
 
 
+def test_a_marked_numba_free_module_of_constants_counts_as_a_kernel_module(tmp_path):
+    """Editing the constants a kernel reads from a numba-free, marked module drops its caches."""
+    root = make_package(tmp_path)[0]
+    edit(root / "layout.py", f"{_kernel_cache.CONSTANTS_MARKER}\nSIZE = 3\n")
+    edit(
+        root / "stepper.py",
+        "import numba\nfrom manualcontrol.kernels.layout import SIZE\n\n"
+        "@numba.njit\ndef step(): return SIZE\n",
+    )
+    closures = {
+        str(module.relative_to(root)): {str(c.relative_to(root)) for c in callees}
+        for module, callees in kernel_closures([root]).items()
+    }
+    assert closures["layout.py"] == set() and closures["stepper.py"] == {"layout.py"}
+    stamps = kernel_stamps([root])
+    edit(root / "layout.py", f"{_kernel_cache.CONSTANTS_MARKER}\nSIZE = 4\n")
+    changed = kernel_stamps([root])
+    assert {p for p in stamps if stamps[p] != changed[p]} == {
+        str(root / "layout.py"),
+        str(root / "stepper.py"),
+    }
+
+
 def test_a_new_kernel_module_without_caches_is_fine(package):
     root = package[0]
     edit(root / "ufuncs.py", "import numba as nb\n\nsquare = nb.vectorize(lambda x: x * x)\n")

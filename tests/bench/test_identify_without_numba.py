@@ -1,0 +1,118 @@
+"""A DEKF identification through the C ports never imports numba, and numba's is the same.
+
+Where the C ports build, ``manualcontrol identify <recording> --estimator dekf
+--no-plot`` simulates, discretises and filters in C: the numba kernels live in modules
+that only the fallback imports, so numba (a quarter of the command's CPU time) is never
+loaded. With ``MANUALCONTROL_NATIVE=0`` the same command runs the numba kernels and
+writes the same estimation, byte for byte.
+"""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from manualcontrol.envs import _dynamics_native, _native
+from manualcontrol.estimators.members import _dekf_native
+from manualcontrol.pilots import Pilot, simulate
+
+#: One identification through the command's main, then the numba modules it loaded.
+SCRIPT = """
+import sys
+from manualcontrol.bench.cli import main
+code = main(["identify", sys.argv[1], "--estimator", "dekf", "--out", sys.argv[2], "--no-plot"])
+assert code == 0, code
+print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "llvmlite")))
+"""
+
+
+def identify(recording, out, native):
+    environment = {**os.environ}
+    environment.pop("MANUALCONTROL_NATIVE", None)
+    if not native:
+        environment["MANUALCONTROL_NATIVE"] = "0"
+    done = subprocess.run(
+        [sys.executable, "-c", SCRIPT, str(recording), str(out)],
+        capture_output=True,
+        text=True,
+        env=environment,
+        timeout=600,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    return done.stdout.strip().splitlines()[-1]
+
+
+@pytest.mark.skipif(
+    _native._compiler() is None, reason="no C compiler: the C ports cannot be built here"
+)
+def test_a_warm_dekf_identify_imports_no_numba_and_numba_writes_the_same(tmp_path, monkeypatch):
+    monkeypatch.delenv("MANUALCONTROL_NATIVE", raising=False)
+    if _dekf_native.library() is None or _dynamics_native.library() is None:
+        pytest.skip("the DEKF's or the LPV toolkit's C port did not build here")
+    recording = tmp_path / "run.npz"
+    simulate(
+        Pilot("precision"), "popovici2017", "popovici2017", run_in=0.0, measurement_time=30.0
+    ).save(recording)
+    loaded = identify(recording, tmp_path / "c", native=True)
+    assert loaded == "[]", f"the C path imported {loaded}"
+    loaded = identify(recording, tmp_path / "numba", native=False)
+    assert "'numba'" in loaded
+    c_bytes = (tmp_path / "c" / "estimation.npz").read_bytes()
+    assert c_bytes == (tmp_path / "numba" / "estimation.npz").read_bytes()
+
+
+#: Each numba-free module and the kernel module that took its numba kernels.
+HOMES = {
+    "manualcontrol.envs.signals": "manualcontrol.envs._interpolation",
+    "manualcontrol.pilots.loop": "manualcontrol.pilots._kernels",
+    "manualcontrol.pilots.controller": "manualcontrol.pilots._kernels",
+    "manualcontrol.estimators._pilot_core": "manualcontrol.estimators._pilot_kernels",
+    "manualcontrol.estimators.filters.kalman": "manualcontrol.estimators.filters._kalman_kernels",
+    "manualcontrol.estimators.filters.linalg": "manualcontrol.estimators.filters._linalg_kernels",
+    "manualcontrol.estimators.filters.monitor": (
+        "manualcontrol.estimators.filters._monitor_kernels"
+    ),
+    "manualcontrol.estimators.filters.smoothers": (
+        "manualcontrol.estimators.filters._smoother_kernels"
+    ),
+    "manualcontrol.estimators.members.internal_model": (
+        "manualcontrol.estimators.members._internal_model_kernels"
+    ),
+    "manualcontrol.estimators.members._dekf_core": (
+        "manualcontrol.estimators.members._dekf_kernels"
+    ),
+}
+#: The kernels a numba-free module exported before they moved (the rest it still defines).
+MOVED = {
+    "manualcontrol.envs.signals": ("interpolate_many",),
+    "manualcontrol.pilots.loop": ("_read_preview", "interpolate_at"),
+    "manualcontrol.pilots.controller": ("_act", "interpolate_at"),
+}
+
+
+@pytest.mark.parametrize("home", sorted(HOMES))
+def test_the_kernels_stay_importable_from_their_old_homes(home):
+    """Each kernel is the kernel module's very dispatcher, read from where it was."""
+    import importlib
+
+    kernels = importlib.import_module(HOMES[home])
+    names = MOVED.get(home) or [
+        name
+        for name, value in vars(kernels).items()
+        if getattr(getattr(value, "py_func", None), "__module__", None) == kernels.__name__
+    ]
+    assert names
+    module = importlib.import_module(home)
+    for name in names:
+        assert getattr(module, name) is getattr(kernels, name), name
+
+
+def test_the_dekf_names_its_kernels_lazily():
+    from manualcontrol.estimators.members import _dekf_kernels
+    from manualcontrol.estimators.members.dekf import DEKF
+
+    assert DEKF._step_kernel is _dekf_kernels.dekf_step
+    assert DEKF()._step_many_kernel is _dekf_kernels.dekf_step_many
+    assert DEKF._run_kernel is _dekf_kernels.dekf_run
