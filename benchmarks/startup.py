@@ -7,11 +7,13 @@ machine slows them alike. It reports the median wall time and the median CPU tim
 median to that of ``import numpy, scipy, gymnasium`` measured in the same run.
 
 ``identify`` reads a 30-s simulated recording (made first, in its own process) with the
-DEKF; every command runs once before the timing, so numba's on-disk caches and Python's
-bytecode caches are warm (``PYTHONDONTWRITEBYTECODE`` is dropped for the processes run
-here, so that they are written) and what is timed is a start-up as a user sees it the
-second time. The processes run with one BLAS thread (``OPENBLAS_NUM_THREADS``,
-``OMP_NUM_THREADS``; set them to measure otherwise), as ``make`` runs the project.
+DEKF, once as a user runs it and once with ``--no-plot`` (no figure: matplotlib's import
+and drawing are most of the first); every command runs once before the timing, so
+numba's on-disk caches and Python's bytecode caches are warm
+(``PYTHONDONTWRITEBYTECODE`` is dropped for the processes run here, so that they are
+written) and what is timed is a start-up as a user sees it the second time. The
+processes run with one BLAS thread (``OPENBLAS_NUM_THREADS``, ``OMP_NUM_THREADS``; set
+them to measure otherwise), as ``make`` runs the project.
 
 Targets: ``import manualcontrol.estimators`` at most 3x the reference, a warm
 ``identify`` at most 2x.
@@ -82,6 +84,19 @@ def rows(folder):
         (
             "manualcontrol identify",
             [*cli, "identify", str(recording), "--estimator", "dekf", "--out", str(out)],
+        ),
+        (
+            "manualcontrol identify --no-plot",
+            [
+                *cli,
+                "identify",
+                str(recording),
+                "--estimator",
+                "dekf",
+                "--out",
+                str(out),
+                "--no-plot",
+            ],
         ),
     ]
 
