@@ -17,7 +17,7 @@
  *
  * Sources ported (manualcontrol/...):
  *   estimators/members/_rdi_core.py  rdi_step, rdi_run, predict, _read, _past_output,
- *                                    _report (simulate_output is not ported: numba)
+ *                                    _report, simulate_output
  *   envs/_interpolation.py           bicubic_weights, bicubic_derivative_weights
  *   estimators/filters/kalman.py     joseph_correct (scalar measurement: _joseph_scalar),
  *                                    clamp
@@ -61,7 +61,7 @@ enum { REASON_NONE = 0, REASON_NONFINITE = 1, REASON_COVARIANCE = 2 };
 static const double NEGATIVE_TOLERANCE = 1e-10; /* monitor.NEGATIVE_TOLERANCE */
 static const double TINY = 1e-290;              /* linalg.TINY */
 
-#define RDI_ABI 1
+#define RDI_ABI 2
 #define N_FLAGS 6 /* scratch.flags and out.flag columns */
 
 /* kalman.KalmanWork for m = 1: PHt (n,1), S and L (1,1), K and M (n,1), T (n,n),
@@ -479,6 +479,33 @@ void rdi_run(const RdiRecords *rec, const double *r, const double *y, int64_t n)
 {
     for (int64_t k = 0; k < n; k++)
         rdi_step(rec, r[k], y[k], k);
+}
+
+/* simulate_output: the model's output from the input alone, its own past outputs fed
+ * back (the output error counterpart of predict, started at rest): p (n, n_p) the
+ * parameters of every sample, r (n,) the input, out (n,); ring_r, ring_y (n,) and
+ * gradient (n_p,) the caller's scratch (numba allocates them: zeros, zeros, any) */
+void rdi_simulate_output(const double *p, int64_t n_p, const double *r, int64_t n, double dt,
+                         double lam, double n_a, double n_b, double *ring_r, double *ring_y,
+                         double *gradient, double *out)
+{
+    double cfg[CFG_SIZE] = {0.0};
+    cfg[CFG_DT] = dt;
+    cfg[CFG_LAMBDA] = lam;
+    cfg[CFG_NA] = n_a;
+    cfg[CFG_NB] = n_b;
+    RdiRecords rec = {0};
+    rec.n_p = n_p;
+    rec.size = n;
+    rec.cfg = cfg;
+    rec.ring_r = ring_r;
+    rec.ring_y = ring_y;
+    for (int64_t k = 0; k < n; k++) {
+        ring_r[k] = r[k];
+        double value = predict(&rec, p + k * n_p, k, gradient);
+        ring_y[k] = value;
+        out[k] = value;
+    }
 }
 
 /* For the Python side to check the layout and the constants it was built against. */

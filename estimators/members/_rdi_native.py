@@ -29,11 +29,11 @@ from manualcontrol.envs._native import (
     native_library,
 )
 
-__all__ = ["NativeRecords", "declare", "library"]
+__all__ = ["NativeRecords", "declare", "library", "simulate_output"]
 
 SOURCE = Path(__file__).with_name("_rdi_native.c")
 #: The layout version ``rdi_abi()`` returns: the struct below and the C one agree.
-ABI = 1
+ABI = 2
 #: Columns of ``scratch.flags`` and ``out.flag`` the C port writes.
 N_FLAGS = 6
 _CHECKED: dict[int, bool] = {}
@@ -105,10 +105,42 @@ def declare(lib: ctypes.CDLL) -> ctypes.CDLL:
     lib.rdi_step.restype = None
     lib.rdi_run.argtypes = [pointer, address, address, int64]
     lib.rdi_run.restype = None
+    lib.rdi_simulate_output.argtypes = [address, int64, address, int64, double, double, double,
+                                        double, address, address, address, address]  # fmt: skip
+    lib.rdi_simulate_output.restype = None
     sizes = {"records_size": ctypes.sizeof(_Records)}
     check_port(lib, "rdi", SOURCE.name, ABI, sizes, _expected_constants())
     _CHECKED[id(lib)] = True
     return lib
+
+
+def simulate_output(
+    lib: ctypes.CDLL, p: np.ndarray, r: np.ndarray, dt: float, lam: int, n_a: int, n_b: int
+) -> np.ndarray:
+    """``_rdi_core.simulate_output`` in C: the model's output from the input ``r`` alone.
+
+    ``p`` (n, 2 + n_a + n_b) C-contiguous float64, the parameters of every sample; ``r``
+    (n,) C-contiguous float64.
+    """
+    n = r.shape[0]
+    n_p = 2 + n_a + n_b
+    if r.dtype != np.float64 or not r.flags.c_contiguous or r.ndim != 1:
+        raise ValueError(f"r must be C-contiguous float64 of one axis, got {r.dtype} {r.shape}")
+    if p.dtype != np.float64 or not p.flags.c_contiguous or p.shape != (n, n_p):
+        raise ValueError(
+            f"p must be C-contiguous float64 of shape ({n}, {n_p}), got {p.dtype} {p.shape}"
+        )
+    if not (lam >= 1 and n_a >= 0 and n_b >= 0):
+        raise ValueError(f"the RDI's orders must be lam >= 1, n_a, n_b >= 0: {lam}, {n_a}, {n_b}")
+    out = np.zeros(n)
+    ring_r = np.zeros(n)
+    ring_y = np.zeros(n)
+    gradient = np.zeros(n_p)
+    lib.rdi_simulate_output(
+        p.ctypes.data, n_p, r.ctypes.data, n, float(dt), float(lam), float(n_a), float(n_b),
+        ring_r.ctypes.data, ring_y.ctypes.data, gradient.ctypes.data, out.ctypes.data,
+    )  # fmt: skip
+    return out
 
 
 class NativeRecords:

@@ -692,7 +692,9 @@ def resimulate(result: EstimationResult, recording: Recording) -> FloatArray:
     p = np.ascontiguousarray(
         np.column_stack([result.mean_of(name) for name in settings.parameter_names])
     )
-    held = hold_last_finite(r)
-    return core.simulate_output(
-        p, np.ascontiguousarray(held), recording.dt, settings.decimation, settings.n_a, settings.n_b
-    )
+    held = np.ascontiguousarray(hold_last_finite(r))
+    orders = (recording.dt, settings.decimation, settings.n_a, settings.n_b)
+    lib = _rdi_native.library()  # the C port where it builds, the same numbers as numba's
+    if lib is not None and p.dtype == np.float64 and held.dtype == np.float64:
+        return _rdi_native.simulate_output(lib, p, held, *orders)
+    return core.simulate_output(p, held, *orders)

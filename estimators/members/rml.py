@@ -124,7 +124,7 @@ Process noise that follows a change (the drift rule): the parameters' random-wal
 variances are the family's presets (thesis Sec. V-B-2), tuned for 20-s sigmoids of
 ``tau_f``. When a parameter changes faster, the estimate lags and every sample corrects
 it the same way; that persistence raises the parameter's ``Q`` until the corrections
-cancel again (:func:`~manualcontrol.estimators.members._rml_core._adapt_process_noise`: the
+cancel again (:func:`~manualcontrol.estimators.members._rml_kernels._adapt_process_noise`: the
 moving mean of the corrections in prior standard deviations over that of their size,
 above ``drift_threshold``, scales ``Q`` by up to ``1 + drift_gain``; moving means over
 ``drift_window``). It is the delta-bar-delta idea (Jacobs 1988; Sutton's IDBD, 1992)
@@ -186,6 +186,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from manualcontrol.envs._lazy import LazyKernel
 from manualcontrol.envs._validation import check_choice, check_int, check_positive
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair
@@ -690,9 +691,12 @@ class RML(PilotFilter):
 
     name: ClassVar[str] = "rml"
     settings_type = RMLSettings
-    _step_kernel = staticmethod(core.bank_step)
-    _step_many_kernel = staticmethod(core.bank_step_many)
-    _run_kernel = staticmethod(core.bank_run)
+    # the numba kernels, imported (with numba) on first read: the C port runs without them
+    _step_kernel = LazyKernel("manualcontrol.estimators.members._rml_kernels", "bank_step")
+    _step_many_kernel = LazyKernel(
+        "manualcontrol.estimators.members._rml_kernels", "bank_step_many"
+    )
+    _run_kernel = LazyKernel("manualcontrol.estimators.members._rml_kernels", "bank_run")
     _native_binding = _rml_native
 
     def __init__(self, settings: RMLSettings | None = None, **changes: Any) -> None:

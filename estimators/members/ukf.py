@@ -47,6 +47,7 @@ from typing import Any
 
 import numpy as np
 
+from manualcontrol.envs._lazy import LazyKernel
 from manualcontrol.envs._validation import check_choice, check_positive, check_real
 from manualcontrol.estimators import _pilot_core as pilot_core
 from manualcontrol.estimators.filters.unscented import (
@@ -62,6 +63,10 @@ from manualcontrol.estimators.offline.smoothing import SmootherBlock, SmootherIn
 from manualcontrol.estimators.shell import output_arrays, trace_arrays
 
 __all__ = ["DualUKF", "DualUKFSettings", "JointUKF", "UKFSettings"]
+
+#: Where the numba kernels live, imported (with numba) on first read: the C port runs
+#: without them.
+_KERNEL_MODULE = "manualcontrol.estimators.members._ukf_kernels"
 
 
 @dataclass(frozen=True)
@@ -258,9 +263,9 @@ class JointUKF(_UnscentedPilotFilter):
 
     name = "joint-ukf"
     settings_type = UKFSettings
-    _step_kernel = staticmethod(core.joint_step)
-    _step_many_kernel = staticmethod(core.joint_step_many)
-    _run_kernel = staticmethod(core.joint_run)
+    _step_kernel = LazyKernel(_KERNEL_MODULE, "joint_step")
+    _step_many_kernel = LazyKernel(_KERNEL_MODULE, "joint_step_many")
+    _run_kernel = LazyKernel(_KERNEL_MODULE, "joint_run")
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
         internal = self._internal
@@ -293,9 +298,9 @@ class DualUKF(_UnscentedPilotFilter):
 
     name = "dual-ukf"
     settings_type = DualUKFSettings
-    _step_kernel = staticmethod(core.dual_step)
-    _step_many_kernel = staticmethod(core.dual_step_many)
-    _run_kernel = staticmethod(core.dual_run)
+    _step_kernel = LazyKernel(_KERNEL_MODULE, "dual_step")
+    _step_many_kernel = LazyKernel(_KERNEL_MODULE, "dual_step_many")
+    _run_kernel = LazyKernel(_KERNEL_MODULE, "dual_run")
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
         internal = self._internal

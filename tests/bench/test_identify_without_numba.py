@@ -1,7 +1,8 @@
-"""A DEKF identification through the C ports never imports numba, and numba's is the same.
+"""An identification through the C ports never imports numba, and numba's is the same.
 
-Where the C ports build, ``manualcontrol identify <recording> --estimator dekf
---no-plot`` simulates, discretises and filters in C: the numba kernels live in modules
+Where the C ports build, ``manualcontrol identify <recording> --estimator <member>
+--no-plot`` (the DEKF, the RML, the joint and dual UKFs, the RDI, Schiess-Roland's filter)
+simulates, discretises and filters in C: the numba kernels live in modules
 that only the fallback imports, so numba (a quarter of the command's CPU time) is never
 loaded. With ``MANUALCONTROL_NATIVE=0`` the same command runs the numba kernels and
 writes the same estimation, byte for byte.
@@ -14,26 +15,49 @@ import sys
 import pytest
 
 from manualcontrol.envs import _dynamics_native, _native
-from manualcontrol.estimators.members import _dekf_native
+from manualcontrol.estimators.members import (
+    _dekf_native,
+    _rdi_native,
+    _rml_native,
+    _schiess_roland_native,
+    _ukf_native,
+)
 from manualcontrol.pilots import Pilot, simulate
 
 #: One identification through the command's main, then the numba modules it loaded.
 SCRIPT = """
 import sys
 from manualcontrol.bench.cli import main
-code = main(["identify", sys.argv[1], "--estimator", "dekf", "--out", sys.argv[2], "--no-plot"])
+code = main(
+    ["identify", sys.argv[1], "--estimator", sys.argv[3], "--out", sys.argv[2], "--no-plot"]
+)
 assert code == 0, code
 print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "llvmlite")))
 """
 
+#: Each member whose whole identify runs in C: its C port, and the pilot, element and
+#: forcing of its recording (with simulate's other arguments).
+MEMBERS = {
+    "dekf": (_dekf_native, ("precision", "popovici2017", "popovici2017"), {"run_in": 0.0}),
+    "rml": (_rml_native, ("precision", "popovici2017", "popovici2017"), {"run_in": 0.0}),
+    "rdi": (_rdi_native, ("precision", "popovici2017", "popovici2017"), {"run_in": 0.0}),
+    "joint-ukf": (_ukf_native, ("precision", "popovici2017", "popovici2017"), {"run_in": 0.0}),
+    "dual-ukf": (_ukf_native, ("precision", "popovici2017", "popovici2017"), {"run_in": 0.0}),
+    "schiess-roland": (
+        _schiess_roland_native,
+        ("schiess-roland", "schiess-roland1975", "schiess-roland1975"),
+        {"seed": 0},
+    ),
+}
 
-def identify(recording, out, native):
+
+def identify(recording, out, native, estimator="dekf"):
     environment = {**os.environ}
     environment.pop("MANUALCONTROL_NATIVE", None)
     if not native:
         environment["MANUALCONTROL_NATIVE"] = "0"
     done = subprocess.run(
-        [sys.executable, "-c", SCRIPT, str(recording), str(out)],
+        [sys.executable, "-c", SCRIPT, str(recording), str(out), estimator],
         capture_output=True,
         text=True,
         env=environment,
@@ -47,17 +71,19 @@ def identify(recording, out, native):
 @pytest.mark.skipif(
     _native._compiler() is None, reason="no C compiler: the C ports cannot be built here"
 )
-def test_a_warm_dekf_identify_imports_no_numba_and_numba_writes_the_same(tmp_path, monkeypatch):
+@pytest.mark.parametrize("estimator", sorted(MEMBERS))
+def test_a_warm_identify_imports_no_numba_and_numba_writes_the_same(
+    estimator, tmp_path, monkeypatch
+):
     monkeypatch.delenv("MANUALCONTROL_NATIVE", raising=False)
-    if _dekf_native.library() is None or _dynamics_native.library() is None:
-        pytest.skip("the DEKF's or the LPV toolkit's C port did not build here")
+    port, (pilot, plant, task), options = MEMBERS[estimator]
+    if port.library() is None or _dynamics_native.library() is None:
+        pytest.skip(f"the {estimator}'s or the LPV toolkit's C port did not build here")
     recording = tmp_path / "run.npz"
-    simulate(
-        Pilot("precision"), "popovici2017", "popovici2017", run_in=0.0, measurement_time=30.0
-    ).save(recording)
-    loaded = identify(recording, tmp_path / "c", native=True)
+    simulate(Pilot(pilot), plant, task, measurement_time=30.0, **options).save(recording)
+    loaded = identify(recording, tmp_path / "c", native=True, estimator=estimator)
     assert loaded == "[]", f"the C path imported {loaded}"
-    loaded = identify(recording, tmp_path / "numba", native=False)
+    loaded = identify(recording, tmp_path / "numba", native=False, estimator=estimator)
     assert "'numba'" in loaded
     c_bytes = (tmp_path / "c" / "estimation.npz").read_bytes()
     assert c_bytes == (tmp_path / "numba" / "estimation.npz").read_bytes()
@@ -82,6 +108,15 @@ HOMES = {
     ),
     "manualcontrol.estimators.members._dekf_core": (
         "manualcontrol.estimators.members._dekf_kernels"
+    ),
+    "manualcontrol.estimators.members._rml_core": "manualcontrol.estimators.members._rml_kernels",
+    "manualcontrol.estimators.filters.unscented": (
+        "manualcontrol.estimators.filters._unscented_kernels"
+    ),
+    "manualcontrol.estimators.members._ukf_core": "manualcontrol.estimators.members._ukf_kernels",
+    "manualcontrol.estimators.members._rdi_core": "manualcontrol.estimators.members._rdi_kernels",
+    "manualcontrol.estimators.members._schiess_roland_core": (
+        "manualcontrol.estimators.members._schiess_roland_kernels"
     ),
 }
 #: The kernels a numba-free module exported before they moved (the rest it still defines).
@@ -116,3 +151,22 @@ def test_the_dekf_names_its_kernels_lazily():
     assert DEKF._step_kernel is _dekf_kernels.dekf_step
     assert DEKF()._step_many_kernel is _dekf_kernels.dekf_step_many
     assert DEKF._run_kernel is _dekf_kernels.dekf_run
+
+
+@pytest.mark.parametrize(
+    ("member", "kernels", "prefix"),
+    [
+        ("rml.RML", "_rml_kernels", "bank"),
+        ("ukf.JointUKF", "_ukf_kernels", "joint"),
+        ("ukf.DualUKF", "_ukf_kernels", "dual"),
+    ],
+)
+def test_the_pilot_filters_name_their_kernels_lazily(member, kernels, prefix):
+    import importlib
+
+    module, name = member.split(".")
+    cls = getattr(importlib.import_module(f"manualcontrol.estimators.members.{module}"), name)
+    kernels = importlib.import_module(f"manualcontrol.estimators.members.{kernels}")
+    assert cls._step_kernel is getattr(kernels, f"{prefix}_step")
+    assert cls._step_many_kernel is getattr(kernels, f"{prefix}_step_many")
+    assert cls._run_kernel is getattr(kernels, f"{prefix}_run")

@@ -8,7 +8,8 @@ ARMAX(1, 1) with decimation and sign constraints (holds), known coefficients rem
 from the filter, no sign constraints, the gain-delay model on a closed-loop recording
 with a zero delay (the one-sided cubic) pinned at its limit, higher orders with jitter,
 dropped samples in the output and in the input, smoothing, and the two ways a filter
-stops (non-finite values, a covariance blow-up).
+stops (non-finite values, a covariance blow-up). The resimulation of each estimate
+(``resimulate``, ``simulate_output`` in C) is compared as well.
 """
 
 import numpy as np
@@ -194,6 +195,36 @@ def test_the_c_port_estimates_what_numba_does_bit_for_bit(case, runs, monkeypatc
         assert not numba.dropped[:120].any()
     if case.startswith("gain-delay, closed loop, a zero"):
         assert numba.pinned[:, 0].any()
+
+
+@needs_compiler
+@pytest.mark.parametrize("case", list(CASES))
+def test_the_c_port_resimulates_what_numba_does_bit_for_bit(case, runs, monkeypatch):
+    from manualcontrol.estimators.members.rdi import resimulate
+
+    run, settings, options = CASES[case]
+    recording = runs[run]
+    result, _ = estimate(settings, recording, options)
+    native = resimulate(result, recording)
+    numba_only(monkeypatch)
+    assert _rdi_native.library() is None
+    assert same_bytes(native, resimulate(result, recording))
+
+
+@needs_compiler
+def test_simulate_output_in_c_is_numba_s_on_any_orders():
+    from manualcontrol.estimators.members import _rdi_kernels
+
+    lib = _rdi_native.library()
+    rng = np.random.default_rng(0)
+    for n, lam, n_a, n_b in ((500, 1, 2, 3), (700, 3, 1, 0), (1, 1, 0, 0), (0, 2, 1, 1)):
+        p = rng.normal(size=(n, 2 + n_a + n_b)) * 0.3
+        p[:, 0] = np.abs(p[:, 0]) * 0.05  # delays from none to a few samples
+        r = rng.normal(size=n)
+        native = _rdi_native.simulate_output(lib, p, r, 0.01, lam, n_a, n_b)
+        assert same_bytes(native, _rdi_kernels.simulate_output(p, r, 0.01, lam, n_a, n_b))
+    with pytest.raises(ValueError, match="p must be"):
+        _rdi_native.simulate_output(lib, np.zeros((3, 5)), np.zeros(3), 0.01, 1, 1, 1)
 
 
 def online_means(rdi, recording, samples):
