@@ -13,10 +13,11 @@ so later lookups cost a dictionary read.
 from __future__ import annotations
 
 import importlib
+import inspect
 from collections.abc import Callable, Mapping, MutableMapping, Sequence
 from typing import Any
 
-__all__ = ["LazyKernel", "kernels_on_first_use", "lazy_exports"]
+__all__ = ["LazyKernel", "has_kernel", "kernels_on_first_use", "lazy_exports"]
 
 
 def lazy_exports(
@@ -91,3 +92,12 @@ class LazyKernel:
 
     def __repr__(self) -> str:
         return f"LazyKernel({self.module!r}, {self.name!r})"
+
+
+def has_kernel(owner: type, name: str) -> bool:
+    """Whether class ``owner`` names a kernel ``name`` (not None), without importing it.
+
+    Reading a :class:`LazyKernel` imports its kernel module and numba; asking whether a
+    member has a batched step (the C port may run it) must not.
+    """
+    return inspect.getattr_static(owner, name, None) is not None

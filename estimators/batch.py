@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from manualcontrol.envs._lazy import has_kernel
 from manualcontrol.envs._validation import check_int
 from manualcontrol.estimators.filters.batch import put_record, stack_records
 from manualcontrol.estimators.shell import compiled_entry
@@ -54,8 +55,7 @@ class FilterBatch:
 
     def __init__(self, estimator: Any, n: int) -> None:
         self.n = check_int("n", n, minimum=1)
-        kernel = getattr(type(estimator), "_step_many_kernel", None)
-        if kernel is None:
+        if not has_kernel(type(estimator), "_step_many_kernel"):
             raise ValueError(
                 f"estimator {getattr(estimator, 'name', type(estimator).__name__)!r} has no "
                 f"batched step; the batched members are {', '.join(batched_members())} "
@@ -67,7 +67,7 @@ class FilterBatch:
             if reason:
                 raise ValueError(reason)
         self._template = estimator.configure()
-        self._kernel = kernel
+        self._member = type(estimator)
         self._entry: Any = None
         self._records: Any = None
         self._out: Any = None
@@ -165,7 +165,8 @@ class FilterBatch:
             return
         arguments = (*self._records, inputs, u, e, active, self._rows, self._out)
         if self._entry is None:
-            self._entry = compiled_entry(self._kernel, arguments)
+            # read here, on numba's path only: the C port needs neither the kernel nor numba
+            self._entry = compiled_entry(self._member._step_many_kernel, arguments)
         else:
             self._entry(*arguments)
 

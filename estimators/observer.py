@@ -55,6 +55,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
+from manualcontrol.envs._lazy import has_kernel
 from manualcontrol.envs._validation import check_choice
 from manualcontrol.envs.tracking import TrackingEnv
 from manualcontrol.estimators.protocol import ParameterValues
@@ -188,7 +189,7 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self.estimates_in_info == "none"
             and not self.append_to_observation
             and hasattr(estimator, "update_block")
-            and getattr(type(estimator), "_step_many_kernel", None) is not None
+            and has_kernel(type(estimator), "_step_many_kernel")
             and not (estimator.batchable() if hasattr(estimator, "batchable") else "")
             and order[-1:] == ("u",)
         )

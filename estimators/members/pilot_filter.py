@@ -55,6 +55,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
+from manualcontrol.envs._lazy import has_kernel
 from manualcontrol.envs._validation import (
     check_bool,
     check_positive,
@@ -475,9 +476,8 @@ class PilotFilter(FilterShell):
         (:meth:`latest`, :meth:`latest_plain`). The online observer feeds it the samples
         nobody read an estimate between.
         """
-        kernel = type(self)._step_many_kernel
         reason = self.batchable() if hasattr(self, "batchable") else ""
-        if kernel is None or reason:
+        if not has_kernel(type(self), "_step_many_kernel") or reason:
             raise ValueError(
                 f"{type(self).__name__} cannot step a block of samples in one call: "
                 + (reason or "it has no batched step")

@@ -89,6 +89,47 @@ def test_a_warm_identify_imports_no_numba_and_numba_writes_the_same(
     assert c_bytes == (tmp_path / "numba" / "estimation.npz").read_bytes()
 
 
+#: The online observer's thin form: built, stepped through a block and read.
+ONLINE = """
+import sys
+import gymnasium as gym
+import manualcontrol.envs
+from manualcontrol.estimators import DEKF
+from manualcontrol.estimators.observer import EstimatorObserver
+env = EstimatorObserver(
+    gym.make("ManualControl/CompensatoryTracking-v0", controlled_element="DI", run_in=0.0,
+             measurement_time=5.0),
+    DEKF(ce="DI", initial_variance="causal", initial={"K_p": 0.24}),
+    estimates_in_info="none",
+)
+assert env._keeps  # the samples kept and stepped as a block (update_block)
+env.reset(seed=0)
+for _ in range(450):
+    env.step([0.1])
+print(env.last_estimate()["mean"]["K_p"])
+print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "llvmlite")))
+"""
+
+
+@pytest.mark.skipif(
+    _native._compiler() is None, reason="no C compiler: the C ports cannot be built here"
+)
+def test_the_online_observers_block_path_imports_no_numba(monkeypatch):
+    # asking whether the member has a batched step must not import its kernel
+    monkeypatch.delenv("MANUALCONTROL_NATIVE", raising=False)
+    if _dekf_native.library() is None:
+        pytest.skip("the DEKF's C port did not build here")
+    environment = {k: v for k, v in os.environ.items() if k != "MANUALCONTROL_NATIVE"}
+    done = subprocess.run(
+        [sys.executable, "-c", ONLINE], capture_output=True, text=True, env=environment,
+        timeout=600, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    estimate, loaded = done.stdout.strip().splitlines()[-2:]
+    assert float(estimate) > 0.0
+    assert loaded == "[]", f"the observer's C path imported {loaded}"
+
+
 #: Each numba-free module and the kernel module that took its numba kernels.
 HOMES = {
     "manualcontrol.envs.signals": "manualcontrol.envs._interpolation",
