@@ -46,6 +46,7 @@ from manualcontrol.estimators.analysis.human_likeness import (
     HumanLikeness,
     human_likeness,
     plot_human_likeness,
+    reference_model,
     reference_pilot,
 )
 from manualcontrol.estimators.offline.output_error import OfflineFit, fit_pilot
@@ -193,7 +194,7 @@ def evaluate(
     variance in each line's estimate falls with the number of periods).
     ``reference`` overrides the typical precision pilot of the agent's element
     (:func:`~manualcontrol.estimators.analysis.human_likeness.reference_pilot`; an
-    element without one, e.g. a pure gain, needs one given), in the RMS comparison here
+    element without one, e.g. the critical task, needs one given), in the RMS comparison here
     and in the human-likeness ratio.
     ``deterministic`` True runs without the wrappers' noise; None (default) follows the
     agent's configuration (``TrainingConfig.deterministic``, where it has one), whose
@@ -244,7 +245,7 @@ def evaluate(
             # the bare task: no limitation wrappers between the pilot and the display
             report_progress("evaluate: flying the typical precision pilot for reference")
             base = gym.make(TASK_IDS[agent.config.task], **{**agent.config.env_kwargs, **overrides})
-            reference_recording = fly(Pilot("precision", dict(values)), base, seed)
+            reference_recording = fly(Pilot(reference_model(values), dict(values)), base, seed)
             base.close()
             reference_rms = float(np.sqrt(np.mean(reference_recording.e**2)))
         report_progress("evaluate: measuring human-likeness")

@@ -183,7 +183,7 @@ def _typical_pilot(element: str) -> dict[str, float]:
     values = reference_pilot(element)
     if values is None:
         raise ValueError(
-            f"element {element!r} has no typical pilot (K/s, K/s^2 and K/(s(s+b)) have): "
+            f"element {element!r} has no typical pilot (K, K/s, K/s^2 and K/(s(s+b)) have): "
             "the human's problem takes its limitations and stick range from one"
         )
     return values
@@ -194,12 +194,12 @@ def typical_stick_rms(element: str, forcing: str = _FORCING) -> float:
 
     At each forcing line ``U = Y_p/(1 + Y_p Y_c) F`` (the target, or a disturbance at
     the element's output), ``Y_p`` the precision model of
-    :func:`~manualcontrol.estimators.analysis.human_likeness.reference_pilot` with its
-    delay exact; summed by Parseval over realisation 0 of ``forcing``.
+    :func:`~manualcontrol.estimators.analysis.human_likeness.reference_pilot` (with its
+    lag on a pure gain) with its delay exact; summed by Parseval over realisation 0 of ``forcing``.
     """
     from manualcontrol.envs.elements import make_element
     from manualcontrol.envs.signals import forcing_preset
-    from manualcontrol.pilots.models import PrecisionModel
+    from manualcontrol.estimators.analysis.human_likeness import reference_model
 
     values = _typical_pilot(element)
     plant = make_element(element)
@@ -209,7 +209,7 @@ def typical_stick_rms(element: str, forcing: str = _FORCING) -> float:
         if signal is None:
             continue
         omega = np.asarray(signal.frequencies)
-        pilot = PrecisionModel().frequency_response(values, omega, "e")
+        pilot = reference_model(values).frequency_response(values, omega, "e")
         stick = pilot / (1.0 + pilot * plant.frequency_response(omega)) * signal.amplitudes
         power += float(np.sum(np.abs(stick) ** 2)) / 2.0
     return math.sqrt(power)
@@ -273,6 +273,8 @@ def _tracking(element: str) -> dict[str, Any]:
         "wrappers": human_limitations(element),
         "effort_rate_weight": optimal_control_effort_weight(element, _FORCING, bound),
         "history_length": _HISTORY_FRAMES,
+        # the lag equaliser a pure gain needs integrates the policy's own commands
+        "efference_copy": "T_I" in _typical_pilot(element),
         "critic_information": True,
         "algorithm": "ppo",
         "n_envs": 8,
@@ -393,10 +395,15 @@ def lane_keeping_problem(
 
 
 #: The compensatory-tracking recipes by name: the element whose human problem each trains.
-RECIPE_ELEMENTS: dict[str, str] = {"si": "1/s", "di": "1/s^2", "lag": "1/(s(s+1))"}
+RECIPE_ELEMENTS: dict[str, str] = {
+    "gain": "gain",
+    "si": "1/s",
+    "di": "1/s^2",
+    "lag": "1/(s(s+1))",
+}
 #: The recipes that start from the typical pilot's equaliser (``warm_start``): every
 #: tracking recipe (module docstring).
-RECIPE_WARM_STARTS: frozenset[str] = frozenset({"si", "di", "lag"})
+RECIPE_WARM_STARTS: frozenset[str] = frozenset({"gain", "si", "di", "lag"})
 #: The lane-keeping recipes by name: the steering each trains.
 RECIPE_STEERING: dict[str, str] = {"lane-angle": "angle", "lane-torque": "torque"}
 #: Every recipe's name.

@@ -24,14 +24,16 @@ model's problem directly, each off at its default: ``observation_noise_ratio`` (
 on the display scaled to each signal's variance, the OCM's -20 dB is 0.01),
 ``effort_rate_weight`` (a cost on the stick's rate in the reward) and
 ``history_length`` (the last observations side by side, a memory a feed-forward
-policy adapts with). :attr:`TrainingConfig.limitations` lists the whole stack.
+policy adapts with), and ``efference_copy`` gives the policy its own last command.
+:attr:`TrainingConfig.limitations` lists the whole stack.
 
 A typical pilot's start
 -----------------------
 ``warm_start="typical-pilot"`` starts PPO from a policy whose mean action is the
 typical precision pilot's equaliser on the element, ``u = K_p e + K_v e_dot``
 (:func:`~manualcontrol.estimators.analysis.human_likeness.reference_pilot`; the
-delay and neuromuscular system are the wrappers'), fitted by least squares on the
+delay and neuromuscular system are the wrappers'; on a pure gain its lag, read through
+the efference copy: :func:`typical_pilot_law`), fitted by least squares on the
 states that law visits through the agent's own wrappers, and from a critic fitted to
 that law's returns (:func:`clone_typical_pilot`). On the double integrator and
 ``1/(s(s+1))`` PPO from random weights finds no loop in millions of steps (a stick
@@ -143,7 +145,7 @@ VALIDATION_SEED = 500_000
 #: How a training's policy starts (:attr:`TrainingConfig.warm_start`).
 WARM_STARTS: tuple[str, ...] = ("none", "typical-pilot")
 #: Wrappers that change what the policy observes: a cloned law reads the display itself.
-_OBSERVATION_WRAPPERS = ("observation_history", "observation_scale")
+_OBSERVATION_WRAPPERS = ("observation_history", "observation_scale", "efference_copy")
 TASK_IDS: dict[str, str] = {
     "compensatory": "ManualControl/CompensatoryTracking-v0",
     "pursuit": "ManualControl/PursuitTracking-v0",
@@ -195,8 +197,14 @@ class TrainingConfig:
         number or a schedule.
     history_length
         Observations the policy sees side by side, ``history_length * dt`` seconds
-        (:class:`~manualcontrol.agents.wrappers.ObservationHistory`, outermost);
-        1 (default): the current one only.
+        (:class:`~manualcontrol.agents.wrappers.ObservationHistory`, outermost but for
+        the efference copy); 1 (default): the current one only.
+    efference_copy
+        The policy also reads its own last command
+        (:class:`~manualcontrol.agents.wrappers.EfferenceCopy`, outermost, outside the
+        history so that the commands still in the delay stay hidden): the memory a
+        feed-forward policy needs to integrate, McRuer's lag equalisation on a pure
+        gain. False (default): the display alone.
     deterministic
         Evaluate without the wrappers' noise (False, default: the noise stays on and
         makes the trial-to-trial variability; see the module docstring).
@@ -241,6 +249,7 @@ class TrainingConfig:
     observation_noise_ratio: float | Schedule = 0.0
     effort_rate_weight: float | Schedule = 0.0
     history_length: int = 1
+    efference_copy: bool = False
     deterministic: bool = False
     critic_information: bool = False
     warm_start: str = "none"
@@ -259,6 +268,9 @@ class TrainingConfig:
         check_int("select_seed", self.select_seed, minimum=0)
         object.__setattr__(
             self, "history_length", check_int("history_length", self.history_length, minimum=1)
+        )
+        object.__setattr__(
+            self, "efference_copy", check_bool("efference_copy", self.efference_copy)
         )
         object.__setattr__(self, "deterministic", check_bool("deterministic", self.deterministic))
         object.__setattr__(
@@ -299,6 +311,13 @@ class TrainingConfig:
                 "history_length and a wrappers entry of kind 'observation_history' both set "
                 "the observation history: give it once"
             )
+        if self.efference_copy and any(
+            spec.get("kind") == "efference_copy" for spec in self.wrappers
+        ):
+            raise ValueError(
+                "efference_copy and a wrappers entry of kind 'efference_copy' both set "
+                "the efference copy: give it once"
+            )
         check_choice("warm_start", self.warm_start, WARM_STARTS)
         if self.warm_start == "typical-pilot":
             _check_typical_pilot_start(self)
@@ -331,8 +350,9 @@ class TrainingConfig:
         """Every wrapper :func:`make_env` applies, innermost first, as JSON-able specs.
 
         Observation noise (``observation_noise_ratio``) directly on the display, then
-        ``wrappers``, then the effort cost, then the observation history outermost (it
-        stacks everything the agent sees).
+        ``wrappers``, then the effort cost, then the observation history (it stacks
+        everything the agent sees), then the efference copy outermost (its last
+        command alone, not stacked).
         """
         specs: list[dict[str, Any]] = []
         if _is_on(self.observation_noise_ratio):
@@ -342,6 +362,8 @@ class TrainingConfig:
             specs.append({"kind": "effort_cost", "rate_weight": self.effort_rate_weight})
         if self.history_length > 1:
             specs.append({"kind": "observation_history", "length": self.history_length})
+        if self.efference_copy:
+            specs.append({"kind": "efference_copy"})
         return tuple(spec_to_json(spec) for spec in specs)
 
     def without_limitations(self) -> TrainingConfig:
@@ -352,6 +374,7 @@ class TrainingConfig:
             observation_noise_ratio=0.0,
             effort_rate_weight=0.0,
             history_length=1,
+            efference_copy=False,
         )
 
 
@@ -416,14 +439,21 @@ def _check_typical_pilot_start(config: TrainingConfig) -> None:
         # newest (e, e_dot) where one frame has them; a history or a scaling among the
         # wrappers can sit anywhere and change what those entries hold
         raise ValueError(
-            f"{where} reads (e, e_dot) as the display shows them: no observation history "
-            f"or scaling among the wrappers (give history_length instead of a history), "
-            f"got wrappers {kinds}"
+            f"{where} reads (e, e_dot) as the display shows them: no observation history, "
+            f"scaling or efference copy among the wrappers (give history_length and "
+            f"efference_copy instead), got wrappers {kinds}"
         )
     element = config.env_kwargs.get("controlled_element", "SI")
-    if reference_pilot(element) is None:
+    values = reference_pilot(element)
+    if values is None:
         raise ValueError(
-            f"{where}: element {element!r} has no typical pilot (K/s, K/s^2 and K/(s(s+b)) have)"
+            f"{where}: element {element!r} has no typical pilot (K, K/s, K/s^2 and K/(s(s+b)) have)"
+        )
+    if "T_I" in values and not config.efference_copy:
+        raise ValueError(
+            f"{where}: the typical pilot on element {element!r} lags its command "
+            f"(T_I {values['T_I']:g} s), which a policy can only do reading its last "
+            "command: give efference_copy=True"
         )
 
 
@@ -432,18 +462,30 @@ def typical_pilot_law(config: TrainingConfig) -> Callable[[FloatArray], FloatArr
 
     With ``history_length`` > 1 the observation is the frames newest first
     (:class:`~manualcontrol.agents.wrappers.ObservationHistory`): the law reads the newest.
+    Where the typical pilot lags (``T_I``, a pure gain), the law is its equaliser
+    ``(K_p + K_v s)/(T_I s + 1)`` held over each sample, exactly (zero-order hold):
+    ``c_k = a c_{k-1} + (1 - a)(K_p e_k + K_v e_dot_k)``, ``a = exp(-dt/T_I)``, its last
+    command ``c_{k-1}`` the efference copy, the actor's last input.
     """
     from manualcontrol.estimators.analysis.human_likeness import reference_pilot
 
     values = reference_pilot(config.env_kwargs.get("controlled_element", "SI"))
     env = make_env(config)
     bound = env.unwrapped.action_bound
+    dt = float(env.unwrapped.dt)
+    # the actor's inputs come first where the critic's follow them (CriticInformation)
+    copy_at = getattr(env, "actor_inputs", int(np.prod(env.observation_space.shape))) - 1
     env.close()
     K_p, K_v = values["K_p"], values["K_v"]
+    held = math.exp(-dt / values["T_I"]) if "T_I" in values else 0.0
 
     def law(observation: FloatArray) -> FloatArray:
         observation = np.asarray(observation, dtype=np.float64)
-        return np.clip(K_p * observation[..., 0:1] + K_v * observation[..., 1:2], -bound, bound)
+        action = K_p * observation[..., 0:1] + K_v * observation[..., 1:2]
+        if held:
+            last = observation[..., copy_at : copy_at + 1]
+            action = held * last + (1.0 - held) * action
+        return np.clip(action, -bound, bound)
 
     return law
 
@@ -463,7 +505,7 @@ class TypicalPilotAgent:
         self._law = typical_pilot_law(config)
 
     def reset(self, seed: int | None = None, *, env: gym.Env | None = None) -> None:
-        """Nothing to reset: the law is memoryless."""
+        """Nothing to reset: the law reads all it needs from the observation."""
         del seed, env
 
     def act(self, observation: FloatArray) -> FloatArray:

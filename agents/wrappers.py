@@ -23,6 +23,9 @@ Noise`                 signal's variance (OCM, -20 dB) or absolute
                        stick (the OCM's cost on control rate)
 :class:`Observation    memory: the last ``length`` observations, so      ``length - 1`` earlier
 History`               that a feed-forward policy can adapt              observations
+:class:`Efference      the agent's own last command, which a human's     the last command
+Copy`                  motor system knows (so that a policy can
+                       integrate: lag equalisation on a pure gain)
 =====================  ================================================  =====================
 
 Schedules
@@ -82,6 +85,7 @@ from manualcontrol.envs.schedules import Schedule
 __all__ = [
     "WRAPPERS",
     "ActionDelay",
+    "EfferenceCopy",
     "EffortCost",
     "MotorNoise",
     "NeuromuscularFilter",
@@ -894,6 +898,49 @@ class ObservationHistory(gym.ObservationWrapper, gym.utils.RecordConstructorArgs
         return stack.copy()
 
 
+class EfferenceCopy(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """The observation gains the agent's own last command: a copy of what it just sent.
+
+    A human's motor system knows the command it has just issued (its efference copy),
+    and the optimal control model's pilot uses its own past commands in its estimator
+    and predictor. A feed-forward policy has no such memory: its action is a function
+    of what it sees now, so it cannot integrate (McRuer's lag equalisation on a pure
+    gain, ``u = K_p e/(T_I s + 1)``, is ``c_k = a c_{k-1} + (1 - a) K_p e_k``: the
+    previous command is an input). Only the last command is shown, clipped to the
+    stick as the stick takes it: the commands still travelling through an
+    :class:`ActionDelay` beyond it stay hidden (put this wrapper outside the delay and
+    outside :class:`ObservationHistory`, whose frames would otherwise show the queue).
+    Before the episode the last command is 0 (the stick at rest).
+
+    Parameters
+    ----------
+    env
+        An environment with a 1-D Box observation and a scalar stick (possibly wrapped).
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self)
+        gym.Wrapper.__init__(self, env)
+        bound = _stick_bound(env)
+        self._bound = bound
+        self.observation_space = _extend_box(
+            env.observation_space, np.array([-bound]), np.array([bound])
+        )
+        self._last = 0.0
+
+    def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
+        observation, info = self.env.reset(**kwargs)
+        self._last = 0.0
+        return np.append(np.asarray(observation, dtype=np.float64), 0.0), info
+
+    def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
+        command = _command(action, self._bound)
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        self._last = command
+        observation = np.append(np.asarray(observation, dtype=np.float64), command)
+        return observation, reward, terminated, truncated, info
+
+
 class ObservationScale(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     """Each observed value divided by a fixed scale, so the policy sees numbers of order one.
 
@@ -947,6 +994,7 @@ WRAPPERS: dict[str, type[gym.Wrapper]] = {
     "effort_cost": EffortCost,
     "observation_history": ObservationHistory,
     "observation_scale": ObservationScale,
+    "efference_copy": EfferenceCopy,
 }
 
 #: The noise level of each noise wrapper, the argument set to 0 for a noise-free run.

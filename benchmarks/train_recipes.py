@@ -15,10 +15,10 @@ roads no training run starts from, each beside the cybernetic driver).
 ``--jobs 2`` trains two agents at a time with one torch thread each (each then has one
 of the two cores: its training time is an upper bound on the time with both).
 
-Elements in ``--warm-start`` (default: all three, as the recipes ``si``, ``di`` and
-``lag`` do) start from the typical pilot's equaliser.
+Elements in ``--warm-start`` (default: all four, as the recipes ``gain``, ``si``, ``di``
+and ``lag`` do) start from the typical pilot's equaliser.
 
-Run: .venv/bin/python benchmarks/train_recipes.py [--elements 1/s 1/s^2 "1/(s(s+1))"]
+Run: .venv/bin/python benchmarks/train_recipes.py [--elements gain 1/s 1/s^2 "1/(s(s+1))"]
      [--lane-keeping angle torque] [--seeds 0 1 2]
      [--jobs 2] [--out results/recipes] [--markdown docs/surrogates.md] [--steps N]
      [--periods N] [--existing] [--variant recipe|final|one-frame|display-critic]
@@ -348,7 +348,7 @@ def markdown(rows: list[dict], command: str) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--elements", nargs="*", default=["1/s", "1/(s(s+1))", "1/s^2"])
+    parser.add_argument("--elements", nargs="*", default=["gain", "1/s", "1/(s(s+1))", "1/s^2"])
     parser.add_argument("--lane-keeping", nargs="*", default=["angle", "torque"])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--jobs", type=int, default=2)
@@ -358,13 +358,13 @@ def main() -> None:
     parser.add_argument(
         "--warm-start",
         nargs="*",
-        default=["1/s", "1/(s(s+1))", "1/s^2"],
-        help="elements trained from the typical pilot's equaliser (the recipes si, di, lag)",
+        default=["gain", "1/s", "1/(s(s+1))", "1/s^2"],
+        help="elements trained from the typical pilot's equaliser (the recipes gain, si, di, lag)",
     )
     parser.add_argument(
         "--laws",
         nargs="*",
-        default=["1/s", "1/(s(s+1))", "1/s^2"],
+        default=["gain", "1/s", "1/(s(s+1))", "1/s^2"],
         help="elements whose typical pilot's equaliser is measured untrained beside them",
     )
     parser.add_argument(

@@ -235,6 +235,26 @@ _ZETA_NMS = ParameterSpec(
 )
 
 
+#: The lag equaliser's time constant: its break ``1/T_I`` below the crossover range
+#: (humans' lag on a pure gain leaves the loop an integrator's slope through crossover).
+_T_I = ParameterSpec(
+    "T_I", 10.0 / 3.0, (1.0, 20.0), (0.0, math.inf), "s", "lag time constant", True
+)
+#: ``K_p`` of the lag-equalised pilot: crossover near ``K_p K/T_I``, so ``K_p K`` spans
+#: :data:`CROSSOVER_RANGE` times the human range of ``T_I``.
+_K_P_LAG = ParameterSpec(
+    "K_p",
+    10.0,
+    (CROSSOVER_RANGE[0] * _T_I.human[0], CROSSOVER_RANGE[1] * _T_I.human[1]),
+    (-math.inf, math.inf),
+    "-",
+    "static gain of the lag equaliser",
+)
+_K_V_LAG = ParameterSpec(
+    "K_v", 0.0, (0.0, 1.5), (-math.inf, math.inf), "s", "visual rate gain K_p T_L"
+)
+
+
 def _equalised_nms(values: Mapping[str, FloatArray]) -> tuple[FloatArray, FloatArray]:
     """``(K_p + K_v s) omega^2 / (s^2 + 2 zeta omega s + omega^2)`` (Popovici eq. 1)."""
     omega = values["omega_nms"]
@@ -250,6 +270,7 @@ def _unity(values: Mapping[str, FloatArray]) -> tuple[FloatArray, FloatArray]:
     return one[..., None], one[..., None]
 
 
+@dataclass(frozen=True, repr=False)
 class PrecisionModel(PilotModel):
     """McRuer's precision (crossover) model for compensatory tracking, Popovici eq. 1.
 
@@ -258,7 +279,20 @@ class PrecisionModel(PilotModel):
     Popovici-type compensatory pilot (K_p 1.5, K_v 0.5, tau_v 0.2 s, omega_nms 8 rad/s,
     zeta_nms 0.3); human ranges are thesis Table I (union of its SI and DI columns;
     K_v from 0 because single-integrator pilots use none).
+
+    ``lag=True`` adds McRuer's lag equaliser, ``(K_p + K_v s)/(T_I s + 1)`` (McRuer &
+    Jex 1967, the precision model's ``K_p (T_L s + 1)/(T_I s + 1)`` with ``K_v = K_p
+    T_L``): the equalisation humans adopt on a pure gain, where the loop needs an
+    integrator's slope near crossover that the element does not give. Popovici's eq. 1
+    is its ``T_I = 0`` form, which is why the estimators identify the model without
+    it. With the lag, ``K_p`` is the static gain of a loop that crosses over near
+    ``K_p K/T_I`` on a gain ``K``, so its human range follows from
+    :data:`CROSSOVER_RANGE` and ``T_I``'s (a lag whose break lies below the crossover
+    range); its nominal ``K_p`` and ``T_I`` are the typical pilot's on a unit gain
+    (:func:`~manualcontrol.estimators.analysis.human_likeness.reference_pilot`).
     """
+
+    lag: bool = False
 
     name: ClassVar[str] = "precision"
     task: ClassVar[str] = "compensatory"
@@ -267,11 +301,18 @@ class PrecisionModel(PilotModel):
 
     @property
     def parameters(self) -> tuple[ParameterSpec, ...]:  # noqa: D102
+        if self.lag:
+            return (_K_P_LAG, _K_V_LAG, _T_I, _TAU_V, _OMEGA_NMS, _ZETA_NMS)
         return (_K_P, _K_V, _TAU_V, _OMEGA_NMS, _ZETA_NMS)
 
     def channels(self, values: Mapping[str, FloatArray]) -> tuple[Channel, ...]:  # noqa: D102
         num, den = _unity(values)
+        if self.lag:
+            den = _stack(values["T_I"], _ones_like(values))
         return (Channel((Branch("e", num, den),), *_equalised_nms(values)),)
+
+    def __repr__(self) -> str:
+        return "PrecisionModel(lag=True)" if self.lag else "PrecisionModel()"
 
 
 @dataclass(frozen=True, repr=False)

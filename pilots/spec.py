@@ -162,6 +162,9 @@ class PilotSpec:
     def to_dict(self) -> dict[str, Any]:
         """JSON-able description (model, schedules, remnant, delay order)."""
         options = {"near_view": self.model.near_view} if hasattr(self.model, "near_view") else {}
+        if getattr(self.model, "lag", False):
+            # written only when on: a plain precision pilot's dict stays as it was
+            options["lag"] = True
         return {
             "model": self.model.name,
             "model_options": options,

@@ -37,7 +37,8 @@ participant, each held against the range humans show on that controlled element
     remnant power ratio ``P_r`` low by the remnant's share at those few bins.
 ``rms_ratio``
     the recorded error's RMS over the stretch against that of the typical
-    precision-model pilot (:func:`reference_pilot`, no remnant) on the same element and
+    precision-model pilot (:func:`reference_pilot`, no remnant; with its lag on a pure
+    gain) on the same element and
     forcing. The reference's error is its periodic steady state at the forcing lines,
     ``E_k = (Ft_k - G_d Fd_k) / (1 + Y_p,ref Y_c)`` (``G_d`` 1 with the disturbance at the
     element's output, ``Y_c`` at its input) from the recorded ``ft`` and ``fd``, summed by
@@ -53,8 +54,8 @@ limit's, not the pilot's.
 
 The :class:`Verdict` lists every figure outside its human range by name. A figure
 that cannot be measured (no crossover inside the forcing band) counts as outside, with
-a note saying why; a figure without a range for the element (e.g. the RMS ratio on a
-pure gain, where the precision model cannot integrate) is listed as not judged.
+a note saying why; a figure without a range for the element (e.g. the RMS ratio on
+an element with no typical pilot) is listed as not judged.
 """
 
 from __future__ import annotations
@@ -79,7 +80,7 @@ from manualcontrol.estimators.analysis.frequency import (
     fit_weights,
 )
 from manualcontrol.estimators.registry import make_estimator
-from manualcontrol.pilots.models import make_model
+from manualcontrol.pilots.models import PilotModel, make_model
 from manualcontrol.pilots.stability import typical_parameters
 
 __all__ = [
@@ -95,6 +96,7 @@ __all__ = [
     "fit_crossover_model",
     "human_likeness",
     "plot_human_likeness",
+    "reference_model",
     "reference_pilot",
 ]
 
@@ -251,7 +253,7 @@ HUMAN_RANGES: dict[str, dict[str, HumanRange]] = {
             f"{_MCRUER}: lag equalisation on K, |Y_p| falling (the pilot integrates)",
         ),
         "remnant_fraction": _REMNANT,
-        # no rms_ratio: the precision model cannot integrate, so no typical pilot
+        "rms_ratio": _RMS,
     },
 }
 #: Ranges judged on any other element (the element-independent ones).
@@ -414,7 +416,7 @@ class HumanLikeness:
         if self.reference is None:
             return None
         omega = np.asarray(omega, dtype=np.float64)
-        return make_model("precision").frequency_response(dict(self.reference), omega, "e")
+        return reference_model(self.reference).frequency_response(dict(self.reference), omega, "e")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able summary: the figures, the verdict, the crossover fit, the reference."""
@@ -572,10 +574,20 @@ def reference_pilot(element: Any, t: float = 0.0) -> dict[str, float] | None:
     lead cancelling the lag (``T_L = 1/omega_b``, ``K_v = K_p T_L``) and the loop gain
     ``K_p K / omega_b`` at 2 rad/s, with Popovici et al.'s (2017) delay and
     neuromuscular values (tau_v 0.2 s, omega_nms 8 rad/s, zeta_nms 0.3): on their
-    4/(s(s+3)) it is their pilot (K_p 1.5, K_v 0.5). A pure gain, the critical task and
-    general transfer functions: None (the precision model has no integration for a
-    gain; no typical pilot is published for the others). ``t``: time at which a
-    time-varying element is read.
+    4/(s(s+3)) it is their pilot (K_p 1.5, K_v 0.5).
+
+    A pure gain ``K``: McRuer & Jex's lag equalisation (the precision model with its
+    lag, ``PrecisionModel(lag=True)``; the values carry ``T_I``), no lead, the lag's
+    break a decade below crossover (``T_I = 10/omega_c``: the loop keeps an
+    integrator's slope and, within 6 deg, its phase through the crossover region) and
+    the asymptotic loop gain ``K_p K / T_I`` at 3 rad/s, the low end of McRuer's
+    3-5 rad/s on K (humans cross over higher on a gain than on ``K/s``); delay and
+    neuromuscular system the thesis's SI pilot's, whose limitations leave 30 deg of
+    phase margin only up to about that crossover. The neuromuscular peak puts the
+    measured crossover at 3.2 rad/s with 34 deg of margin. The critical task and
+    general transfer functions: None (no typical pilot is published for them). ``t``:
+    time at which a time-varying element is read. :func:`reference_model` is the
+    model the values belong to.
     """
     element = make_element(element)
     if element.kind in ("integrator", "double_integrator"):
@@ -585,7 +597,26 @@ def reference_pilot(element: Any, t: float = 0.0) -> dict[str, float] | None:
         K, omega_b = values["K"], values["omega_b"]
         K_p = 2.0 * omega_b / K
         return {"K_p": K_p, "K_v": K_p / omega_b, "tau_v": 0.2, "omega_nms": 8.0, "zeta_nms": 0.3}
+    if element.kind == "gain":
+        K = float(element.parameters_at(np.array([t]))["K"][0])
+        T_I = 10.0 / _GAIN_CROSSOVER
+        si = typical_parameters("precision", "SI")
+        return {
+            "K_p": _GAIN_CROSSOVER * T_I / K,
+            "K_v": 0.0,
+            "T_I": T_I,
+            **{name: float(si[name]) for name in ("tau_v", "omega_nms", "zeta_nms")},
+        }
     return None
+
+
+#: The typical pilot's asymptotic crossover on a pure gain, rad/s (:func:`reference_pilot`).
+_GAIN_CROSSOVER = 3.0
+
+
+def reference_model(values: Mapping[str, float]) -> PilotModel:
+    """The precision model of a typical pilot's ``values``: with its lag where they hold T_I."""
+    return make_model("precision", lag="T_I" in values)
 
 
 def _reference_error(
@@ -602,7 +633,7 @@ def _reference_error(
         )
     omega = lines.frequencies  # compensatory: every line, as describing.frequencies
     element = describing.element
-    pilot = make_model("precision").frequency_response(dict(reference), omega, "e")
+    pilot = reference_model(reference).frequency_response(dict(reference), omega, "e")
     zero = np.zeros(omega.shape, dtype=np.complex128)
     ft, fd = coefficients.get("ft", zero), coefficients.get("fd", zero)
     through = element if describing.disturbance_at == "input" else 1.0
@@ -695,12 +726,12 @@ def human_likeness(
     if identify not in (True, False):
         raise TypeError(f"identify must be True or False, got {identify!r}")
     if reference is not None:
-        model = make_model("precision")
+        model = reference_model(reference)
         unknown = sorted(set(reference) - set(model.parameter_names))
         if unknown:
             raise ValueError(
                 f"reference has parameter(s) {unknown} the precision model does not have "
-                f"(its parameters: {', '.join(model.parameter_names)})"
+                f"(its parameters: {', '.join(model.parameter_names)}; T_I adds its lag)"
             )
         reference = {**model.nominal(), **{k: float(v) for k, v in reference.items()}}
     try:

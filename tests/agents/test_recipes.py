@@ -16,10 +16,10 @@ from manualcontrol.agents.recipes import (
 from manualcontrol.agents.training import VALIDATION_SEED, make_env
 from manualcontrol.agents.wrappers import ObservationScale
 from manualcontrol.bench.cli import main
-from manualcontrol.estimators.analysis.human_likeness import reference_pilot
+from manualcontrol.estimators.analysis.human_likeness import reference_model, reference_pilot
 
 
-@pytest.mark.parametrize("element", ["1/s", "1/s^2", "1/(s(s+1))"])
+@pytest.mark.parametrize("element", ["gain", "1/s", "1/s^2", "1/(s(s+1))"])
 def test_the_human_problem_imposes_the_typical_pilots_own_limitations(element):
     config = human_problem(element, seed=3)
     assert config.seed == 3 and config.algorithm == "ppo"
@@ -60,7 +60,9 @@ def test_the_human_problem_imposes_the_typical_pilots_own_limitations(element):
     env = make_env(config)
     observation, _ = env.reset(seed=0)
     assert env.observation_space.contains(observation)
-    assert env.actor_inputs == 20 * 4
+    # on a pure gain the policy also reads its own last command, outside the frames
+    assert config.efference_copy == (element == "gain")
+    assert env.actor_inputs == 20 * 4 + config.efference_copy
     frames = [observation[:4].copy()]
     for _ in range(25):
         observation, *_ = env.step(np.full(1, 0.1))
@@ -69,7 +71,7 @@ def test_the_human_problem_imposes_the_typical_pilots_own_limitations(element):
     env.close()
 
 
-@pytest.mark.parametrize("element", ["1/s", "1/s^2", "1/(s(s+1))"])
+@pytest.mark.parametrize("element", ["gain", "1/s", "1/s^2", "1/(s(s+1))"])
 def test_the_typical_stick_is_the_simulated_typical_pilots(element):
     from manualcontrol.agents.evaluation import fly
     from manualcontrol.pilots import Pilot
@@ -80,7 +82,8 @@ def test_the_typical_stick_is_the_simulated_typical_pilots(element):
         forcing="popovici2017",
         run_in=30.0,
     )
-    recording = fly(Pilot("precision", reference_pilot(element)), env, 0)
+    values = reference_pilot(element)
+    recording = fly(Pilot(reference_model(values), values), env, 0)
     # one whole 90-s period after a 30-s run-in: the steady state at the lines, which the
     # Parseval sum computes without simulating; the simulation's zero-order hold (half a
     # sample of extra lag, felt most by the least damped loop, the double integrator's:

@@ -105,6 +105,31 @@ def test_a_start_with_a_history_acts_on_the_newest_frame():
     assert error < 0.1 * np.sqrt(np.mean(target**2))
 
 
+def test_the_start_on_a_gain_integrates_through_its_efference_copy():
+    """The lag law, flown through the problem noise-free: the typical pilot's equaliser
+    ``(K_p)/(T_I s + 1)`` held over each sample, so its commands obey the exact
+    discrete lag on the error it saw (the newest frame) and its own last command."""
+    config = short(human_problem("gain", warm_start="typical-pilot"))
+    assert config.efference_copy
+    typical = reference_pilot("gain")
+    law = typical_pilot_law(config)
+    env = make_env(config, noise=False)
+    observation, _ = env.reset(seed=3)
+    errors, commands = [], []
+    for _ in range(300):
+        action = law(observation)
+        errors.append(observation[0])
+        commands.append(action[0])
+        observation, *_ = env.step(action)
+        assert observation[env.actor_inputs - 1] == action[0]  # the copy the law reads
+    env.close()
+    held = np.exp(-0.01 / typical["T_I"])
+    errors, commands = np.array(errors), np.array(commands)
+    np.testing.assert_allclose(
+        commands[1:], held * commands[:-1] + (1.0 - held) * typical["K_p"] * errors[1:], rtol=1e-12
+    )
+
+
 def test_training_from_the_typical_pilot_says_so_and_saves_the_start(tmp_path):
     lag = recipe("lag", total_timesteps=64)
     # one short update at the recipe's own learning rate (its history's frames need it)
@@ -127,7 +152,7 @@ def test_training_from_the_typical_pilot_says_so_and_saves_the_start(tmp_path):
 
 
 def test_every_tracking_recipe_starts_from_the_typical_pilot():
-    assert set(RECIPE_ELEMENTS) == {"si", "di", "lag"}
+    assert set(RECIPE_ELEMENTS) == {"gain", "si", "di", "lag"}
     for name, element in RECIPE_ELEMENTS.items():
         assert recipe(name, seed=2) == human_problem(element, seed=2, warm_start="typical-pilot")
     assert human_problem("1/s").warm_start == "none"  # the problem itself starts at random
@@ -148,15 +173,19 @@ def test_a_start_the_observation_cannot_carry_is_refused():
         ({"algorithm": "sac", "algorithm_kwargs": {}}, "algorithm must be 'ppo', got 'sac'"),
         (
             {"wrappers": (*base.wrappers, {"kind": "observation_history", "length": 3})},
-            "give history_length instead of a history",
+            "give history_length and efference_copy instead",
         ),
         (
             {"env_kwargs": {**base.env_kwargs, "include_rates": False}},
             "give env_kwargs include_rates=True",
         ),
         (
+            {"env_kwargs": {**base.env_kwargs, "controlled_element": "critical-task"}},
+            "element 'critical-task' has no typical pilot",
+        ),
+        (
             {"env_kwargs": {**base.env_kwargs, "controlled_element": "gain"}},
-            "element 'gain' has no typical pilot",
+            "lags its command .* give efference_copy=True",
         ),
     ):
         with pytest.raises(ValueError, match=message):

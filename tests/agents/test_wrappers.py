@@ -12,6 +12,7 @@ from gymnasium.utils.env_checker import check_env
 import manualcontrol.envs  # noqa: F401
 from manualcontrol.agents.wrappers import (
     ActionDelay,
+    EfferenceCopy,
     EffortCost,
     MotorNoise,
     NeuromuscularFilter,
@@ -224,3 +225,35 @@ def test_hidden_state_is_what_the_agent_is_not_shown():
         assert effort.hidden_state()[0] == info["u"]
     with pytest.raises(ValueError, match="read-only"):
         hidden_delay.hidden_state()[0] = 0.0
+
+
+def test_efference_copy_shows_the_last_command_as_the_stick_takes_it():
+    env = EfferenceCopy(ActionDelay(base(action_bound=2.0), delay=0.2, observe_queue=False))
+    inner = env.env.observation_space.shape[0]
+    assert env.observation_space.shape == (inner + 1,)
+    observation, _ = env.reset(seed=0)
+    assert observation[-1] == 0.0  # the stick at rest before the episode
+    for command, shown in ((0.5, 0.5), (-3.0, -2.0), (1.25, 1.25)):
+        observation, *_ = env.step(np.array([command]))
+        assert observation[-1] == shown  # clipped to the stick's bound
+        # the commands still in the delay stay hidden: only the newest is added
+        assert observation.shape == (inner + 1,)
+    observation, _ = env.reset(seed=1)
+    assert observation[-1] == 0.0
+    check_env(EfferenceCopy(base()), skip_render_check=True)
+
+
+def test_the_efference_copy_comes_outside_the_history_once():
+    from manualcontrol.agents.training import TrainingConfig, make_env
+
+    config = TrainingConfig(history_length=3, efference_copy=True, algorithm="ppo")
+    assert [spec["kind"] for spec in config.limitations][-2:] == [
+        "observation_history",
+        "efference_copy",
+    ]
+    frame = make_env(TrainingConfig(algorithm="ppo")).observation_space.shape[0]
+    assert make_env(config).observation_space.shape == (3 * frame + 1,)
+    with pytest.raises(ValueError, match="efference_copy and a wrappers entry"):
+        TrainingConfig(efference_copy=True, wrappers=({"kind": "efference_copy"},))
+    with pytest.raises(TypeError, match="efference_copy must be True or False"):
+        TrainingConfig(efference_copy="yes")

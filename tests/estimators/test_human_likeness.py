@@ -6,7 +6,6 @@ the remnant's known share of u (``u_n``, the part of u the remnant caused, and t
 calibrated ``P_r``), and a time-domain simulation of the reference pilot.
 """
 
-import math
 import re
 import warnings
 
@@ -158,13 +157,37 @@ def test_every_figure_is_reported_and_json_able(runs, tmp_path):
     assert path.read_bytes().startswith(b"\x89PNG")
 
 
-def test_a_gain_element_has_no_reference_pilot():
+def test_the_typical_pilot_on_a_gain_integrates_with_a_lag_and_is_human():
+    values = reference_pilot("gain")
+    assert values["T_I"] == pytest.approx(10.0 / 3.0) and values["K_v"] == 0.0
+    lagged = make_model("precision", lag=True)
+    pilot = Pilot(lagged, values)
+    recording = simulate(pilot, "gain", seed=0)
+    result = human_likeness(recording)
+    assert result.reference == pytest.approx(values)
+    crossover, margin = model_crossover(lagged, values, result.describing)
+    # the lines' interpolation as on K/s (test above); the model's own loop is the answer
+    assert result.crossover_frequency == pytest.approx(crossover, rel=0.015)
+    assert result.phase_margin == pytest.approx(margin, abs=1.5)
+    assert result.rms_ratio == pytest.approx(1.0, abs=0.01)  # the reference is this pilot
+    assert result.lead < -5.0  # McRuer's lag equalisation: |Y_p| falls through the band
+    # a noiseless pilot is no human; every other figure is inside the gain's ranges
+    assert result.verdict.outside == ("remnant_fraction",)
+    assert set(HUMAN_RANGES["gain"]) <= set(FIGURES)
+
+
+def test_a_gain_element_with_a_plain_precision_pilot_is_judged_against_the_lag_pilot():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", HumanLimitWarning)
         recording = simulate(Pilot.typical("precision", "gain"), "gain", seed=0)
     result = human_likeness(recording)
-    assert result.reference is None and math.isnan(result.rms_ratio)
-    assert "rms_ratio" in result.verdict.not_judged
+    assert "T_I" in result.reference and "rms_ratio" not in result.verdict.not_judged
+    # the reference's steady state at the lines against the lag pilot simulated on the
+    # same forcing (no remnant: its error is its steady state, as in the test above)
+    reference = simulate(Pilot(make_model("precision", lag=True), result.reference), "gain", seed=0)
+    start = len(reference.e) - len(recording.e)
+    measured = np.sqrt(np.mean(recording.e**2)) / np.sqrt(np.mean(reference.e[start:] ** 2))
+    assert result.rms_ratio == pytest.approx(measured, rel=0.01)
 
 
 def test_unknown_element_names_the_argument(runs):

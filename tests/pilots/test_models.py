@@ -4,6 +4,7 @@ import re
 
 import numpy as np
 import pytest
+import scipy.signal
 
 from manualcontrol.pilots import (
     MODEL_NAMES,
@@ -26,6 +27,38 @@ def test_precision_model_is_popovici_eq1():
     expected = (1.5 + 0.5 * s) * np.exp(-0.2 * s) * 64.0 / (s**2 + 2 * 0.3 * 8.0 * s + 64.0)
     got = make_model("precision").frequency_response(values, OMEGA, "e")
     np.testing.assert_allclose(got, expected, rtol=1e-12)
+
+
+def test_precision_model_with_its_lag_is_mcruers_lag_equaliser():
+    """The lag form against scipy.signal's rational response times the exact delay."""
+    values = dict(K_p=10.0, K_v=0.4, T_I=3.0, tau_v=0.26, omega_nms=10.5, zeta_nms=0.35)
+    model = make_model("precision", lag=True)
+    assert model.parameter_names == ("K_p", "K_v", "T_I", "tau_v", "omega_nms", "zeta_nms")
+    num = np.polymul([0.4, 10.0], [10.5**2])
+    den = np.polymul([3.0, 1.0], [1.0, 2 * 0.35 * 10.5, 10.5**2])
+    _, rational = scipy.signal.freqs(num, den, worN=OMEGA)
+    expected = rational * np.exp(-0.26j * OMEGA)
+    np.testing.assert_allclose(model.frequency_response(values, OMEGA, "e"), expected, rtol=1e-12)
+    # T_I = 0 is Popovici's eq. 1, the model without its lag
+    plain = {k: v for k, v in values.items() if k != "T_I"}
+    np.testing.assert_allclose(
+        model.frequency_response({**values, "T_I": 0.0}, OMEGA, "e"),
+        make_model("precision").frequency_response(plain, OMEGA, "e"),
+        rtol=1e-12,
+    )
+    assert make_model("precision") == make_model("precision", lag=False) != model
+
+
+def test_a_lagging_pilot_keeps_its_lag_through_its_dict():
+    from manualcontrol.estimators.analysis.human_likeness import reference_pilot
+
+    values = reference_pilot("gain")
+    pilot = Pilot(make_model("precision", lag=True), values)
+    data = pilot.to_dict()
+    assert data["model_options"] == {"lag": True}
+    assert Pilot.from_dict(data).model == make_model("precision", lag=True)
+    # a plain precision pilot's dict is as it always was
+    assert Pilot.typical("precision", "SI").to_dict()["model_options"] == {}
 
 
 def test_preview_model_far_view_and_feedback_paths():
