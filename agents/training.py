@@ -463,9 +463,11 @@ def typical_pilot_law(config: TrainingConfig) -> Callable[[FloatArray], FloatArr
     With ``history_length`` > 1 the observation is the frames newest first
     (:class:`~manualcontrol.agents.wrappers.ObservationHistory`): the law reads the newest.
     Where the typical pilot lags (``T_I``, a pure gain), the law is its equaliser
-    ``(K_p + K_v s)/(T_I s + 1)`` held over each sample, exactly (zero-order hold):
-    ``c_k = a c_{k-1} + (1 - a)(K_p e_k + K_v e_dot_k)``, ``a = exp(-dt/T_I)``, its last
-    command ``c_{k-1}`` the efference copy, the actor's last input.
+    ``(K_p + K_v s)/(T_I s + 1)`` stepped by its exact response over one sample to the
+    error it sees now, ``c_k = a c_{k-1} + (1 - a)(K_p e_k + K_v e_dot_k)``,
+    ``a = exp(-dt/T_I)`` (answering the newest error at once, as the gain does on the
+    other elements), its last command ``c_{k-1}`` the efference copy, the actor's last
+    input.
     """
     from manualcontrol.estimators.analysis.human_likeness import reference_pilot
 
