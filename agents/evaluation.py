@@ -79,7 +79,9 @@ class Evaluation:
 
     ``human`` holds the human-likeness figures and verdict (None on a pursuit or
     preview task, which they do not describe); ``noise`` whether the wrappers' noise was
-    on in the run; ``config`` the agent's training configuration.
+    on in the run; ``config`` the agent's training configuration. ``dekf`` is empty on
+    a pure gain, where the DEKF's model (no lag) cannot describe an operator who
+    integrates and ``identified`` is the precision model with its lag.
     """
 
     rms_error: float
@@ -114,21 +116,19 @@ class Evaluation:
             "periods": self.periods,
             "human_likeness": None if self.human is None else self.human.to_dict(),
             "implausible": implausible(
-                self.identified.model,
-                {
-                    **{f"fit {k}": v for k, v in self.identified.parameters.items()},
-                    **{f"DEKF {k}": v for k, v in self.dekf.items()},
-                },
-            ),
+                _identified_structure(self.identified),
+                {f"fit {k}": v for k, v in self.identified.parameters.items()},
+            )
+            + implausible(self.identified.model, {f"DEKF {k}": v for k, v in self.dekf.items()}),
         }
 
 
-def implausible(model: str, values: dict[str, float]) -> list[str]:
+def implausible(model: Any, values: dict[str, float]) -> list[str]:
     """Identified values a user should not trust, each as a sentence.
 
     Flagged: below the valid or human range, beyond twice the human maximum, or under
     half the human minimum (a negative gain, a neuromuscular damping of 80 ...). Keys
-    may carry a prefix ("fit K_p").
+    may carry a prefix ("fit K_p"). ``model``: the structure identified, or its name.
     """
     from manualcontrol.pilots import make_model
 
@@ -232,10 +232,25 @@ def evaluate(
     response = forcing_frequency_response(recording)
     display = TASKS_BY_NAME.get(agent.config.task)  # None on lane keeping: no tracking display
     model = "preview" if display is None else display.pilot_model
-    report_progress(f"evaluate: fitting the {model} model (output error)")
-    identified = fit_pilot(recording, model, fixed=_held_by_rule(recording, model))
-    report_progress("evaluate: identifying with the DEKF")
-    dekf = _dekf_identification(whole, model, agent.config)
+    structure = _fitted_structure(recording, model)
+    report_progress(f"evaluate: fitting the {_structure_name(structure)} model (output error)")
+    # simulated from the run-in's start, at rest as the agent was there, and fitted from 2 s
+    # into the measurement (fit_pilot's skip): a slow equaliser (a lag of seconds on a
+    # pure gain) carries its state into the measurement, which a model started at rest
+    # at the measurement's start would have to fit as a transient
+    identified = fit_pilot(
+        whole,
+        structure,
+        fixed=_held_by_rule(recording, structure),
+        skip=float(recording.t[0] - whole.t[0]) + 2.0,
+    )
+    if getattr(structure, "lag", False):
+        # the DEKF's precision model has no lag: its values on an operator that
+        # integrates would look like a pilot's and describe nothing (the lag fit above does)
+        dekf: dict[str, float] = {}
+    else:
+        report_progress("evaluate: identifying with the DEKF")
+        dekf = _dekf_identification(whole, model, agent.config)
     element = agent.config.env_kwargs.get("controlled_element", "SI")
     values = reference if reference is not None else reference_pilot(element)
     reference_rms = None
@@ -265,21 +280,55 @@ def evaluate(
     )
 
 
-def _held_by_rule(recording: Recording, model: str) -> dict[str, float]:
-    """The output-error fit's held parameters: the lead ``K_v`` at 0 on ``K/s``.
+def _identified_structure(identified: OfflineFit) -> Any:
+    """The structure an output-error fit identified (the lag's where it holds ``T_I``)."""
+    from manualcontrol.pilots import make_model
+
+    if identified.model == "precision" and "T_I" in identified.parameters:
+        return make_model("precision", lag=True)
+    return make_model(identified.model)
+
+
+def _structure_name(structure: Any) -> str:
+    return structure.name + (" (with its lag)" if getattr(structure, "lag", False) else "")
+
+
+def _fitted_structure(recording: Recording, model: str) -> Any:
+    """The structure the output-error fit identifies: on a pure gain, the lag's precision model.
+
+    Humans equalise a pure gain with a lag (McRuer & Jex 1967), and so does the typical
+    pilot the agent is compared with there
+    (:func:`~manualcontrol.estimators.analysis.human_likeness.reference_pilot`): the
+    precision model without its lag cannot integrate, and its fit of a lagging operator
+    would say nothing about what the operator does.
+    """
+    from manualcontrol.envs.elements import make_element
+    from manualcontrol.pilots import make_model
+
+    element = recording.metadata.get("controlled_element")  # the env's, as it ran
+    if model == "precision" and element is not None:
+        if make_element(dict(element)).kind == "gain":
+            return make_model("precision", lag=True)
+    return make_model(model)
+
+
+def _held_by_rule(recording: Recording, structure: Any) -> dict[str, float]:
+    """The output-error fit's held parameters: the lead ``K_v`` at 0 on ``K/s`` and ``K``.
 
     Humans need no lead on a single integrator; the describing-function fit
     (:func:`~manualcontrol.estimators.analysis.frequency.fit_describing_function`) and
     the filters (``ce="SI"``) hold it at 0 there, and the output-error fit follows the
-    same rule, so that the three identify one structure.
+    same rule, so that the three identify one structure. On a pure gain humans lag,
+    with no lead either (the typical pilot there has none).
     """
     from manualcontrol.estimators.members.pilot_rules import element_type
-    from manualcontrol.pilots import make_model
 
     element = recording.metadata.get("controlled_element")  # the env's, as it ran
-    if element is None or "K_v" not in make_model(model).parameter_names:
+    if element is None or "K_v" not in structure.parameter_names:
         return {}
-    return {"K_v": 0.0} if element_type(dict(element)) == "SI" else {}
+    if element_type(dict(element)) == "SI" or "T_I" in structure.parameter_names:
+        return {"K_v": 0.0}
+    return {}
 
 
 def _dekf_identification(recording: Recording, model: str, config: Any) -> dict[str, float]:
@@ -417,23 +466,37 @@ def write_report(
         f"phase margin {summary['phase_margin']:.1f} deg",
         f"- limitations imposed: {summary['limitations'] or 'none'}",
         "",
-        f"Identified {evaluation.identified.model} model (offline output-error fit, "
+        f"Identified {_structure_name(_identified_structure(evaluation.identified))} model "
+        "(offline output-error fit, "
         f"VAF {evaluation.identified.vaf:.1f} %):",
         "",
         "| parameter | value |",
         "| --- | --- |",
         *(
             f"| {name} | {value:.4g}"
-            + ("" if name in evaluation.identified.fitted else " (held at 0 on K/s)")
+            + (
+                ""
+                if name in evaluation.identified.fitted
+                else " (held at 0: no lead on this element)"
+            )
             + " |"
             for name, value in summary["identified"].items()
         ),
         "",
-        "DEKF (mean of the estimates over the measurement):",
-        "",
-        "| parameter | value |",
-        "| --- | --- |",
-        *(f"| {name} | {value:.4g} |" for name, value in summary["dekf"].items()),
+        *(
+            [
+                "DEKF (mean of the estimates over the measurement):",
+                "",
+                "| parameter | value |",
+                "| --- | --- |",
+                *(f"| {name} | {value:.4g} |" for name, value in summary["dekf"].items()),
+            ]
+            if summary["dekf"]
+            else [
+                "DEKF: not run. Its precision model has no lag, and an operator on a pure "
+                "gain integrates: its values would describe nothing.",
+            ]
+        ),
         "",
         "![open loop](open_loop.png)",
         "",

@@ -142,7 +142,7 @@ def test_the_train_command_refuses_flags_a_recipe_sets(tmp_path, capsys):
     code = main(["train", "--recipe", "hover", "--out", str(tmp_path / "a")])
     assert (
         code == 2
-        and "--recipe must be one of si, di, lag, lane-angle, lane-torque, got 'hover'"
+        and "--recipe must be one of gain, si, di, lag, lane-angle, lane-torque, got 'hover'"
         in capsys.readouterr().err
     )
     assert not (tmp_path / "a").exists()
@@ -251,3 +251,40 @@ def test_the_typical_pilots_own_loop_is_human_through_the_human_problem():
     human = evaluate(TypicalPilotAgent(config), seed=0).human
     assert human.verdict.outside == (), human.figures()
     assert 0.1 <= human.figures()["remnant_fraction"] <= 0.4
+
+
+def test_the_train_command_gives_the_policy_its_efference_copy(tmp_path):
+    out = tmp_path / "agent"
+    flags = ["--algorithm", "ppo", "--efference-copy", "--steps", "64", "--quiet"]
+    assert main(["train", *flags, "--algorithm-option", "n_steps=64", "--out", str(out)]) == 0
+    config = json.loads((out / "config.json").read_text())
+    assert config["efference_copy"] is True
+    assert config["history_length"] == 1
+
+
+def test_an_operator_on_a_pure_gain_is_identified_with_the_precision_models_lag(tmp_path):
+    """The typical pilot's lag law, flown noise-free through the gain's problem, is the
+    typical pilot itself (its delay and limb the wrappers', its lag held per sample):
+    the output-error fit of the lag's structure finds its values back."""
+    from manualcontrol.agents.evaluation import evaluate
+    from manualcontrol.agents.training import TypicalPilotAgent
+
+    config = human_problem("gain", warm_start="typical-pilot")
+    evaluation = evaluate(TypicalPilotAgent(config), seed=0, deterministic=True)
+    fit = evaluation.identified
+    typical = reference_pilot("gain")
+    assert "T_I" in fit.parameters and "K_v" not in fit.fitted
+    # the law's zero-order hold and the fit's own discretisation: a few per cent
+    for name in ("K_p", "T_I", "tau_v", "omega_nms"):
+        assert fit.parameters[name] == pytest.approx(typical[name], rel=0.05), name
+    assert fit.vaf > 99.0
+    summary = evaluation.summary()
+    assert not [flag for flag in summary["implausible"] if flag.startswith("fit ")]
+    # the DEKF's model cannot lag: it is not run, and the report says why
+    assert summary["dekf"] == {}
+    from manualcontrol.agents.evaluation import write_report
+
+    text = write_report(evaluation, tmp_path / "report").read_text()
+    assert "DEKF: not run. Its precision model has no lag" in text
+    # the human-likeness reference is the same lagging pilot: its RMS error alike
+    assert evaluation.human.rms_ratio == pytest.approx(1.0, abs=0.05)
