@@ -59,6 +59,12 @@ The human's problem, as the optimal control model poses it
   ``1/s`` to ``1/s^2`` did not show); with the memory it falls from ``1/s`` to
   ``1/s^2`` on every seed (``1/(s(s+1))`` between them on average), and the returns
   rise on those two elements (``docs/surrogates.md``).
+* **On a pure gain, its own last command** (:attr:`~manualcontrol.agents.training.
+  TrainingConfig.efference_copy`): humans equalise ``K`` with a lag, integrating their
+  own output (McRuer & Jex 1967; the typical pilot there is the precision model with
+  its lag, :func:`~manualcontrol.estimators.analysis.human_likeness.reference_pilot`),
+  and a feed-forward policy can only do so reading the command it has just sent. The
+  commands still in the delay stay hidden, as on every element.
 
 PPO with eight environments, a 64-64 network, 1.2 million steps at a learning rate of
 1e-4 (a third of PPO's default: with 20 frames of history its default lost the typical

@@ -1465,6 +1465,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
             algorithm_kwargs=_assignments(args.algorithm_option, "--algorithm-option"),
             policy_kwargs={} if args.net_arch is None else {"net_arch": list(args.net_arch)},
             history_length=args.history,
+            efference_copy=args.efference_copy,
             deterministic=args.deterministic_evaluation,
             warm_start=args.warm_start,
             critic_information=args.critic_information,
@@ -1475,6 +1476,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
         renamed = {
             **fields,
             "history_length": ("--history", None),
+            "efference_copy=True": ("--efference-copy", None),
+            "efference_copy": ("--efference-copy", None),
             "warm_start=": ("--warm-start ", None),
             "warm_start": ("--warm-start", None),
             "critic_information": ("--critic-information", None),
@@ -1531,6 +1534,7 @@ _RECIPE_SETS = {
     "--observation-noise": ("observation_noise", None),
     "--effort-rate-weight": ("effort_rate_weight", None),
     "--history": ("history", 1),
+    "--efference-copy": ("efference_copy", False),
     "--deterministic-evaluation": ("deterministic_evaluation", False),
     "--warm-start": ("warm_start", "none"),
     "--critic-information": ("critic_information", False),
@@ -2081,9 +2085,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--recipe",
         default=None,
         metavar="NAME",
-        help="a measured training recipe (si, di, lag: compensatory tracking of 1/s, 1/s^2, "
-        "1/(s(s+1)) with the typical pilot's delay and neuromuscular system, motor and "
-        "observation noise and effort cost, PPO started from the typical pilot's "
+        help="a measured training recipe (gain, si, di, lag: compensatory tracking of K, 1/s, "
+        "1/s^2, 1/(s(s+1)) with the typical pilot's delay and neuromuscular system, motor "
+        "and observation noise and effort cost, PPO started from the typical pilot's "
         "equaliser; lane-angle, lane-torque: lane keeping on random roads with a driver's "
         "delay, steering the wheel's angle or its torque); takes --seed, --steps and "
         "--checkpoint-every, nothing else that sets the training",
@@ -2149,6 +2153,12 @@ def build_parser() -> argparse.ArgumentParser:
         "that can adapt); default 1, the current one",
     )
     p.add_argument(
+        "--efference-copy",
+        action="store_true",
+        help="the policy also reads its own last command (not the ones still in the delay): "
+        "the memory it needs to integrate, as humans do on a pure gain (lag equalisation)",
+    )
+    p.add_argument(
         "--deterministic-evaluation",
         action="store_true",
         help="evaluate this agent without the wrappers' noise by default (by default the "
@@ -2160,7 +2170,8 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("none", "typical-pilot"),
         help="how the policy starts: none (the algorithm's random weights, default) or "
         "typical-pilot (PPO's mean fitted to the typical precision pilot's equaliser "
-        "K_p e + K_v e_dot; compensatory tracking with --env include_rates=true)",
+        "K_p e + K_v e_dot, lagged on a pure gain with --efference-copy; compensatory "
+        "tracking with --env include_rates=true)",
     )
     p.add_argument(
         "--critic-information",

@@ -163,7 +163,7 @@ def test_evaluation_report(trained, tmp_path):
     path = write_report(evaluation, tmp_path)
     text = path.read_text()
     assert "RMS tracking error" in text and "tau_v" in text and "DEKF" in text
-    assert "| K_v | 0 (held at 0 on K/s) |" in text
+    assert "| K_v | 0 (held at 0: no lead on this element) |" in text
     assert (tmp_path / "open_loop.png").read_bytes().startswith(b"\x89PNG")
     assert (
         json.loads((tmp_path / "evaluation.json").read_text())["rms_error"] == summary["rms_error"]
@@ -354,10 +354,17 @@ def test_corrupt_policy_weights_are_refused_naming_the_file(trained, tmp_path, d
 
 @pytest.mark.parametrize(
     ("element", "held"),
-    [("1/s", {"K_v": 0.0}), ("2.5/s", {"K_v": 0.0}), ("1/s^2", {}), ("1/(s(s+1))", {})],
+    [
+        ("1/s", {"K_v": 0.0}),
+        ("2.5/s", {"K_v": 0.0}),
+        ("1/s^2", {}),
+        ("1/(s(s+1))", {}),
+        ("gain", {"K_v": 0.0}),
+    ],
 )
-def test_the_output_error_fit_holds_the_lead_on_a_single_integrator_only(element, held):
-    from manualcontrol.agents.evaluation import _held_by_rule
+def test_the_output_error_fit_holds_the_lead_on_a_single_integrator_and_a_gain_only(element, held):
+    from manualcontrol.agents.evaluation import _fitted_structure, _held_by_rule
+    from manualcontrol.pilots import make_model
 
     env = gym.make(
         "ManualControl/CompensatoryTracking-v0", controlled_element=element, measurement_time=1.0
@@ -366,8 +373,11 @@ def test_the_output_error_fit_holds_the_lead_on_a_single_integrator_only(element
     env.step(np.zeros(1))
     recording = env.unwrapped.recording()
     env.close()
-    assert _held_by_rule(recording, "precision") == held
-    assert _held_by_rule(recording, "gain-delay") == {}  # a model without a lead
+    structure = _fitted_structure(recording, "precision")
+    # on a pure gain the fit identifies the lag's precision model (humans lag there)
+    assert structure == make_model("precision", lag=element == "gain")
+    assert _held_by_rule(recording, structure) == held
+    assert _held_by_rule(recording, make_model("gain-delay")) == {}  # a model without a lead
 
 
 #: A short PPO training whose policy changes enough between validations to score

@@ -201,6 +201,17 @@ def test_the_train_command_names_its_flags_when_a_start_cannot_be_made(tmp_path,
     for flags, message in (
         ([], "--algorithm must be 'ppo', got 'sac'"),
         (["--algorithm", "ppo"], "give --env include_rates=true"),
+        (
+            [
+                "--algorithm",
+                "ppo",
+                "--env",
+                "include_rates=true",
+                "--env",
+                "controlled_element=gain",
+            ],
+            "can only do reading its last command: give --efference-copy",
+        ),
     ):
         code = main(["train", "--warm-start", "typical-pilot", *flags, "--out", str(out)])
         assert code == 2 and message in capsys.readouterr().err
