@@ -33,6 +33,7 @@ import functools
 import hashlib
 import os
 import platform
+import re
 import shlex
 import shutil
 import subprocess
@@ -49,6 +50,7 @@ __all__ = [
     "array_address",
     "build_library",
     "check_port",
+    "local_headers",
     "native_enabled",
     "native_failure",
     "native_library",
@@ -132,16 +134,29 @@ def _cache_folders(source: Path) -> list[Path]:
     return folders
 
 
+def local_headers(source: Path) -> list[Path]:
+    """The headers ``source`` includes by ``#include "name"``, beside it: part of its build.
+
+    A port's shared helpers live in such a header (``_native_common.h``); an edit there
+    must rebuild every port that includes it, as an edit of the port itself does.
+    """
+    names = re.findall(r'^\s*#\s*include\s+"([^"]+)"', source.read_text(), re.M)
+    return [source.parent / name for name in names]
+
+
 def build_library(source: Path, compiler: list[str], folder: Path) -> Path:
     """Build ``source`` with ``compiler`` into ``folder`` (atomically); the library's path.
 
-    The name carries a hash of the source, :data:`FLAGS`, the compiler's command,
+    The name carries a hash of the source and its local headers (:func:`local_headers`),
+    :data:`FLAGS`, the compiler's command,
     version and target and the platform; a library of that name already there is the
     same build and is returned as it is. Raises :class:`NativeBuildError` with the
     compiler's message where it fails or does not finish in five minutes.
     """
     digest = hashlib.sha256()
     digest.update(source.read_bytes())
+    for header in local_headers(source):
+        digest.update(header.read_bytes())
     digest.update("\0".join((*FLAGS, *compiler)).encode())
     digest.update(_compiler_identity(compiler).encode())
     target = folder / f"lib{source.stem}-{digest.hexdigest()[:16]}{_suffix()}"

@@ -37,6 +37,7 @@
 #include <stddef.h>
 #include <stdint.h>
 #include <stdlib.h>
+#include "_native_common.h" /* the helpers the ports share (linalg, monitor, smoothers) */
 
 /* ---- _pilot_core.py: indices into cfg (CFG_*) and sc (SC_*) */
 enum {
@@ -73,17 +74,9 @@ enum {
 enum { REASON_NONE = 0, REASON_NONFINITE = 1, REASON_COVARIANCE = 2, REASON_PINNED = 3 };
 
 static const double PAPERS_DT = 0.01;           /* _pilot_core.PAPERS_DT */
-static const double PIN_FRACTION = 0.9;         /* monitor.PIN_FRACTION */
 static const double NEGATIVE_TOLERANCE = 1e-10; /* monitor.NEGATIVE_TOLERANCE */
-static const double TINY = 1e-290;              /* linalg.TINY */
 
 #define DEKF_ABI 1
-
-/* kalman.KalmanWork: PHt (n,1), S and L (1,1), K and M (n,1), T (n,n), log_det (0 or 1,) */
-typedef struct {
-    double *PHt, *S, *L, *K, *M, *T, *log_det;
-    int64_t n_log_det;
-} KalmanWork;
 
 /* Every record of dekf_step: ModelKernel, DEKFConfig, DEKFBelief, PilotMonitor,
  * PilotReport, DEKFScratch and DEKFOutput. Field order must match _dekf_native.py. */
@@ -142,86 +135,8 @@ typedef struct {
 } DekfRecords;
 
 /* Python's max(a, b) on floats as numba lowers it: b if b > a else a */
-static double py_max(double a, double b) { return b > a ? b : a; }
-
-/* ===================================================================== linalg.py */
-
-/* symmetrise: P <- (P + P^T)/2 in place, flushing entries below TINY to zero */
-static void symmetrise(double *P, int64_t n)
-{
-    for (int64_t i = 0; i < n; i++) {
-        if (fabs(P[i * n + i]) < TINY)
-            P[i * n + i] = 0.0;
-        for (int64_t j = i + 1; j < n; j++) {
-            double v = 0.5 * (P[i * n + j] + P[j * n + i]);
-            if (fabs(v) < TINY)
-                v = 0.0;
-            P[i * n + j] = v;
-            P[j * n + i] = v;
-        }
-    }
-}
 
 /* ===================================================================== kalman.py */
-
-/* _joseph_scalar: joseph_correct for a scalar measurement, fused (Joseph form,
- * P+ = (I - K H) P- (I - K H)^T + K R K^T, symmetrised). H is (1, n), R (1, 1). */
-static int joseph_scalar(double *x, double *P, const double *r, const double *H,
-                         const double *R, const KalmanWork *work, int64_t n, double jitter)
-{
-    double *PHt = work->PHt, *K = work->K, *M = work->M;
-    double s = R[0];
-    for (int64_t i = 0; i < n; i++) {
-        double acc = 0.0;
-        for (int64_t j = 0; j < n; j++)
-            acc += P[i * n + j] * H[j];
-        PHt[i] = acc;
-        s += H[i] * acc;
-    }
-    work->S[0] = s;
-    if (!(s > 0.0) || !isfinite(s))
-        return 0;
-    double r0 = r[0];
-    for (int64_t i = 0; i < n; i++) {
-        double k_i = PHt[i] / s;
-        K[i] = k_i;
-        double acc = 0.0;
-        acc += k_i * r0;
-        x[i] += acc;
-    }
-    if (work->n_log_det > 0)
-        work->log_det[0] = log(s);
-    for (int64_t i = 0; i < n; i++) {
-        double k_i = K[i];
-        for (int64_t j = 0; j < n; j++) {
-            double acc = 0.0;
-            acc += k_i * PHt[j];
-            P[i * n + j] -= acc;
-        }
-    }
-    for (int64_t i = 0; i < n; i++) {
-        double acc = 0.0;
-        for (int64_t j = 0; j < n; j++)
-            acc += P[i * n + j] * H[j];
-        M[i] = acc;
-    }
-    double rv = R[0];
-    for (int64_t i = 0; i < n; i++) {
-        double m_i = M[i];
-        double k_i = K[i];
-        for (int64_t j = 0; j < n; j++) {
-            double acc = 0.0;
-            acc -= m_i * K[j];
-            acc += k_i * rv * K[j];
-            P[i * n + j] += acc;
-        }
-    }
-    symmetrise(P, n);
-    if (jitter > 0.0)
-        for (int64_t i = 0; i < n; i++)
-            P[i * n + i] += jitter;
-    return 1;
-}
 
 /* joseph_correct, for the DEKF's scalar measurements only (m = 1: every DEKF
  * correction). The general m-dimensional branch (Cholesky solve) is not reachable from
@@ -278,95 +193,6 @@ static void belief_health(const double *x, const double *P, int64_t n, double ma
     *ok_out = ok;
 }
 
-/* track_pins: samples at a limit over the last n_pin; first parameter pinned or -1 */
-static int64_t track_pins(const uint8_t *pinned_now, int64_t *pins, int64_t *ring,
-                          int64_t n_params, int64_t n_pin, int64_t k)
-{
-    if (n_pin == 0)
-        return -1;
-    int64_t pos = k % n_pin;
-    for (int64_t j = 0; j < n_params; j++) {
-        int64_t now = pinned_now[j] ? 1 : 0;
-        pins[j] += now - ring[j * n_pin + pos];
-        ring[j * n_pin + pos] = now;
-    }
-    if (k + 1 >= n_pin)
-        for (int64_t j = 0; j < n_params; j++)
-            if ((double)pins[j] >= PIN_FRACTION * (double)n_pin)
-                return j;
-    return -1;
-}
-
-/* window_push: append a value to the variance ring, update the running sums in sc
- * (Popovici eqs. 24-25, thesis eqs. 29-30) */
-static void window_push(double *buf, int64_t size, double *sc, int64_t base, double value,
-                        int64_t k)
-{
-    int64_t pos = k % size;
-    double old = buf[pos];
-    if (!isnan(old)) {
-        double dv = old - sc[base];
-        sc[base + 1] -= dv;
-        sc[base + 2] -= dv * dv;
-        sc[base + 3] -= 1.0;
-        if (sc[base + 3] <= 0.0) {
-            sc[base + 1] = 0.0;
-            sc[base + 2] = 0.0;
-            sc[base + 3] = 0.0;
-        }
-    }
-    buf[pos] = value;
-    if (!isnan(value)) {
-        if (sc[base + 3] == 0.0)
-            sc[base] = value;
-        double dv = value - sc[base];
-        sc[base + 1] += dv;
-        sc[base + 2] += dv * dv;
-        sc[base + 3] += 1.0;
-    }
-    if (pos == size - 1) {
-        double s = 0.0, ss = 0.0, c = 0.0;
-        for (int64_t i = 0; i < size; i++) {
-            double v = buf[i];
-            if (!isnan(v)) {
-                double dv = v - sc[base];
-                s += dv;
-                ss += dv * dv;
-                c += 1.0;
-            }
-        }
-        sc[base + 1] = s;
-        sc[base + 2] = ss;
-        sc[base + 3] = c;
-    }
-}
-
-/* window_variance: population variance of the finite values in the ring */
-static double window_variance(const double *sc, int64_t base)
-{
-    double c = sc[base + 3];
-    if (c < 1.0)
-        return 0.0;
-    double mean = sc[base + 1] / c;
-    double var = sc[base + 2] / c - mean * mean;
-    return var > 0.0 ? var : 0.0;
-}
-
-/* ================================================================= smoothers.py */
-
-/* store_belief: copy a belief into row `row` of the smoother storage (no-op without) */
-static void store_belief(int64_t rows, int64_t row, const double *x, const double *P,
-                         int64_t n, double *x_store, double *P_store)
-{
-    if (rows == 0)
-        return;
-    for (int64_t i = 0; i < n; i++) {
-        x_store[row * n + i] = x[i];
-        for (int64_t j = 0; j < n; j++)
-            P_store[(row * n + i) * n + j] = P[i * n + j];
-    }
-}
-
 /* ================================================================ _pilot_core.py */
 
 /* noise_levels: push the sample into the variance windows; (R, R_parameter, q_error)
@@ -393,22 +219,6 @@ static void noise_levels(const DekfRecords *rec, double u_k, double e_k, double 
     *R_p_out = cfg[CFG_FIXED_R] > 0.0 ? cfg[CFG_FIXED_R] : cfg[CFG_R2_PARAMETER] * var_u;
     *q_error_out = cfg[CFG_FIXED_QE] > 0.0 ? cfg[CFG_FIXED_QE]
                                             : cfg[CFG_Q2] * py_max(var_e, floor_);
-}
-
-/* inputs_in_use: a dropped input holds its last value; true if the sample is dropped */
-static int inputs_in_use(const double *inputs_k, double u_k, const double *prev_in,
-                         double *in_use, int64_t n_in)
-{
-    int dropped = isnan(u_k) ? 1 : 0;
-    for (int64_t i = 0; i < n_in; i++) {
-        if (isnan(inputs_k[i])) {
-            dropped = 1;
-            in_use[i] = prev_in[i];
-        } else {
-            in_use[i] = inputs_k[i];
-        }
-    }
-    return dropped;
 }
 
 /* report_frozen: a stopped filter's row (last estimate, NaN predictions, diverged) */
@@ -495,26 +305,6 @@ static void report_row(const DekfRecords *rec, int finite, int cov_ok, int dropp
 }
 
 /* ============================================================= internal_model.py */
-
-/* _pade_jet: Padé polynomial (thesis Part I eq. 4) in descending powers, constant term 1,
- * and its derivative in tau, into row `row` of value and slope (row length order + 1) */
-static void pade_jet(double tau, int64_t order, double sign, double *value, double *slope,
-                     int64_t row)
-{
-    int64_t cols = order + 1;
-    double c = 1.0;
-    double power = 1.0;
-    double previous = 1.0;
-    for (int64_t k = 0; k < order + 1; k++) {
-        if (k > 0) {
-            c = c * (double)(order - k + 1) / (double)(k * (2 * order - k + 1));
-            previous = power;
-            power = power * sign * tau;
-        }
-        value[row * cols + order - k] = c * power;
-        slope[row * cols + order - k] = k == 0 ? 0.0 : c * (double)k * sign * previous;
-    }
-}
 
 /* _chain_polynomial: out[c] = raw[start:start+length] times the Padé polynomial of p[k]
  * (if k >= 0), with gradients in the parameters active[c, which] only */

@@ -40,6 +40,7 @@
 #include <math.h>
 #include <stddef.h>
 #include <stdint.h>
+#include "_native_common.h" /* the helpers the ports share (linalg, monitor, smoothers) */
 
 /* ---- _rdi_core.py: indices into cfg (CFG_*) and sc (SC_*) */
 enum {
@@ -59,17 +60,9 @@ enum { SC_K = 0, SC_FROZEN = 1, SC_DIV_INDEX = 2, SC_DIV_REASON = 3, SC_STEPS = 
 enum { REASON_NONE = 0, REASON_NONFINITE = 1, REASON_COVARIANCE = 2 };
 
 static const double NEGATIVE_TOLERANCE = 1e-10; /* monitor.NEGATIVE_TOLERANCE */
-static const double TINY = 1e-290;              /* linalg.TINY */
 
 #define RDI_ABI 2
 #define N_FLAGS 6 /* scratch.flags and out.flag columns */
-
-/* kalman.KalmanWork for m = 1: PHt (n,1), S and L (1,1), K and M (n,1), T (n,n),
- * log_det (0 or 1,) */
-typedef struct {
-    double *PHt, *S, *L, *K, *M, *T, *log_det;
-    int64_t n_log_det;
-} KalmanWork;
 
 /* Every record of rdi_step. Field order must match _rdi_native.py. */
 typedef struct {
@@ -95,85 +88,7 @@ typedef struct {
     double *x_prior, *P_prior, *x_post, *P_post;
 } RdiRecords;
 
-/* ===================================================================== linalg.py */
-
-/* symmetrise: P <- (P + P^T)/2 in place, flushing entries below TINY to zero */
-static void symmetrise(double *P, int64_t n)
-{
-    for (int64_t i = 0; i < n; i++) {
-        if (fabs(P[i * n + i]) < TINY)
-            P[i * n + i] = 0.0;
-        for (int64_t j = i + 1; j < n; j++) {
-            double v = 0.5 * (P[i * n + j] + P[j * n + i]);
-            if (fabs(v) < TINY)
-                v = 0.0;
-            P[i * n + j] = v;
-            P[j * n + i] = v;
-        }
-    }
-}
-
 /* ===================================================================== kalman.py */
-
-/* _joseph_scalar: joseph_correct for a scalar measurement, fused (Joseph form,
- * P+ = (I - K H) P- (I - K H)^T + K R K^T, symmetrised). H is (1, n), R (1, 1).
- * joseph_correct takes this branch for every RDI correction (r has one entry). */
-static int joseph_scalar(double *x, double *P, const double *r, const double *H,
-                         const double *R, const KalmanWork *work, int64_t n, double jitter)
-{
-    double *PHt = work->PHt, *K = work->K, *M = work->M;
-    double s = R[0];
-    for (int64_t i = 0; i < n; i++) {
-        double acc = 0.0;
-        for (int64_t j = 0; j < n; j++)
-            acc += P[i * n + j] * H[j];
-        PHt[i] = acc;
-        s += H[i] * acc;
-    }
-    work->S[0] = s;
-    if (!(s > 0.0) || !isfinite(s))
-        return 0;
-    double r0 = r[0];
-    for (int64_t i = 0; i < n; i++) {
-        double k_i = PHt[i] / s;
-        K[i] = k_i;
-        double acc = 0.0;
-        acc += k_i * r0;
-        x[i] += acc;
-    }
-    if (work->n_log_det > 0)
-        work->log_det[0] = log(s);
-    for (int64_t i = 0; i < n; i++) {
-        double k_i = K[i];
-        for (int64_t j = 0; j < n; j++) {
-            double acc = 0.0;
-            acc += k_i * PHt[j];
-            P[i * n + j] -= acc;
-        }
-    }
-    for (int64_t i = 0; i < n; i++) {
-        double acc = 0.0;
-        for (int64_t j = 0; j < n; j++)
-            acc += P[i * n + j] * H[j];
-        M[i] = acc;
-    }
-    double rv = R[0];
-    for (int64_t i = 0; i < n; i++) {
-        double m_i = M[i];
-        double k_i = K[i];
-        for (int64_t j = 0; j < n; j++) {
-            double acc = 0.0;
-            acc -= m_i * K[j];
-            acc += k_i * rv * K[j];
-            P[i * n + j] += acc;
-        }
-    }
-    symmetrise(P, n);
-    if (jitter > 0.0)
-        for (int64_t i = 0; i < n; i++)
-            P[i * n + i] += jitter;
-    return 1;
-}
 
 /* clamp: estimate projection onto box limits */
 static void clamp(double *x, const int64_t *index, int64_t n, const double *lo,
@@ -213,46 +128,6 @@ static void belief_health(const double *x, const double *P, int64_t n, double ma
     }
     *finite_out = finite;
     *ok_out = ok;
-}
-
-/* ================================================================= smoothers.py */
-
-/* store_belief: copy a belief into row `row` of the smoother storage (no-op without) */
-static void store_belief(int64_t rows, int64_t row, const double *x, const double *P,
-                         int64_t n, double *x_store, double *P_store)
-{
-    if (rows == 0)
-        return;
-    for (int64_t i = 0; i < n; i++) {
-        x_store[row * n + i] = x[i];
-        for (int64_t j = 0; j < n; j++)
-            P_store[(row * n + i) * n + j] = P[i * n + j];
-    }
-}
-
-/* ============================================================== _interpolation.py */
-
-/* bicubic_weights: weights of samples n-1, n, n+1, n+2 for the value at n + d
- * (Boer & Kenyon's Appendix: the Keys kernel, a = -0.5) */
-static void bicubic_weights(double d, double *w)
-{
-    double e = 1.0 - d;
-    w[0] = -0.5 * d * e * e;
-    w[1] = 1.5 * d * d * d - 2.5 * d * d + 1.0;
-    w[2] = 1.5 * e * e * e - 2.5 * e * e + 1.0;
-    w[3] = -0.5 * d * d * e;
-}
-
-/* bicubic_derivative_weights: d/dd of bicubic_weights (per sample interval) */
-static void bicubic_derivative_weights(double d, double *w)
-{
-    double x = 1.0 + d;
-    w[0] = -1.5 * x * x + 5.0 * x - 4.0;
-    w[1] = 4.5 * d * d - 5.0 * d;
-    double e = 1.0 - d;
-    w[2] = -(4.5 * e * e - 5.0 * e);
-    x = 2.0 - d;
-    w[3] = -(-1.5 * x * x + 5.0 * x - 4.0);
 }
 
 /* ================================================================== _rdi_core.py */

@@ -48,6 +48,7 @@
 #include <math.h>
 #include <stddef.h>
 #include <stdint.h>
+#include "_native_common.h" /* the helpers the ports share (linalg, monitor, smoothers) */
 
 /* ---- _schiess_roland_core.py: the state layout (eqs. 6 and 14) */
 enum { N_DYNAMIC = 6, N_PARAMETERS = 7, N_STATES = 13 };
@@ -81,19 +82,11 @@ enum { REASON_NONE = 0, REASON_NONFINITE = 1, REASON_COVARIANCE = 2, REASON_PINN
 static const double SERIES_REACH = 4.0;     /* _SERIES_REACH */
 static const double SERIES_TOLERANCE = 1e-17; /* _SERIES_TOLERANCE */
 #define SERIES_TERMS 60                     /* _SERIES_TERMS */
-static const double PIN_FRACTION = 0.9;     /* monitor.PIN_FRACTION */
 static const double NEGATIVE_TOLERANCE = 1e-10; /* monitor.NEGATIVE_TOLERANCE */
-static const double TINY = 1e-290;          /* linalg.TINY */
 /* _PARAM_STATE: the state of each parameter column (theta has none) */
 static const int64_t PARAM_STATE[6] = {I_K1, I_TAU1, I_TAU2, I_TAU3, I_ALPHA1, I_ALPHA2};
 
 #define SR_ABI 1
-
-/* kalman.KalmanWork: PHt (n,m), S and L (m,m), K and M (n,m), T (n,n), log_det (0 or 1,) */
-typedef struct {
-    double *PHt, *S, *L, *K, *M, *T, *log_det;
-    int64_t n_log_det;
-} KalmanWork;
 
 /* Every record of sr_step. Field order must match _schiess_roland_native.py. */
 typedef struct {
@@ -130,49 +123,8 @@ typedef struct {
 } SrRecords;
 
 /* Python's max(a, b) / min(a, b) on floats as numba lowers them */
-static double py_max(double a, double b) { return b > a ? b : a; }
-static double py_min(double a, double b) { return b < a ? b : a; }
 
 /* ===================================================================== linalg.py */
-
-/* symmetrise: P <- (P + P^T)/2 in place, flushing entries below TINY to zero */
-static void symmetrise(double *P, int64_t n)
-{
-    for (int64_t i = 0; i < n; i++) {
-        if (fabs(P[i * n + i]) < TINY)
-            P[i * n + i] = 0.0;
-        for (int64_t j = i + 1; j < n; j++) {
-            double v = 0.5 * (P[i * n + j] + P[j * n + i]);
-            if (fabs(v) < TINY)
-                v = 0.0;
-            P[i * n + j] = v;
-            P[j * n + i] = v;
-        }
-    }
-}
-
-/* cholesky: lower factor of the symmetric A (m, m) into L; 0 where not positive definite */
-static int cholesky(const double *A, double *L, int64_t n)
-{
-    for (int64_t j = 0; j < n; j++) {
-        double s = A[j * n + j];
-        for (int64_t k = 0; k < j; k++)
-            s -= L[j * n + k] * L[j * n + k];
-        if (!(s > 0.0) || !isfinite(s))
-            return 0;
-        double d = sqrt(s);
-        L[j * n + j] = d;
-        for (int64_t i = j + 1; i < n; i++) {
-            s = A[i * n + j];
-            for (int64_t k = 0; k < j; k++)
-                s -= L[i * n + k] * L[j * n + k];
-            L[i * n + j] = s / d;
-        }
-        for (int64_t i = 0; i < j; i++)
-            L[i * n + j] = 0.0;
-    }
-    return 1;
-}
 
 /* cholesky_solve_rows: X S = B for X (rows of B, (r, m)), S = L L^T; X may be B */
 static void cholesky_solve_rows(const double *L, const double *B, double *X, int64_t rows,
@@ -194,15 +146,6 @@ static void cholesky_solve_rows(const double *L, const double *B, double *X, int
     }
 }
 
-/* log_determinant: log det(L L^T) from a Cholesky factor */
-static double log_determinant(const double *L, int64_t m)
-{
-    double total = 0.0;
-    for (int64_t i = 0; i < m; i++)
-        total += log(L[i * m + i]);
-    return 2.0 * total;
-}
-
 /* matmul_transposed: out = A B^T, A (a, c), B (b, c), out (a, b) */
 static void matmul_transposed(const double *A, const double *B, double *out, int64_t a,
                               int64_t b, int64_t c)
@@ -217,64 +160,6 @@ static void matmul_transposed(const double *A, const double *B, double *out, int
 }
 
 /* ===================================================================== kalman.py */
-
-/* _joseph_scalar: joseph_correct for a scalar measurement, fused. H (1, n), R (1, 1). */
-static int joseph_scalar(double *x, double *P, const double *r, const double *H,
-                         const double *R, const KalmanWork *work, int64_t n, double jitter)
-{
-    double *PHt = work->PHt, *K = work->K, *M = work->M;
-    double s = R[0];
-    for (int64_t i = 0; i < n; i++) {
-        double acc = 0.0;
-        for (int64_t j = 0; j < n; j++)
-            acc += P[i * n + j] * H[j];
-        PHt[i] = acc;
-        s += H[i] * acc;
-    }
-    work->S[0] = s;
-    if (!(s > 0.0) || !isfinite(s))
-        return 0;
-    double r0 = r[0];
-    for (int64_t i = 0; i < n; i++) {
-        double k_i = PHt[i] / s;
-        K[i] = k_i;
-        double acc = 0.0;
-        acc += k_i * r0;
-        x[i] += acc;
-    }
-    if (work->n_log_det > 0)
-        work->log_det[0] = log(s);
-    for (int64_t i = 0; i < n; i++) {
-        double k_i = K[i];
-        for (int64_t j = 0; j < n; j++) {
-            double acc = 0.0;
-            acc += k_i * PHt[j];
-            P[i * n + j] -= acc;
-        }
-    }
-    for (int64_t i = 0; i < n; i++) {
-        double acc = 0.0;
-        for (int64_t j = 0; j < n; j++)
-            acc += P[i * n + j] * H[j];
-        M[i] = acc;
-    }
-    double rv = R[0];
-    for (int64_t i = 0; i < n; i++) {
-        double m_i = M[i];
-        double k_i = K[i];
-        for (int64_t j = 0; j < n; j++) {
-            double acc = 0.0;
-            acc -= m_i * K[j];
-            acc += k_i * rv * K[j];
-            P[i * n + j] += acc;
-        }
-    }
-    symmetrise(P, n);
-    if (jitter > 0.0)
-        for (int64_t i = 0; i < n; i++)
-            P[i * n + i] += jitter;
-    return 1;
-}
 
 /* joseph_correct: the Joseph-form correction with an m-dimensional measurement
  * (S = H P H^T + R, K = P H^T S^-1 by a Cholesky solve; the fused scalar form for m = 1).
@@ -378,40 +263,6 @@ static void belief_health(const double *x, const double *P, int64_t n, double ma
     *ok_out = ok;
 }
 
-/* track_pins: samples at a limit over the last n_pin; first parameter pinned or -1 */
-static int64_t track_pins(const uint8_t *pinned_now, int64_t *pins, int64_t *ring,
-                          int64_t n_params, int64_t n_pin, int64_t k)
-{
-    if (n_pin == 0)
-        return -1;
-    int64_t pos = k % n_pin;
-    for (int64_t j = 0; j < n_params; j++) {
-        int64_t now = pinned_now[j] ? 1 : 0;
-        pins[j] += now - ring[j * n_pin + pos];
-        ring[j * n_pin + pos] = now;
-    }
-    if (k + 1 >= n_pin)
-        for (int64_t j = 0; j < n_params; j++)
-            if ((double)pins[j] >= PIN_FRACTION * (double)n_pin)
-                return j;
-    return -1;
-}
-
-/* ================================================================= smoothers.py */
-
-/* store_belief: copy a belief into row `row` of the smoother storage (no-op without) */
-static void store_belief(int64_t rows, int64_t row, const double *x, const double *P,
-                         int64_t n, double *x_store, double *P_store)
-{
-    if (rows == 0)
-        return;
-    for (int64_t i = 0; i < n; i++) {
-        x_store[row * n + i] = x[i];
-        for (int64_t j = 0; j < n; j++)
-            P_store[(row * n + i) * n + j] = P[i * n + j];
-    }
-}
-
 /* ================================================================ _pilot_core.py */
 
 /* report_frozen: a stopped filter's row (last estimate, NaN predictions, diverged) */
@@ -494,28 +345,6 @@ static void report_row(const SrRecords *rec, int finite, int cov_ok, int dropped
     rec->flag[row * nf + 2] = (uint8_t)dropped;
     rec->flag[row * nf + 3] = sc[SC_DIV_REASON] != REASON_NONE;
     sc[SC_K] = (double)(k + 1);
-}
-
-/* ============================================================== _interpolation.py */
-
-static void bicubic_weights(double d, double *w)
-{
-    double e = 1.0 - d;
-    w[0] = -0.5 * d * e * e;
-    w[1] = 1.5 * d * d * d - 2.5 * d * d + 1.0;
-    w[2] = 1.5 * e * e * e - 2.5 * e * e + 1.0;
-    w[3] = -0.5 * d * d * e;
-}
-
-static void bicubic_derivative_weights(double d, double *w)
-{
-    double x = 1.0 + d;
-    w[0] = -1.5 * x * x + 5.0 * x - 4.0;
-    w[1] = 4.5 * d * d - 5.0 * d;
-    double e = 1.0 - d;
-    w[2] = -(4.5 * e * e - 5.0 * e);
-    x = 2.0 - d;
-    w[3] = -(-1.5 * x * x + 5.0 * x - 4.0);
 }
 
 /* ===================================================== _schiess_roland_core.py model */

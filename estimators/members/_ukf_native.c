@@ -50,6 +50,7 @@
 #include <stddef.h>
 #include <stdint.h>
 #include <stdlib.h>
+#include "_native_common.h" /* the helpers the ports share (linalg, monitor, smoothers) */
 
 /* ---- _pilot_core.py: indices into cfg (CFG_*) and sc (SC_*) */
 enum {
@@ -87,14 +88,11 @@ enum {
 /* filters/monitor.py: divergence codes */
 enum { REASON_NONE = 0, REASON_NONFINITE = 1, REASON_COVARIANCE = 2, REASON_PINNED = 3 };
 
-static const double PIN_FRACTION = 0.9;         /* monitor.PIN_FRACTION */
 static const double NEGATIVE_TOLERANCE = 1e-10; /* monitor.NEGATIVE_TOLERANCE */
-static const double TINY = 1e-290;              /* linalg.TINY */
 
 /* _ukf_core.py: relative step of the central differences along the sigma directions */
 static const double SENSITIVITY_STEP = 1e-3;
 /* linalg.SEMIDEFINITE_TOLERANCE */
-static const double SEMIDEFINITE_TOLERANCE = 1e-13;
 
 #define UKF_ABI 1
 
@@ -170,86 +168,8 @@ typedef struct {
 } UkfRecords;
 
 /* Python's max(a, b) on floats as numba lowers it: b if b > a else a */
-static double py_max(double a, double b) { return b > a ? b : a; }
 
 /* ===================================================================== linalg.py */
-
-/* symmetrise: P <- (P + P^T)/2 in place, flushing entries below TINY to zero */
-static void symmetrise(double *P, int64_t n)
-{
-    for (int64_t i = 0; i < n; i++) {
-        if (fabs(P[i * n + i]) < TINY)
-            P[i * n + i] = 0.0;
-        for (int64_t j = i + 1; j < n; j++) {
-            double v = 0.5 * (P[i * n + j] + P[j * n + i]);
-            if (fabs(v) < TINY)
-                v = 0.0;
-            P[i * n + j] = v;
-            P[j * n + i] = v;
-        }
-    }
-}
-
-
-/* cholesky: lower factor of the symmetric A (n, n) into L; 0 when A is not positive
- * definite or not finite. Reads the lower triangle of A only. */
-static int cholesky(const double *A, double *L, int64_t n)
-{
-    for (int64_t j = 0; j < n; j++) {
-        double s = A[j * n + j];
-        for (int64_t k = 0; k < j; k++)
-            s -= L[j * n + k] * L[j * n + k];
-        if (!(s > 0.0) || !isfinite(s))
-            return 0;
-        double d = sqrt(s);
-        L[j * n + j] = d;
-        for (int64_t i = j + 1; i < n; i++) {
-            s = A[i * n + j];
-            for (int64_t k = 0; k < j; k++)
-                s -= L[i * n + k] * L[j * n + k];
-            L[i * n + j] = s / d;
-        }
-        for (int64_t i = 0; i < j; i++)
-            L[i * n + j] = 0.0;
-    }
-    return 1;
-}
-
-/* cholesky_semidefinite: a lower factor of a positive semidefinite A; pivots under
- * SEMIDEFINITE_TOLERANCE times the largest diagonal entry count as zero */
-static int cholesky_semidefinite(const double *A, double *L, int64_t n)
-{
-    double largest = 0.0;
-    for (int64_t i = 0; i < n; i++) {
-        if (!isfinite(A[i * n + i]))
-            return 0;
-        largest = py_max(largest, A[i * n + i]);
-    }
-    double floor_ = SEMIDEFINITE_TOLERANCE * largest;
-    for (int64_t j = 0; j < n; j++) {
-        double s = A[j * n + j];
-        for (int64_t k = 0; k < j; k++)
-            s -= L[j * n + k] * L[j * n + k];
-        for (int64_t i = 0; i < j; i++)
-            L[i * n + j] = 0.0;
-        if (s <= floor_) {
-            if (s < -1e3 * floor_ - 1e-300)
-                return 0;
-            for (int64_t i = j; i < n; i++)
-                L[i * n + j] = 0.0;
-            continue;
-        }
-        double d = sqrt(s);
-        L[j * n + j] = d;
-        for (int64_t i = j + 1; i < n; i++) {
-            s = A[i * n + j];
-            for (int64_t k = 0; k < j; k++)
-                s -= L[i * n + k] * L[j * n + k];
-            L[i * n + j] = s / d;
-        }
-    }
-    return 1;
-}
 
 /* cholesky_solve_rows: X S = B for X (rows, m), S = L L^T; X may be B */
 static void cholesky_solve_rows(const double *L, int64_t m, const double *B, double *X,
@@ -271,26 +191,6 @@ static void cholesky_solve_rows(const double *L, int64_t m, const double *B, dou
     }
 }
 
-/* log_determinant: log det(L L^T) from a Cholesky factor */
-static double log_determinant(const double *L, int64_t m)
-{
-    double total = 0.0;
-    for (int64_t i = 0; i < m; i++)
-        total += log(L[i * m + i]);
-    return 2.0 * total;
-}
-
-/* add_product: x += K r, K (n, m) */
-static void add_product(double *x, const double *K, const double *r, int64_t n, int64_t m)
-{
-    for (int64_t i = 0; i < n; i++) {
-        double acc = 0.0;
-        for (int64_t a = 0; a < m; a++)
-            acc += K[i * m + a] * r[a];
-        x[i] += acc;
-    }
-}
-
 /* ================================================================= unscented.py */
 
 /* sigma_points: the points of (x, P) into the rows of X (2n + 1, n), centre last */
@@ -308,41 +208,6 @@ static int sigma_points(const double *x, const double *P, double spread, double 
     for (int64_t j = 0; j < n; j++)
         X[2 * n * n + j] = x[j];
     return 1;
-}
-
-/* weighted_mean: out = sum_i w_i Y_i over the first count rows of Y (rows, d) */
-static void weighted_mean(const double *Y, int64_t d, const double *weights, int64_t count,
-                          double *out)
-{
-    for (int64_t j = 0; j < d; j++)
-        out[j] = 0.0;
-    for (int64_t i = 0; i < count; i++) {
-        double w = weights[i];
-        for (int64_t j = 0; j < d; j++)
-            out[j] += w * Y[i * d + j];
-    }
-}
-
-/* weighted_covariance: out = sum_i w_i (Y_i - mean)(Y_i - mean)^T + noise, symmetrised */
-static void weighted_covariance(const double *Y, int64_t d, const double *mean,
-                                const double *weights, int64_t count, const double *noise,
-                                double *out)
-{
-    for (int64_t a = 0; a < d; a++)
-        for (int64_t b = 0; b < d; b++)
-            out[a * d + b] = noise[a * d + b];
-    for (int64_t i = 0; i < count; i++) {
-        double w = weights[i];
-        for (int64_t a = 0; a < d; a++) {
-            double da = w * (Y[i * d + a] - mean[a]);
-            for (int64_t b = a; b < d; b++)
-                out[a * d + b] += da * (Y[i * d + b] - mean[b]);
-        }
-    }
-    for (int64_t a = 0; a < d; a++)
-        for (int64_t b = a + 1; b < d; b++)
-            out[b * d + a] = out[a * d + b];
-    symmetrise(out, d);
 }
 
 /* cross_covariance: out = sum_i w_i (X_i - xmean)(Z_i - zmean)^T, X (rows, dx), Z (rows, dz) */
@@ -475,95 +340,6 @@ static void belief_health(const double *x, const double *P, int64_t n, double ma
     *ok_out = ok;
 }
 
-/* track_pins: samples at a limit over the last n_pin; first parameter pinned or -1 */
-static int64_t track_pins(const uint8_t *pinned_now, int64_t *pins, int64_t *ring,
-                          int64_t n_params, int64_t n_pin, int64_t k)
-{
-    if (n_pin == 0)
-        return -1;
-    int64_t pos = k % n_pin;
-    for (int64_t j = 0; j < n_params; j++) {
-        int64_t now = pinned_now[j] ? 1 : 0;
-        pins[j] += now - ring[j * n_pin + pos];
-        ring[j * n_pin + pos] = now;
-    }
-    if (k + 1 >= n_pin)
-        for (int64_t j = 0; j < n_params; j++)
-            if ((double)pins[j] >= PIN_FRACTION * (double)n_pin)
-                return j;
-    return -1;
-}
-
-/* window_push: append a value to the variance ring, update the running sums in sc
- * (Popovici eqs. 24-25, thesis eqs. 29-30) */
-static void window_push(double *buf, int64_t size, double *sc, int64_t base, double value,
-                        int64_t k)
-{
-    int64_t pos = k % size;
-    double old = buf[pos];
-    if (!isnan(old)) {
-        double dv = old - sc[base];
-        sc[base + 1] -= dv;
-        sc[base + 2] -= dv * dv;
-        sc[base + 3] -= 1.0;
-        if (sc[base + 3] <= 0.0) {
-            sc[base + 1] = 0.0;
-            sc[base + 2] = 0.0;
-            sc[base + 3] = 0.0;
-        }
-    }
-    buf[pos] = value;
-    if (!isnan(value)) {
-        if (sc[base + 3] == 0.0)
-            sc[base] = value;
-        double dv = value - sc[base];
-        sc[base + 1] += dv;
-        sc[base + 2] += dv * dv;
-        sc[base + 3] += 1.0;
-    }
-    if (pos == size - 1) {
-        double s = 0.0, ss = 0.0, c = 0.0;
-        for (int64_t i = 0; i < size; i++) {
-            double v = buf[i];
-            if (!isnan(v)) {
-                double dv = v - sc[base];
-                s += dv;
-                ss += dv * dv;
-                c += 1.0;
-            }
-        }
-        sc[base + 1] = s;
-        sc[base + 2] = ss;
-        sc[base + 3] = c;
-    }
-}
-
-/* window_variance: population variance of the finite values in the ring */
-static double window_variance(const double *sc, int64_t base)
-{
-    double c = sc[base + 3];
-    if (c < 1.0)
-        return 0.0;
-    double mean = sc[base + 1] / c;
-    double var = sc[base + 2] / c - mean * mean;
-    return var > 0.0 ? var : 0.0;
-}
-
-/* ================================================================= smoothers.py */
-
-/* store_belief: copy a belief into row `row` of the smoother storage (no-op without) */
-static void store_belief(int64_t rows, int64_t row, const double *x, const double *P,
-                         int64_t n, double *x_store, double *P_store)
-{
-    if (rows == 0)
-        return;
-    for (int64_t i = 0; i < n; i++) {
-        x_store[row * n + i] = x[i];
-        for (int64_t j = 0; j < n; j++)
-            P_store[(row * n + i) * n + j] = P[i * n + j];
-    }
-}
-
 /* ================================================================ _pilot_core.py */
 
 /* noise_levels: push the sample into the variance windows; (R, R_parameter, q_error)
@@ -590,22 +366,6 @@ static void noise_levels(const UkfRecords *rec, double u_k, double e_k, double *
     *R_p_out = cfg[CFG_FIXED_R] > 0.0 ? cfg[CFG_FIXED_R] : cfg[CFG_R2_PARAMETER] * var_u;
     *q_error_out = cfg[CFG_FIXED_QE] > 0.0 ? cfg[CFG_FIXED_QE]
                                             : cfg[CFG_Q2] * py_max(var_e, floor_);
-}
-
-/* inputs_in_use: a dropped input holds its last value; true if the sample is dropped */
-static int inputs_in_use(const double *inputs_k, double u_k, const double *prev_in,
-                         double *in_use, int64_t n_in)
-{
-    int dropped = isnan(u_k) ? 1 : 0;
-    for (int64_t i = 0; i < n_in; i++) {
-        if (isnan(inputs_k[i])) {
-            dropped = 1;
-            in_use[i] = prev_in[i];
-        } else {
-            in_use[i] = inputs_k[i];
-        }
-    }
-    return dropped;
 }
 
 /* report_frozen: a stopped filter's row (last estimate, NaN predictions, diverged) */
@@ -692,26 +452,6 @@ static void report_row(const UkfRecords *rec, int finite, int cov_ok, int droppe
 }
 
 /* ============================================================= internal_model.py */
-
-/* _pade_jet: Padé polynomial (thesis Part I eq. 4) in descending powers, constant term 1,
- * and its derivative in tau, into row `row` of value and slope (row length order + 1) */
-static void pade_jet(double tau, int64_t order, double sign, double *value, double *slope,
-                     int64_t row)
-{
-    int64_t cols = order + 1;
-    double c = 1.0;
-    double power = 1.0;
-    double previous = 1.0;
-    for (int64_t k = 0; k < order + 1; k++) {
-        if (k > 0) {
-            c = c * (double)(order - k + 1) / (double)(k * (2 * order - k + 1));
-            previous = power;
-            power = power * sign * tau;
-        }
-        value[row * cols + order - k] = c * power;
-        slope[row * cols + order - k] = k == 0 ? 0.0 : c * (double)k * sign * previous;
-    }
-}
 
 /* _chain_polynomial: out[c] = raw[start:start+length] times the Padé polynomial of p[k]
  * (if k >= 0), with gradients in the parameters active[c, which] only */
@@ -982,7 +722,6 @@ static double model_g(const UkfRecords *rec, const double *x, const double *inpu
         dgdp[j] += d_grad[0 * stride + j] * v;
     return g;
 }
-
 
 /* ================================================================= _ukf_core.py */
 

@@ -47,6 +47,7 @@
 #include <stddef.h>
 #include <stdint.h>
 #include <stdlib.h>
+#include "_native_common.h" /* the helpers the ports share (linalg, monitor, smoothers) */
 
 /* ---- _zhao_core.py: indices into cfg (CFG_*) and sizes */
 enum {
@@ -72,10 +73,7 @@ enum {
 /* filters/monitor.py: divergence codes */
 enum { REASON_NONE = 0, REASON_NONFINITE = 1, REASON_COVARIANCE = 2, REASON_PINNED = 3 };
 
-static const double PIN_FRACTION = 0.9;               /* monitor.PIN_FRACTION */
 static const double NEGATIVE_TOLERANCE = 1e-10;       /* monitor.NEGATIVE_TOLERANCE */
-static const double TINY = 1e-290;                    /* linalg.TINY */
-static const double SEMIDEFINITE_TOLERANCE = 1e-13;   /* linalg.SEMIDEFINITE_TOLERANCE */
 
 #define ZHAO_ABI 1
 
@@ -136,86 +134,8 @@ typedef struct {
 
 /* Python's max(a, b) and min(a, b) on floats as numba lowers them: b if b > a else a,
  * b if b < a else a */
-static double py_max(double a, double b) { return b > a ? b : a; }
-static double py_min(double a, double b) { return b < a ? b : a; }
 
 /* ===================================================================== linalg.py */
-
-/* symmetrise: P <- (P + P^T)/2 in place, flushing entries below TINY to zero */
-static void symmetrise(double *P, int64_t n)
-{
-    for (int64_t i = 0; i < n; i++) {
-        if (fabs(P[i * n + i]) < TINY)
-            P[i * n + i] = 0.0;
-        for (int64_t j = i + 1; j < n; j++) {
-            double v = 0.5 * (P[i * n + j] + P[j * n + i]);
-            if (fabs(v) < TINY)
-                v = 0.0;
-            P[i * n + j] = v;
-            P[j * n + i] = v;
-        }
-    }
-}
-
-/* cholesky: lower factor of the symmetric A (n, n) into L; 0 when not positive definite
- * or not finite (reads the lower triangle of A only) */
-static int cholesky(const double *A, double *L, int64_t n)
-{
-    for (int64_t j = 0; j < n; j++) {
-        double s = A[j * n + j];
-        for (int64_t k = 0; k < j; k++)
-            s -= L[j * n + k] * L[j * n + k];
-        if (!(s > 0.0) || !isfinite(s))
-            return 0;
-        double d = sqrt(s);
-        L[j * n + j] = d;
-        for (int64_t i = j + 1; i < n; i++) {
-            s = A[i * n + j];
-            for (int64_t k = 0; k < j; k++)
-                s -= L[i * n + k] * L[j * n + k];
-            L[i * n + j] = s / d;
-        }
-        for (int64_t i = 0; i < j; i++)
-            L[i * n + j] = 0.0;
-    }
-    return 1;
-}
-
-/* cholesky_semidefinite: a factor of a positive semidefinite A, pivots below
- * SEMIDEFINITE_TOLERANCE times the largest diagonal entry taken as zero */
-static int cholesky_semidefinite(const double *A, double *L, int64_t n)
-{
-    double largest = 0.0;
-    for (int64_t i = 0; i < n; i++) {
-        if (!isfinite(A[i * n + i]))
-            return 0;
-        largest = py_max(largest, A[i * n + i]);
-    }
-    double floor_ = SEMIDEFINITE_TOLERANCE * largest;
-    for (int64_t j = 0; j < n; j++) {
-        double s = A[j * n + j];
-        for (int64_t k = 0; k < j; k++)
-            s -= L[j * n + k] * L[j * n + k];
-        for (int64_t i = 0; i < j; i++)
-            L[i * n + j] = 0.0;
-        if (s <= floor_) {
-            if (s < -1e3 * floor_ - 1e-300)
-                return 0;
-            for (int64_t i = j; i < n; i++)
-                L[i * n + j] = 0.0;
-            continue;
-        }
-        double d = sqrt(s);
-        L[j * n + j] = d;
-        for (int64_t i = j + 1; i < n; i++) {
-            s = A[i * n + j];
-            for (int64_t k = 0; k < j; k++)
-                s -= L[i * n + k] * L[j * n + k];
-            L[i * n + j] = s / d;
-        }
-    }
-    return 1;
-}
 
 /* cholesky_solve_rows: X S = B for the rows of B (rows, m), S = L L^T; X may be B */
 static void cholesky_solve_rows(const double *L, int64_t m, const double *B, double *X,
@@ -234,26 +154,6 @@ static void cholesky_solve_rows(const double *L, int64_t m, const double *B, dou
                 s -= L[k * m + i] * X[r * m + k];
             X[r * m + i] = s / L[i * m + i];
         }
-    }
-}
-
-/* log_determinant: log det(L L^T) from a Cholesky factor */
-static double log_determinant(const double *L, int64_t m)
-{
-    double total = 0.0;
-    for (int64_t i = 0; i < m; i++)
-        total += log(L[i * m + i]);
-    return 2.0 * total;
-}
-
-/* add_product: x += K r for K (n, m) */
-static void add_product(double *x, const double *K, const double *r, int64_t n, int64_t m)
-{
-    for (int64_t i = 0; i < n; i++) {
-        double acc = 0.0;
-        for (int64_t a = 0; a < m; a++)
-            acc += K[i * m + a] * r[a];
-        x[i] += acc;
     }
 }
 
@@ -276,41 +176,6 @@ static int sigma_points(const double *x, const double *P, double spread, double 
     for (int64_t j = 0; j < n; j++)
         X[2 * n * n + j] = x[j];
     return 1;
-}
-
-/* weighted_mean: out = sum_i w_i Y_i over the first count rows of Y (rows, d) */
-static void weighted_mean(const double *Y, int64_t d, const double *weights, int64_t count,
-                          double *out)
-{
-    for (int64_t j = 0; j < d; j++)
-        out[j] = 0.0;
-    for (int64_t i = 0; i < count; i++) {
-        double w = weights[i];
-        for (int64_t j = 0; j < d; j++)
-            out[j] += w * Y[i * d + j];
-    }
-}
-
-/* weighted_covariance: out = sum_i w_i (Y_i - mean)(Y_i - mean)^T + noise, symmetrised */
-static void weighted_covariance(const double *Y, int64_t d, const double *mean,
-                                const double *weights, int64_t count, const double *noise,
-                                double *out)
-{
-    for (int64_t a = 0; a < d; a++)
-        for (int64_t b = 0; b < d; b++)
-            out[a * d + b] = noise[a * d + b];
-    for (int64_t i = 0; i < count; i++) {
-        double w = weights[i];
-        for (int64_t a = 0; a < d; a++) {
-            double da = w * (Y[i * d + a] - mean[a]);
-            for (int64_t b = a; b < d; b++)
-                out[a * d + b] += da * (Y[i * d + b] - mean[b]);
-        }
-    }
-    for (int64_t a = 0; a < d; a++)
-        for (int64_t b = a + 1; b < d; b++)
-            out[b * d + a] = out[a * d + b];
-    symmetrise(out, d);
 }
 
 /* cross_covariance: out (nx, nz) = sum_i w_i (X_i - xmean)(Z_i - zmean)^T */
@@ -405,25 +270,6 @@ static void belief_health(const double *x, const double *P, int64_t n, double ma
     }
     *finite_out = finite;
     *ok_out = ok;
-}
-
-/* track_pins: samples at a limit over the last n_pin; first parameter pinned or -1 */
-static int64_t track_pins(const uint8_t *pinned_now, int64_t *pins, int64_t *ring,
-                          int64_t n_params, int64_t n_pin, int64_t k)
-{
-    if (n_pin == 0)
-        return -1;
-    int64_t pos = k % n_pin;
-    for (int64_t j = 0; j < n_params; j++) {
-        int64_t now = pinned_now[j] ? 1 : 0;
-        pins[j] += now - ring[j * n_pin + pos];
-        ring[j * n_pin + pos] = now;
-    }
-    if (k + 1 >= n_pin)
-        for (int64_t j = 0; j < n_params; j++)
-            if ((double)pins[j] >= PIN_FRACTION * (double)n_pin)
-                return j;
-    return -1;
 }
 
 /* ================================================================ _pilot_core.py */

@@ -19,6 +19,7 @@ and compiler; a C port whose constants differ from the Python modules' is refuse
 import ctypes
 import math
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -271,6 +272,32 @@ def test_a_library_is_built_once_per_source_and_anew_for_an_edited_one(tmp_path)
     assert second != first
     assert ctypes.CDLL(str(second)).answer() == 43
     assert sorted(p.name for p in folder.iterdir()) == sorted([first.name, second.name])
+
+
+@needs_compiler
+def test_an_edited_shared_header_rebuilds_the_library_that_includes_it(tmp_path):
+    header = tmp_path / "shared.h"
+    header.write_text("#define ANSWER 42\n")
+    source = tmp_path / "tiny.c"
+    source.write_text('#include "shared.h"\nint answer(void) { return ANSWER; }\n')
+    assert _native.local_headers(source) == [header]
+    folder = tmp_path / "cache"
+    compiler = _native._compiler()
+    first = _native.build_library(source, compiler, folder)
+    assert ctypes.CDLL(str(first)).answer() == 42
+    header.write_text("#define ANSWER 43\n")  # the source itself unchanged
+    second = _native.build_library(source, compiler, folder)
+    assert second != first
+    assert ctypes.CDLL(str(second)).answer() == 43
+
+
+def test_every_port_includes_the_shared_header_that_ships_beside_it():
+    from manualcontrol.estimators import members
+
+    folder = Path(members.__file__).parent
+    for source in sorted(folder.glob("_*_native.c")):
+        assert _native.local_headers(source) == [folder / "_native_common.h"], source.name
+    assert (folder / "_native_common.h").is_file()
 
 
 @needs_compiler
