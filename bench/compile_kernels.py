@@ -16,7 +16,8 @@ it reads, and the batched step of those that have one
 (:class:`~manualcontrol.estimators.batch.FilterBatch`): the pilot filters on the
 precision and the preview model; and the isolated pilot of a resimulation, which
 discretises and runs the LPV toolkit's kernels. The C ports, the members' and the LPV
-toolkit's (matrix exponentials and LPV runs, ``envs/_dynamics_native.c``), are built too
+toolkit's (matrix exponentials and LPV runs, ``envs/_dynamics_native.c``) and the RTS
+smoother's (``estimators/filters/_smoother_native.c``), are built too
 (``envs/_native.py``: under a second each), and the numba kernels they replace compiled
 only where they are needed: where no C compiler is found (or ``MANUALCONTROL_NATIVE=0``)
 they are what runs, so the install step compiles them; elsewhere they are only the
@@ -202,8 +203,10 @@ def _numba_kernels(job: Callable[[], None]) -> Callable[[], None]:
 def _c_ports() -> None:
 
     from manualcontrol.envs import _dynamics_native, _native
+    from manualcontrol.estimators.filters import _smoother_native
 
-    ported = {"LPV toolkit": _dynamics_native}  # name -> its C port's binding
+    # name -> its C port's binding
+    ported = {"LPV toolkit": _dynamics_native, "RTS smoother": _smoother_native}
     for name, entry in ESTIMATORS.items():
         binding = getattr(type(entry.build({})), "_native_binding", None)  # not all shells
         if binding is not None:

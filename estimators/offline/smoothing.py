@@ -21,6 +21,7 @@ forward run. Samples after a divergence that stopped the filter are left as filt
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -50,6 +51,21 @@ FloatArray = NDArray[np.float64]
 #: Jacobians), ``"ukf"`` (``link`` holds the cross-covariances), ``"random-walk"``
 #: (no ``link``: ``F = I``).
 BLOCK_KINDS = {"ukf": LINK_CROSS, "ekf": LINK_TRANSITION, "random-walk": LINK_RANDOM_WALK}
+
+
+def _smoother_pass() -> Any:
+    """The RTS pass: the C port where it builds (no numba loaded), else the numba kernel.
+
+    Both give the same bytes (``tests/estimators/test_smoother_native.py``).
+    """
+    from manualcontrol.estimators.filters import _smoother_native
+
+    lib = _smoother_native.library()
+    if lib is None:
+        from manualcontrol.estimators.filters._smoother_kernels import rts_smooth
+
+        return rts_smooth
+    return functools.partial(_smoother_native.rts_smooth, lib)
 
 
 @dataclass(frozen=True, eq=False)
@@ -187,8 +203,7 @@ def smooth(result: EstimationResult) -> EstimationResult:
     n_rows = len(result)
     if result.health.stopped:
         n_rows = int(np.argmin(result.finite)) if not result.finite.all() else n_rows
-    from manualcontrol.estimators.filters._smoother_kernels import rts_smooth
-
+    rts_smooth = _smoother_pass()
     for block in inputs.blocks:
         n = block.x_filtered.shape[1]
         x_s = np.zeros((n_rows, n))

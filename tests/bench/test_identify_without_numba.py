@@ -1,8 +1,9 @@
 """An identification through the C ports never imports numba, and numba's is the same.
 
 Where the C ports build, ``manualcontrol identify <recording> --estimator <member>
---no-plot`` (the DEKF, the RML, the joint and dual UKFs, the RDI, Schiess-Roland's filter)
-simulates, discretises and filters in C: the numba kernels live in modules
+--no-plot`` (the DEKF, the RML, the joint and dual UKFs, the RDI, Schiess-Roland's filter,
+and the smoothed twins, whose RTS pass has its own port) simulates, discretises, filters
+and smooths in C: the numba kernels live in modules
 that only the fallback imports, so numba (a quarter of the command's CPU time) is never
 loaded. With ``MANUALCONTROL_NATIVE=0`` the same command runs the numba kernels and
 writes the same estimation, byte for byte.
@@ -15,6 +16,7 @@ import sys
 import pytest
 
 from manualcontrol.envs import _dynamics_native, _native
+from manualcontrol.estimators.filters import _smoother_native
 from manualcontrol.estimators.members import (
     _dekf_native,
     _rdi_native,
@@ -48,6 +50,14 @@ MEMBERS = {
         ("schiess-roland", "schiess-roland1975", "schiess-roland1975"),
         {"seed": 0},
     ),
+    # the smoothed twins: the filter's C port, then the RTS smoother's
+    "dekf-smoothed": (_dekf_native, ("precision", "popovici2017", "popovici2017"), {"run_in": 0.0}),
+    "rml-smoothed": (_rml_native, ("precision", "popovici2017", "popovici2017"), {"run_in": 0.0}),
+    "joint-ukf-smoothed": (
+        _ukf_native,
+        ("precision", "popovici2017", "popovici2017"),
+        {"run_in": 0.0},
+    ),
 }
 
 
@@ -79,6 +89,8 @@ def test_a_warm_identify_imports_no_numba_and_numba_writes_the_same(
     port, (pilot, plant, task), options = MEMBERS[estimator]
     if port.library() is None or _dynamics_native.library() is None:
         pytest.skip(f"the {estimator}'s or the LPV toolkit's C port did not build here")
+    if estimator.endswith("-smoothed") and _smoother_native.library() is None:
+        pytest.skip("the RTS smoother's C port did not build here")
     recording = tmp_path / "run.npz"
     simulate(Pilot(pilot), plant, task, measurement_time=30.0, **options).save(recording)
     loaded = identify(recording, tmp_path / "c", native=True, estimator=estimator)
