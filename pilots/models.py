@@ -311,6 +311,10 @@ class PrecisionModel(PilotModel):
             den = _stack(values["T_I"], _ones_like(values))
         return (Channel((Branch("e", num, den),), *_equalised_nms(values)),)
 
+    def __post_init__(self) -> None:
+        if self.lag not in (True, False):
+            raise TypeError(f"lag must be True or False, got {self.lag!r}")
+
     def __repr__(self) -> str:
         return "PrecisionModel(lag=True)" if self.lag else "PrecisionModel()"
 

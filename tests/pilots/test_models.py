@@ -47,6 +47,8 @@ def test_precision_model_with_its_lag_is_mcruers_lag_equaliser():
         rtol=1e-12,
     )
     assert make_model("precision") == make_model("precision", lag=False) != model
+    with pytest.raises(TypeError, match="lag must be True or False, got 'yes'"):
+        make_model("precision", lag="yes")
 
 
 def test_a_lagging_pilot_keeps_its_lag_through_its_dict():
