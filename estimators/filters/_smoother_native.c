@@ -16,8 +16,8 @@
  *
  * Sources ported (manualcontrol/estimators/...):
  *   filters/_smoother_kernels.py  rts_smooth, _factor_prior
- *   filters/_linalg_kernels.py    cholesky_solve_rows, matmul, matmul_transposed
- *                                 (symmetrise and cholesky: ../members/_native_common.h)
+ *   filters/_linalg_kernels.py    matmul (symmetrise, cholesky, cholesky_solve_rows and
+ *                                 matmul_transposed: ../members/_native_common.h)
  */
 #include <math.h>
 #include <stddef.h>
@@ -30,25 +30,6 @@ static const double REGULARISATION = 1e-12; /* smoothers.REGULARISATION */
 
 #define SMOOTHER_ABI 1
 
-/* linalg.cholesky_solve_rows: X S = B for the rows of B (r x m), S = L L^T */
-static void solve_rows(const double *L, const double *B, double *X, int64_t rows, int64_t m)
-{
-    for (int64_t r = 0; r < rows; r++) {
-        for (int64_t i = 0; i < m; i++) {
-            double s = B[r * m + i];
-            for (int64_t k = 0; k < i; k++)
-                s -= L[i * m + k] * X[r * m + k];
-            X[r * m + i] = s / L[i * m + i];
-        }
-        for (int64_t i = m - 1; i > -1; i--) {
-            double s = X[r * m + i];
-            for (int64_t k = i + 1; k < m; k++)
-                s -= L[k * m + i] * X[r * m + k];
-            X[r * m + i] = s / L[i * m + i];
-        }
-    }
-}
-
 /* linalg.matmul: out = A B, all n x n */
 static void matmul_square(const double *A, const double *B, double *out, int64_t n)
 {
@@ -57,18 +38,6 @@ static void matmul_square(const double *A, const double *B, double *out, int64_t
             double acc = 0.0;
             for (int64_t k = 0; k < n; k++)
                 acc += A[i * n + k] * B[k * n + j];
-            out[i * n + j] = acc;
-        }
-}
-
-/* linalg.matmul_transposed: out = A B^T, all n x n */
-static void matmul_transposed_square(const double *A, const double *B, double *out, int64_t n)
-{
-    for (int64_t i = 0; i < n; i++)
-        for (int64_t j = 0; j < n; j++) {
-            double acc = 0.0;
-            for (int64_t k = 0; k < n; k++)
-                acc += A[i * n + k] * B[j * n + k];
             out[i * n + j] = acc;
         }
 }
@@ -118,7 +87,7 @@ int64_t smoother_rts(int64_t N, int64_t n, const double *x_filtered, const doubl
                 for (int64_t j = 0; j < n; j++)
                     C[i * n + j] = link[(k + 1) * nn + i * n + j];
         } else if (kind == LINK_TRANSITION) {
-            matmul_transposed_square(Pf, link + (k + 1) * nn, C, n);
+            matmul_transposed(Pf, link + (k + 1) * nn, C, n, n, n);
         } else {
             for (int64_t i = 0; i < n; i++)
                 for (int64_t j = 0; j < n; j++)
@@ -135,7 +104,7 @@ int64_t smoother_rts(int64_t N, int64_t n, const double *x_filtered, const doubl
             continue;
         }
         regularised += status > 0 ? 1 : 0;
-        solve_rows(L, C, G, n, n);
+        cholesky_solve_rows(L, n, C, G, n);
         for (int64_t i = 0; i < n; i++) {
             double acc = x_filtered[k * n + i];
             for (int64_t j = 0; j < n; j++)
@@ -146,7 +115,7 @@ int64_t smoother_rts(int64_t N, int64_t n, const double *x_filtered, const doubl
             for (int64_t j = 0; j < n; j++)
                 D[i * n + j] = P_smooth[(k + 1) * nn + i * n + j] - Pp[i * n + j];
         matmul_square(G, D, T, n);
-        matmul_transposed_square(T, G, A, n);
+        matmul_transposed(T, G, A, n, n, n);
         for (int64_t i = 0; i < n; i++)
             for (int64_t j = 0; j < n; j++)
                 A[i * n + j] += Pf[i * n + j];

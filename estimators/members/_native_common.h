@@ -12,6 +12,7 @@
  *
  * Sources ported (manualcontrol/estimators/...):
  *   filters/linalg.py    TINY, SEMIDEFINITE_TOLERANCE, symmetrise, cholesky,
+ *                        cholesky_solve_rows, matmul_transposed,
  *                        cholesky_semidefinite, log_determinant, add_product
  *   filters/unscented.py weighted_mean, weighted_covariance
  *   filters/kalman.py    KalmanWork, joseph_scalar
@@ -80,6 +81,39 @@ static int cholesky(const double *A, double *L, int64_t n)
             L[i * n + j] = 0.0;
     }
     return 1;
+}
+
+/* cholesky_solve_rows: X S = B for the rows of B (rows, m), S = L L^T; X may be B */
+static void cholesky_solve_rows(const double *L, int64_t m, const double *B, double *X,
+                                int64_t rows)
+{
+    for (int64_t r = 0; r < rows; r++) {
+        for (int64_t i = 0; i < m; i++) {
+            double s = B[r * m + i];
+            for (int64_t k = 0; k < i; k++)
+                s -= L[i * m + k] * X[r * m + k];
+            X[r * m + i] = s / L[i * m + i];
+        }
+        for (int64_t i = m - 1; i > -1; i--) {
+            double s = X[r * m + i];
+            for (int64_t k = i + 1; k < m; k++)
+                s -= L[k * m + i] * X[r * m + k];
+            X[r * m + i] = s / L[i * m + i];
+        }
+    }
+}
+
+/* matmul_transposed: out = A B^T, A (a, c), B (b, c), out (a, b) */
+static void matmul_transposed(const double *A, const double *B, double *out, int64_t a,
+                              int64_t b, int64_t c)
+{
+    for (int64_t i = 0; i < a; i++)
+        for (int64_t j = 0; j < b; j++) {
+            double acc = 0.0;
+            for (int64_t k = 0; k < c; k++)
+                acc += A[i * c + k] * B[j * c + k];
+            out[i * b + j] = acc;
+        }
 }
 
 /* cholesky_semidefinite: a lower factor of a positive semidefinite A; pivots under

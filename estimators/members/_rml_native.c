@@ -178,26 +178,6 @@ typedef struct {
 
 /* ========================================================= linalg.py (continued) */
 
-/* cholesky_solve_rows: X S = B for X (rows of B, (rows, m)), S = L L^T; X may be B */
-static void cholesky_solve_rows(const double *L, int64_t m, const double *B, int64_t rows,
-                                double *X)
-{
-    for (int64_t r = 0; r < rows; r++) {
-        for (int64_t i = 0; i < m; i++) {
-            double s = B[r * m + i];
-            for (int64_t k = 0; k < i; k++)
-                s -= L[i * m + k] * X[r * m + k];
-            X[r * m + i] = s / L[i * m + i];
-        }
-        for (int64_t i = m - 1; i >= 0; i--) {
-            double s = X[r * m + i];
-            for (int64_t k = i + 1; k < m; k++)
-                s -= L[k * m + i] * X[r * m + k];
-            X[r * m + i] = s / L[i * m + i];
-        }
-    }
-}
-
 /* ===================================================================== kalman.py */
 
 /* predict_covariance: P <- Phi P Phi^T + Q in place (T (n, n) scratch), symmetrised;
@@ -874,7 +854,7 @@ static int update_parameters(const RmlRecords *rec, double u_k, int64_t k)
     /* xi = Lambda^-1 g (g as a row), then theta += L xi */
     for (int64_t j = 0; j < n_t; j++)
         rec->xi[j] = g[j];
-    cholesky_solve_rows(rec->LamL, n_t, rec->xi, 1, rec->xi);
+    cholesky_solve_rows(rec->LamL, n_t, rec->xi, rec->xi, 1);
     for (int64_t a = 0; a < n_t; a++) {
         double acc = 0.0;
         for (int64_t j = 0; j < n_t; j++)
@@ -882,7 +862,7 @@ static int update_parameters(const RmlRecords *rec, double u_k, int64_t k)
         th[a] += acc;
     }
     /* P = L Lambda^-1 L^T: the rows of B solve B Lambda = L */
-    cholesky_solve_rows(rec->LamL, n_t, L, n_t, rec->B);
+    cholesky_solve_rows(rec->LamL, n_t, L, rec->B, n_t);
     for (int64_t a = 0; a < n_t; a++)
         for (int64_t b = 0; b < n_t; b++) {
             double acc = 0.0;

@@ -126,39 +126,6 @@ typedef struct {
 
 /* ===================================================================== linalg.py */
 
-/* cholesky_solve_rows: X S = B for X (rows of B, (r, m)), S = L L^T; X may be B */
-static void cholesky_solve_rows(const double *L, const double *B, double *X, int64_t rows,
-                                int64_t m)
-{
-    for (int64_t r = 0; r < rows; r++) {
-        for (int64_t i = 0; i < m; i++) {
-            double s = B[r * m + i];
-            for (int64_t k = 0; k < i; k++)
-                s -= L[i * m + k] * X[r * m + k];
-            X[r * m + i] = s / L[i * m + i];
-        }
-        for (int64_t i = m - 1; i > -1; i--) {
-            double s = X[r * m + i];
-            for (int64_t k = i + 1; k < m; k++)
-                s -= L[k * m + i] * X[r * m + k];
-            X[r * m + i] = s / L[i * m + i];
-        }
-    }
-}
-
-/* matmul_transposed: out = A B^T, A (a, c), B (b, c), out (a, b) */
-static void matmul_transposed(const double *A, const double *B, double *out, int64_t a,
-                              int64_t b, int64_t c)
-{
-    for (int64_t i = 0; i < a; i++)
-        for (int64_t j = 0; j < b; j++) {
-            double acc = 0.0;
-            for (int64_t k = 0; k < c; k++)
-                acc += A[i * c + k] * B[j * c + k];
-            out[i * b + j] = acc;
-        }
-}
-
 /* ===================================================================== kalman.py */
 
 /* joseph_correct: the Joseph-form correction with an m-dimensional measurement
@@ -188,7 +155,7 @@ static int joseph_correct(double *x, double *P, const double *r, const double *H
         }
     if (!cholesky(S, L, m))
         return 0;
-    cholesky_solve_rows(L, PHt, K, n, m);
+    cholesky_solve_rows(L, m, PHt, K, n);
     if (work->n_log_det > 0)
         work->log_det[0] = log_determinant(L, m);
     /* add_product: x += K r */

@@ -137,26 +137,6 @@ typedef struct {
 
 /* ===================================================================== linalg.py */
 
-/* cholesky_solve_rows: X S = B for the rows of B (rows, m), S = L L^T; X may be B */
-static void cholesky_solve_rows(const double *L, int64_t m, const double *B, double *X,
-                                int64_t rows)
-{
-    for (int64_t r = 0; r < rows; r++) {
-        for (int64_t i = 0; i < m; i++) {
-            double s = B[r * m + i];
-            for (int64_t k = 0; k < i; k++)
-                s -= L[i * m + k] * X[r * m + k];
-            X[r * m + i] = s / L[i * m + i];
-        }
-        for (int64_t i = m - 1; i > -1; i--) {
-            double s = X[r * m + i];
-            for (int64_t k = i + 1; k < m; k++)
-                s -= L[k * m + i] * X[r * m + k];
-            X[r * m + i] = s / L[i * m + i];
-        }
-    }
-}
-
 /* ================================================================== unscented.py */
 
 /* sigma_points: points of (x, P) into the rows of X (centre last); 0 when P is not
