@@ -331,12 +331,13 @@ class HealthSummary:
     divergence_time : float
         Time of detection (s), NaN when none.
     divergence_reason : str
-        ``"non-finite values"``, ``"covariance blow-up"``, ``"<name> pinned at a limit
-        for <s> s"``, or ``""``.
+        ``"non-finite values"``, ``"covariance blow-up"``, ``"dynamics beyond the
+        sample rate"`` (Schiess & Roland's filter, whose exact flow would split a sample
+        past its cap), ``"<name> pinned at a limit for <s> s"``, or ``""``.
     stopped : bool
-        The filter stopped at the divergence (non-finite values or covariance
-        blow-up); later samples repeat the last finite estimate and report NaN
-        predictions. A pinned parameter only reports; the filter goes on.
+        The filter stopped at the divergence (any reason but a pin); later samples
+        repeat the last finite estimate and report NaN predictions. A pinned parameter
+        only reports; the filter goes on.
     dropped_samples : int
         Number of dropped samples.
     dropped_stretches : tuple of (float, float)

@@ -69,6 +69,7 @@ FloatArray = NDArray[np.float64]
 REASONS = {
     monitor.REASON_NONFINITE: "non-finite values",
     monitor.REASON_COVARIANCE: "covariance blow-up",
+    monitor.REASON_BEYOND_SAMPLE_RATE: "dynamics beyond the sample rate",
 }
 
 

@@ -36,6 +36,7 @@ if TYPE_CHECKING:  # what tools read; at run time each kernel is imported on fir
 __all__ = [
     "NEGATIVE_TOLERANCE",
     "PIN_FRACTION",
+    "REASON_BEYOND_SAMPLE_RATE",
     "REASON_COVARIANCE",
     "REASON_NONE",
     "REASON_NONFINITE",
@@ -56,6 +57,9 @@ REASON_NONE = 0
 REASON_NONFINITE = 1
 REASON_COVARIANCE = 2
 REASON_PINNED = 3
+#: The belief's dynamics left what the samples can show (a member's own bound, e.g.
+#: Schiess & Roland's exact flow split past its cap).
+REASON_BEYOND_SAMPLE_RATE = 4
 
 
 #: The numba kernels (and what they import), imported from their module on first use.

@@ -12,13 +12,25 @@ import numba
 import numpy as np
 
 from manualcontrol.envs._interpolation import bicubic_derivative_weights, bicubic_weights
-from manualcontrol.estimators._pilot_core import SC_FROZEN, SC_K
+from manualcontrol.estimators._pilot_core import (
+    SC_DIV_INDEX,
+    SC_DIV_PARAM,
+    SC_DIV_REASON,
+    SC_FROZEN,
+    SC_K,
+)
 from manualcontrol.estimators._pilot_kernels import report_frozen, report_row
 from manualcontrol.estimators.filters._kalman_kernels import clamp, joseph_correct
 from manualcontrol.estimators.filters._linalg_kernels import symmetrise
 from manualcontrol.estimators.filters._monitor_kernels import belief_health
 from manualcontrol.estimators.filters._smoother_kernels import store_belief
+from manualcontrol.estimators.filters.monitor import (
+    REASON_BEYOND_SAMPLE_RATE,
+    REASON_NONE,
+    REASON_PINNED,
+)
 from manualcontrol.estimators.members._schiess_roland_core import (
+    _FLOW_SPLIT_CAP,
     _PARAM_STATE,
     _SERIES_REACH,
     _SERIES_TERMS,
@@ -208,10 +220,13 @@ def flow(x, e0, rho, dt, K, s):
     sensitivity to the input value ``e0``) and ``s.Jrho`` (to the slope ``rho``), and
     ``G_w`` into ``s.Gw``. Splits the step when ``||A dt||`` exceeds the series' reach
     (parameters far outside any pilot's), composing the substeps by the chain rule.
-    Returns the number of substeps.
+    Returns the number of substeps, or -1 where more than ``_FLOW_SPLIT_CAP`` would be
+    needed (the belief has left what the samples can show): nothing is written then.
     """
     n_sub = 1
-    while _series_norm(x, K, dt) / n_sub > _SERIES_REACH and n_sub < 1 << 20:
+    while _series_norm(x, K, dt) / n_sub > _SERIES_REACH:
+        if n_sub >= _FLOW_SPLIT_CAP:
+            return -1
         n_sub *= 2
     h = dt / n_sub
     Z, J, Jrho, Gw, sums, z = s.Z, s.J, s.Jrho, s.Gw, s.sums, s.z
@@ -448,6 +463,24 @@ def _store_phi(out, row, Z, J, predicted):
 
 
 @numba.njit(cache=True, _nrt=False)
+def _stopped_row(belief, monitor, s, dropped, row, out):
+    """A stopped filter's row: its belief as it stands, no prediction, its last states."""
+    x, P = belief.x, belief.P
+    store_belief(row, x, P, out.x_prior, out.P_prior)
+    store_belief(row, x, P, out.x_post, out.P_post)
+    _store_phi(out, row, s.Z, s.J, False)
+    for i in range(2):
+        out.predictions[row, i] = np.nan
+        out.innovations[row, i] = np.nan
+        for j in range(2):
+            out.S[row, i, j] = np.nan
+    if row > 0:  # a stopped filter repeats its last states (update: the row holds them)
+        for i in range(out.states.shape[1]):
+            out.states[row, i] = out.states[row - 1, i]
+    report_frozen(belief.sc, monitor, belief.prev_d, belief.in_d, dropped, row, out)
+
+
+@numba.njit(cache=True, _nrt=False)
 def sr_step(config, belief, monitor, report, scratch, d_k, u_k, y_k, row, out):
     """Advance the belief by one sample; write its estimate into output row ``row``.
 
@@ -470,18 +503,7 @@ def sr_step(config, belief, monitor, report, scratch, d_k, u_k, y_k, row, out):
     dropped = not (available[0] or available[1])
 
     if sc[SC_FROZEN] > 0.0:
-        store_belief(row, x, P, out.x_prior, out.P_prior)
-        store_belief(row, x, P, out.x_post, out.P_post)
-        _store_phi(out, row, s.Z, s.J, False)
-        for i in range(2):
-            out.predictions[row, i] = np.nan
-            out.innovations[row, i] = np.nan
-            for j in range(2):
-                out.S[row, i, j] = np.nan
-        if row > 0:  # a stopped filter repeats its last states (update: the row holds them)
-            for i in range(out.states.shape[1]):
-                out.states[row, i] = out.states[row - 1, i]
-        report_frozen(sc, monitor, belief.prev_d, belief.in_d, dropped, row, out)
+        _stopped_row(belief, monitor, s, dropped, row, out)
         return
 
     predicted = k > 0
@@ -499,7 +521,14 @@ def sr_step(config, belief, monitor, report, scratch, d_k, u_k, y_k, row, out):
             e1, rate1 = delayed_error(belief, position + 1.0, k - 1, k, dt, bicubic)
             rho = (e1 - e0) / dt
         # ---- prediction, eqs. 18-19, exact over the step
-        flow(x, e0, rho, dt, K, s)
+        if flow(x, e0, rho, dt, K, s) < 0:  # beyond the split's cap: nothing predicted
+            sc[SC_FROZEN] = 1.0
+            if sc[SC_DIV_REASON] == REASON_NONE or sc[SC_DIV_REASON] == REASON_PINNED:
+                sc[SC_DIV_REASON] = REASON_BEYOND_SAMPLE_RATE
+                sc[SC_DIV_INDEX] = k
+                sc[SC_DIV_PARAM] = -1
+            _stopped_row(belief, monitor, s, dropped, row, out)
+            return
         # theta acts through the delayed input: d e_d / d theta = -de/dt(t - theta)
         for i in range(N_DYNAMIC):
             sens_e0 = s.J[i, I_THETA - N_DYNAMIC]

@@ -77,11 +77,13 @@ enum { COL_Z = 0, COL_PHI = 1, COL_PARAM = 7, COL_E0 = 13, COL_RHO = 14, COL_W =
 enum { SC_K = 0, SC_FROZEN = 11, SC_DIV_INDEX = 12, SC_DIV_REASON = 13, SC_DIV_PARAM = 14,
        SC_SIZE = 15 };
 /* filters/monitor.py: divergence codes */
-enum { REASON_NONE = 0, REASON_NONFINITE = 1, REASON_COVARIANCE = 2, REASON_PINNED = 3 };
+enum { REASON_NONE = 0, REASON_NONFINITE = 1, REASON_COVARIANCE = 2, REASON_PINNED = 3,
+       REASON_BEYOND_SAMPLE_RATE = 4 };
 
 static const double SERIES_REACH = 4.0;     /* _SERIES_REACH */
 static const double SERIES_TOLERANCE = 1e-17; /* _SERIES_TOLERANCE */
 #define SERIES_TERMS 60                     /* _SERIES_TERMS */
+#define FLOW_SPLIT_CAP ((int64_t)1 << 10)   /* _FLOW_SPLIT_CAP */
 static const double NEGATIVE_TOLERANCE = 1e-10; /* monitor.NEGATIVE_TOLERANCE */
 /* _PARAM_STATE: the state of each parameter column (theta has none) */
 static const int64_t PARAM_STATE[6] = {I_K1, I_TAU1, I_TAU2, I_TAU3, I_ALPHA1, I_ALPHA2};
@@ -473,13 +475,17 @@ static void substep(const SrRecords *rec, const double *x, const double *z, doub
 }
 
 /* flow: exact flow of eqs. 7-12 over dt with delayed input e0 + rho t; the new dynamic
- * states into x[:6], e^(A dt) into Z, the sensitivities into J and Jrho, G_w into Gw */
+ * states into x[:6], e^(A dt) into Z, the sensitivities into J and Jrho, G_w into Gw;
+ * returns the substeps, or -1 (nothing written) past FLOW_SPLIT_CAP */
 static int64_t flow(const SrRecords *rec, double *x, double e0, double rho, double dt,
                     double K)
 {
     int64_t n_sub = 1;
-    while (series_norm(x, K, dt) / (double)n_sub > SERIES_REACH && n_sub < ((int64_t)1 << 20))
+    while (series_norm(x, K, dt) / (double)n_sub > SERIES_REACH) {
+        if (n_sub >= FLOW_SPLIT_CAP)
+            return -1;
         n_sub *= 2;
+    }
     double h = dt / (double)n_sub;
     double *Z = rec->Z, *J = rec->J, *Jrho = rec->Jrho, *Gw = rec->Gw, *sums = rec->sums;
     double *z = rec->z, *U = rec->U, *T1 = rec->T1, *v = rec->v;
@@ -720,6 +726,28 @@ static void store_phi(const SrRecords *rec, int64_t row, int predicted)
 
 /* ====================================================== _schiess_roland_core.py step */
 
+/* _stopped_row: a stopped filter's row (its belief as it stands, no prediction, its
+ * last states) */
+static void stopped_row(const SrRecords *rec, int dropped, int64_t row)
+{
+    const double *x = rec->x, *P = rec->P;
+    const int64_t n = N_STATES, rows = rec->store_rows;
+    store_belief(rows, row, x, P, n, rec->x_prior, rec->P_prior);
+    store_belief(rows, row, x, P, n, rec->x_post, rec->P_post);
+    store_phi(rec, row, 0);
+    for (int64_t i = 0; i < 2; i++) {
+        rec->predictions[row * 2 + i] = NAN;
+        rec->innovations[row * 2 + i] = NAN;
+        for (int64_t j = 0; j < 2; j++)
+            rec->S[(row * 2 + i) * 2 + j] = NAN;
+    }
+    if (row > 0) /* a stopped filter repeats its last states */
+        for (int64_t i = 0; i < rec->n_state_cols; i++)
+            rec->states[row * rec->n_state_cols + i] =
+                rec->states[(row - 1) * rec->n_state_cols + i];
+    report_frozen(rec, dropped, row);
+}
+
 /* sr_step: advance the belief by one sample (forcing d_k, stick u_k, plant output y_k;
  * NaN: missing); its estimate into output row `row` */
 void sr_step(const SrRecords *rec, double d_k, double u_k, double y_k, int64_t row)
@@ -739,20 +767,7 @@ void sr_step(const SrRecords *rec, double d_k, double u_k, double y_k, int64_t r
     int dropped = !(available[0] || available[1]);
 
     if (sc[SC_FROZEN] > 0.0) {
-        store_belief(rows, row, x, P, n, rec->x_prior, rec->P_prior);
-        store_belief(rows, row, x, P, n, rec->x_post, rec->P_post);
-        store_phi(rec, row, 0);
-        for (int64_t i = 0; i < 2; i++) {
-            rec->predictions[row * 2 + i] = NAN;
-            rec->innovations[row * 2 + i] = NAN;
-            for (int64_t j = 0; j < 2; j++)
-                rec->S[(row * 2 + i) * 2 + j] = NAN;
-        }
-        if (row > 0) /* a stopped filter repeats its last states */
-            for (int64_t i = 0; i < rec->n_state_cols; i++)
-                rec->states[row * rec->n_state_cols + i] =
-                    rec->states[(row - 1) * rec->n_state_cols + i];
-        report_frozen(rec, dropped, row);
+        stopped_row(rec, dropped, row);
         return;
     }
 
@@ -771,7 +786,16 @@ void sr_step(const SrRecords *rec, double d_k, double u_k, double y_k, int64_t r
             rho = (e1 - e0) / dt;
         }
         /* prediction, eqs. 18-19, exact over the step */
-        flow(rec, x, e0, rho, dt, K);
+        if (flow(rec, x, e0, rho, dt, K) < 0) { /* beyond the split's cap: nothing predicted */
+            sc[SC_FROZEN] = 1.0;
+            if (sc[SC_DIV_REASON] == REASON_NONE || sc[SC_DIV_REASON] == REASON_PINNED) {
+                sc[SC_DIV_REASON] = REASON_BEYOND_SAMPLE_RATE;
+                sc[SC_DIV_INDEX] = (double)k;
+                sc[SC_DIV_PARAM] = -1.0;
+            }
+            stopped_row(rec, dropped, row);
+            return;
+        }
         /* theta acts through the delayed input: d e_d / d theta = -de/dt(t - theta) */
         double *J = rec->J;
         const int64_t theta_col = I_THETA - N_DYNAMIC;
@@ -935,6 +959,7 @@ int64_t sr_constants(double *out)
     const double values[] = {
         PIN_FRACTION, NEGATIVE_TOLERANCE, TINY,
         REASON_NONE, REASON_NONFINITE, REASON_COVARIANCE, REASON_PINNED,
+        REASON_BEYOND_SAMPLE_RATE,
         SC_K, SC_FROZEN, SC_DIV_INDEX, SC_DIV_REASON, SC_DIV_PARAM, SC_SIZE,
         N_DYNAMIC, N_PARAMETERS, N_STATES,
         I_C, I_C_RATE, I_U, I_Y4, I_ETA, I_ETA_RATE,
@@ -943,7 +968,7 @@ int64_t sr_constants(double *out)
         CFG_RAMP, CFG_ADAPTIVE, CFG_MAX_DELAY, CFG_NOISE_FORM, CFG_SIZE,
         ADAPTIVE_OFF, ADAPTIVE_FULL, ADAPTIVE_MODIFIED,
         COL_Z, COL_PHI, COL_PARAM, COL_E0, COL_RHO, COL_W, N_COLUMNS,
-        SERIES_REACH, SERIES_TOLERANCE, SERIES_TERMS,
+        SERIES_REACH, SERIES_TOLERANCE, SERIES_TERMS, FLOW_SPLIT_CAP,
         PARAM_STATE[0], PARAM_STATE[1], PARAM_STATE[2], PARAM_STATE[3], PARAM_STATE[4],
         PARAM_STATE[5],
     };

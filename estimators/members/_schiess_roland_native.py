@@ -85,7 +85,7 @@ def _expected_constants() -> list[float]:
         "CFG_JITTER CFG_MAX_COV CFG_BICUBIC CFG_RAMP CFG_ADAPTIVE CFG_MAX_DELAY "
         "CFG_NOISE_FORM CFG_SIZE ADAPTIVE_OFF ADAPTIVE_FULL ADAPTIVE_MODIFIED COL_Z COL_PHI "
         "COL_PARAM COL_E0 COL_RHO COL_W N_COLUMNS _SERIES_REACH _SERIES_TOLERANCE "
-        "_SERIES_TERMS"
+        "_SERIES_TERMS _FLOW_SPLIT_CAP"
     ).split()
     return [
         monitor.PIN_FRACTION,
@@ -95,6 +95,7 @@ def _expected_constants() -> list[float]:
         monitor.REASON_NONFINITE,
         monitor.REASON_COVARIANCE,
         monitor.REASON_PINNED,
+        monitor.REASON_BEYOND_SAMPLE_RATE,
         *(getattr(pilot, name) for name in pilot_names),
         *(getattr(core, name) for name in names),
         *core._PARAM_STATE,

@@ -124,6 +124,31 @@ def belief(theta=0.04):
     return np.concatenate([rng.normal(size=6), [1.1, 0.09, 0.12, 0.6, theta, 4.0, 10.5]])
 
 
+def test_the_flow_splits_up_to_its_cap_and_refuses_beyond_it():
+    """A sample's flow splits into at most ``_FLOW_SPLIT_CAP`` substeps (``||A h|| <= 4``).
+
+    Beyond it the flow writes nothing and says so (-1), where it used to split on to
+    2^20 substeps; at the cap it is still the exact step: within 1e-10 of the largest
+    state against scipy's ``expm``, since both round about a thousand times (1,024
+    substeps composed; twelve squarings of a matrix of norm 4,096), 1e-16 each.
+    """
+    dt = 0.01
+    cap = core._FLOW_SPLIT_CAP
+    at_cap = belief()
+    at_cap[core.I_TAU1] = dt / (core._SERIES_REACH * cap)  # ||A dt|| = 4 cap exactly
+    assert core._series_norm(at_cap, 10.0, dt) == core._SERIES_REACH * cap
+    s = core.new_scratch()
+    ours = at_cap.copy()
+    assert core.flow(ours, 0.3, -2.0, dt, 10.0, s) == cap
+    reference = step_map(at_cap, 0.3, -2.0, dt, 10.0)
+    assert np.max(np.abs(ours[:6] - reference)) <= 1e-10 * np.max(np.abs(reference))
+    beyond = at_cap.copy()
+    beyond[core.I_TAU1] = np.nextafter(at_cap[core.I_TAU1], 0.0)
+    ours = beyond.copy()
+    assert core.flow(ours, 0.3, -2.0, dt, 10.0, s) == -1
+    np.testing.assert_array_equal(ours, beyond)
+
+
 @pytest.mark.parametrize("dt", [0.01, 0.3, 2.0])  # 2.0 s: the step is split into substeps
 def test_exact_step_against_expm(dt):
     x = belief()

@@ -8,7 +8,8 @@ branches: the integer and the bicubic delay read, the held and the ramped delaye
 input, the adaptive noise off, full and modified, the held and the paper's noise form,
 several passes, known parameters, limits with a pinned parameter, a step split into
 substeps (a fast pole), jitter, samples with one or both measurements missing, and the
-two ways a filter stops (non-finite values, a covariance blow-up).
+three ways a filter stops (non-finite values, a covariance blow-up, dynamics beyond the
+sample rate).
 """
 
 import math
@@ -58,11 +59,14 @@ def runs():
     u[300:310] = np.nan  # the plant output alone
     u[400:403] = np.nan
     y[401:405] = np.nan  # both missing at 401, 402: dropped
-    spike = np.array(base.u)
-    spike[400] = 1e300
+    # a stick of 1e308 overflows the correction at once; one of 1e300 leaves tau_1 near
+    # 1e297, finite, and the next sample's flow beyond its cap
+    overflow, spike = np.array(base.u), np.array(base.u)
+    overflow[400], spike[400] = 1e308, 1e300
     return {
         "base": base,
         "gaps": base.with_signals(u=u, y=y),
+        "overflow": base.with_signals(u=overflow),
         "spike": base.with_signals(u=spike),
     }
 
@@ -107,7 +111,14 @@ CASES = {
         {"adaptive": "full", "delay_read": "bicubic"},
         {"smooth": True},
     ),
-    "a non-finite stop": ("spike", {"adaptive": "modified"}, {}),
+    "a non-finite stop": ("overflow", {"adaptive": "modified"}, {}),
+    "a stop beyond the sample rate after a spike": ("spike", {"adaptive": "modified"}, {}),
+    # a lag of a microsecond: its flow over a sample would need 2^17 substeps
+    "a stop beyond the sample rate at the first prediction": (
+        "base",
+        {"initial": {"tau_1": 1e-6}},
+        {},
+    ),
     "a covariance stop after a prediction": (
         "base",
         {"max_covariance": 90.0, "process_noise": 1e6},
@@ -158,6 +169,14 @@ def test_the_c_port_estimates_what_numba_does_bit_for_bit(case, runs, monkeypatc
             assert same_bytes(getattr(a, name), getattr(b, name)), name
     if case == "a non-finite stop":
         assert numba.health.divergence_reason == "non-finite values"
+        assert numba.health.divergence_time == recording.t[400]
+    if case.startswith("a stop beyond the sample rate"):  # nothing predicted from there on
+        stop = 401 if case.endswith("spike") else 1
+        assert numba.health.divergence_reason == "dynamics beyond the sample rate"
+        assert numba.health.divergence_time == recording.t[stop]
+        assert np.isfinite(numba.predictions[stop - 1]).all()
+        assert np.isnan(numba.predictions[stop:]).all()
+        assert same_bytes(numba.states[stop], numba.states[stop - 1])
     if case.startswith("a covariance stop"):
         assert numba.health.divergence_reason == "covariance blow-up"
         assert numba.health.divergence_time > recording.t[0]
