@@ -289,7 +289,7 @@ class PrecisionModel(PilotModel):
     ``K_p K/T_I`` on a gain ``K``, so its human range follows from
     :data:`CROSSOVER_RANGE` and ``T_I``'s (a lag whose break lies below the crossover
     range); its nominal ``K_p`` and ``T_I`` are the typical pilot's on a unit gain
-    (:func:`~manualcontrol.estimators.analysis.human_likeness.reference_pilot`).
+    (:func:`~manualcontrol.pilots.stability.typical_parameters`).
     """
 
     lag: bool = False

@@ -99,10 +99,13 @@ _PREVIEW_FAR = {
     "unstable_first_order": {"K_f": 1.0, "omega_f": 3.3, "tau_f": 0.6},
 }
 _GAINS = ("K_p", "K_v", "K_1")
+#: The lag-equalised pilot's asymptotic crossover on a pure gain, rad/s: the low end of
+#: McRuer's 3-5 rad/s on ``K`` (:func:`typical_parameters`).
+GAIN_CROSSOVER = 3.0
 
 
-def _reference_gain(element: ControlledElement) -> tuple[str, float] | None:
-    values = {name: float(v[0]) for name, v in element.parameters_at(np.zeros(1)).items()}
+def _reference_gain(element: ControlledElement, t: float = 0.0) -> tuple[str, float] | None:
+    values = {name: float(v[0]) for name, v in element.parameters_at(np.array([t])).items()}
     if element.kind in ("integrator", "double_integrator", "gain"):
         return element.kind, values["K"]
     if element.kind == "unstable_first_order":
@@ -113,7 +116,9 @@ def _reference_gain(element: ControlledElement) -> tuple[str, float] | None:
 
 
 def typical_parameters(
-    model: str | PilotModel, element: str | ControlledElement | Mapping[str, Any]
+    model: str | PilotModel,
+    element: str | ControlledElement | Mapping[str, Any],
+    t: float = 0.0,
 ) -> dict[str, float]:
     """Typical parameter values of ``model`` for ``element`` (a stable loop).
 
@@ -121,19 +126,49 @@ def typical_parameters(
     0.26 s, omega_nms 10.5 rad/s, zeta_nms 0.35), double integrators its DI pilot
     (K_p 0.24 and K_v 0.36 on 5/s^2, tau_v 0.3 s, omega_nms 8, zeta_nms 0.45),
     ``K/(s(s + omega_b))`` Popovici's pilot (K_p 1.5, K_v 0.5 on 4/(s(s+3))); the
-    gains are scaled by reference gain / element gain (at t = 0 for a time-varying
-    element). A pure gain gets a proportional pilot of loop gain 0.5, the critical
-    task one of gain 2 (our choices: the papers fly neither). The preview model adds
+    gains are scaled by reference gain / element gain (a time-varying element's read at
+    ``t``). A pure gain gets a proportional pilot of loop gain 0.5 from a model without
+    McRuer's lag (our choice: the papers fly none; the lag model's pilot is below), the
+    critical task one of gain 2. The preview model adds
     the far view of thesis Sims 2 and 8. The Schiess-Roland model's nominal values
     are their pilot for 10/s^2; its K_1 is scaled likewise on other double
     integrators. General transfer functions get the model's nominal values, and a
     gain-delay pilot cannot stabilise a double integrator at all; :func:`check_stable`
     says so.
+
+    The precision model with McRuer's lag (``PrecisionModel(lag=True)``) on a pure gain
+    ``K``: McRuer & Jex's (1967) lag equalisation, no lead, the lag's break a decade
+    below crossover (``T_I = 10/omega_c``: the loop keeps an integrator's slope and,
+    within 6 deg, its phase through the crossover region), the asymptotic loop gain
+    ``K_p K / T_I`` at :data:`GAIN_CROSSOVER` (humans cross over higher on a gain than
+    on ``K/s``), delay and neuromuscular system the SI pilot's, whose limitations leave
+    30 deg of phase margin only up to about that crossover. On a unit gain: K_p 10,
+    T_I 3.33 s; the neuromuscular peak puts the measured crossover at 3.2 rad/s with
+    34 deg of margin. On other elements humans adopt no lag, and the lag model has no
+    typical pilot there: ``ValueError``, naming the plain model.
+
+    ``t``: the time at which a time-varying element is read (default the start).
     """
     model = make_model(model)
-    element = make_element(element)
+    given, element = element, make_element(element)
+    if getattr(model, "lag", False):
+        if element.kind != "gain":
+            raise ValueError(
+                "the precision model's lag is McRuer's equalisation of a pure gain; on "
+                f"element={given!r} humans adopt none, and the typical pilot is "
+                "PrecisionModel()'s (the model without the lag)"
+            )
+        _, gain = _reference_gain(element, t)
+        T_I = 10.0 / GAIN_CROSSOVER
+        si = _EQUALISATION["integrator"][1]
+        return {
+            "K_p": GAIN_CROSSOVER * T_I / gain,
+            "K_v": 0.0,
+            "T_I": T_I,
+            **{name: si[name] for name in ("tau_v", "omega_nms", "zeta_nms")},
+        }
     values = {name: model.spec(name).nominal for name in model.parameter_names}
-    reference = _reference_gain(element)
+    reference = _reference_gain(element, t)
     if reference is None:
         return values
     kind, gain = reference

@@ -576,18 +576,13 @@ def reference_pilot(element: Any, t: float = 0.0) -> dict[str, float] | None:
     neuromuscular values (tau_v 0.2 s, omega_nms 8 rad/s, zeta_nms 0.3): on their
     4/(s(s+3)) it is their pilot (K_p 1.5, K_v 0.5).
 
-    A pure gain ``K``: McRuer & Jex's lag equalisation (the precision model with its
-    lag, ``PrecisionModel(lag=True)``; the values carry ``T_I``), no lead, the lag's
-    break a decade below crossover (``T_I = 10/omega_c``: the loop keeps an
-    integrator's slope and, within 6 deg, its phase through the crossover region) and
-    the asymptotic loop gain ``K_p K / T_I`` at 3 rad/s, the low end of McRuer's
-    3-5 rad/s on K (humans cross over higher on a gain than on ``K/s``); delay and
-    neuromuscular system the thesis's SI pilot's, whose limitations leave 30 deg of
-    phase margin only up to about that crossover. The neuromuscular peak puts the
-    measured crossover at 3.2 rad/s with 34 deg of margin. The critical task and
-    general transfer functions: None (no typical pilot is published for them). ``t``:
-    time at which a time-varying element is read. :func:`reference_model` is the
-    model the values belong to.
+    A pure gain ``K``: McRuer & Jex's lag equalisation, the typical pilot of the
+    precision model with its lag (``PrecisionModel(lag=True)``; the values carry
+    ``T_I``): no lead, the lag's break a decade below crossover and the asymptotic
+    crossover at 3 rad/s (:func:`~manualcontrol.pilots.typical_parameters` says why).
+    The critical task and general transfer functions: None (no typical pilot is
+    published for them). ``t``: time at which a time-varying gain or ``K/(s(s +
+    omega_b))`` is read. :func:`reference_model` is the model the values belong to.
     """
     element = make_element(element)
     if element.kind in ("integrator", "double_integrator"):
@@ -598,20 +593,9 @@ def reference_pilot(element: Any, t: float = 0.0) -> dict[str, float] | None:
         K_p = 2.0 * omega_b / K
         return {"K_p": K_p, "K_v": K_p / omega_b, "tau_v": 0.2, "omega_nms": 8.0, "zeta_nms": 0.3}
     if element.kind == "gain":
-        K = float(element.parameters_at(np.array([t]))["K"][0])
-        T_I = 10.0 / _GAIN_CROSSOVER
-        si = typical_parameters("precision", "SI")
-        return {
-            "K_p": _GAIN_CROSSOVER * T_I / K,
-            "K_v": 0.0,
-            "T_I": T_I,
-            **{name: float(si[name]) for name in ("tau_v", "omega_nms", "zeta_nms")},
-        }
+        lagged = typical_parameters(make_model("precision", lag=True), element, t)
+        return {name: float(value) for name, value in lagged.items()}
     return None
-
-
-#: The typical pilot's asymptotic crossover on a pure gain, rad/s (:func:`reference_pilot`).
-_GAIN_CROSSOVER = 3.0
 
 
 def reference_model(values: Mapping[str, float]) -> PilotModel:

@@ -203,6 +203,7 @@ _KERNELS = (
     "delayed_error",
     "adaptive_variance",
     "_store_phi",
+    "_stopped_row",
     "sr_step",
     "sr_run",
     "bicubic_derivative_weights",

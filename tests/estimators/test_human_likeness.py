@@ -22,7 +22,14 @@ from manualcontrol.estimators.analysis.human_likeness import (
     plot_human_likeness,
     reference_pilot,
 )
-from manualcontrol.pilots import HumanLimitWarning, LevisonRemnant, Pilot, make_model, simulate
+from manualcontrol.pilots import (
+    HumanLimitWarning,
+    LevisonRemnant,
+    Pilot,
+    make_model,
+    simulate,
+    typical_parameters,
+)
 
 PRECISION = make_model("precision")
 REMNANT = LevisonRemnant(omega_r=3.0, injection="input", P_r=0.3)
@@ -161,6 +168,7 @@ def test_the_typical_pilot_on_a_gain_integrates_with_a_lag_and_is_human():
     values = reference_pilot("gain")
     assert values["T_I"] == pytest.approx(10.0 / 3.0) and values["K_v"] == 0.0
     lagged = make_model("precision", lag=True)
+    assert values == typical_parameters(lagged, "gain")  # one rule: the lag model's typical
     pilot = Pilot(lagged, values)
     recording = simulate(pilot, "gain", seed=0)
     result = human_likeness(recording)

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
+from manualcontrol.envs.schedules import Sigmoid
 from manualcontrol.pilots import Pilot, simulate
+from manualcontrol.pilots.models import PrecisionModel
 from manualcontrol.pilots.simulation import SimulationSetup
 from manualcontrol.pilots.stability import (
     UnstableLoopError,
@@ -126,3 +128,36 @@ def test_measurement_time_below_a_sample_is_refused():
         ValueError, match=re.escape("measurement_time must hold at least one sample")
     ):
         simulate(Pilot.typical("precision", "SI"), "SI", measurement_time=0.001)
+
+
+def test_the_lag_models_typical_pilot_is_mcruers_lag_on_a_gain_and_refused_elsewhere():
+    """On ``K``: break a decade below a 3-rad/s asymptotic crossover, ``K_p K/T_I = 3``.
+
+    The loop it closes is stable and bounded; on ``K/s`` and the others no lag is typical
+    (humans adopt none there), so the lag model has no typical pilot and says which does.
+    """
+    lag = PrecisionModel(lag=True)
+    on_two = typical_parameters(lag, {"kind": "gain", "K": 2.0})
+    assert on_two["T_I"] == pytest.approx(10.0 / 3.0)
+    assert on_two["K_p"] * 2.0 / on_two["T_I"] == pytest.approx(3.0)
+    assert on_two["K_v"] == 0.0
+    si = typical_parameters("precision", "SI")
+    assert {name: on_two[name] for name in ("tau_v", "omega_nms", "zeta_nms")} == {
+        name: si[name] for name in ("tau_v", "omega_nms", "zeta_nms")
+    }
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # inside every human range
+        pilot = Pilot.typical(lag, "gain")
+    assert check_stable(SimulationSetup.create(pilot, "gain")) is True
+    recording = simulate(pilot, "gain", measurement_time=30.0)
+    assert np.std(recording.e) < 2.0 * (np.std(recording.ft) + np.std(recording.fd))
+    # a gain that doubles over the run: the pilot at each time halves its K_p
+    doubling = {"kind": "gain", "K": Sigmoid(1.0, 2.0, 50.0, 1.0).to_dict()}
+    assert typical_parameters(lag, doubling)["K_p"] == pytest.approx(10.0)
+    assert typical_parameters(lag, doubling, t=100.0)["K_p"] == pytest.approx(5.0)
+    assert typical_parameters("precision", {**doubling, "kind": "integrator"}, t=100.0)[
+        "K_p"
+    ] == pytest.approx(1.3 * 1.5 / 2.0)
+    for element in ("SI", "DI", "popovici2017"):
+        with pytest.raises(ValueError, match=re.escape(f"element={element!r} humans adopt none")):
+            typical_parameters(lag, element)
