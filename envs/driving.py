@@ -99,6 +99,11 @@ Rendering: the road from above around the car, heading up (``"rgb_array"``: a
 ``(400, 600, 3)`` uint8 frame; ``"human"``: a pygame window): lane edges, centre line,
 the car, and the near (blue) and far (yellow) points.
 
+The car's sample step (:func:`lane_step`, :func:`perceive`) is compiled by numba in
+:mod:`~manualcontrol.envs._driving_kernels`, imported at the first reset: the driver
+model's module imports this one, and an identification of the driver, which runs in C,
+never imports numba.
+
 Example::
 
     >>> import gymnasium as gym
@@ -118,14 +123,14 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar, NamedTuple
+from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple
 
 import gymnasium as gym
-import numba
 import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
+from manualcontrol.envs._lazy import LazyKernel, kernels_on_first_use
 from manualcontrol.envs._render import close_window, render_display
 from manualcontrol.envs._validation import (
     check_bool,
@@ -140,6 +145,9 @@ from manualcontrol.envs._validation import (
 )
 from manualcontrol.envs.dynamics import discretize
 from manualcontrol.envs.recording import Recording
+
+if TYPE_CHECKING:
+    from manualcontrol.envs._driving_kernels import lane_step, perceive
 
 __all__ = [
     "DEFAULT_SPEED",
@@ -605,39 +613,10 @@ def lane_keeping_model(
     )
 
 
-@numba.njit(cache=True, _nrt=False)
-def perceive(packed, far_gain, state, kappa, kappa_far, out, row):
-    """``out[row]`` = (theta_far, theta_near, delta_d, Gamma_s, a_y, y_L, psi_L) of the state.
-
-    ``packed`` is :attr:`LaneKeepingModel.packed`; ``state`` holds ``x`` in its first
-    ``n`` entries.
-    """
-    n = packed.shape[1] - 2
-    out[row, 0] = far_gain * kappa_far
-    for i in range(6):
-        acc = packed[n + i, n] * kappa
-        for j in range(n):
-            acc += packed[n + i, j] * state[j]
-        out[row, i + 1] = acc
-
-
-@numba.njit(cache=True, _nrt=False)
-def lane_step(packed, far_gain, state, action, kappa, kappa_next, far_next, out, row):
-    """Advance the state one sample with ``action`` and ``kappa`` held; perceive it.
-
-    ``state`` (2n,) holds ``x`` and n entries of scratch; :func:`perceive` of the new
-    state goes to ``out[row]``. Few arguments on purpose: each array argument costs a
-    conversion on every call, and the environment calls this once a step.
-    """
-    n = packed.shape[1] - 2
-    for i in range(n):
-        acc = packed[i, n] * action + packed[i, n + 1] * kappa
-        for j in range(n):
-            acc += packed[i, j] * state[j]
-        state[n + i] = acc
-    for i in range(n):
-        state[i] = state[n + i]
-    perceive(packed, far_gain, state, kappa_next, far_next, out, row)
+#: The numba kernels that moved to :mod:`~manualcontrol.envs._driving_kernels`, exported
+#: here by name on first use.
+_KERNELS = ("perceive", "lane_step")
+__getattr__ = kernels_on_first_use(globals(), "manualcontrol.envs._driving_kernels", _KERNELS)
 
 
 # --------------------------------------------------------------------- environment
@@ -680,6 +659,10 @@ class LaneKeeping(gym.Env[FloatArray, FloatArray]):
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
+    # read at the first reset, so that a process that only builds the environment, or
+    # imports it for the driver model's records, never imports numba
+    _perceive = LazyKernel("manualcontrol.envs._driving_kernels", "perceive")
+    _lane_step = LazyKernel("manualcontrol.envs._driving_kernels", "lane_step")
 
     def __init__(
         self,
@@ -822,7 +805,10 @@ class LaneKeeping(gym.Env[FloatArray, FloatArray]):
         self._ended = None
         self._geometry = None
         m = self.model
-        perceive(
+        # a step calls the kernel from the instance: reading the class's LazyKernel at
+        # every step would cost about 5 % of it
+        self._car_step = self._lane_step
+        self._perceive(
             m.packed,
             m.far_gain,
             self._state,
@@ -849,7 +835,7 @@ class LaneKeeping(gym.Env[FloatArray, FloatArray]):
             self._clipped += 1
         kappa = self._kappa
         perceived = self._perceived
-        lane_step(
+        self._car_step(
             self.model.packed,
             self.far_gain,
             self._state,

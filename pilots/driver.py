@@ -42,8 +42,10 @@ K_c (1 - T_L/T_I)/(v_x T_N)`` and ``-G K_c T_L/(v_x T_I T_N)``: the printed form
 misplace the parenthesis (``K_t K_c`` instead of ``(K_r v_x + K_t) K_c``). With the
 nominal values the printed form gives a DC gain ``Gamma_d/theta_near`` of 41 instead
 of ``G K_c/v_x = 25`` (tests/pilots/test_driver.py derives both from the transfer
-functions above). :func:`driver_matrices` is the one definition of eq. 2 (corrected),
-compiled: the structure's Python API and the estimators' kernels both call it.
+functions above). ``_eq2_matrices`` is the one definition of eq. 2 (corrected):
+:func:`driver_matrices` is it compiled, which the estimators' kernels and the simulation
+call, and the structure's Python API (:meth:`CyberneticDriverModel.state_space`) runs it
+without numba.
 
 Simulation (:class:`Driver`, :mod:`manualcontrol.pilots.driving`) uses the exact delay
 (``delay_order=None``: a delay line, the same conventions as the tracking pilots: the
@@ -59,6 +61,11 @@ The driver in an episode (:class:`DriverController`, behind :meth:`Driver.reset`
 :meth:`Driver.act`) and :func:`~manualcontrol.pilots.driving.simulate_driving` run one
 compiled closed loop, kept here (:func:`drive_episode`): the controller calibrates its
 remnant on it, so both give the same gain.
+
+The compiled steps and eq. 2 live in :mod:`~manualcontrol.pilots._driver_kernels`,
+exported here by name on first use: this module holds the parameters, the records and
+the structure the Zhao filters read, and an identification through their C port
+imports it without importing numba.
 """
 
 from __future__ import annotations
@@ -68,28 +75,24 @@ from collections import namedtuple
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
-import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from manualcontrol.envs._lazy import LazyKernel, kernels_on_first_use
 from manualcontrol.envs._validation import check_choice, check_positive
-from manualcontrol.envs.driving import LaneKeeping, lane_step, perceive
-from manualcontrol.envs.dynamics import (
-    StateSpace,
-    discretize,
-    pade,
-    poly_multiply,
-    read_held,
-    read_smooth,
-)
+from manualcontrol.envs.driving import LaneKeeping
+from manualcontrol.envs.dynamics import StateSpace, discretize, pade, poly_multiply
 from manualcontrol.envs.schedules import Schedule, as_schedule
 from manualcontrol.pilots._random import as_generator
 from manualcontrol.pilots.models import ParameterSpec
 from manualcontrol.pilots.remnant import Remnant, make_remnant
 from manualcontrol.pilots.simulation import gain_for_ratio
 from manualcontrol.pilots.spec import check_parameter_values
+
+if TYPE_CHECKING:
+    from manualcontrol.pilots._driver_kernels import driver_matrices, driver_sample
 
 __all__ = [
     "DRIVER_INPUTS",
@@ -135,15 +138,28 @@ _NAMES = tuple(spec.name for spec in DRIVER_PARAMETERS)
 _INJECTIONS = ("output", "input")
 
 
-@numba.njit(cache=True, _nrt=False)
-def driver_matrices(p, v_x, A, B, C, D):
+# numba kernels read this module's constants
+# (and compile its eq. 2, _eq2_matrices: pilots/_driver_kernels.py's driver_matrices)
+
+
+def _eq2_matrices(p, v_x, A, B, C, D):
     """Zhao eq. 2 (corrected, module docstring) into ``A`` (3, 3), ``B`` (3, 4), ``C``, ``D``.
 
     ``p`` holds ``K_p, K_c, T_I, T_L, tau_p, K_r, K_t, T_N``; ``v_x`` the speed (m/s).
     ``B`` and ``D`` may have a fifth column: it receives the input that adds to the
     visual signal ``w`` before the delay (remnant at ``"input"``).
+
+    The one definition of eq. 2: :func:`driver_matrices` is this function compiled by
+    numba (the estimators' kernels and the simulation call it), and
+    :meth:`CyberneticDriverModel.state_space` runs it as Python, so that the Zhao
+    filters' tuning, on a path that runs in C, never imports numba. Both give the same
+    bytes: the same IEEE-754 double operations on the same operands in the same order
+    (numba compiles without fastmath, so LLVM neither reorders them nor fuses a multiply
+    and an add; the parameters are read as floats, so a zero divides as in numba);
+    tests/pilots/test_driver.py compares them byte for byte.
     """
-    K_p, K_c, T_I, T_L, tau_p, K_r, K_t, T_N = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7]
+    K_p, K_c, T_I, T_L = float(p[0]), float(p[1]), float(p[2]), float(p[3])
+    tau_p, K_r, K_t, T_N = float(p[4]), float(p[5]), float(p[6]), float(p[7])
     G = K_r * v_x + K_t
     lead = T_L / T_I
     c = K_c / v_x
@@ -239,7 +255,7 @@ class CyberneticDriverModel:
         if p[4] <= 0.0:
             raise ValueError(f"tau_p must be > 0 for the Padé form, got {p[4]!r}")
         A, B, C, D = np.zeros((3, 3)), np.zeros((3, 4)), np.zeros((2, 3)), np.zeros((2, 4))
-        driver_matrices(p, v_x, A, B, C, D)
+        _eq2_matrices(p, v_x, A, B, C, D)
         return StateSpace(A, B, C, D)
 
     def transfer_function(
@@ -442,73 +458,19 @@ class Driver:
 #: Remnant injection codes of the compiled steps.
 INJECT_NONE, INJECT_OUTPUT, INJECT_INPUT = 0, 1, 2
 
-
-@numba.njit(cache=True, _nrt=False)
-def exact_delay_step(p, tau_next, v_x, dt, inputs, noise, inject, state, smooth, held, newest, out):
-    """One sample of the driver with the exact delay (module docstring).
-
-    ``p`` the parameters at this sample, ``tau_next`` the delay at the next one,
-    ``inputs`` (4,) the perceptions held over the sample, ``noise`` the remnant sample,
-    ``inject`` its :data:`INJECT_OUTPUT`/:data:`INJECT_INPUT` code. ``state`` =
-    ``(x_1, Gamma_d, smooth part of delta_sw now)``; ``smooth``/``held`` the delay-line
-    histories, ``newest`` this sample's index in them. ``out`` = (Gamma_d with any
-    output remnant, delta_sw) at this sample; the state is advanced to the next.
-    """
-    K_p, K_c, T_I, T_L, tau_p, K_r, K_t, T_N = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7]
-    c = K_c / v_x
-    lead = T_L / T_I
-    x1 = state[0]
-    smooth[newest] = c * (1.0 - lead) * x1
-    visual = K_p * inputs[0] + c * lead * inputs[1]
-    if inject == 2:
-        visual += noise
-    held[newest] = visual
-    held_mean = read_held(held, newest, newest - tau_p / dt)
-    smooth_now = state[2]
-    delta_sw = smooth_now + held_mean
-    out[0] = state[1] + (noise if inject == 1 else 0.0)
-    out[1] = delta_sw
-    smooth_next = read_smooth(smooth, newest, newest + 1.0 - tau_next / dt)
-    a = math.exp(-dt / T_N)
-    b = 1.0 - a
-    ramp = 1.0 - (T_N / dt) * b
-    G = K_r * v_x + K_t
-    state[1] = (
-        a * state[1]
-        + b * (G * delta_sw - K_t * inputs[2] - inputs[3])
-        + ramp * G * (smooth_next - smooth_now)
-    )
-    a1 = math.exp(-dt / T_I)
-    state[0] = a1 * x1 + (1.0 - a1) * inputs[1]
-    state[2] = smooth_next
-
-
-@numba.njit(cache=True, _nrt=False)
-def pade_step(phi, gamma, C, D, inputs, noise, inject, state, work, out):
-    """One sample of eq. 2 discretised (``phi`` (3, 3), ``gamma`` (3, 5), ``C``, ``D`` (2, 5)).
-
-    Input 5 is the remnant at the visual signal (``inject`` = :data:`INJECT_INPUT`).
-    """
-    for i in range(5):
-        work[i] = inputs[i] if i < 4 else (noise if inject == 2 else 0.0)
-    for r in range(2):
-        acc = 0.0
-        for j in range(3):
-            acc += C[r, j] * state[j]
-        for j in range(5):
-            acc += D[r, j] * work[j]
-        out[r] = acc
-    if inject == 1:
-        out[0] += noise
-    for i in range(3):
-        acc = 0.0
-        for j in range(3):
-            acc += phi[i, j] * state[j]
-        for j in range(5):
-            acc += gamma[i, j] * work[j]
-        work[5 + i] = acc
-    for i in range(3):
-        state[i] = work[5 + i]
+#: Where the compiled steps and eq. 2 live: imported where numba runs them, never by an
+#: identification through the Zhao filters' C port.
+_KERNEL_MODULE = "manualcontrol.pilots._driver_kernels"
+#: The numba kernels exported here, imported from their module on first use.
+_KERNELS = (
+    "driver_matrices",
+    "exact_delay_step",
+    "pade_step",
+    "driver_sample",
+    "driver_action",
+    "drive",
+)
+__getattr__ = kernels_on_first_use(globals(), _KERNEL_MODULE, _KERNELS)
 
 
 # ---------------------------------------------------------- the driver in an episode
@@ -550,77 +512,6 @@ LoopOutput = namedtuple("LoopOutput", ["perceived", "action", "Gamma_d", "delta_
 INJECT_CODES = {None: INJECT_NONE, "output": INJECT_OUTPUT, "input": INJECT_INPUT}
 
 
-@numba.njit(cache=True, _nrt=False)
-def driver_sample(d, k, inputs):
-    """The driver's outputs at sample ``k`` into ``d.out``; its state advanced."""
-    if d.pade:
-        i = d.index[k]
-        pade_step(
-            d.phi[i],
-            d.gamma[i],
-            d.C[i],
-            d.D[i],
-            inputs,
-            d.noise[k],
-            d.inject,
-            d.state,
-            d.work,
-            d.out,
-        )
-    else:
-        exact_delay_step(
-            d.p[k],
-            d.p[k + 1, 4],
-            d.v_x,
-            d.dt,
-            inputs,
-            d.noise[k],
-            d.inject,
-            d.state,
-            d.smooth,
-            d.held,
-            d.pad + k,
-            d.out,
-        )
-
-
-@numba.njit(cache=True, _nrt=False)
-def driver_action(d, k, angle, bound):
-    """The action of sample ``k`` from ``d.out``: torque, or intended angle (+ remnant)."""
-    if angle > 0.0:
-        action = d.out[1] + (d.noise[k] if d.inject == 1 else 0.0)
-    else:
-        action = d.out[0]
-    if action > bound:
-        action = bound
-    elif action < -bound:
-        action = -bound
-    return action
-
-
-@numba.njit(cache=True, _nrt=False)
-def drive(car, d, out):
-    """The closed loop over ``out.action.shape[0]`` samples (module docstring)."""
-    perceive(car.packed, car.far_gain, car.state, car.kappa[0], car.kappa_far[0], out.perceived, 0)
-    for k in range(out.action.shape[0]):
-        driver_sample(d, k, out.perceived[k])
-        out.Gamma_d[k] = d.out[0]
-        out.delta_sw[k] = d.out[1]
-        action = driver_action(d, k, car.angle, car.bound)
-        out.action[k] = action
-        lane_step(
-            car.packed,
-            car.far_gain,
-            car.state,
-            action,
-            car.kappa[k],
-            car.kappa[k + 1],
-            car.kappa_far[k + 1],
-            out.perceived,
-            k + 1,
-        )
-
-
 def remnant_noise(remnant: Remnant, white: FloatArray, dt: float) -> FloatArray:
     """The remnant filter's shape driven by held white noise (exact zero-order hold)."""
     import scipy.signal  # here: importing it costs 1.3 s, which every suite listing paid
@@ -649,6 +540,8 @@ def driver_record(
     n = noise.shape[0]
     pade = driver.delay_order == 1
     if pade:
+        from manualcontrol.pilots._driver_kernels import driver_matrices
+
         unique, index = np.unique(p[:n], axis=0, return_inverse=True)
         A = np.zeros((len(unique), 3, 3))
         B = np.zeros((len(unique), 3, 5))
@@ -705,6 +598,8 @@ def drive_episode(env, driver, traces, kappa, kappa_far, noise, inject) -> Any:
     The driver's ``traces`` and remnant ``noise`` (:func:`driver_record`) steer the
     environment's car; returns the :data:`LoopOutput` of every sample.
     """
+    from manualcontrol.pilots._driver_kernels import drive
+
     n = env.episode_steps
     d = driver_record(driver, traces, env.speed, env.dt, noise, inject)
     car = _car_record(env, kappa, kappa_far)
@@ -747,6 +642,9 @@ class DriverController:
     both give the same gain.
     """
 
+    _sample = LazyKernel(_KERNEL_MODULE, "driver_sample")
+    _action = LazyKernel(_KERNEL_MODULE, "driver_action")
+
     def __init__(
         self, driver: Driver, env: Any, seed: int | np.random.Generator | None = None
     ) -> None:
@@ -782,7 +680,7 @@ class DriverController:
         if k >= self._n:
             raise RuntimeError("the driver's episode is over; reset it with the environment")
         inputs = np.ascontiguousarray(np.asarray(observation, dtype=np.float64)[:4])
-        driver_sample(self._record, k, inputs)
+        self._sample(self._record, k, inputs)
         self.k = k + 1
         self.last_output = (float(self._record.out[0]), float(self._record.out[1]))
-        return np.array([driver_action(self._record, k, self._angle, self._bound)])
+        return np.array([self._action(self._record, k, self._angle, self._bound)])

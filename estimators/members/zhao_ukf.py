@@ -57,6 +57,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
+from manualcontrol.envs._lazy import LazyKernel
 from manualcontrol.envs._validation import (
     check_choice,
     check_int,
@@ -109,6 +110,8 @@ SCHEMES: tuple[str, ...] = ("cubature", "merwe")
 STATE_NAMES: tuple[str, ...] = ("x_1", "x_2", "x_3")
 _MODEL = CyberneticDriverModel()
 _NAMES = _MODEL.parameter_names
+#: Where the numba kernels live: imported where numba runs them, never by the C path.
+_KERNEL_MODULE = "manualcontrol.estimators.members._zhao_kernels"
 
 
 def _pair(name: str, value: Any, *, allow_none: bool = True) -> tuple[float, float] | None:
@@ -507,6 +510,9 @@ class ZhaoUKF(FilterShell):
 
     #: The binding of this member's C port (envs/_native.py builds it).
     _native_binding = _zhao_native
+    #: numba's step and run, read only where the C port does not run.
+    _step_kernel = LazyKernel(_KERNEL_MODULE, "zhao_step")
+    _run_kernel = LazyKernel(_KERNEL_MODULE, "zhao_run")
 
     def __init__(self, settings: ZhaoUKFSettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
@@ -650,7 +656,7 @@ class ZhaoUKF(FilterShell):
         floats (optionally ``t``); NaN in any marks a dropped sample.
         """
         inputs, outputs = _sample_arrays(sample, self._where)
-        self._call_step(core.zhao_step, (*self._records, inputs, outputs, 0, self._row))
+        self._call_step(self._step_kernel, (*self._records, inputs, outputs, 0, self._row))
 
     # The C port of the compiled path (_zhao_native.c) runs wherever it builds: the same
     # numbers bit for bit as the numba kernels, which run elsewhere (envs/_native.py).
@@ -658,7 +664,7 @@ class ZhaoUKF(FilterShell):
     def _run(self, inputs: Any, outputs: Any, out: core.ZhaoOutput) -> None:
         native = self._native_records(out)
         if native is None:
-            core.zhao_run(*self._records, inputs, outputs, out)
+            self._run_kernel(*self._records, inputs, outputs, out)
         else:
             native.run(inputs, outputs)
             self._native = None  # the binding would keep a whole run's output alive
@@ -889,6 +895,9 @@ class MultiUKF(FilterShell):
 
     #: The binding of this member's C port (envs/_native.py builds it).
     _native_binding = _zhao_native
+    #: numba's step and run of both members and the fusion, read as ZhaoUKF's.
+    _step_kernel = LazyKernel(_KERNEL_MODULE, "multi_step")
+    _run_kernel = LazyKernel(_KERNEL_MODULE, "multi_run")
 
     def __init__(self, settings: MultiUKFSettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
@@ -950,7 +959,7 @@ class MultiUKF(FilterShell):
         """Step both members and the fusion on one sample (as :meth:`ZhaoUKF.update`)."""
         inputs, outputs = _sample_arrays(sample, self._where)
         arguments = (*self._records, inputs, outputs, 0, *self._member_rows, self._row)
-        self._call_step(core.multi_step, arguments)
+        self._call_step(self._step_kernel, arguments)
 
     # The C port (_zhao_native.c) runs wherever it builds, as ZhaoUKF's does.
 
@@ -977,7 +986,7 @@ class MultiUKF(FilterShell):
     ) -> None:
         native = self._native_multi(out_slow, out_fast, out)
         if native is None:
-            core.multi_run(*self._records, inputs, outputs, out_slow, out_fast, out)
+            self._run_kernel(*self._records, inputs, outputs, out_slow, out_fast, out)
         else:
             native.run(inputs, outputs)
             self._native = None  # the binding would keep a whole run's output alive

@@ -2,11 +2,11 @@
 
 Where the C ports build, ``manualcontrol identify <recording> --estimator <member>
 --no-plot`` (the DEKF, the RML, the joint and dual UKFs, the RDI, Schiess-Roland's filter,
-and the smoothed twins, whose RTS pass has its own port) simulates, discretises, filters
-and smooths in C: the numba kernels live in modules
-that only the fallback imports, so numba (a quarter of the command's CPU time) is never
-loaded. With ``MANUALCONTROL_NATIVE=0`` the same command runs the numba kernels and
-writes the same estimation, byte for byte.
+Zhao's UKF and multi-UKF on a lane-keeping run, and the smoothed twins, whose RTS pass
+has its own port) simulates, discretises, filters and smooths in C: the numba kernels
+live in modules that only the fallback imports, so numba (a quarter of the command's
+CPU time) is never loaded. With ``MANUALCONTROL_NATIVE=0`` the same command runs the
+numba kernels and writes the same estimation, byte for byte.
 """
 
 import os
@@ -23,8 +23,11 @@ from manualcontrol.estimators.members import (
     _rml_native,
     _schiess_roland_native,
     _ukf_native,
+    _zhao_native,
 )
 from manualcontrol.pilots import Pilot, simulate
+from manualcontrol.pilots.driver import Driver
+from manualcontrol.pilots.driving import simulate_driving
 
 #: One identification through the command's main, then the numba modules it loaded.
 SCRIPT = """
@@ -38,7 +41,9 @@ print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "ll
 """
 
 #: Each member whose whole identify runs in C: its C port, and the pilot, element and
-#: forcing of its recording (with simulate's other arguments).
+#: forcing of its recording (with simulate's other arguments), or ``DRIVING`` for a
+#: lane-keeping run.
+DRIVING = "lane-keeping"
 MEMBERS = {
     "dekf": (_dekf_native, ("precision", "popovici2017", "popovici2017"), {"run_in": 0.0}),
     "rml": (_rml_native, ("precision", "popovici2017", "popovici2017"), {"run_in": 0.0}),
@@ -58,6 +63,8 @@ MEMBERS = {
         ("precision", "popovici2017", "popovici2017"),
         {"run_in": 0.0},
     ),
+    "zhao-ukf": (_zhao_native, DRIVING, {}),
+    "zhao-multi-ukf": (_zhao_native, DRIVING, {}),
 }
 
 
@@ -86,13 +93,17 @@ def test_a_warm_identify_imports_no_numba_and_numba_writes_the_same(
     estimator, tmp_path, monkeypatch
 ):
     monkeypatch.delenv("MANUALCONTROL_NATIVE", raising=False)
-    port, (pilot, plant, task), options = MEMBERS[estimator]
+    port, source, options = MEMBERS[estimator]
     if port.library() is None or _dynamics_native.library() is None:
         pytest.skip(f"the {estimator}'s or the LPV toolkit's C port did not build here")
     if estimator.endswith("-smoothed") and _smoother_native.library() is None:
         pytest.skip("the RTS smoother's C port did not build here")
     recording = tmp_path / "run.npz"
-    simulate(Pilot(pilot), plant, task, measurement_time=30.0, **options).save(recording)
+    if source == DRIVING:  # a few seconds of lane keeping keep it fast
+        simulate_driving(Driver(), measurement_time=4.0, **options).save(recording)
+    else:
+        pilot, plant, task = source
+        simulate(Pilot(pilot), plant, task, measurement_time=30.0, **options).save(recording)
     loaded = identify(recording, tmp_path / "c", native=True, estimator=estimator)
     assert loaded == "[]", f"the C path imported {loaded}"
     loaded = identify(recording, tmp_path / "numba", native=False, estimator=estimator)
@@ -171,6 +182,9 @@ HOMES = {
     "manualcontrol.estimators.members._schiess_roland_core": (
         "manualcontrol.estimators.members._schiess_roland_kernels"
     ),
+    "manualcontrol.estimators.members._zhao_core": "manualcontrol.estimators.members._zhao_kernels",
+    "manualcontrol.pilots.driver": "manualcontrol.pilots._driver_kernels",
+    "manualcontrol.envs.driving": "manualcontrol.envs._driving_kernels",
 }
 #: The kernels a numba-free module exported before they moved (the rest it still defines).
 MOVED = {
@@ -223,3 +237,25 @@ def test_the_pilot_filters_name_their_kernels_lazily(member, kernels, prefix):
     assert cls._step_kernel is getattr(kernels, f"{prefix}_step")
     assert cls._step_many_kernel is getattr(kernels, f"{prefix}_step_many")
     assert cls._run_kernel is getattr(kernels, f"{prefix}_run")
+
+
+def test_zhaos_filters_name_their_kernels_lazily():
+    from manualcontrol.estimators.members import _zhao_kernels
+    from manualcontrol.estimators.members.zhao_ukf import MultiUKF, ZhaoUKF
+
+    assert ZhaoUKF._step_kernel is _zhao_kernels.zhao_step
+    assert ZhaoUKF()._run_kernel is _zhao_kernels.zhao_run
+    assert MultiUKF._step_kernel is _zhao_kernels.multi_step
+    assert MultiUKF()._run_kernel is _zhao_kernels.multi_run
+
+
+def test_the_lane_keeping_car_and_the_driver_name_their_kernels_lazily():
+    from manualcontrol.envs import _driving_kernels
+    from manualcontrol.envs.driving import LaneKeeping
+    from manualcontrol.pilots import _driver_kernels
+    from manualcontrol.pilots.driver import DriverController
+
+    assert LaneKeeping._perceive is _driving_kernels.perceive
+    assert LaneKeeping._lane_step is _driving_kernels.lane_step
+    assert DriverController._sample is _driver_kernels.driver_sample
+    assert DriverController._action is _driver_kernels.driver_action

@@ -102,6 +102,64 @@ def test_frequency_response_has_the_exact_delay():
     np.testing.assert_allclose(exact, 3.4 * np.exp(-0.04j * omega), rtol=1e-12)
 
 
+def _eq2_cases():
+    """Table 2's values, each parameter at the ends of its flagged range, and random draws.
+
+    The draws are log-uniform over six decades with random signs where a sign is valid,
+    so that the operations round at many exponents; speeds include 64 km/h and 18 m/s.
+    """
+    model = CyberneticDriverModel()
+    nominal = model.vector({})
+    cases = [nominal]
+    for i, spec in enumerate(model.parameters):
+        for end in spec.human:
+            p = nominal.copy()
+            p[i] = end
+            cases.append(p)
+    rng = np.random.default_rng(2019)
+    signed = np.array([not spec.positive and spec.valid[0] < 0 for spec in model.parameters])
+    for _ in range(300):
+        p = nominal * 10.0 ** rng.uniform(-3.0, 3.0, nominal.shape)
+        cases.append(np.where(signed & (rng.random(nominal.shape) < 0.5), -p, p))
+    return cases, (64.0 / 3.6, V_X, 0.7, 41.0)
+
+
+def test_eq2_run_as_python_writes_the_compiled_kernels_bytes():
+    """Eq. 2's one definition run as Python gives the bytes numba's compilation of it does.
+
+    The Zhao filters' tuning reads eq. 2 from :meth:`CyberneticDriverModel.state_space`,
+    which runs the definition as Python (so that an identification through their C port
+    never imports numba); their kernels and the simulation call it compiled
+    (``driver_matrices``). They are equal to the bit: the same IEEE-754 double
+    operations on the same operands in the same order (no fastmath: LLVM neither
+    reorders nor fuses a multiply and an add). Both start from NaN-filled arrays here,
+    so the zeroing is compared as well, with and without the fifth (input remnant)
+    column.
+    """
+    from manualcontrol.pilots._driver_kernels import driver_matrices
+    from manualcontrol.pilots.driver import _eq2_matrices
+
+    model = CyberneticDriverModel()
+    cases, speeds = _eq2_cases()
+    for p in cases:
+        for v_x in speeds:
+            for columns in (4, 5):
+                shapes = ((3, 3), (3, columns), (2, 3), (2, columns))
+                compiled = [np.full(shape, np.nan) for shape in shapes]
+                numpy = [np.full(shape, np.nan) for shape in shapes]
+                driver_matrices(p, v_x, *compiled)
+                _eq2_matrices(p, v_x, *numpy)
+                for name, ours, theirs in zip("ABCD", numpy, compiled, strict=True):
+                    assert ours.tobytes() == theirs.tobytes(), (name, columns, p.tolist(), v_x)
+            # the API itself, as the tuning calls it (four inputs)
+            system = model.state_space(dict(zip(model.parameter_names, p, strict=True)), v_x)
+            compiled = [np.zeros((3, 3)), np.zeros((3, 4)), np.zeros((2, 3)), np.zeros((2, 4))]
+            driver_matrices(p, v_x, *compiled)
+            ours = (system.A, system.B, system.C, system.D)
+            for name, mine, theirs in zip("ABCD", ours, compiled, strict=True):
+                assert mine.tobytes() == theirs.tobytes(), (name, p.tolist(), v_x)
+
+
 # ----------------------------------------------------------------------- simulation
 
 
