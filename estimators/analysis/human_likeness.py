@@ -581,12 +581,12 @@ def reference_pilot(element: Any, t: float = 0.0) -> dict[str, float] | None:
     ``T_I``): no lead, the lag's break a decade below crossover and the asymptotic
     crossover at 3 rad/s (:func:`~manualcontrol.pilots.typical_parameters` says why).
     The critical task and general transfer functions: None (no typical pilot is
-    published for them). ``t``: time at which a time-varying gain or ``K/(s(s +
-    omega_b))`` is read. :func:`reference_model` is the model the values belong to.
+    published for them). ``t``: time at which a time-varying element is read.
+    :func:`reference_model` is the model the values belong to.
     """
     element = make_element(element)
     if element.kind in ("integrator", "double_integrator"):
-        return {k: float(v) for k, v in typical_parameters("precision", element).items()}
+        return {k: float(v) for k, v in typical_parameters("precision", element, t).items()}
     if element.kind == "integrator_with_lag":
         values = {k: float(v[0]) for k, v in element.parameters_at(np.array([t])).items()}
         K, omega_b = values["K"], values["omega_b"]

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from manualcontrol.envs.recording import Recording
+from manualcontrol.envs.schedules import Sigmoid
 from manualcontrol.estimators.analysis.frequency import model_crossover
 from manualcontrol.estimators.analysis.human_likeness import (
     FIGURES,
@@ -162,6 +163,17 @@ def test_every_figure_is_reported_and_json_able(runs, tmp_path):
     extra = {"a lead-lag": lambda w: 0.3 * (1 + 1.5j * w) / (1 + 0.1j * w)}
     path = plot_human_likeness(result, tmp_path / "bode.png", models=extra)
     assert path.read_bytes().startswith(b"\x89PNG")
+
+
+def test_the_reference_pilot_reads_a_time_varying_element_at_the_time_asked():
+    """Every element kind is read at ``t``: a gain that doubles halves the pilot's K_p."""
+    doubling = Sigmoid(1.0, 2.0, 50.0, 1.0).to_dict()
+    for kind, before in (("integrator", 1.3 * 1.5), ("double_integrator", 0.24 * 5.0)):
+        element = {"kind": kind, "K": doubling}
+        assert reference_pilot(element)["K_p"] == pytest.approx(before)
+        assert reference_pilot(element, 100.0)["K_p"] == pytest.approx(before / 2.0)
+    gain = {"kind": "gain", "K": doubling}
+    assert reference_pilot(gain, 100.0)["K_p"] == pytest.approx(reference_pilot(gain)["K_p"] / 2)
 
 
 def test_the_typical_pilot_on_a_gain_integrates_with_a_lag_and_is_human():
