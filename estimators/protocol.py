@@ -335,9 +335,11 @@ class HealthSummary:
         sample rate"`` (Schiess & Roland's filter, whose exact flow would split a sample
         past its cap), ``"<name> pinned at a limit for <s> s"``, or ``""``.
     stopped : bool
-        The filter stopped at the divergence (any reason but a pin); later samples
-        repeat the last finite estimate and report NaN predictions. A pinned parameter
-        only reports; the filter goes on.
+        The filter stopped at the divergence (non-finite values, a covariance blow-up,
+        dynamics beyond the sample rate); later samples repeat the last finite estimate
+        and report NaN predictions. A pinned parameter only reports, and so does a
+        multi-UKF's fast member that diverged (the fusion goes on): the filter goes
+        on.
     dropped_samples : int
         Number of dropped samples.
     dropped_stretches : tuple of (float, float)

@@ -43,9 +43,9 @@ misplace the parenthesis (``K_t K_c`` instead of ``(K_r v_x + K_t) K_c``). With 
 nominal values the printed form gives a DC gain ``Gamma_d/theta_near`` of 41 instead
 of ``G K_c/v_x = 25`` (tests/pilots/test_driver.py derives both from the transfer
 functions above). ``_eq2_matrices`` is the one definition of eq. 2 (corrected):
-:func:`driver_matrices` is it compiled, which the estimators' kernels and the simulation
-call, and the structure's Python API (:meth:`CyberneticDriverModel.state_space`) runs it
-without numba.
+:func:`~manualcontrol.pilots._driver_kernels.driver_matrices` is it compiled, which the
+estimators' kernels and the simulation call, and the structure's Python API
+(:meth:`CyberneticDriverModel.state_space`) runs it without numba.
 
 Simulation (:class:`Driver`, :mod:`manualcontrol.pilots.driving`) uses the exact delay
 (``delay_order=None``: a delay line, the same conventions as the tracking pilots: the
@@ -669,6 +669,9 @@ class DriverController:
                 )
             noise = gain * unit
         self._record = driver_record(driver, traces, base.speed, base.dt, noise, inject)
+        # each step calls the kernels from the instance: reading the class's LazyKernel
+        # at every step would cost a few per cent of it
+        self._step_sample, self._step_action = self._sample, self._action
         self._angle = 1.0 if base.steering == "angle" else 0.0
         self._bound = float(base.action_bound)
         self._n = n
@@ -680,7 +683,7 @@ class DriverController:
         if k >= self._n:
             raise RuntimeError("the driver's episode is over; reset it with the environment")
         inputs = np.ascontiguousarray(np.asarray(observation, dtype=np.float64)[:4])
-        self._sample(self._record, k, inputs)
+        self._step_sample(self._record, k, inputs)
         self.k = k + 1
         self.last_output = (float(self._record.out[0]), float(self._record.out[1]))
-        return np.array([self._action(self._record, k, self._angle, self._bound)])
+        return np.array([self._step_action(self._record, k, self._angle, self._bound)])

@@ -34,6 +34,7 @@ from manualcontrol.envs.elements import make_element
 __all__ = [
     "CROSSOVER_RANGE",
     "ELEMENT_SCALED",
+    "GAIN_CROSSOVER",
     "MODEL_NAMES",
     "Branch",
     "Channel",
@@ -235,16 +236,21 @@ _ZETA_NMS = ParameterSpec(
 )
 
 
+#: The typical lag-equalised pilot's asymptotic crossover on a pure gain, rad/s: the
+#: low end of McRuer's 3-5 rad/s on ``K`` (humans cross over higher on a gain than on
+#: ``K/s``). Its lag breaks a decade below (the nominal ``T_I``), and its ``K_p`` on a
+#: unit gain puts ``K_p K/T_I`` there (the nominal ``K_p``).
+GAIN_CROSSOVER = 3.0
 #: The lag equaliser's time constant: its break ``1/T_I`` below the crossover range
 #: (humans' lag on a pure gain leaves the loop an integrator's slope through crossover).
 _T_I = ParameterSpec(
-    "T_I", 10.0 / 3.0, (1.0, 20.0), (0.0, math.inf), "s", "lag time constant", True
+    "T_I", 10.0 / GAIN_CROSSOVER, (1.0, 20.0), (0.0, math.inf), "s", "lag time constant", True
 )
 #: ``K_p`` of the lag-equalised pilot: crossover near ``K_p K/T_I``, so ``K_p K`` spans
 #: :data:`CROSSOVER_RANGE` times the human range of ``T_I``.
 _K_P_LAG = ParameterSpec(
     "K_p",
-    10.0,
+    GAIN_CROSSOVER * _T_I.nominal,
     (CROSSOVER_RANGE[0] * _T_I.human[0], CROSSOVER_RANGE[1] * _T_I.human[1]),
     (-math.inf, math.inf),
     "-",

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from manualcontrol.envs._validation import check_choice
+from manualcontrol.envs._validation import check_choice, check_real
 from manualcontrol.envs.elements import ControlledElement, make_element
 from manualcontrol.envs.tasks import task_named
 from manualcontrol.pilots.loop import SimulationSetup, closed_loop
@@ -99,9 +99,6 @@ _PREVIEW_FAR = {
     "unstable_first_order": {"K_f": 1.0, "omega_f": 3.3, "tau_f": 0.6},
 }
 _GAINS = ("K_p", "K_v", "K_1")
-#: The lag-equalised pilot's asymptotic crossover on a pure gain, rad/s: the low end of
-#: McRuer's 3-5 rad/s on ``K`` (:func:`typical_parameters`).
-GAIN_CROSSOVER = 3.0
 
 
 def _reference_gain(element: ControlledElement, t: float = 0.0) -> tuple[str, float] | None:
@@ -140,17 +137,19 @@ def typical_parameters(
     ``K``: McRuer & Jex's (1967) lag equalisation, no lead, the lag's break a decade
     below crossover (``T_I = 10/omega_c``: the loop keeps an integrator's slope and,
     within 6 deg, its phase through the crossover region), the asymptotic loop gain
-    ``K_p K / T_I`` at :data:`GAIN_CROSSOVER` (humans cross over higher on a gain than
-    on ``K/s``), delay and neuromuscular system the SI pilot's, whose limitations leave
-    30 deg of phase margin only up to about that crossover. On a unit gain: K_p 10,
-    T_I 3.33 s; the neuromuscular peak puts the measured crossover at 3.2 rad/s with
-    34 deg of margin. On other elements humans adopt no lag, and the lag model has no
-    typical pilot there: ``ValueError``, naming the plain model.
+    ``K_p K / T_I`` at :data:`~manualcontrol.pilots.models.GAIN_CROSSOVER` (humans cross
+    over higher on a gain than on ``K/s``): the model's nominal ``T_I`` and ``K_p``, the
+    latter divided by ``K``. Delay and neuromuscular system are the SI pilot's, whose
+    limitations leave 30 deg of phase margin only up to about that crossover. On a unit
+    gain: K_p 10, T_I 3.33 s; the neuromuscular peak puts the measured crossover at
+    3.2 rad/s with 34 deg of margin. On other elements humans adopt no lag, and the lag
+    model has no typical pilot there: ``ValueError``, naming the plain model.
 
     ``t``: the time at which a time-varying element is read (default the start).
     """
     model = make_model(model)
     given, element = element, make_element(element)
+    t = check_real("t", t)
     if getattr(model, "lag", False):
         if element.kind != "gain":
             raise ValueError(
@@ -159,12 +158,11 @@ def typical_parameters(
                 "PrecisionModel()'s (the model without the lag)"
             )
         _, gain = _reference_gain(element, t)
-        T_I = 10.0 / GAIN_CROSSOVER
         si = _EQUALISATION["integrator"][1]
-        return {
-            "K_p": GAIN_CROSSOVER * T_I / gain,
+        return {  # the model's nominal values are this pilot on a unit gain
+            "K_p": model.spec("K_p").nominal / gain,
             "K_v": 0.0,
-            "T_I": T_I,
+            "T_I": model.spec("T_I").nominal,
             **{name: si[name] for name in ("tau_v", "omega_nms", "zeta_nms")},
         }
     values = {name: model.spec(name).nominal for name in model.parameter_names}

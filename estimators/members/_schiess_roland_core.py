@@ -72,12 +72,12 @@ _SERIES_REACH = 4.0
 _SERIES_TOLERANCE = 1e-17  # relative to the largest state entry (or 1)
 _SERIES_TERMS = 60
 #: Most substeps a sample's flow is split into. Past it ``||A dt|| > 4096``: at 100 Hz
-#: a mode near 400,000 rad/s (a time constant under 1/2000 of the sample, a pole gone
-#: through zero), which no pilot's parameters come near and no sampled record can
-#: show. A belief that gets there has diverged, and the filter stops at that sample
-#: (``REASON_BEYOND_SAMPLE_RATE``): splitting on, up to 2^20 substeps, cost up to a
-#: second of arithmetic a sample before its values turned non-finite a few samples
-#: later.
+#: a mode near 400,000 rad/s (``tau_1`` under about 1/4000 of the sample, ``tau_2``
+#: under 1/2000, a pole gone through zero), which no pilot's parameters come near and
+#: no sampled record can show. A belief that gets there has diverged, and the filter
+#: stops at that sample (``REASON_BEYOND_SAMPLE_RATE``): splitting on, up to 2^20
+#: substeps, cost up to a second of arithmetic a sample before its values turned
+#: non-finite a few samples later.
 _FLOW_SPLIT_CAP = 1 << 10
 
 #: Settings as arrays: ``cfg`` (``CFG_*``), the adaptive noise-input vector ``gamma``

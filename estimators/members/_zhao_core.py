@@ -12,8 +12,9 @@ estimated parameters (random walks). Each sample runs Algorithm 2:
    ``x <- x + h (A(theta) x + B(theta) u_k)``, repeated ``substeps`` times over the
    sample, parameters unchanged), plus ``Q_a,d``.
 
-The model matrices of every sigma point come from
-:func:`~manualcontrol.pilots.driver.driver_matrices`, the one definition of eq. 2. The
+The model matrices of every sigma point come from eq. 2's one definition, the driver
+model's (:mod:`~manualcontrol.pilots.driver`), compiled as
+:func:`~manualcontrol.pilots._driver_kernels.driver_matrices`. The
 sigma points, moments and correction are the family's
 (:mod:`~manualcontrol.estimators.filters.unscented`); the report of each sample (every
 parameter's mean and standard deviation, limits, pins, divergence) is the pilot

@@ -2,7 +2,7 @@
  * _zhao_native.c: Zhao et al.'s UKF on the cybernetic driver model in C, the numba
  * kernels' numbers bit for bit.
  *
- * The numba kernels (_zhao_core.py and what it calls) are the reference; this port does
+ * The numba kernels (_zhao_kernels.py and what it calls) are the reference; this port does
  * their arithmetic operation for operation, in the same order, so that the results are
  * the same bytes (numba neither reassociates nor contracts to FMA without fastmath).
  * It exists because it is built in under a CPU-second where numba compiles the same
@@ -13,13 +13,13 @@
  * tests/estimators/test_zhao_native.py holds the two equal.
  *
  * Sources ported (manualcontrol/...):
- *   estimators/members/_zhao_core.py  zhao_step, zhao_run, _parameters, _measure,
+ *   estimators/members/_zhao_kernels.py zhao_step, zhao_run, _parameters, _measure,
  *                                     _propagate, _store (Zhao et al. 2019, Algorithm 2:
  *                                     output prediction eq. 6, correction, Euler
  *                                     prediction of eq. 6 with eq. 2's matrices);
  *                                     the multi-UKF (Sec. 4.2, the fusion rule of
  *                                     zhao_ukf.MultiUKF): fuse_step, multi_step, multi_run
- *   pilots/driver.py                  driver_matrices (Zhao eq. 2, corrected; B and D
+ *   pilots/driver.py                  _eq2_matrices (Zhao eq. 2, corrected; B and D
  *                                     with four columns: the filter's own)
  *   estimators/filters/unscented.py   sigma_points, weighted_mean, weighted_covariance,
  *                                     cross_covariance, unscented_correct (Algorithm 1,
@@ -381,7 +381,7 @@ static void driver_matrices(const double *p, double v_x, double *A, double *B, d
     D[1 * N_INPUTS + 1] = -c * lead;
 }
 
-/* ================================================================= _zhao_core.py */
+/* ================================================================= _zhao_kernels.py */
 
 /* _parameters: the model parameter vector of sigma point `row` into p */
 static void parameters(const ZhaoRecords *rec, const double *X, int64_t row, double *p)
@@ -479,7 +479,7 @@ static void nan_outputs(const ZhaoRecords *rec, int64_t row)
     }
 }
 
-/* zhao_step: advance the belief by one sample (Zhao Algorithm 2; see _zhao_core.py) and
+/* zhao_step: advance the belief by one sample (Zhao Algorithm 2; see _zhao_kernels.py) and
  * write row `row` of the output */
 void zhao_step(const ZhaoRecords *rec, const double *inputs_k, const double *y_k, int64_t row)
 {
@@ -609,10 +609,10 @@ void zhao_run(const ZhaoRecords *rec, const double *inputs, const double *output
         zhao_step(rec, inputs + k * N_INPUTS, outputs + k * N_OUTPUTS, k);
 }
 
-/* ================================================== _zhao_core.py: the multi-UKF */
+/* ================================================== _zhao_kernels.py: the multi-UKF */
 
 /* fuse_step: fuse row `row` of the members' outputs into the fusion's output; re-centre
- * the slow member (see _zhao_core.fuse_step and MultiUKF for the rule) */
+ * the slow member (see _zhao_kernels.fuse_step and MultiUKF for the rule) */
 static void fuse_step(const FusionRecords *fu, const ZhaoRecords *slow, const ZhaoRecords *fast,
                       int64_t row)
 {

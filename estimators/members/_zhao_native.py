@@ -1,7 +1,7 @@
 """Zhao's UKF's C port bound to its records: the fast path of ``ZhaoUKF`` where it builds.
 
 ``_zhao_native.c`` is the ZhaoUKF's compiled path (:mod:`~manualcontrol.estimators.
-members._zhao_core`'s ``zhao_step``/``zhao_run`` and what they call) in C, the same
+members._zhao_kernels`'s ``zhao_step``/``zhao_run`` and what they call) in C, the same
 numbers bit for bit (:mod:`~manualcontrol.envs._native`: why, and how it
 is built). :func:`library` loads it once a process and checks (:func:`declare`), before
 its first use, that its layout and its constants (``CFG_*``, ``SC_*``, sizes,

@@ -31,10 +31,11 @@ Choices where the paper leaves room, or errs
 * The series sums at most ``||A h|| = 4``, so a step of faster dynamics is split into
   substeps, composed by the chain rule, up to 1,024 of them. The paper has no bound:
   parameters are free states. A belief that would need more (a mode thousands of
-  times faster than the samples: ``tau_1`` or ``tau_2`` under 1/2000 of a sample, a
-  pole gone through zero, parameters a spike threw out) has diverged, and the filter
-  stops there, reported as ``"dynamics beyond the sample rate"``, rather than split on
-  for up to a second of arithmetic a sample until its values overflow.
+  times faster than the samples: ``tau_1`` under about 1/4000 of a sample or ``tau_2``
+  under 1/2000, a pole gone through zero, parameters a spike threw out) has diverged,
+  and the filter stops there, reported as ``"dynamics beyond the sample rate"``,
+  rather than split on for up to a second of arithmetic a sample until its values
+  overflow.
 * The delay is exact and hereditary (eq. 17): the delayed terms read the filtered
   ``c(t - theta | t - theta)`` and ``D(t - theta)`` from a history buffer, at
   ``q = round(theta/dt)`` samples (``delay_read="integer"``, the paper) or at the

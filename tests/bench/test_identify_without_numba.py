@@ -153,6 +153,32 @@ def test_the_online_observers_block_path_imports_no_numba(monkeypatch):
     assert loaded == "[]", f"the observer's C path imported {loaded}"
 
 
+#: What an identification of the driver imports besides the filters: the driver model,
+#: the car and the Zhao filters' records, and the driver model's eq. 2 run as Python.
+DRIVER_MODULES = """
+import sys
+import numpy as np
+import manualcontrol.envs.driving, manualcontrol.pilots.driver
+import manualcontrol.estimators.members._zhao_core
+from manualcontrol.pilots.driver import CyberneticDriverModel
+system = CyberneticDriverModel().state_space({}, 18.0)
+print(float(np.abs(system.A).sum()))
+print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "llvmlite")))
+"""
+
+
+def test_the_driver_model_and_the_car_import_no_numba_anywhere():
+    # no C port is involved: this holds on a machine without a compiler as well
+    done = subprocess.run(
+        [sys.executable, "-c", DRIVER_MODULES], capture_output=True, text=True, timeout=600,
+        check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    total, loaded = done.stdout.strip().splitlines()[-2:]
+    assert float(total) > 0.0
+    assert loaded == "[]", f"the driver model's modules imported {loaded}"
+
+
 #: Each numba-free module and the kernel module that took its numba kernels.
 HOMES = {
     "manualcontrol.envs.signals": "manualcontrol.envs._interpolation",

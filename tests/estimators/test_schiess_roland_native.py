@@ -113,7 +113,8 @@ CASES = {
     ),
     "a non-finite stop": ("overflow", {"adaptive": "modified"}, {}),
     "a stop beyond the sample rate after a spike": ("spike", {"adaptive": "modified"}, {}),
-    # a lag of a microsecond: its flow over a sample would need 2^17 substeps
+    # a lag of a microsecond: ||A dt|| = 1e4, its flow over a sample would need 4,096
+    # substeps
     "a stop beyond the sample rate at the first prediction": (
         "base",
         {"initial": {"tau_1": 1e-6}},

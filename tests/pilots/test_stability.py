@@ -1,5 +1,6 @@
 """Typical pilots per element, and diverging loops detected, not simulated to 1e36."""
 
+import math
 import re
 import warnings
 
@@ -161,3 +162,17 @@ def test_the_lag_models_typical_pilot_is_mcruers_lag_on_a_gain_and_refused_elsew
     for element in ("SI", "DI", "popovici2017"):
         with pytest.raises(ValueError, match=re.escape(f"element={element!r} humans adopt none")):
             typical_parameters(lag, element)
+    # the model's nominal values are its typical pilot on a unit gain: one rule
+    assert typical_parameters(lag, "gain") == pytest.approx(
+        {name: lag.spec(name).nominal for name in ("K_p", "T_I")}
+        | {"K_v": 0.0, "tau_v": 0.26, "omega_nms": 10.5, "zeta_nms": 0.35}
+    )
+
+
+@pytest.mark.parametrize(
+    "t, error, message",
+    [(math.nan, ValueError, "t must be finite, got nan"), ("1", TypeError, "t must be a real")],
+)
+def test_a_time_that_is_no_finite_number_is_refused_naming_t(t, error, message):
+    with pytest.raises(error, match=re.escape(message)):
+        typical_parameters("precision", "SI", t)
