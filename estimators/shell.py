@@ -336,9 +336,14 @@ class FilterShell:
         """Call the compiled one-sample ``kernel``, bypassing numba's dispatcher after once.
 
         The dispatcher's typing of the records was 16 of the 22 us an ``update()`` cost
-        (:func:`compiled_entry`).
+        (:func:`compiled_entry`). ``kernel`` may be the name of the class attribute that
+        holds it (a :class:`~manualcontrol.envs._lazy.LazyKernel`): it is read here
+        alone, where numba runs, so a member whose C port takes the step instead never
+        imports numba online.
         """
         if self._entry is None:
+            if isinstance(kernel, str):
+                kernel = getattr(type(self), kernel)
             self._entry = compiled_entry(kernel, arguments)
         else:
             self._entry(*arguments)

@@ -373,7 +373,7 @@ class PilotFilter(FilterShell):
         raise NotImplementedError
 
     def _step(self, inputs: FloatArray, u: float, e: float, out: Any) -> None:
-        self._call_step(self._step_kernel, (*self._records, inputs, u, e, 0, out))
+        self._call_step("_step_kernel", (*self._records, inputs, u, e, 0, out))
 
     def _run(self, inputs: FloatArray, u: FloatArray, e: FloatArray, out: Any) -> None:
         native = self._native_records(out)

@@ -77,6 +77,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
+from manualcontrol.envs._lazy import LazyKernel
 from manualcontrol.envs._validation import (
     check_bool,
     check_int,
@@ -333,6 +334,8 @@ class RDI(FilterShell):
 
     #: The binding of this member's C port (envs/_native.py builds it).
     _native_binding = _rdi_native
+    #: numba's one-sample step, read only where the C port does not take it.
+    _step_kernel = LazyKernel("manualcontrol.estimators.members._rdi_kernels", "rdi_step")
 
     def __init__(self, settings: RDISettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
@@ -530,7 +533,7 @@ class RDI(FilterShell):
         keys = self._sample_keys
         values = sample_values(self._where, sample, keys, (*keys, "t"))
         self._call_step(
-            core.rdi_step, (*self._records, values[keys[0]], values[keys[1]], 0, self._row)
+            "_step_kernel", (*self._records, values[keys[0]], values[keys[1]], 0, self._row)
         )
 
     # The C port of the compiled path (_rdi_native.c) runs wherever it builds: the same

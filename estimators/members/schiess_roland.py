@@ -102,6 +102,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
+from manualcontrol.envs._lazy import LazyKernel
 from manualcontrol.envs._validation import (
     check_choice,
     check_int,
@@ -582,6 +583,8 @@ class SchiessRoland(FilterShell):
 
     #: The binding of this member's C port (envs/_native.py builds it).
     _native_binding = _schiess_roland_native
+    #: numba's one-sample step, read only where the C port does not take it.
+    _step_kernel = LazyKernel("manualcontrol.estimators.members._schiess_roland_kernels", "sr_step")
 
     def __init__(self, settings: SchiessRolandSettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
@@ -765,7 +768,7 @@ class SchiessRoland(FilterShell):
         """
         values = read_sample(sample, self._sample_keys, self._where)
         arguments = (*self._records, values["ft"], values["u"], values["y"], 0, self._row)
-        self._call_step(core.sr_step, arguments)
+        self._call_step("_step_kernel", arguments)
 
     # The C port of the compiled path (_schiess_roland_native.c) runs wherever it builds:
     # the same numbers bit for bit as the numba kernels, which run elsewhere

@@ -656,7 +656,7 @@ class ZhaoUKF(FilterShell):
         floats (optionally ``t``); NaN in any marks a dropped sample.
         """
         inputs, outputs = _sample_arrays(sample, self._where)
-        self._call_step(self._step_kernel, (*self._records, inputs, outputs, 0, self._row))
+        self._call_step("_step_kernel", (*self._records, inputs, outputs, 0, self._row))
 
     # The C port of the compiled path (_zhao_native.c) runs wherever it builds: the same
     # numbers bit for bit as the numba kernels, which run elsewhere (envs/_native.py).
@@ -959,7 +959,7 @@ class MultiUKF(FilterShell):
         """Step both members and the fusion on one sample (as :meth:`ZhaoUKF.update`)."""
         inputs, outputs = _sample_arrays(sample, self._where)
         arguments = (*self._records, inputs, outputs, 0, *self._member_rows, self._row)
-        self._call_step(self._step_kernel, arguments)
+        self._call_step("_step_kernel", arguments)
 
     # The C port (_zhao_native.c) runs wherever it builds, as ZhaoUKF's does.
 

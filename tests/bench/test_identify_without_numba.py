@@ -112,6 +112,76 @@ def test_a_warm_identify_imports_no_numba_and_numba_writes_the_same(
     assert c_bytes == (tmp_path / "numba" / "estimation.npz").read_bytes()
 
 
+#: A member's online path: reset as ``estimate`` resets it, then ``update`` a sample at
+#: a time (the default observer's step), the same numbers through C and numba.
+UPDATES = """
+import sys
+import numpy as np
+from manualcontrol.envs.recording import Recording
+from manualcontrol.estimators import make_estimator
+recording = Recording.load(sys.argv[1])
+estimator = make_estimator({"name": sys.argv[2]})
+keys = tuple(estimator.sample_keys)
+signals = estimator.signals(recording)
+if not isinstance(signals, dict):
+    signals = dict(zip(keys, signals))
+settings = estimator.settings
+options = {}
+if hasattr(getattr(settings, "noise", None), "initial_variance"):
+    first = slice(0, round(settings.noise.window / recording.dt) + 1)
+    options = {"var_u0": float(np.nanvar(signals["u"][first])),
+               "var_e0": float(np.nanvar(signals["e"][first]))}
+elif hasattr(estimator, "initial_states_of"):
+    options = {"initial_states": estimator.initial_states_of(recording)}
+elif "speed" in recording.metadata and hasattr(settings, "speed"):
+    options = {"speed": recording.metadata["speed"]}
+estimator.reset(recording.dt, t0=float(recording.t[0]), **options)
+means = []
+for k in range(200):
+    estimate = estimator.update({key: float(signals[key][k]) for key in keys})
+    means.append([float(value) for value in estimate.mean.values()])
+print(np.asarray(means).tobytes().hex())
+print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "llvmlite")))
+"""
+
+#: The members whose online step has a C port, and the recording each reads.
+ONLINE_MEMBERS = [name for name in MEMBERS if not name.endswith("-smoothed")]
+
+
+@pytest.mark.skipif(
+    _native._compiler() is None, reason="no C compiler: the C ports cannot be built here"
+)
+@pytest.mark.parametrize("estimator", ONLINE_MEMBERS)
+def test_an_online_update_imports_no_numba_and_numba_gives_the_same(
+    estimator, tmp_path, monkeypatch
+):
+    # the step kernel is read by name only where numba takes the step
+    monkeypatch.delenv("MANUALCONTROL_NATIVE", raising=False)
+    port, source, options = MEMBERS[estimator]
+    if port.library() is None:
+        pytest.skip(f"the {estimator}'s C port did not build here")
+    recording = tmp_path / "run.npz"
+    if source == DRIVING:
+        simulate_driving(Driver(), measurement_time=4.0, **options).save(recording)
+    else:
+        pilot, plant, task = source
+        simulate(Pilot(pilot), plant, task, measurement_time=5.0, **options).save(recording)
+    outputs = {}
+    for native in (True, False):
+        environment = {k: v for k, v in os.environ.items() if k != "MANUALCONTROL_NATIVE"}
+        if not native:
+            environment["MANUALCONTROL_NATIVE"] = "0"
+        done = subprocess.run(
+            [sys.executable, "-c", UPDATES, str(recording), estimator], capture_output=True,
+            text=True, env=environment, timeout=600, check=False,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        outputs[native] = done.stdout.strip().splitlines()[-2:]
+    assert outputs[True][1] == "[]", f"the C path imported {outputs[True][1]}"
+    assert "'numba'" in outputs[False][1]
+    assert outputs[True][0] == outputs[False][0]
+
+
 #: The online observer's thin form: built, stepped through a block and read.
 ONLINE = """
 import sys
