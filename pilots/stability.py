@@ -99,6 +99,9 @@ _PREVIEW_FAR = {
     "unstable_first_order": {"K_f": 1.0, "omega_f": 3.3, "tau_f": 0.6},
 }
 _GAINS = ("K_p", "K_v", "K_1")
+#: The asymptotic crossover of the typical pilot on ``K/(s(s + omega_b))``, rad/s:
+#: ``K_p K/omega_b`` (:func:`typical_parameters`), where Popovici et al.'s pilot puts it.
+_LAG_ELEMENT_CROSSOVER = 2.0
 
 
 def _reference_gain(element: ControlledElement, t: float = 0.0) -> tuple[str, float] | None:
@@ -122,12 +125,15 @@ def typical_parameters(
     Single integrators get the thesis's SI pilot (K_p 1.3 on 1.5/s, no lead, tau_v
     0.26 s, omega_nms 10.5 rad/s, zeta_nms 0.35), double integrators its DI pilot
     (K_p 0.24 and K_v 0.36 on 5/s^2, tau_v 0.3 s, omega_nms 8, zeta_nms 0.45),
-    ``K/(s(s + omega_b))`` Popovici's pilot (K_p 1.5, K_v 0.5 on 4/(s(s+3))); the
-    gains are scaled by reference gain / element gain (a time-varying element's read at
-    ``t``). A pure gain gets a proportional pilot of loop gain 0.5 from a model without
-    McRuer's lag (our choice: the papers fly none; the lag model's pilot is below), the
-    critical task one of gain 2. The preview model adds
-    the far view of thesis Sims 2 and 8. The Schiess-Roland model's nominal values
+    ``K/(s(s + omega_b))`` McRuer & Jex's (1967) rule, lead cancelling the lag
+    (``T_L = 1/omega_b``, ``K_v = K_p T_L``) and the loop gain ``K_p K / omega_b`` at
+    2 rad/s, with Popovici et al.'s (2017) delay and neuromuscular values (tau_v 0.2 s,
+    omega_nms 8 rad/s, zeta_nms 0.3): on their 4/(s(s+3)) it is their pilot (K_p 1.5,
+    K_v 0.5). The other gains are scaled by reference gain / element gain (a
+    time-varying element's read at ``t``). A pure gain gets a proportional pilot of
+    loop gain 0.5 from a model without McRuer's lag (our choice: the papers fly none;
+    the lag model's pilot is below), the critical task one of gain 2. The preview model
+    adds the far view of thesis Sims 2 and 8. The Schiess-Roland model's nominal values
     are their pilot for 10/s^2; its K_1 is scaled likewise on other double
     integrators. General transfer functions get the model's nominal values, and a
     gain-delay pilot cannot stabilise a double integrator at all; :func:`check_stable`
@@ -179,6 +185,11 @@ def typical_parameters(
     for name, value in table.items():
         if name in values:
             values[name] = value * scale if name in _GAINS else value
+    if kind == "integrator_with_lag" and "K_v" in values:
+        read = element.parameters_at(np.array([t]))
+        K, omega_b = float(read["K"][0]), float(read["omega_b"][0])
+        values["K_p"] = _LAG_ELEMENT_CROSSOVER * omega_b / K
+        values["K_v"] = values["K_p"] / omega_b
     if model.name == "preview":
         values.update(_PREVIEW_FAR[kind])
     return values

@@ -566,15 +566,12 @@ def _equalisation(describing: DescribingFunction) -> tuple[float, float, str]:
 def reference_pilot(element: Any, t: float = 0.0) -> dict[str, float] | None:
     """The typical precision-model pilot on ``element``, or None where there is none.
 
-    ``K/s`` and ``K/s^2``: the thesis's SI and DI pilots (Table 6.1; SI: K_p 1.3 on
-    1.5/s, tau_v 0.26 s, omega_nms 10.5 rad/s, zeta_nms 0.35; DI: K_p 0.24, K_v 0.36 on
-    5/s^2, tau_v 0.3 s, omega_nms 8, zeta_nms 0.45), gains scaled by reference gain over
-    element gain (:func:`~manualcontrol.pilots.typical_parameters`), so the crossover
-    stays where the thesis had it. ``K/(s(s + omega_b))``: McRuer & Jex's (1967) rule,
-    lead cancelling the lag (``T_L = 1/omega_b``, ``K_v = K_p T_L``) and the loop gain
-    ``K_p K / omega_b`` at 2 rad/s, with Popovici et al.'s (2017) delay and
-    neuromuscular values (tau_v 0.2 s, omega_nms 8 rad/s, zeta_nms 0.3): on their
-    4/(s(s+3)) it is their pilot (K_p 1.5, K_v 0.5).
+    The precision model's typical pilot
+    (:func:`~manualcontrol.pilots.typical_parameters`). ``K/s`` and ``K/s^2``: the
+    thesis's SI and DI pilots (Table 6.1), gains scaled by reference gain over element
+    gain, so the crossover stays where the thesis had it. ``K/(s(s + omega_b))``:
+    McRuer & Jex's (1967) rule, lead cancelling the lag and the crossover at 2 rad/s,
+    with Popovici et al.'s (2017) delay and neuromuscular values.
 
     A pure gain ``K``: McRuer & Jex's lag equalisation, the typical pilot of the
     precision model with its lag (``PrecisionModel(lag=True)``; the values carry
@@ -585,13 +582,8 @@ def reference_pilot(element: Any, t: float = 0.0) -> dict[str, float] | None:
     :func:`reference_model` is the model the values belong to.
     """
     element = make_element(element)
-    if element.kind in ("integrator", "double_integrator"):
+    if element.kind in ("integrator", "double_integrator", "integrator_with_lag"):
         return {k: float(v) for k, v in typical_parameters("precision", element, t).items()}
-    if element.kind == "integrator_with_lag":
-        values = {k: float(v[0]) for k, v in element.parameters_at(np.array([t])).items()}
-        K, omega_b = values["K"], values["omega_b"]
-        K_p = 2.0 * omega_b / K
-        return {"K_p": K_p, "K_v": K_p / omega_b, "tau_v": 0.2, "omega_nms": 8.0, "zeta_nms": 0.3}
     if element.kind == "gain":
         lagged = typical_parameters(make_model("precision", lag=True), element, t)
         return {name: float(value) for name, value in lagged.items()}

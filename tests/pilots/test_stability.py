@@ -131,6 +131,32 @@ def test_measurement_time_below_a_sample_is_refused():
         simulate(Pilot.typical("precision", "SI"), "SI", measurement_time=0.001)
 
 
+@pytest.mark.parametrize("K, omega_b", [(4.0, 3.0), (1.0, 1.0), (2.0, 10.0)])
+def test_a_lagged_integrator_gets_lead_cancelling_its_lag_and_crosses_over_at_2(K, omega_b):
+    """McRuer & Jex on ``K/(s(s + omega_b))``: ``T_L = 1/omega_b``, ``K_p K/omega_b = 2``.
+
+    On Popovici's 4/(s(s+3)) that is their pilot, K_p 1.5 and K_v 0.5; elsewhere the lead
+    follows the lag (a fixed K_v/K_p would leave 1/(s(s+1)) a third of the lead); the
+    loop closes stable and bounded.
+    """
+    element = {"kind": "integrator_with_lag", "K": K, "omega_b": omega_b}
+    for model in ("precision", "preview"):
+        values = typical_parameters(model, element)
+        assert values["K_v"] / values["K_p"] == pytest.approx(1.0 / omega_b)
+        assert values["K_p"] * K / omega_b == pytest.approx(2.0)
+        assert (values["tau_v"], values["omega_nms"], values["zeta_nms"]) == (0.2, 8.0, 0.3)
+    if (K, omega_b) == (4.0, 3.0):
+        assert typical_parameters("precision", "popovici2017") == {
+            "K_p": 1.5, "K_v": 0.5, "tau_v": 0.2, "omega_nms": 8.0, "zeta_nms": 0.3,
+        }  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the gains humans use on this K: tested elsewhere
+        pilot = Pilot.typical("precision", element)
+    assert check_stable(SimulationSetup.create(pilot, element)) is True
+    recording = simulate(pilot, element, measurement_time=30.0)
+    assert np.std(recording.e) < 2.0 * (np.std(recording.ft) + np.std(recording.fd))
+
+
 def test_the_lag_models_typical_pilot_is_mcruers_lag_on_a_gain_and_refused_elsewhere():
     """On ``K``: break a decade below a 3-rad/s asymptotic crossover, ``K_p K/T_I = 3``.
 
