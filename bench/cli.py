@@ -970,6 +970,16 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return code
 
 
+#: A power ratio above this is printed as such: the remnant off the line is rounding
+#: (a remnant-free simulation) and its digits say nothing (60 dB).
+_RATIO_SHOWN = 1e6
+
+
+def _power_ratio(value: float) -> str:
+    """A signal-to-noise power ratio for the describe table, ``>1e+06`` past what means."""
+    return f">{_RATIO_SHOWN:.0e}" if value > _RATIO_SHOWN else f"{value:.1f}"
+
+
 def _cmd_describe(args: argparse.Namespace) -> int:
     from manualcontrol.bench.report import plot_describing_function
     from manualcontrol.envs._files import atomic_write
@@ -1072,7 +1082,10 @@ def _cmd_describe(args: argparse.Namespace) -> int:
         describing.source,
         strict=True,
     ):
-        print(f"  {w:13.3f}  {g:10.2f}  {ph:11.1f}  {snr:6.1f}  {injected:21.1f}  {kind}")
+        print(
+            f"  {w:13.3f}  {g:10.2f}  {ph:11.1f}  {_power_ratio(snr):>6s}  "
+            f"{_power_ratio(injected):>21s}  {kind}"
+        )
     element_text = "given" if describing.element_given else "measured from y, u and fd"
     if math.isfinite(describing.crossover_frequency):
         print(
