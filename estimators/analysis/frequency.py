@@ -1030,7 +1030,10 @@ def fit_describing_function(
     best = None
     for start in _starts(target, fitted, fixed, nominal):
         x0 = np.clip([start[n] for n in fitted], lower, upper)
-        x0 = np.where(x0 == lower, lower + 1e-6 * np.maximum(1.0, np.abs(lower)), x0)
+        # a start on its finite lower bound moves just inside it (an unbounded one's
+        # nudge is -inf + inf, never taken: its start is finite)
+        with np.errstate(invalid="ignore"):
+            x0 = np.where(x0 == lower, lower + 1e-6 * np.maximum(1.0, np.abs(lower)), x0)
         with np.errstate(all="ignore"):
             result = scipy.optimize.least_squares(
                 residuals, x0, bounds=(lower, upper), x_scale="jac"

@@ -98,6 +98,15 @@ def test_fit_recovers_the_noise_free_pilot(clean_run):
     assert held.fitted == ("K_p", "tau_v", "omega_nms")
 
 
+def test_a_model_with_an_unbounded_gain_fits_without_a_numpy_warning(clean_run):
+    # Schiess & Roland's K_1 has no lower bound: its start's nudge off a bound is never
+    # taken, and computing it (-inf + inf) must not warn the user
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        fit = fit_describing_function(describing_function(clean_run), "schiess-roland")
+    assert np.isfinite(fit.values["K_1"])
+
+
 def test_injected_snr_predicts_the_error_under_remnant(remnant_runs):
     # U/E = H_p + N/E errs by |N/U| ~ 1/sqrt(snr_injected) (relative) where that is small:
     # the scaled errors then behave like the modulus of a unit complex Gaussian (median
