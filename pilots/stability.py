@@ -79,6 +79,8 @@ _EQUALISATION = {
         5.0,
         {"K_p": 0.24, "K_v": 0.36, "tau_v": 0.3, "omega_nms": 8.0, "zeta_nms": 0.45},
     ),
+    # Popovici's pilot on their 4/(s(s+3)); on another omega_b, typical_parameters sets
+    # K_p and K_v by McRuer & Jex's rule, which gives these on theirs
     "integrator_with_lag": (
         4.0 / 3.0,  # low-frequency gain K/omega_b of Popovici's 4/(s(s+3))
         {"K_p": 1.5, "K_v": 0.5, "tau_v": 0.2, "omega_nms": 8.0, "zeta_nms": 0.3},
