@@ -14,6 +14,7 @@ Tolerances, and why:
   below 0.5 % at every forcing frequency.
 """
 
+import functools
 import re
 import sys
 from pathlib import Path
@@ -121,6 +122,7 @@ def test_time_varying_loop_against_fine_ode_integration():
     _, signals = _inputs_of(pilot, "DI", **kwargs)
     element = scipy.signal.tf2ss(*DI)
 
+    @functools.lru_cache(maxsize=4)  # the frozen pass reads each sample's blocks ~50 times
     def blocks(t):
         th = {name: float(schedule(t)) for name, schedule in schedules.items()}
         delay = scipy.signal.tf2ss(*pade(th["tau_v"], 3))
