@@ -2,11 +2,12 @@
 
 :func:`driver_matrices` writes Zhao eq. 2 (corrected, the driver model's module
 docstring); :func:`exact_delay_step` and :func:`pade_step` are one sample of the driver,
-:func:`driver_sample` and :func:`driver_action` one sample of it in an episode, and
+:func:`driver_sample` and :func:`driver_action` one sample of it in an episode,
 :func:`drive` the closed loop with the lane-keeping car
-(:mod:`~manualcontrol.envs._driving_kernels`). Imported only where a numba kernel runs
-or compiles (a driving simulation, the driver acting in the environment, the Zhao
-filters' numba kernels, ``bench/compile_kernels.py``): the driver model's module keeps
+(:mod:`~manualcontrol.envs._driving_kernels`), and :func:`resimulate` the driver alone
+on recorded perceptions. Imported only where a numba kernel runs or compiles (a driving
+simulation or resimulation, the driver acting in the environment, the Zhao filters'
+numba kernels, ``bench/compile_kernels.py``): the driver model's module keeps
 the parameters, the records and eq. 2's definition, and exports these kernels by
 name on first use, so that an identification of the driver, which runs in C, never
 imports numba.
@@ -166,3 +167,16 @@ def drive(car, d, out):
             out.perceived,
             k + 1,
         )
+
+
+@numba.njit(cache=True, _nrt=False)
+def resimulate(d, inputs, out):
+    """The driver alone on recorded perceptions ``inputs`` (n, 4): ``(Gamma_d, delta_sw)``.
+
+    :func:`~manualcontrol.pilots.driving.resimulate_driver`'s loop, one
+    :func:`driver_sample` a sample, into ``out`` (n, 2).
+    """
+    for k in range(inputs.shape[0]):
+        driver_sample(d, k, inputs[k])
+        out[k, 0] = d.out[0]
+        out[k, 1] = d.out[1]

@@ -224,11 +224,13 @@ def test_the_online_observers_block_path_imports_no_numba(monkeypatch):
 
 
 #: What an identification of the driver imports besides the filters: the driver model,
-#: the car and the Zhao filters' records, and the driver model's eq. 2 run as Python.
+#: the car and the Zhao filters' records, and the driver model's eq. 2 run as Python;
+#: and what every bench reads its suites with (the driving simulation's module).
 DRIVER_MODULES = """
 import sys
 import numpy as np
-import manualcontrol.envs.driving, manualcontrol.pilots.driver
+import manualcontrol.envs.driving, manualcontrol.pilots.driver, manualcontrol.pilots.driving
+import manualcontrol.bench.scenarios
 import manualcontrol.estimators.members._zhao_core
 from manualcontrol.pilots.driver import CyberneticDriverModel
 system = CyberneticDriverModel().state_space({}, 18.0)
@@ -287,6 +289,16 @@ MOVED = {
     "manualcontrol.envs.signals": ("interpolate_many",),
     "manualcontrol.pilots.loop": ("_read_preview", "interpolate_at"),
     "manualcontrol.pilots.controller": ("_act", "interpolate_at"),
+    # the driver's kernels; the resimulation's (moved from pilots/driving.py) has no
+    # other user, and eq. 2's is compiled from the driver module itself
+    "manualcontrol.pilots.driver": (
+        "driver_matrices",
+        "exact_delay_step",
+        "pade_step",
+        "driver_sample",
+        "driver_action",
+        "drive",
+    ),
 }
 
 
