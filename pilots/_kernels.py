@@ -1,10 +1,9 @@
-"""The numba kernels of the pilots' loop and controller, imported only where they run.
+"""The numba kernel of the pilots' controller, imported only where it runs.
 
-:func:`_read_preview` reads a preview display's target ahead (a preview task's
-simulation, :mod:`~manualcontrol.pilots.loop`); :func:`_act` is one sample of the
-controller acting in an environment (:mod:`~manualcontrol.pilots.controller`). They
-live apart from the modules that use them so that a process that only builds pilots
-and simulates through the C ports (an identification) never imports numba.
+:func:`_act` is one sample of the controller acting in an environment
+(:mod:`~manualcontrol.pilots.controller`). It lives apart from the module that uses it
+so that a process that only builds pilots and simulates through the C ports (an
+identification, a bench) never imports numba.
 """
 
 from __future__ import annotations
@@ -18,24 +17,6 @@ from manualcontrol.envs._interpolation import interpolate_at
 from manualcontrol.pilots.controller import _EDGE, _ERROR, _FAR, _NEAR_RATE, _OUTPUT
 
 FloatArray = NDArray[np.float64]
-
-
-@numba.njit(cache=True)
-def _read_preview(
-    target: FloatArray, positions: FloatArray, window: int
-) -> tuple[FloatArray, FloatArray]:
-    """Target value and rate at ``positions`` samples ahead, within the visible window.
-
-    Sample ``k`` sees ``target[k : k + window]`` (what a preview display shows);
-    reading near its far edge repeats the last visible sample instead of looking
-    beyond it, exactly as a pilot reading the display would.
-    """
-    n = positions.shape[0]
-    values = np.empty(n)
-    rates = np.empty(n)
-    for k in range(n):
-        values[k], rates[k] = interpolate_at(target[k : k + window], positions[k])
-    return values, rates
 
 
 @numba.njit(cache=True)

@@ -75,18 +75,62 @@ FloatArray = NDArray[np.float64]
 
 
 def __getattr__(name: str) -> object:
-    """The numba kernel ``_read_preview`` (and ``interpolate_at``), imported on first use.
+    """The numba kernel ``interpolate_at``, imported on first use (PEP 562).
 
-    They live in :mod:`~manualcontrol.pilots._kernels` (PEP 562): only a preview task's
-    simulation reads the target ahead, so the others never import numba.
+    :func:`read_preview` reads the target ahead without it, so a simulation never
+    imports numba.
     """
-    if name in ("_read_preview", "interpolate_at"):
-        from manualcontrol.pilots import _kernels
+    if name == "interpolate_at":
+        from manualcontrol.envs._interpolation import interpolate_at
 
-        value = getattr(_kernels, name)
-        globals()[name] = value
-        return value
+        globals()[name] = interpolate_at
+        return interpolate_at
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def read_preview(
+    target: FloatArray, positions: FloatArray, window: int
+) -> tuple[FloatArray, FloatArray]:
+    """Target value and rate at ``positions`` samples ahead, within the visible window.
+
+    Sample ``k`` sees ``target[k : k + window]`` (what a preview display shows);
+    reading near its far edge repeats the last visible sample instead of looking
+    beyond it, exactly as a pilot reading the display would. Each sample is
+    :func:`~manualcontrol.envs._interpolation.interpolate_at` of its window (the
+    bicubic read of Boer & Kenyon 1998, Appendix), here for every sample at once in
+    numpy: the same IEEE operations in the same order, so the same bytes
+    (tests/pilots/test_simulation.py compares them), without numba, whose kernel this
+    replaced so that a simulation never imports it.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    k = np.arange(positions.shape[0])
+    # the last visible sample of each window, relative to its first
+    last = np.minimum(window, target.shape[0] - k) - 1
+    below = positions <= 0.0
+    above = ~below & (positions >= last)
+    inside = ~(below | above)
+    position = np.where(inside, positions, 0.0)
+    n = np.floor(position).astype(np.int64)
+    d = position - n
+    at = k + n
+    before = k + np.maximum(n - 1, 0)
+    after = k + np.minimum(n + 1, last)
+    second = k + np.minimum(n + 2, last)
+    e = 1.0 - d
+    weights = (-0.5 * d * e * e, 1.5 * d * d * d - 2.5 * d * d + 1.0)
+    weights += (1.5 * e * e * e - 2.5 * e * e + 1.0, -0.5 * d * d * e)
+    x = 1.0 + d
+    y = 2.0 - d
+    slopes = (-1.5 * x * x + 5.0 * x - 4.0, 4.5 * d * d - 5.0 * d)
+    slopes += (-(4.5 * e * e - 5.0 * e), -(-1.5 * y * y + 5.0 * y - 4.0))
+    samples = (target[before], target[at], target[after], target[second])
+    value = weights[0] * samples[0] + weights[1] * samples[1]
+    value = value + weights[2] * samples[2] + weights[3] * samples[3]
+    slope = slopes[0] * samples[0] + slopes[1] * samples[1]
+    slope = slope + slopes[2] * samples[2] + slopes[3] * samples[3]
+    value = np.where(below, target[k], np.where(above, target[k + last], value))
+    slope = np.where(inside, slope, 0.0)
+    return value, slope
 
 
 @dataclass(frozen=True)
@@ -253,13 +297,11 @@ class SimulationSetup:
         window = self.preview_window
         target_ahead, fd = self.sampled_forcing() if sampled is None else sampled
         signals = {"ft": target_ahead[:n].copy(), "fd": fd[:n].copy()}
-        if {"ft_far", "ft_near_rate"} & set(self.pilot.model.perceptions):
-            from manualcontrol.pilots._kernels import _read_preview
         if "ft_far" in self.pilot.model.perceptions:
             target_ahead = np.ascontiguousarray(target_ahead)
-            signals["ft_far"] = _read_preview(target_ahead, traces["tau_f"] / self.dt, window)[0]
+            signals["ft_far"] = read_preview(target_ahead, traces["tau_f"] / self.dt, window)[0]
         if "ft_near_rate" in self.pilot.model.perceptions:
-            rates = _read_preview(target_ahead, traces["tau_n"] / self.dt, window)[1]
+            rates = read_preview(target_ahead, traces["tau_n"] / self.dt, window)[1]
             signals["ft_near_rate"] = rates / self.dt
         if "ft_edge" in self.pilot.model.perceptions:
             # the postview display's rules, as the environment applies them

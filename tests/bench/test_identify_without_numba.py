@@ -112,6 +112,31 @@ def test_a_warm_identify_imports_no_numba_and_numba_writes_the_same(
     assert c_bytes == (tmp_path / "numba" / "estimation.npz").read_bytes()
 
 
+#: A preview pilot's simulation: the target ahead read in numpy, the loop in C.
+PREVIEW = """
+import sys
+from manualcontrol.pilots import Pilot, simulate
+recording = simulate(Pilot.typical("preview", "SI"), "SI", measurement_time=5.0)
+print(float(abs(recording.u).sum()))
+print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "llvmlite")))
+"""
+
+
+def test_a_preview_simulation_imports_no_numba(monkeypatch):
+    monkeypatch.delenv("MANUALCONTROL_NATIVE", raising=False)
+    if _dynamics_native.library() is None:
+        pytest.skip("the LPV toolkit's C port did not build here")
+    environment = {k: v for k, v in os.environ.items() if k != "MANUALCONTROL_NATIVE"}
+    done = subprocess.run(
+        [sys.executable, "-c", PREVIEW], capture_output=True, text=True, env=environment,
+        timeout=600, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    total, loaded = done.stdout.strip().splitlines()[-2:]
+    assert float(total) > 0.0
+    assert loaded == "[]", f"the preview simulation imported {loaded}"
+
+
 #: A member's online path: reset as ``estimate`` resets it, then ``update`` a sample at
 #: a time (the default observer's step), the same numbers through C and numba.
 UPDATES = """
@@ -287,7 +312,7 @@ HOMES = {
 #: The kernels a numba-free module exported before they moved (the rest it still defines).
 MOVED = {
     "manualcontrol.envs.signals": ("interpolate_many",),
-    "manualcontrol.pilots.loop": ("_read_preview", "interpolate_at"),
+    "manualcontrol.pilots.loop": ("interpolate_at",),
     "manualcontrol.pilots.controller": ("_act", "interpolate_at"),
     # the driver's kernels; the resimulation's (moved from pilots/driving.py) has no
     # other user, and eq. 2's is compiled from the driver module itself

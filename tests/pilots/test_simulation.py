@@ -352,3 +352,26 @@ def test_keep_run_in_returns_the_whole_run():
     assert whole.t[0] == pytest.approx(-10.0) and len(whole) == 3000
     np.testing.assert_array_equal(whole.slice_time(0.0).u, cut.u)
     assert whole.metadata["remnant_power_ratio"] == cut.metadata["remnant_power_ratio"]
+
+
+def test_the_preview_read_in_numpy_gives_the_bytes_of_the_compiled_read():
+    """:func:`read_preview` against numba's ``interpolate_at`` of each sample's window.
+
+    The same bicubic read for every sample at once: equal to the bit, positions before
+    the window, past its last sample, on whole samples and between, windows cut short
+    by the end of the array.
+    """
+    from manualcontrol.envs._interpolation import interpolate_at
+    from manualcontrol.pilots.loop import read_preview
+
+    rng = np.random.default_rng(7)
+    target = rng.normal(size=400)
+    for window in (1, 2, 5, 60, 500):
+        positions = rng.uniform(-3.0, window + 3.0, size=target.shape[0])
+        positions[::7] = np.round(positions[::7])  # whole samples
+        positions[:4] = (0.0, window - 1.0, -0.0, window - 1.0 + 1e-12)
+        value, slope = read_preview(target, positions, window)
+        for k in range(target.shape[0]):
+            expected = interpolate_at(target[k : k + window], positions[k])
+            assert value[k : k + 1].tobytes() == np.float64(expected[0]).tobytes(), (window, k)
+            assert slope[k : k + 1].tobytes() == np.float64(expected[1]).tobytes(), (window, k)
