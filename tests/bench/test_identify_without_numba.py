@@ -68,13 +68,13 @@ MEMBERS = {
 }
 
 
-def identify(recording, out, native, estimator="dekf"):
-    environment = {**os.environ}
-    environment.pop("MANUALCONTROL_NATIVE", None)
+def run_script(script, *arguments, native=True):
+    """The lines ``script`` prints in a fresh process (C ports on, or numba's alone)."""
+    environment = {k: v for k, v in os.environ.items() if k != "MANUALCONTROL_NATIVE"}
     if not native:
         environment["MANUALCONTROL_NATIVE"] = "0"
     done = subprocess.run(
-        [sys.executable, "-c", SCRIPT, str(recording), str(out), estimator],
+        [sys.executable, "-c", script, *map(str, arguments)],
         capture_output=True,
         text=True,
         env=environment,
@@ -82,7 +82,11 @@ def identify(recording, out, native, estimator="dekf"):
         check=False,
     )
     assert done.returncode == 0, done.stderr
-    return done.stdout.strip().splitlines()[-1]
+    return done.stdout.strip().splitlines()
+
+
+def identify(recording, out, native, estimator="dekf"):
+    return run_script(SCRIPT, recording, out, estimator, native=native)[-1]
 
 
 @pytest.mark.skipif(
@@ -126,13 +130,7 @@ def test_a_preview_simulation_imports_no_numba(monkeypatch):
     monkeypatch.delenv("MANUALCONTROL_NATIVE", raising=False)
     if _dynamics_native.library() is None:
         pytest.skip("the LPV toolkit's C port did not build here")
-    environment = {k: v for k, v in os.environ.items() if k != "MANUALCONTROL_NATIVE"}
-    done = subprocess.run(
-        [sys.executable, "-c", PREVIEW], capture_output=True, text=True, env=environment,
-        timeout=600, check=False,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr
-    total, loaded = done.stdout.strip().splitlines()[-2:]
+    total, loaded = run_script(PREVIEW)[-2:]
     assert float(total) > 0.0
     assert loaded == "[]", f"the preview simulation imported {loaded}"
 
@@ -191,17 +189,10 @@ def test_an_online_update_imports_no_numba_and_numba_gives_the_same(
     else:
         pilot, plant, task = source
         simulate(Pilot(pilot), plant, task, measurement_time=5.0, **options).save(recording)
-    outputs = {}
-    for native in (True, False):
-        environment = {k: v for k, v in os.environ.items() if k != "MANUALCONTROL_NATIVE"}
-        if not native:
-            environment["MANUALCONTROL_NATIVE"] = "0"
-        done = subprocess.run(
-            [sys.executable, "-c", UPDATES, str(recording), estimator], capture_output=True,
-            text=True, env=environment, timeout=600, check=False,
-        )  # fmt: skip
-        assert done.returncode == 0, done.stderr
-        outputs[native] = done.stdout.strip().splitlines()[-2:]
+    outputs = {
+        native: run_script(UPDATES, recording, estimator, native=native)[-2:]
+        for native in (True, False)
+    }
     assert outputs[True][1] == "[]", f"the C path imported {outputs[True][1]}"
     assert "'numba'" in outputs[False][1]
     assert outputs[True][0] == outputs[False][0]
@@ -237,13 +228,7 @@ def test_the_online_observers_block_path_imports_no_numba(monkeypatch):
     monkeypatch.delenv("MANUALCONTROL_NATIVE", raising=False)
     if _dekf_native.library() is None:
         pytest.skip("the DEKF's C port did not build here")
-    environment = {k: v for k, v in os.environ.items() if k != "MANUALCONTROL_NATIVE"}
-    done = subprocess.run(
-        [sys.executable, "-c", ONLINE], capture_output=True, text=True, env=environment,
-        timeout=600, check=False,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr
-    estimate, loaded = done.stdout.strip().splitlines()[-2:]
+    estimate, loaded = run_script(ONLINE)[-2:]
     assert float(estimate) > 0.0
     assert loaded == "[]", f"the observer's C path imported {loaded}"
 
@@ -266,12 +251,7 @@ print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "ll
 
 def test_the_driver_model_and_the_car_import_no_numba_anywhere():
     # no C port is involved: this holds on a machine without a compiler as well
-    done = subprocess.run(
-        [sys.executable, "-c", DRIVER_MODULES], capture_output=True, text=True, timeout=600,
-        check=False,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr
-    total, loaded = done.stdout.strip().splitlines()[-2:]
+    total, loaded = run_script(DRIVER_MODULES)[-2:]
     assert float(total) > 0.0
     assert loaded == "[]", f"the driver model's modules imported {loaded}"
 
