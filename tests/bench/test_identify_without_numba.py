@@ -126,15 +126,6 @@ print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "ll
 """
 
 
-def test_a_preview_simulation_imports_no_numba(monkeypatch):
-    monkeypatch.delenv("MANUALCONTROL_NATIVE", raising=False)
-    if _dynamics_native.library() is None:
-        pytest.skip("the LPV toolkit's C port did not build here")
-    total, loaded = run_script(PREVIEW)[-2:]
-    assert float(total) > 0.0
-    assert loaded == "[]", f"the preview simulation imported {loaded}"
-
-
 #: A member's online path: reset as ``estimate`` resets it, then ``update`` a sample at
 #: a time (the default observer's step), the same numbers through C and numba.
 UPDATES = """
@@ -220,19 +211,6 @@ print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "ll
 """
 
 
-@pytest.mark.skipif(
-    _native._compiler() is None, reason="no C compiler: the C ports cannot be built here"
-)
-def test_the_online_observers_block_path_imports_no_numba(monkeypatch):
-    # asking whether the member has a batched step must not import its kernel
-    monkeypatch.delenv("MANUALCONTROL_NATIVE", raising=False)
-    if _dekf_native.library() is None:
-        pytest.skip("the DEKF's C port did not build here")
-    estimate, loaded = run_script(ONLINE)[-2:]
-    assert float(estimate) > 0.0
-    assert loaded == "[]", f"the observer's C path imported {loaded}"
-
-
 #: What an identification of the driver imports besides the filters: the driver model,
 #: the car and the Zhao filters' records, and the driver model's eq. 2 run as Python;
 #: and what every bench reads its suites with (the driving simulation's module).
@@ -249,11 +227,26 @@ print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "ll
 """
 
 
-def test_the_driver_model_and_the_car_import_no_numba_anywhere():
-    # no C port is involved: this holds on a machine without a compiler as well
-    total, loaded = run_script(DRIVER_MODULES)[-2:]
-    assert float(total) > 0.0
-    assert loaded == "[]", f"the driver model's modules imported {loaded}"
+#: Paths that print one number they computed, then the numba modules they loaded: the
+#: script and the C port it runs through (None: none; it holds without a compiler too).
+NUMBA_FREE_PATHS = {
+    # the target ahead read in numpy, the loop in C
+    "a preview simulation": (PREVIEW, _dynamics_native),
+    # asking whether the member has a batched step must not import its kernel
+    "the online observer's block path": (ONLINE, _dekf_native),
+    "the driver model, the car and the suites' modules": (DRIVER_MODULES, None),
+}
+
+
+@pytest.mark.parametrize("path", sorted(NUMBA_FREE_PATHS))
+def test_a_path_imports_no_numba(path, monkeypatch):
+    monkeypatch.delenv("MANUALCONTROL_NATIVE", raising=False)
+    script, port = NUMBA_FREE_PATHS[path]
+    if port is not None and port.library() is None:
+        pytest.skip(f"{port.SOURCE.name} did not build here")
+    number, loaded = run_script(script)[-2:]
+    assert float(number) > 0.0
+    assert loaded == "[]", f"{path} imported {loaded}"
 
 
 #: Each numba-free module and the kernel module that took its numba kernels.
