@@ -21,16 +21,24 @@ counting on cost two atomic counts per array, about 2 us per filter-step for the
 sixty arrays, as much as its arithmetic. So the batched loops are compiled with it off,
 as the steps are: the stack outlives every call, and :func:`take` returns records (never
 a bare array, which numba refuses to return without reference counting).
+
+Why compiled :func:`take` is a typing rule and a lowering, not an ``@overload``: an
+overload is a Python function numba compiles for every record type it meets (its
+nested records too) before the loop that calls it, and those compilations were a third
+of each batched kernel's first compile. The lowering writes the same views, numba's
+own ``a[i]`` of each array, straight into the calling loop, and compiles nothing of
+its own.
 """
 
 from __future__ import annotations
 
+import operator
 from typing import Any
 
 import numba  # noqa: F401  (a kernel module: its overload compiles into callers)
 import numpy as np
 from numba.core import types
-from numba.extending import overload
+from numba.extending import lower_builtin, type_callable
 
 __all__ = ["put_record", "stack_of_one", "stack_records", "take"]
 
@@ -94,8 +102,8 @@ def put_record(stack: Any, record: Any, i: int) -> None:
 def take(record: Any, i: int) -> Any:
     """Filter ``i``'s records in a stack: views of row ``i`` of every array.
 
-    Callable from Python (on records and arrays) and from compiled code (the overload
-    below, on records); other fields are returned as they are.
+    Callable from Python (on records and arrays) and from compiled code (on records:
+    typed and lowered below); other fields are returned as they are.
     """
     if _is_record(record):
         return type(record)(*(take(field, i) for field in record))
@@ -106,26 +114,57 @@ def take(record: Any, i: int) -> Any:
     return record
 
 
-@overload(take, inline="always")
-def _take_compiled(record, i):  # unannotated: numba matches it to the impls' signatures
-    if not isinstance(record, types.BaseTuple):
+def _row_type(typing_context: Any, record: types.BaseTuple) -> types.BaseTuple:
+    """The numba type of :func:`take` on a record of type ``record``."""
+    kinds = []
+    for kind in record.types:
+        if isinstance(kind, types.Array):  # numba's own type of ``a[i]``
+            row = typing_context.resolve_function_type(operator.getitem, (kind, types.intp), {})
+            kinds.append(row.return_type)
+        elif isinstance(kind, types.BaseTuple):
+            kinds.append(_row_type(typing_context, kind))
+        else:
+            kinds.append(kind)
+    if isinstance(record, types.BaseNamedTuple):
+        return types.BaseTuple.from_types(kinds, record.instance_class)
+    return types.BaseTuple.from_types(kinds)
+
+
+@type_callable(take)
+def _type_take(typing_context: Any) -> Any:
+    def typer(record: Any, i: Any) -> Any:
+        if isinstance(record, types.BaseTuple) and isinstance(i, types.Integer):
+            return _row_type(typing_context, record)
         return None
-    # one constructor call over the fields, generated per record type: an array field
-    # is indexed here, a nested record taken, anything else passed on. The impl returns
-    # a tuple and never a bare array, which numba allows with reference counting off.
+
+    return typer
+
+
+def _row_views(context: Any, builder: Any, record: types.BaseTuple, value: Any, i: Any) -> Any:
+    """The tuple of row ``i``'s views, built in the calling loop.
+
+    Each array field is indexed by numba's own ``a[i]``, a nested record taken, anything
+    else passed on.
+    """
     fields = []
     for j, kind in enumerate(record.types):
+        field = builder.extract_value(value, j)
         if isinstance(kind, types.Array):
-            fields.append(f"record[{j}][i]")
+            row = context.typing_context.resolve_function_type(
+                operator.getitem, (kind, types.intp), {}
+            )
+            fields.append(context.get_function(operator.getitem, row)(builder, (field, i)))
         elif isinstance(kind, types.BaseTuple):
-            fields.append(f"take(record[{j}], i)")
+            fields.append(_row_views(context, builder, kind, field, i))
         else:
-            fields.append(f"record[{j}]")
-    namespace = {"take": take}
-    if isinstance(record, types.BaseNamedTuple):
-        namespace["record_type"] = record.instance_class
-        body = f"record_type({', '.join(fields)})"
-    else:
-        body = f"({''.join(field + ', ' for field in fields)})"
-    exec(f"def impl(record, i):\n    return {body}\n", namespace)
-    return namespace["impl"]
+            if context.enable_nrt:  # a new reference, as a[i] gives
+                context.nrt.incref(builder, kind, field)
+            fields.append(field)
+    return context.make_tuple(builder, _row_type(context.typing_context, record), fields)
+
+
+@lower_builtin(take, types.BaseTuple, types.Integer)
+def _lower_take(context: Any, builder: Any, signature: Any, arguments: Any) -> Any:
+    record, index = arguments
+    i = context.cast(builder, index, signature.args[1], types.intp)
+    return _row_views(context, builder, signature.args[0], record, i)
