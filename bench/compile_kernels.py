@@ -9,8 +9,11 @@ where the test workers or the demo's streams would otherwise compile the same ke
 at the same time.
 
 What runs, each job in its own process (the longest first): short simulations of
-every tracking task and of the lane-keeping driver, a few steps of each registered
-environment and of the native vector envs, and every registered estimator's
+every tracking task, of the open-loop ARMAX system and of the lane-keeping driver
+(and the driver's resimulation, which the driving bench scores with), a few steps of
+each registered environment and of the native vector envs, of a pilot acting in one
+through its controller and of the training wrappers' motor noise, and every
+registered estimator's
 ``estimate`` (smoothed where it can be) and ``update`` on a short recording of the kind
 it reads, and the batched step of those that have one
 (:class:`~manualcontrol.estimators.batch.FilterBatch`): the pilot filters on the
@@ -56,6 +59,9 @@ __all__ = ["JOBS", "compile_kernels", "main"]
 
 def _tracking_runs() -> None:
 
+    from manualcontrol.pilots.open_loop import ARMAXSystem, simulate_open_loop
+
+    simulate_open_loop(ARMAXSystem((0.59,), (1.5, -1.1), 0.125), measurement_time=2.0)
     for element in ("SI", "DI"):
         pilot = Pilot.typical("precision", element)
         simulate(pilot, element, "popovici2017", run_in=1.0, measurement_time=2.0, seed=0)
@@ -72,6 +78,20 @@ def _tracking_runs() -> None:
 
 def _environments() -> None:
 
+    from manualcontrol.agents.wrappers import MotorNoise
+    from manualcontrol.pilots.controller import PilotController
+
+    # a pilot acting in an environment, and the training wrappers' compiled remnant
+    env = gym.make("ManualControl/CompensatoryTracking-v0", measurement_time=2.0)
+    observation, _ = env.reset(seed=0)
+    controller = PilotController(Pilot.typical("precision", "SI"), env, seed=0)
+    for _ in range(5):
+        observation, *_ = env.step(controller.act(observation))
+    noisy = MotorNoise(env)
+    noisy.reset(seed=0)
+    for _ in range(5):
+        noisy.step(np.zeros(1))
+    env.close()
     for env_id in gym.registry:
         if not env_id.startswith("ManualControl/"):
             continue
@@ -92,7 +112,18 @@ def _environments() -> None:
 
 def _driving_run() -> None:
 
-    simulate_driving(Driver(), measurement_time=2.0)
+    from manualcontrol.pilots.driving import resimulate_driver
+
+    driver = Driver()
+    recording = simulate_driving(driver, measurement_time=2.0)
+    names = driver.model.parameter_names
+    perceptions = ("theta_far", "theta_near", "delta_d", "Gamma_s")
+    resimulate_driver(
+        np.column_stack([recording.parameters[name] for name in names]),
+        np.column_stack([recording[name] for name in perceptions]),
+        recording.metadata["speed"],
+        recording.dt,
+    )
 
 
 def _recording_for(name: str) -> Any:
