@@ -716,11 +716,52 @@ class TrainedAgent:
         del seed, env
 
     def act(self, observation: FloatArray) -> FloatArray:
-        """The policy's mean action for one observation, shape ``(1,)``."""
-        action, _ = self.policy.predict(
-            np.asarray(observation, dtype=np.float32), deterministic=True
-        )
-        return np.asarray(action, dtype=np.float64).reshape(1)
+        """The policy's mean action for one observation, shape ``(1,)``: :func:`_mean_action`."""
+        return _mean_action(self.policy, observation)
+
+
+def _mean_action(policy: Any, observation: FloatArray) -> FloatArray:
+    """``policy.predict(observation, deterministic=True)`` for one observation, as float64.
+
+    The same numbers, bit for bit (tested), by the same torch operations in the same
+    order, at a fraction of the cost: an evaluation calls it at every sample, and
+    ``predict`` spends most of a small network's call on what one observation does not
+    need: switching every module to evaluation mode again, checking and reshaping the
+    input, and building the action distribution only to read its mean. Here the mode
+    is switched only when the policy is training, and PPO's Gaussian policy (the
+    distribution's mean is its ``action_net`` output, as ``get_distribution`` computes
+    it) skips the distribution; any other policy goes through its own ``_predict``.
+    Then the action is clipped to the action space (or unscaled, for a squashing
+    policy) as ``predict`` does.
+    """
+    import torch
+    from stable_baselines3.common.distributions import DiagGaussianDistribution
+    from stable_baselines3.common.policies import ActorCriticPolicy
+
+    if policy.training:
+        policy.set_training_mode(False)
+    shape = (1, *policy.observation_space.shape)
+    values = np.asarray(observation, dtype=np.float32).reshape(shape)
+    tensor = torch.as_tensor(values, device=policy.device)
+    with torch.no_grad():
+        if (
+            isinstance(policy, ActorCriticPolicy)
+            and isinstance(policy.action_dist, DiagGaussianDistribution)
+            and type(policy).get_distribution is ActorCriticPolicy.get_distribution
+        ):
+            # ActorCriticPolicy.get_distribution's features and latent, then the mean
+            features = super(ActorCriticPolicy, policy).extract_features(
+                tensor, policy.pi_features_extractor
+            )
+            mean = policy.action_net(policy.mlp_extractor.forward_actor(features))
+        else:
+            mean = policy._predict(tensor, deterministic=True)
+    action = mean.cpu().numpy().reshape((-1, *policy.action_space.shape))
+    if policy.squash_output:
+        action = policy.unscale_action(action)
+    else:
+        action = np.clip(action, policy.action_space.low, policy.action_space.high)
+    return np.asarray(action, dtype=np.float64).reshape(1)
 
 
 def _progress_callback(total: int, report: Callable[[str], None], every: int) -> Any:

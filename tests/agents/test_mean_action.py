@@ -1,0 +1,58 @@
+"""A trained agent's action at each sample: predict's numbers, bit for bit, called cheaply.
+
+Evaluation calls the policy once a sample; ``TrainedAgent.act`` computes the mean
+action without ``predict``'s per-call overhead, so it must give exactly what
+``policy.predict(observation, deterministic=True)`` gives, on every policy kind the
+training builds: PPO's plain and informed-critic policies (the short path) and SAC
+(through its own ``_predict``), inside and beyond the action bounds (the clip).
+"""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from stable_baselines3 import PPO, SAC
+
+import manualcontrol.envs  # noqa: F401
+from manualcontrol.agents.critic import InformedCriticPolicy
+from manualcontrol.agents.recipes import recipe
+from manualcontrol.agents.training import TrainedAgent
+
+
+def env():
+    return gym.make("ManualControl/CompensatoryTracking-v0", measurement_time=2.0)
+
+
+def policies():
+    return {
+        "ppo": PPO("MlpPolicy", env(), seed=1, policy_kwargs={"net_arch": [16]}).policy,
+        "ppo informed critic": PPO(
+            InformedCriticPolicy, env(), seed=2, policy_kwargs={"actor_inputs": 1}
+        ).policy,
+        "sac": SAC("MlpPolicy", env(), seed=3, policy_kwargs={"net_arch": [16]}).policy,
+    }
+
+
+@pytest.mark.parametrize("kind", ["ppo", "ppo informed critic", "sac"])
+def test_the_agents_action_is_predicts_bit_for_bit(kind):
+    policy = policies()[kind]
+    if kind.startswith("ppo"):  # PPO's initial mean is about 0.01: make it reach the bounds
+        with torch.no_grad():
+            policy.action_net.weight.mul_(1e4)
+    policy.set_training_mode(True)  # as a policy is while it trains
+    agent = TrainedAgent(recipe("si"), policy)
+    rng = np.random.default_rng(0)
+    size = policy.observation_space.shape[0]
+    observations = rng.normal(0.0, 30.0, size=(300, size))  # far out too: the clip
+    acted = np.array([agent.act(observation) for observation in observations])
+    predicted = np.array(
+        [
+            policy.predict(observation.astype(np.float32), deterministic=True)[0]
+            for observation in observations
+        ]
+    )
+    assert acted.dtype == np.float64 and acted.shape == (300, 1)
+    assert acted.tobytes() == predicted.astype(np.float64).reshape(300, 1).tobytes()
+    high = policy.action_space.high[0]
+    assert np.any(np.abs(acted) == high) and np.any(np.abs(acted) < high)
+    assert not policy.training
