@@ -1233,6 +1233,20 @@ def _rebuilt_policy(config: TrainingConfig) -> Any:
         if "use_sde" in config.algorithm_kwargs:
             extra["use_sde"] = config.algorithm_kwargs["use_sde"]
         policy, policy_kwargs = policy_spec(config, env)
+        policy_kwargs = {**policy_kwargs, "optimizer_class": _NoOptimizer}
         return algorithm(policy, env, policy_kwargs=policy_kwargs, device="cpu", **extra).policy
     finally:
         env.close()
+
+
+class _NoOptimizer:
+    """The optimizer of a policy rebuilt to act: it is never stepped, so it holds nothing.
+
+    Why not the configured one: every torch optimizer imports torch's compiler stack
+    (``torch._dynamo``) when it is built, the larger part of loading an agent, and a
+    policy that only acts never uses it. Loading touches only the policy's weights
+    (``state_dict`` holds no optimizer state), so the numbers are the same.
+    """
+
+    def __init__(self, parameters: Any, **options: Any) -> None:
+        del parameters, options
