@@ -10,7 +10,8 @@ kernel with it, :data:`_KERNEL`) with the path, size and modification time of it
 and of every kernel module it depends on, compares the stamps with those the last
 import left, and deletes the cached kernels of exactly the modules whose stamp changed,
 is new or is gone (numba's ``__pycache__/<stem>.<qualname>-<line>.py<ver>.nbi`` and
-``.<n>.nbc`` next to the source); numba compiles those afresh and loads the others.
+``.<n>.nbc`` next to the source, or in the folder numba takes for it under
+``NUMBA_CACHE_DIR``); numba compiles those afresh and loads the others.
 
 What counts as a dependency. Module M depends on every package module it names: an
 ``import`` or ``from ... import`` anywhere in its file (at the top, in a function, under
@@ -249,12 +250,32 @@ def _read_record(path: Path) -> tuple[dict[str, _Entry], dict[str, str]] | None:
         return None
 
 
+def _cache_folders(folder: str) -> list[str]:
+    """Where numba keeps the cached kernels of the modules in source ``folder``.
+
+    ``folder/__pycache__`` (numba's in-tree locator), and, when ``NUMBA_CACHE_DIR`` is
+    set, the folder numba's user-provided locator takes there: the source folder's name
+    and the SHA-1 of its absolute path (``numba.core.caching``'s
+    ``get_suitable_cache_subpath``, rebuilt here because importing numba would cost
+    every numba-free path). Both, because a variable set for one run and not the next
+    must not leave stale kernels in the place that run does not look.
+    """
+    folders = [os.path.join(folder, "__pycache__")]
+    user = os.environ.get("NUMBA_CACHE_DIR")
+    if user:
+        source = os.path.abspath(folder)
+        digest = hashlib.sha1(source.encode()).hexdigest()
+        folders.append(os.path.join(user, f"{os.path.basename(source)}_{digest}"))
+    return folders
+
+
 def _drop(sources: Iterable[str]) -> None:
     """Delete the cached kernels of ``sources``; raise OSError if one cannot be."""
     stems: dict[str, set[str]] = {}
     for source in sources:
         folder, name = os.path.split(source)
-        stems.setdefault(os.path.join(folder, "__pycache__"), set()).add(name[:-3])
+        for cache in _cache_folders(folder):
+            stems.setdefault(cache, set()).add(name[:-3])
     for cache, names in stems.items():
         try:
             entries = os.listdir(cache)
@@ -271,11 +292,14 @@ def _drop(sources: Iterable[str]) -> None:
 
 def _drop_all(roots: Iterable[Path]) -> None:
     for root in roots:
-        for cached in (*root.rglob("*.nbi"), *root.rglob("*.nbc")):
-            try:
-                cached.unlink()
-            except FileNotFoundError:
-                pass
+        for folder, subfolders, _ in os.walk(root):
+            subfolders[:] = [f for f in subfolders if f != "__pycache__" and f[0] != "."]
+            for cache in _cache_folders(folder):
+                for cached in (*Path(cache).glob("*.nbi"), *Path(cache).glob("*.nbc")):
+                    try:
+                        cached.unlink()
+                    except FileNotFoundError:
+                        pass
 
 
 def refresh_kernel_cache(roots: Iterable[Path] | None = None) -> bool:

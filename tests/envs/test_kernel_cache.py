@@ -3,7 +3,9 @@
 import importlib.util
 import json
 import os
+import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -234,29 +236,69 @@ def test_a_place_that_cannot_be_changed_leaves_the_caches_alone(package, monkeyp
     assert refresh_kernel_cache([root.parent / "missing"]) is False
 
 
-def test_real_numba_cache_files_are_recognised(tmp_path):
-    """The names numba gives its cache files, a closure's included, are the ones dropped."""
-    root = tmp_path / "kernels"
-    edit(
-        root / "real.py",
-        "import numba\n\n@numba.njit(cache=True)\ndef twice(x):\n    return 2 * x\n\n"
-        "def make():\n    @numba.njit(cache=True)\n    def inner(x):\n        return x + 1\n"
-        "    return inner\n",
-    )
-    edit(root / "keep.py", "import numba\n")
-    assert refresh_kernel_cache([root])
+REAL_KERNELS = (
+    "import numba\n\n@numba.njit(cache=True)\ndef twice(x):\n    return 2 * x\n\n"
+    "def make():\n    @numba.njit(cache=True)\n    def inner(x):\n        return x + 1\n"
+    "    return inner\n"
+)
+
+
+def compile_real_kernels(root):
+    """Import ``root/real.py`` and run its two kernels, which numba caches; return where."""
+    from numba.core.caching import CompileResultCacheImpl
+
     spec = importlib.util.spec_from_file_location("_kernel_cache_real", root / "real.py")
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module
     try:
         spec.loader.exec_module(module)
         assert module.twice(2) == 4 and module.make()(1) == 2
+        # the folder numba itself chose (in the tree, or under NUMBA_CACHE_DIR)
+        locator = CompileResultCacheImpl(module.twice.py_func)._locator
+        return Path(locator.get_cache_path())
     finally:
         del sys.modules[spec.name]
-    cache = root / "__pycache__"
+
+
+def check_real_cache_files_are_dropped(root):
+    edit(root / "real.py", REAL_KERNELS)
+    edit(root / "keep.py", "import numba\n")
+    assert refresh_kernel_cache([root])
+    cache = compile_real_kernels(root)
     files = sorted(p.name for p in cache.glob("*.nb[ic]"))
     assert any("locals" in name for name in files) and len(files) == 4
     (cache / "keep.f-1.py311.nbi").write_bytes(b"machine code")
     edit(root / "real.py", (root / "real.py").read_text() + "# changed\n")
     assert refresh_kernel_cache([root])
     assert sorted(p.name for p in cache.glob("*.nb[ic]")) == ["keep.f-1.py311.nbi"]
+    (cache / "real.twice-3.py311.nbi").write_bytes(b"machine code")
+    (root / "__pycache__" / _kernel_cache._RECORD).unlink()  # nothing says what is current
+    assert refresh_kernel_cache([root])
+    assert not list(cache.glob("*.nb[ic]"))
+    return cache
+
+
+def test_real_numba_cache_files_are_recognised(tmp_path):
+    """The names numba gives its cache files, a closure's included, are the ones dropped."""
+    check_real_cache_files_are_dropped(tmp_path / "kernels")
+
+
+def test_the_cache_numba_keeps_under_numba_cache_dir_is_dropped_too(tmp_path):
+    """A user's NUMBA_CACHE_DIR moves numba's caches out of the tree: found there too."""
+    script = (
+        "import sys; from pathlib import Path\n"
+        "sys.path.insert(0, sys.argv[1])\n"
+        "from test_kernel_cache import check_real_cache_files_are_dropped\n"
+        "print(check_real_cache_files_are_dropped(Path(sys.argv[2])))\n"
+    )
+    user = tmp_path / "user-cache"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(user)}
+    done = subprocess.run(
+        [sys.executable, "-c", script, str(Path(__file__).parent), str(tmp_path / "kernels")],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert Path(done.stdout.strip()).parent == user  # numba did cache there
