@@ -730,7 +730,8 @@ def _mean_action(policy: Any, observation: FloatArray) -> FloatArray:
     input, and building the action distribution only to read its mean. Here the mode
     is switched only when the policy is training, and PPO's Gaussian policy (the
     distribution's mean is its ``action_net`` output, as ``get_distribution`` computes
-    it) skips the distribution; any other policy goes through its own ``_predict``.
+    it) skips the distribution; any other policy goes through its own ``_predict``, and
+    one whose observation is not a single array (a dict) through ``predict`` itself.
     Then the action is clipped to the action space (or unscaled, for a squashing
     policy) as ``predict`` does.
     """
@@ -738,6 +739,9 @@ def _mean_action(policy: Any, observation: FloatArray) -> FloatArray:
     from stable_baselines3.common.distributions import DiagGaussianDistribution
     from stable_baselines3.common.policies import ActorCriticPolicy
 
+    if not isinstance(policy.observation_space, gym.spaces.Box):  # no tensor of one shape
+        action, _ = policy.predict(observation, deterministic=True)
+        return np.asarray(action, dtype=np.float64).reshape(1)
     if policy.training:
         policy.set_training_mode(False)
     shape = (1, *policy.observation_space.shape)

@@ -56,3 +56,24 @@ def test_the_agents_action_is_predicts_bit_for_bit(kind):
     high = policy.action_space.high[0]
     assert np.any(np.abs(acted) == high) and np.any(np.abs(acted) < high)
     assert not policy.training
+
+
+class DictDisplay(gym.ObservationWrapper):
+    """The tracking display as a dict: a policy with no one-shaped tensor to read."""
+
+    def __init__(self, env):
+        super().__init__(env)
+        self.observation_space = gym.spaces.Dict({"display": env.observation_space})
+
+    def observation(self, observation):
+        return {"display": observation}
+
+
+def test_a_policy_reading_a_dict_acts_through_predict():
+    policy = PPO("MultiInputPolicy", DictDisplay(env()), seed=4).policy
+    agent = TrainedAgent(recipe("si"), policy)
+    observation = {"display": np.array([0.3], dtype=np.float32)}
+    expected, _ = policy.predict(observation, deterministic=True)
+    acted = agent.act(observation)
+    assert acted.dtype == np.float64 and acted.shape == (1,)
+    assert acted.tobytes() == np.asarray(expected, dtype=np.float64).reshape(1).tobytes()
