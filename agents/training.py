@@ -1247,7 +1247,7 @@ class _NoOptimizer:
     """The optimizer of a policy rebuilt to act: it is never stepped, so it holds nothing.
 
     Why not the configured one: every torch optimizer imports torch's compiler stack
-    (``torch._dynamo``) when it is built, the larger part of loading an agent, and a
+    (``torch._dynamo``) when it is built, a large part of loading an agent, and a
     policy that only acts never uses it. Loading touches only the policy's weights
     (``state_dict`` holds no optimizer state), so the numbers are the same.
     """
