@@ -10,8 +10,10 @@ kernel with it, :data:`_KERNEL`) with the path, size and modification time of it
 and of every kernel module it depends on, compares the stamps with those the last
 import left, and deletes the cached kernels of exactly the modules whose stamp changed,
 is new or is gone (numba's ``__pycache__/<stem>.<qualname>-<line>.py<ver>.nbi`` and
-``.<n>.nbc`` next to the source, or in the folder numba takes for it under
-``NUMBA_CACHE_DIR``); numba compiles those afresh and loads the others.
+``.<n>.nbc`` next to the source, and in the folder numba takes for it under every
+``NUMBA_CACHE_DIR`` the record has seen, so that a run with the variable and one
+without keep each other's caches in step; a value never seen is emptied once); numba
+compiles those afresh and loads the others.
 
 What counts as a dependency. Module M depends on every package module it names: an
 ``import`` or ``from ... import`` anywhere in its file (at the top, in a function, under
@@ -88,7 +90,8 @@ _Entry = tuple[int, int, bool, list[str]]
 
 
 def _roots() -> list[Path]:
-    roots = [Path(__file__).resolve().parent]
+    # the path as imported, as numba hashes it for NUMBA_CACHE_DIR (symlinks kept)
+    roots = [Path(os.path.abspath(__file__)).parent]
     for name in PACKAGES[1:]:
         spec = importlib.util.find_spec(f"manualcontrol.{name}")
         if spec is not None and spec.submodule_search_locations:
@@ -235,7 +238,9 @@ def kernel_stamps(roots: Iterable[Path] | None = None) -> dict[str, str]:
     return _stamps(closures, entries)
 
 
-def _read_record(path: Path) -> tuple[dict[str, _Entry], dict[str, str]] | None:
+def _read_record(
+    path: Path,
+) -> tuple[dict[str, _Entry], dict[str, str], list[str]] | None:
     try:
         record = json.loads(path.read_text())
         if record.get("format") != _FORMAT:
@@ -243,38 +248,39 @@ def _read_record(path: Path) -> tuple[dict[str, _Entry], dict[str, str]] | None:
         files = {
             p: (int(s), int(m), bool(k), list(i)) for p, (s, m, k, i) in record["files"].items()
         }
-        return files, dict(record["stamps"])
+        return files, dict(record["stamps"]), [str(u) for u in record.get("user_caches", [])]
     except FileNotFoundError:
         return None
     except (ValueError, TypeError, KeyError, AttributeError):  # not ours, or torn
         return None
 
 
-def _cache_folders(folder: str) -> list[str]:
+def _user_cache() -> str | None:
+    """The ``NUMBA_CACHE_DIR`` numba would use in this process (absolute), or None."""
+    user = os.environ.get("NUMBA_CACHE_DIR")
+    return os.path.abspath(user) if user else None
+
+
+def _cache_folders(folder: str, user_caches: Iterable[str]) -> list[str]:
     """Where numba keeps the cached kernels of the modules in source ``folder``.
 
-    ``folder/__pycache__`` (numba's in-tree locator), and, when ``NUMBA_CACHE_DIR`` is
-    set, the folder numba's user-provided locator takes there: the source folder's name
-    and the SHA-1 of its absolute path (``numba.core.caching``'s
-    ``get_suitable_cache_subpath``, rebuilt here because importing numba would cost
-    every numba-free path). Both, because a variable set for one run and not the next
-    must not leave stale kernels in the place that run does not look.
+    ``folder/__pycache__`` (numba's in-tree locator), and under each of ``user_caches``
+    (the ``NUMBA_CACHE_DIR`` values the record has seen) the folder numba's
+    user-provided locator takes there: the source folder's name and the SHA-1 of its
+    absolute path (``numba.core.caching``'s ``get_suitable_cache_subpath``, rebuilt here
+    because importing numba would cost every numba-free path).
     """
-    folders = [os.path.join(folder, "__pycache__")]
-    user = os.environ.get("NUMBA_CACHE_DIR")
-    if user:
-        source = os.path.abspath(folder)
-        digest = hashlib.sha1(source.encode()).hexdigest()
-        folders.append(os.path.join(user, f"{os.path.basename(source)}_{digest}"))
-    return folders
+    source = os.path.abspath(folder)
+    subpath = f"{os.path.basename(source)}_{hashlib.sha1(source.encode()).hexdigest()}"
+    return [os.path.join(folder, "__pycache__")] + [os.path.join(u, subpath) for u in user_caches]
 
 
-def _drop(sources: Iterable[str]) -> None:
+def _drop(sources: Iterable[str], user_caches: Iterable[str]) -> None:
     """Delete the cached kernels of ``sources``; raise OSError if one cannot be."""
     stems: dict[str, set[str]] = {}
     for source in sources:
         folder, name = os.path.split(source)
-        for cache in _cache_folders(folder):
+        for cache in _cache_folders(folder, user_caches):
             stems.setdefault(cache, set()).add(name[:-3])
     for cache, names in stems.items():
         try:
@@ -290,11 +296,13 @@ def _drop(sources: Iterable[str]) -> None:
                     pass
 
 
-def _drop_all(roots: Iterable[Path]) -> None:
+def _drop_all(roots: Iterable[Path], user_caches: Iterable[str], in_tree: bool = True) -> None:
+    """Delete every cached kernel under ``roots`` (:func:`_cache_folders`; the tree's too)."""
+    user_caches = list(user_caches)
     for root in roots:
         for folder, subfolders, _ in os.walk(root):
             subfolders[:] = [f for f in subfolders if f != "__pycache__" and f[0] != "."]
-            for cache in _cache_folders(folder):
+            for cache in _cache_folders(folder, user_caches)[0 if in_tree else 1 :]:
                 for cached in (*Path(cache).glob("*.nbi"), *Path(cache).glob("*.nbc")):
                     try:
                         cached.unlink()
@@ -318,20 +326,29 @@ def refresh_kernel_cache(roots: Iterable[Path] | None = None) -> bool:
         previous = _read_record(record_file)
         entries, closures = _state(roots, previous[0] if previous else {})
         stamps = _stamps(closures, entries)
+        # every NUMBA_CACHE_DIR seen is kept in step: a run without it (or with another)
+        # must not leave stale kernels where a later run with it looks
+        user = _user_cache()
+        known = previous[2] if previous else []
+        user_caches = sorted({*known, user} - {None})
         if previous is None:  # nothing tells which caches are current: drop them all
-            _drop_all(roots)
+            _drop_all(roots, user_caches)
             changed = True
         else:
             old = previous[1]
             stale = {p for p in stamps.keys() | old.keys() if stamps.get(p) != old.get(p)}
-            _drop(stale)
+            _drop(stale, user_caches)
             changed = bool(stale)
+            if user is not None and user not in known:  # never kept in step: drop it all
+                _drop_all(roots, [user], in_tree=False)
+                changed = True
             if not changed and entries == previous[0]:
                 return False
         record = {
             "format": _FORMAT,
             "files": {p: list(e) for p, e in sorted(entries.items())},
             "stamps": dict(sorted(stamps.items())),
+            "user_caches": user_caches,
         }
         cache.mkdir(exist_ok=True)
         temporary = cache / f"{_RECORD}.{os.getpid()}.part"

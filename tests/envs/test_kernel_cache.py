@@ -302,3 +302,41 @@ def test_the_cache_numba_keeps_under_numba_cache_dir_is_dropped_too(tmp_path):
     )
     assert done.returncode == 0, done.stderr
     assert Path(done.stdout.strip()).parent == user  # numba did cache there
+
+
+def test_a_numba_cache_dir_dropped_for_one_run_is_kept_in_step_by_the_next(tmp_path, monkeypatch):
+    """A kernel edited in a run without NUMBA_CACHE_DIR is dropped from it too, and a
+    cache folder the record has never seen is emptied before it is trusted."""
+    root = tmp_path / "kernels"
+    user = tmp_path / "user-cache"
+    script = (
+        "import sys; from pathlib import Path\n"
+        "sys.path.insert(0, sys.argv[1])\n"
+        "from test_kernel_cache import check_real_cache_files_are_dropped, compile_real_kernels\n"
+        "check_real_cache_files_are_dropped(Path(sys.argv[2]))\n"
+        "print(compile_real_kernels(Path(sys.argv[2])))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script, str(Path(__file__).parent), str(root)],
+        env={**os.environ, "NUMBA_CACHE_DIR": str(user)},
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    cache = Path(done.stdout.strip())
+    assert len(list(cache.glob("real.*.nb[ic]"))) == 4
+    # this run has no NUMBA_CACHE_DIR: the edit drops the user folder's kernels as well
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    edit(root / "real.py", (root / "real.py").read_text() + "# changed again\n")
+    assert refresh_kernel_cache([root])
+    assert not list(cache.glob("real.*.nb[ic]"))
+    # a folder never seen may hold kernels of any age: all of them go, once
+    other = tmp_path / "other-cache"
+    stale = Path(str(cache).replace(str(user), str(other))) / "real.twice-3.py311.nbi"
+    stale.parent.mkdir(parents=True)
+    stale.write_bytes(b"machine code")
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(other))
+    assert refresh_kernel_cache([root])
+    assert not stale.exists()
+    assert not refresh_kernel_cache([root])  # now it is kept in step: nothing to do
