@@ -731,27 +731,40 @@ def _mean_action(policy: Any, observation: FloatArray) -> FloatArray:
     is switched only when the policy is training, and PPO's Gaussian policy (the
     distribution's mean is its ``action_net`` output, as ``get_distribution`` computes
     it) skips the distribution; any other policy goes through its own ``_predict``, and
-    one whose observation is not a single array (a dict) through ``predict`` itself.
-    Then the action is clipped to the action space (or unscaled, for a squashing
-    policy) as ``predict`` does.
+    one whose observation is not a single array (a dict, or an image ``predict`` may
+    transpose), whose action space is not a box, or which overrides ``predict`` goes
+    through ``predict`` itself. Then the action is clipped to the action space (or
+    unscaled, for a squashing policy) as ``predict`` does. Where the mean is not a
+    number, ``predict`` raises (the distribution checks it) and this returns NaN, which
+    the environments refuse as an action.
     """
     import torch
     from stable_baselines3.common.distributions import DiagGaussianDistribution
-    from stable_baselines3.common.policies import ActorCriticPolicy
+    from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
+    from stable_baselines3.common.preprocessing import is_image_space
 
-    if not isinstance(policy.observation_space, gym.spaces.Box):  # no tensor of one shape
+    kind = type(policy)
+    if (
+        not isinstance(policy.observation_space, gym.spaces.Box)  # no one-shaped tensor
+        or is_image_space(policy.observation_space)  # predict may transpose it
+        or not isinstance(policy.action_space, gym.spaces.Box)
+        or kind.predict is not BasePolicy.predict
+    ):
         action, _ = policy.predict(observation, deterministic=True)
         return np.asarray(action, dtype=np.float64).reshape(1)
     if policy.training:
         policy.set_training_mode(False)
     shape = (1, *policy.observation_space.shape)
-    values = np.asarray(observation, dtype=np.float32).reshape(shape)
+    values = np.array(observation, dtype=np.float32).reshape(shape)  # a writable copy
     tensor = torch.as_tensor(values, device=policy.device)
     with torch.no_grad():
         if (
             isinstance(policy, ActorCriticPolicy)
-            and isinstance(policy.action_dist, DiagGaussianDistribution)
-            and type(policy).get_distribution is ActorCriticPolicy.get_distribution
+            and type(policy.action_dist) is DiagGaussianDistribution
+            and all(
+                getattr(kind, name) is getattr(ActorCriticPolicy, name)
+                for name in ("_predict", "get_distribution", "_get_action_dist_from_latent")
+            )
         ):
             # ActorCriticPolicy.get_distribution's features and latent, then the mean
             features = super(ActorCriticPolicy, policy).extract_features(
@@ -1247,9 +1260,10 @@ class _NoOptimizer:
     """The optimizer of a policy rebuilt to act: it is never stepped, so it holds nothing.
 
     Why not the configured one: every torch optimizer imports torch's compiler stack
-    (``torch._dynamo``) when it is built, a large part of loading an agent, and a
+    (``torch._dynamo``) when it is built, a large part of loading a PPO agent, and a
     policy that only acts never uses it. Loading touches only the policy's weights
-    (``state_dict`` holds no optimizer state), so the numbers are the same.
+    (``state_dict`` holds no optimizer state), so the numbers are the same. (SAC still
+    builds the optimizer of its entropy coefficient, outside the policy.)
     """
 
     def __init__(self, parameters: Any, **options: Any) -> None:

@@ -35,7 +35,7 @@ from __future__ import annotations
 import operator
 from typing import Any
 
-import numba  # noqa: F401  (a kernel module: its overload compiles into callers)
+import numba  # noqa: F401  (a kernel module: its lowering compiles into callers)
 import numpy as np
 from numba.core import types
 from numba.extending import lower_builtin, type_callable

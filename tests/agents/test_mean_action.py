@@ -69,10 +69,15 @@ class DictDisplay(gym.ObservationWrapper):
         return {"display": observation}
 
 
-def test_a_policy_reading_a_dict_acts_through_predict():
-    policy = PPO("MultiInputPolicy", DictDisplay(env()), seed=4).policy
+@pytest.mark.parametrize("kind", ["a dict observation", "discrete actions"])
+def test_a_policy_off_the_short_path_acts_through_predict(kind):
+    if kind == "a dict observation":
+        policy = PPO("MultiInputPolicy", DictDisplay(env()), seed=4).policy
+        observation = {"display": np.array([0.3], dtype=np.float32)}
+    else:
+        policy = PPO("MlpPolicy", gym.make("CartPole-v1"), seed=5).policy
+        observation = np.array([0.1, -0.2, 0.05, 0.3], dtype=np.float32)
     agent = TrainedAgent(recipe("si"), policy)
-    observation = {"display": np.array([0.3], dtype=np.float32)}
     expected, _ = policy.predict(observation, deterministic=True)
     acted = agent.act(observation)
     assert acted.dtype == np.float64 and acted.shape == (1,)
