@@ -140,31 +140,36 @@ def _type_take(typing_context: Any) -> Any:
     return typer
 
 
-def _row_views(context: Any, builder: Any, record: types.BaseTuple, value: Any, i: Any) -> Any:
+def _row_views(
+    context: Any,
+    builder: Any,
+    record: types.BaseTuple,
+    rows: types.BaseTuple,
+    value: Any,
+    i: Any,
+) -> Any:
     """The tuple of row ``i``'s views, built in the calling loop.
 
-    Each array field is indexed by numba's own ``a[i]``, a nested record taken, anything
-    else passed on.
+    Of type ``rows`` (:func:`_row_type`, the typing rule's answer). Each array field
+    is indexed by numba's own ``a[i]``, a nested record taken, anything else passed on.
     """
     fields = []
-    for j, kind in enumerate(record.types):
+    for j, (kind, row) in enumerate(zip(record.types, rows.types, strict=True)):
         field = builder.extract_value(value, j)
         if isinstance(kind, types.Array):
-            row = context.typing_context.resolve_function_type(
-                operator.getitem, (kind, types.intp), {}
-            )
-            fields.append(context.get_function(operator.getitem, row)(builder, (field, i)))
+            getitem = context.get_function(operator.getitem, row(kind, types.intp))
+            fields.append(getitem(builder, (field, i)))
         elif isinstance(kind, types.BaseTuple):
-            fields.append(_row_views(context, builder, kind, field, i))
+            fields.append(_row_views(context, builder, kind, row, field, i))
         else:
             if context.enable_nrt:  # a new reference, as a[i] gives
                 context.nrt.incref(builder, kind, field)
             fields.append(field)
-    return context.make_tuple(builder, _row_type(context.typing_context, record), fields)
+    return context.make_tuple(builder, rows, fields)
 
 
 @lower_builtin(take, types.BaseTuple, types.Integer)
 def _lower_take(context: Any, builder: Any, signature: Any, arguments: Any) -> Any:
     record, index = arguments
     i = context.cast(builder, index, signature.args[1], types.intp)
-    return _row_views(context, builder, signature.args[0], record, i)
+    return _row_views(context, builder, signature.args[0], signature.return_type, record, i)
