@@ -25,16 +25,21 @@ The human's problem, as the optimal control model poses it
   (:func:`~manualcontrol.estimators.analysis.human_likeness.reference_pilot`, the pilot
   the agent's RMS error is compared with), the delay's queue hidden from the agent (it
   must act through it as a human does, not read its own pending commands).
-* **Motor noise at the OCM's level**, -25 dB of the stick's power (Kleinman, Baron &
-  Levison 1970; ``power_ratio`` 0.0032), Levison-filtered with the 10-rad/s break the
-  thesis measured for humans on 1/s, drawn by the wrapper, so it stays on in evaluation
-  and varies from trial to trial. With the observation noise below it is the OCM's
-  whole remnant source: the remnant a human shows comes out of the loop, not on top of
-  it. An earlier form of this problem added half the stick's power as motor remnant on
-  top of the observation noise, which counts the remnant twice: the typical pilot's own
-  equaliser flown through it measured 60-67 % remnant and 1.3-2.6 times its RMS error
-  on every element (outside the human 10-40 % and 0.8-1.25), where through this one it
-  measures 14-21 % and 1.04-1.17 (``docs/surrogates.md``).
+* **Motor noise at the OCM's level**, -25 dB (Kleinman, Baron & Levison 1970; ``ratio``
+  0.0032: white noise of intensity ``pi rho_u var(u)``, the OCM's ``V_u``),
+  Levison-filtered with the 10-rad/s break the thesis measured for humans on 1/s: 5 %
+  of the stick's power. Drawn by the wrapper, so it stays on in evaluation and varies
+  from trial to trial. With the observation noise below it is the OCM's whole remnant
+  source: the remnant a human shows comes out of the loop, not on top of it. Two
+  earlier forms of this problem got the level wrong. One added half the stick's power
+  as motor remnant on top of the observation noise, which counts the remnant twice:
+  the typical pilot's own equaliser flown through it measured 60-67 % remnant and 1.3-2.6
+  times its RMS error on every element (outside the human 10-40 % and 0.8-1.25). The
+  next read -25 dB as the noise's share of the stick's power (0.3 %), 16 times too
+  little: on a pure gain, whose lag equaliser filters the observation noise, the
+  typical pilot's law then measured 3 % remnant where the OCM on the same problem shows
+  10 %, and the agents trained on it tracked better than humans
+  (``docs/surrogates.md``).
 * **Observation noise at the OCM's level** (``rho`` 0.01, -20 dB), band-limited at the
   neuromuscular break frequency (:class:`~manualcontrol.agents.wrappers.
   ObservationNoise` ``omega_r``): the in-band noise the OCM's pilot is left with after
@@ -133,9 +138,9 @@ __all__ = [
 ]
 
 _FORCING = "popovici2017"
-#: The OCM's motor noise ratio (Kleinman, Baron & Levison 1970: -25 dB of the control's
-#: power), with the thesis's 10-rad/s remnant break on 1/s.
-_MOTOR_NOISE = {"kind": "motor_noise", "power_ratio": 0.0032, "omega_r": 10.0}
+#: The OCM's motor noise ratio (Kleinman, Baron & Levison 1970: -25 dB, a noise intensity
+#: scaled to the control's variance), with the thesis's 10-rad/s remnant break on 1/s.
+_MOTOR_NOISE = {"kind": "motor_noise", "ratio": 0.0032, "omega_r": 10.0}
 #: The OCM's observation noise ratio (Kleinman, Baron & Levison 1970: -20 dB).
 _OBSERVATION_NOISE_RATIO = 0.01
 #: The action bound in RMS sticks of the typical pilot (a Gaussian stick passes 4 sigma
@@ -261,9 +266,9 @@ def _tracking(element: str) -> dict[str, Any]:
     stick = typical_stick_rms(element)
     bound = _STICK_ROOM * stick
     # PPO explores with the motor noise's spread at the typical stick (the human's only
-    # exploration is its remnant)
-    ratio = _MOTOR_NOISE["power_ratio"]
-    exploration = math.sqrt(ratio / (1.0 - ratio)) * stick
+    # exploration is its remnant): MotorNoise's variance in the OCM's form
+    noise_to_stick = math.pi * _MOTOR_NOISE["ratio"] * _MOTOR_NOISE["omega_r"] / 2.0
+    exploration = math.sqrt(noise_to_stick) * stick
     return {
         "task": "compensatory",
         "env_kwargs": {

@@ -465,16 +465,28 @@ class NeuromuscularFilter(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
 
 class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
-    """Remnant on the stick: Levison-filtered white noise at a requested power ratio.
+    """Remnant on the stick: Levison-filtered white noise scaled to the commands' variance.
 
     ``n = g K_r/(s + omega_r) w`` (thesis eq. 5) with unit white noise ``w`` per
-    sample, scaled so that ``var(n) / (var(n) + var(command))`` is ``power_ratio``
-    (thesis eq. 6 with the command as the noise-free part): ``g`` follows the
-    variance of the commands over the last 5 s, as Popovici et al. track the control
-    variance (eq. 24), so the noise level adapts to how hard the agent steers (the
-    OCM's motor noise, likewise, scales with the control variance). The stick is
-    ``command + n``. The noise state is not observed: like a human's remnant it is a
-    disturbance the agent does not command. ``info["remnant"]`` is ``n``.
+    sample; ``g`` follows the variance of the commands over the last 5 s, as Popovici
+    et al. track the control variance (eq. 24), so the noise level adapts to how hard
+    the agent steers. The stick is ``command + n``. The noise state is not observed:
+    like a human's remnant it is a disturbance the agent does not command.
+    ``info["remnant"]`` is ``n``. The level is given in one of two ways:
+
+    ``power_ratio`` (default 0.3)
+        ``var(n) / (var(n) + var(command))`` (thesis eq. 6 with the command as the
+        noise-free part).
+    ``ratio``
+        The OCM's motor noise ratio ``rho_u`` (Kleinman, Baron & Levison 1970): white
+        noise of intensity ``V_u = pi rho_u var(command)`` per rad/s, as
+        :class:`ObservationNoise`'s ``ratio`` and :mod:`~manualcontrol.pilots.ocm`'s
+        ``V_u``, low-passed by ``omega_r/(s + omega_r)``. Its variance is then
+        ``V_u omega_r / 2``: ``var(n) = (pi rho_u omega_r / 2) var(command)``. Why the
+        intensity and not the share of the power: the OCM's -25 dB (``rho_u`` 0.0032)
+        is a noise density, and the power it puts into the stick grows with the band
+        it is passed in (at ``omega_r`` = 10 rad/s, -25 dB is 5 % of the command's
+        power, where a ``power_ratio`` of 0.0032 is 0.3 %).
 
     Parameters
     ----------
@@ -482,9 +494,13 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         A tracking environment (possibly wrapped).
     power_ratio
         Noise share of the stick's power, ``0 <= power_ratio < 1`` (0.3: -3.7 dB of
-        noise to command; the OCM's -25 dB is 0.0032): a number or a schedule.
+        noise to command): a number or a schedule. Default 0.3 when ``ratio`` is not
+        given.
     omega_r
         Break frequency of the noise filter (rad/s), ``> 0``: a number or a schedule.
+    ratio
+        The OCM's motor noise ratio ``rho_u``, ``>= 0`` (-25 dB is 0.0032): a number or
+        a schedule. Give ``ratio`` or ``power_ratio``, not both.
     """
 
     WINDOW = 5.0  # s, Popovici eq. 24
@@ -492,16 +508,37 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def __init__(
         self,
         env: gym.Env,
-        power_ratio: float | Schedule = 0.3,
+        power_ratio: float | Schedule | None = None,
         omega_r: float | Schedule = 3.0,
+        *,
+        ratio: float | Schedule | None = None,
     ) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, power_ratio=power_ratio, omega_r=omega_r)
+        gym.utils.RecordConstructorArgs.__init__(
+            self, power_ratio=power_ratio, omega_r=omega_r, ratio=ratio
+        )
         gym.Wrapper.__init__(self, env)
-        ratio = _Parameter(env, "power_ratio", power_ratio, _range(0.0, 1.0, high_inclusive=False))
+        if ratio is not None and power_ratio is not None:
+            raise ValueError(
+                f"give MotorNoise a ratio (the OCM's noise intensity) or a power_ratio (the "
+                f"noise's share of the stick's power), not both; got ratio={ratio!r} and "
+                f"power_ratio={power_ratio!r}"
+            )
         omega = _Parameter(env, "omega_r", omega_r, _positive())
-        self.power_ratio, self.omega_r = ratio.given, omega.given
+        if ratio is not None:
+            level = _Parameter(env, "ratio", ratio, _positive(allow_zero=True))
+            self.ratio, self.power_ratio = level.given, None
+        else:
+            level = _Parameter(
+                env,
+                "power_ratio",
+                0.3 if power_ratio is None else power_ratio,
+                _range(0.0, 1.0, high_inclusive=False),
+            )
+            self.ratio, self.power_ratio = None, level.given
+        self.omega_r = omega.given
         dt = _dt(env)
-        self._ratio = ratio
+        self._level = level
+        self._omega = omega
         self._phi = [math.exp(-w * dt) for w in omega.values]
         self._gamma = [(1.0 - p) / w for p, w in zip(self._phi, omega.values, strict=True)]
         # stationary variance of the unit-noise filter state: gamma^2 / (1 - phi^2)
@@ -534,6 +571,13 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._k = 0
         return observation, info
 
+    def _noise_to_command(self, k: int) -> float:
+        """``var(n) / var(command)`` over sample ``k`` (the class docstring's two forms)."""
+        level = self._level.at(k)
+        if self.ratio is None:
+            return level / (1.0 - level)
+        return math.pi * level * self._omega.at(k) / 2.0
+
     def _command_variance(self, command: float) -> float:
         """Population variance of the last commands, this one included (as np.var)."""
         window = self._window
@@ -555,9 +599,8 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         variance = self._command_variance(command)
         k = self._k
         self._k += 1
-        ratio = self._ratio.at(k)
         j = k if k < self._last_filter else self._last_filter
-        scale = math.sqrt(ratio / (1.0 - ratio) * variance) / self._unit_std[j]
+        scale = math.sqrt(self._noise_to_command(k) * variance) / self._unit_std[j]
         noise = scale * self._state
         self._state = self._phi[j] * self._state + self._gamma[j] * float(
             self._rng.standard_normal()
@@ -999,7 +1042,7 @@ WRAPPERS: dict[str, type[gym.Wrapper]] = {
 
 #: The noise level of each noise wrapper, the argument set to 0 for a noise-free run.
 NOISE_LEVELS: dict[str, tuple[str, ...]] = {
-    "motor_noise": ("power_ratio",),
+    "motor_noise": ("power_ratio", "ratio"),
     "observation_noise": ("ratio", "std"),
 }
 

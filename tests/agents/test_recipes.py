@@ -40,11 +40,15 @@ def test_the_human_problem_imposes_the_typical_pilots_own_limitations(element):
         "omega_r": typical["omega_nms"],
     }
     assert "effort_cost" in specs
-    # the OCM's -25 dB motor noise: with the observation noise, its whole remnant source
-    ratio = specs["motor_noise"]["power_ratio"]
-    assert ratio == pytest.approx(10**-2.5, rel=0.02)
-    # PPO explores with that noise's spread at the typical stick, not a whole stick unit
-    spread = np.sqrt(ratio / (1 - ratio)) * typical_stick_rms(element)
+    # the OCM's -25 dB motor noise, as the OCM's intensity: with the observation noise,
+    # its whole remnant source
+    motor = specs["motor_noise"]
+    assert "power_ratio" not in motor
+    assert motor["ratio"] == pytest.approx(10**-2.5, rel=0.02)
+    # PPO explores with that noise's spread at the typical stick, not a whole stick unit:
+    # var(n) = (pi rho_u omega_r / 2) var(u), 5 % of the stick's power at 10 rad/s
+    spread = np.sqrt(np.pi * motor["ratio"] * motor["omega_r"] / 2) * typical_stick_rms(element)
+    assert spread == pytest.approx(0.224 * typical_stick_rms(element), rel=0.01)
     assert np.exp(config.policy_kwargs["log_std_init"]) == pytest.approx(spread)
     assert config.env_kwargs["forcing"] == "popovici2017"
     assert config.env_kwargs["action_bound"] == pytest.approx(4 * typical_stick_rms(element))
