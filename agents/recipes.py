@@ -26,20 +26,31 @@ The human's problem, as the optimal control model poses it
   the agent's RMS error is compared with), the delay's queue hidden from the agent (it
   must act through it as a human does, not read its own pending commands).
 * **Motor noise at the OCM's level**, -25 dB (Kleinman, Baron & Levison 1970; ``ratio``
-  0.0032: white noise of intensity ``pi rho_u var(u)``, the OCM's ``V_u``),
-  Levison-filtered with the 10-rad/s break the thesis measured for humans on 1/s: 5 %
-  of the stick's power. Drawn by the wrapper, so it stays on in evaluation and varies
-  from trial to trial. With the observation noise below it is the OCM's whole remnant
-  source: the remnant a human shows comes out of the loop, not on top of it. Two
-  earlier forms of this problem got the level wrong. One added half the stick's power
-  as motor remnant on top of the observation noise, which counts the remnant twice:
-  the typical pilot's own equaliser flown through it measured 60-67 % remnant and 1.3-2.6
-  times its RMS error on every element (outside the human 10-40 % and 0.8-1.25). The
-  next read -25 dB as the noise's share of the stick's power (0.3 %), 16 times too
-  little: on a pure gain, whose lag equaliser filters the observation noise, the
-  typical pilot's law then measured 3 % remnant where the OCM on the same problem shows
-  10 %, and the agents trained on it tracked better than humans
-  (``docs/surrogates.md``).
+  0.0032: white noise of intensity ``pi rho_u var(u)``, the OCM's ``V_u``), through the
+  10-rad/s first-order filter the thesis measured human remnant with on 1/s: 5 % of the
+  stick's power. The OCM passes its motor noise through a 0.1-s neuromuscular lag, the
+  same filter. It joins the stick after the limb (the thesis's remnant at the pilot's
+  output, eq. 5), so the limb's state the policy reads shows what it commanded and not
+  the noise: the noise is a disturbance the agent does not command and cannot see but
+  through the display, as in the OCM. Drawn by the wrapper, so it stays on in
+  evaluation and varies from trial to trial. With the observation noise below it is the
+  OCM's whole remnant source: the remnant a human shows comes out of the loop, not on
+  top of it. Earlier forms of this problem got the noise wrong three ways, each
+  measured (``docs/surrogates.md``):
+
+  - half the stick's power on top of the observation noise counted the remnant twice:
+    the typical pilot's own equaliser flown through it measured 60-67 % remnant and
+    1.3-2.6 times its RMS error on every element (outside the human 10-40 % and
+    0.8-1.25);
+  - -25 dB read as the noise's share of the stick's power (0.3 %) is 16 times too
+    little: on a pure gain, whose lag equaliser filters the observation noise, the
+    typical pilot's law then measured 3 % remnant where the OCM on the same problem
+    shows 10 %;
+  - noise that joined the command ahead of the limb showed in the limb's state, one
+    sample later: an agent trained on a pure gain cancelled it there (0.3 % remnant
+    from the motor noise where the typical pilot's law, which does not read the limb,
+    shows 4.5 %) and tracked better than humans (RMS error 0.7 times the typical
+    pilot's).
 * **Observation noise at the OCM's level** (``rho`` 0.01, -20 dB), band-limited at the
   neuromuscular break frequency (:class:`~manualcontrol.agents.wrappers.
   ObservationNoise` ``omega_r``): the in-band noise the OCM's pilot is left with after
@@ -236,8 +247,10 @@ def human_limitations(element: str) -> tuple[dict[str, Any], ...]:
             "omega_r": values["omega_nms"],
         },
         {"kind": "action_delay", "delay": values["tau_v"], "observe_queue": False},
-        {"kind": "neuromuscular", "omega_nms": values["omega_nms"], "zeta_nms": values["zeta_nms"]},
+        # the noise joins the limb's output, which the policy feels: where it joined the
+        # command, the limb's state showed it and the policy cancelled it (module docstring)
         dict(_MOTOR_NOISE),
+        {"kind": "neuromuscular", "omega_nms": values["omega_nms"], "zeta_nms": values["zeta_nms"]},
     )
 
 

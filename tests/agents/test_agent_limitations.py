@@ -245,6 +245,51 @@ def test_motor_noise_follows_a_doubling_power_ratio():
         assert measured == pytest.approx(value, rel=0.12), (low, value)
 
 
+def test_motor_noise_at_the_ocms_ratio_has_the_ocms_intensity():
+    """``ratio`` is the OCM's rho_u: white noise of intensity pi rho_u var(command) per
+    rad/s (as the OCM pilot's V_u), so through omega_r/(s + omega_r) its variance is
+    (pi rho_u omega_r / 2) var(command): 5 % of the command's at -25 dB and 10 rad/s, not
+    the 0.3 % that -25 dB read as a share of the power gives. A doubling ratio (a
+    schedule) doubles it."""
+    rho = Step(before=10**-2.5, after=2 * 10**-2.5, t_step=60.0)
+    env = MotorNoise(base(measurement_time=120.0), ratio=rho, omega_r=10.0)
+    assert env.ratio is rho and env.power_ratio is None
+    n = 12000
+    commands = np.sin(2.0 * np.pi * np.arange(n) * DT / 1.25)  # variance 0.5 per window
+    _, _, infos = run(env, commands, seed=4)
+    noise = np.array([info["remnant"] for info in infos[1:]])
+    t = env.unwrapped.times[:n]
+    for low, high, value in ((5.0, 60.0, 10**-2.5), (65.0, 120.0, 2 * 10**-2.5)):
+        part = (t >= low) & (t < high)
+        measured = np.var(noise[part]) / np.var(commands[part])
+        # 10 rad/s noise over 55 s: its variance is known to about sqrt(2 / 550) = 6 %;
+        # 20 % is over 3 of those, where the power-ratio reading is 16 times off
+        assert measured == pytest.approx(np.pi * value * 10.0 / 2.0, rel=0.2), (low, value)
+
+
+def test_motor_noise_takes_one_level():
+    with pytest.raises(
+        ValueError, match=re.escape("not both; got ratio=0.003 and power_ratio=0.1")
+    ):
+        MotorNoise(base(), power_ratio=0.1, ratio=0.003)
+    with pytest.raises(ValueError, match=re.escape("ratio must be >= 0, got -0.001")):
+        MotorNoise(base(), ratio=-0.001)
+    # the default level is a power ratio of 0.3, as before the OCM's form existed
+    default = MotorNoise(base())
+    assert default.power_ratio == 0.3 and default.ratio is None
+
+
+def test_a_silenced_ocm_motor_noise_adds_nothing():
+    """A noise-free evaluation sets the wrapper's own level to zero, whichever it is."""
+    from manualcontrol.agents.training import _silenced
+
+    spec = {"kind": "motor_noise", "ratio": 0.0032, "omega_r": 10.0}
+    assert _silenced(spec) == {"kind": "motor_noise", "ratio": 0.0, "omega_r": 10.0}
+    env = apply_wrappers(base(), [_silenced(spec)])
+    _, _, infos = run(env, np.sin(np.arange(300) * 0.05), seed=1)
+    assert all(info["remnant"] == 0.0 for info in infos[1:])
+
+
 def test_scheduled_stack_is_reproducible_per_seed():
     def episode(seed):
         env = apply_wrappers(
