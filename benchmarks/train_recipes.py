@@ -279,30 +279,17 @@ def markdown(rows: list[dict], command: str) -> str:
         f"is what training maximises: the mean return of {RETURN_EPISODES} held-out",
         "episodes (the same for every row of an element; noise on, one period), so an",
         "agent whose return is above its law's did better than the typical pilot's",
-        "equaliser on its own objective.",
-    ]
-    if any(row.get("memory") == 1 for row in tracking):
-        lines += [
-            "The same seeds trained as the recipes did before stand beside them:",
-            "`memory` 1, the present frame only, at PPO's default learning rate",
-            "(`--variant one-frame`), and that with critic `display`, a critic that reads",
-            "only the display (`--variant display-critic`).",
-        ]
-    lines += [
+        "equaliser on its own objective. The same seeds trained as the recipes did",
+        "before stand beside them: `memory` 1, the present frame only, at PPO's",
+        "default learning rate (`--variant one-frame`), and that with critic",
+        "`display`, a critic that reads only the display (`--variant display-critic`).",
         "",
         "`weights`: the recipes keep the best of the weights validated every",
         "200,000 steps on 20 episodes apart from the held-out ones, the start's",
         "among them (`select_every`; `kept at` the step they are from, 0 the warm",
-        "start itself).",
-    ]
-    trained = [row for row in tracking if row.get("start") != "law, untrained"]
-    if any(row.get("weights") in ("final", None) for row in trained):
-        lines += [
-            "`final` is the same training's last weights (the recipes before they kept",
-            "their best: the same training, so the same weights); `-`: the earlier forms,",
-            "which kept their last weights.",
-        ]
-    lines += [
+        "start itself); `final` is the same training's last weights (the recipes",
+        "before they kept their best: the same training, so the same weights); `-`:",
+        "the earlier forms, which kept their last weights.",
         "",
         "| element | start | critic | memory | weights | seed | train (s) | periods | return | "
         + " | ".join(FIGURES)
