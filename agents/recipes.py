@@ -42,9 +42,10 @@ The human's problem, as the optimal control model poses it
     (:class:`~manualcontrol.agents.wrappers.MotorNoise` ``ratio``), which through the
     10-rad/s filter is 5 % of the stick's power, 16 times this level;
   - the noise joins the command ahead of the limb, whose state the policy reads, so
-    the policy feels it a sample later. On a pure gain the agents cancel it there:
-    at the OCM's intensity the motor noise alone leaves 0.3 % remnant in a K agent's
-    stick where the typical pilot's law, which does not read the limb, shows 4.5 %.
+    the policy feels it a sample later. On a pure gain the agents cancel it there: a
+    K agent trained at the OCM's intensity keeps 0.3 % remnant from the motor noise
+    alone, where the typical pilot's law, which does not read the limb, shows 4.5 %
+    (and its whole remnant stays at 1 %, as this level's agents show).
     With the noise after the limb instead, the warm start cannot clone the lag law on
     K: the law's step is 1 % of its command, smaller than the network's fitting error,
     and the cloned loop scores -1,100 to 1,200 where the law scores 2,500.
