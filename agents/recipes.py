@@ -46,9 +46,12 @@ The human's problem, as the optimal control model poses it
     K agent trained at the OCM's intensity keeps 0.3 % remnant from the motor noise
     alone, where the typical pilot's law, which does not read the limb, shows 4.5 %
     (and its whole remnant stays at 1 %, as this level's agents show).
-    With the noise after the limb instead, the warm start cannot clone the lag law on
-    K: the law's step is 1 % of its command, smaller than the network's fitting error,
-    and the cloned loop scores -1,100 to 1,200 where the law scores 2,500.
+
+  Both mended together (the OCM's intensity, the noise after the limb) do not make the
+  K agents human either. Two seeds trained so lower their gain: crossover 1.5-1.7
+  rad/s, phase margin 87-104 deg, RMS error 1.3-1.5 times the typical pilot's,
+  remnant 5.5-9 % (their held-out returns 1,640-1,720, the typical pilot's law's 850 on
+  that problem), where the OCM on it crosses over at 3.4 rad/s with 48 deg.
 * **Observation noise at the OCM's level** (``rho`` 0.01, -20 dB), band-limited at the
   neuromuscular break frequency (:class:`~manualcontrol.agents.wrappers.
   ObservationNoise` ``omega_r``): the in-band noise the OCM's pilot is left with after
