@@ -465,14 +465,14 @@ class NeuromuscularFilter(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
 
 class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
-    """Remnant on the stick: Levison-filtered white noise scaled to the commands' variance.
+    """Remnant on the stick: Levison-filtered white noise, scaled to the commands or not.
 
     ``n = g K_r/(s + omega_r) w`` (thesis eq. 5) with unit white noise ``w`` per
-    sample; ``g`` follows the variance of the commands over the last 5 s, as Popovici
-    et al. track the control variance (eq. 24), so the noise level adapts to how hard
-    the agent steers. The stick is ``command + n``. The noise state is not observed:
-    like a human's remnant it is a disturbance the agent does not command.
-    ``info["remnant"]`` is ``n``. The level is given in one of two ways:
+    sample; scaled to the commands, ``g`` follows their variance over the last 5 s, as
+    Popovici et al. track the control variance (eq. 24), so the noise level adapts to
+    how hard the agent steers. The stick is ``command + n``. The noise state is not
+    observed: like a human's remnant it is a disturbance the agent does not command.
+    ``info["remnant"]`` is ``n``. The level is given in one of three ways:
 
     ``power_ratio`` (default 0.3)
         ``var(n) / (var(n) + var(command))`` (thesis eq. 6 with the command as the
@@ -487,6 +487,12 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         is a noise density, and the power it puts into the stick grows with the band
         it is passed in (at ``omega_r`` = 10 rad/s, -25 dB is 5 % of the command's
         power, where a ``power_ratio`` of 0.0032 is 0.3 %).
+    ``std``
+        The noise's own standard deviation (after its filter, in stick units), whatever
+        the commands: a level the agent cannot change by commanding more or less. A
+        noise scaled to the commands is one an agent can quieten by commanding less;
+        the OCM's controller does not choose its noise (its intensities are held at its
+        solution's variances).
 
     Parameters
     ----------
@@ -494,13 +500,16 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         A tracking environment (possibly wrapped).
     power_ratio
         Noise share of the stick's power, ``0 <= power_ratio < 1`` (0.3: -3.7 dB of
-        noise to command): a number or a schedule. Default 0.3 when ``ratio`` is not
-        given.
+        noise to command): a number or a schedule. Default 0.3 when neither ``ratio``
+        nor ``std`` is given.
     omega_r
         Break frequency of the noise filter (rad/s), ``> 0``: a number or a schedule.
     ratio
         The OCM's motor noise ratio ``rho_u``, ``>= 0`` (-25 dB is 0.0032): a number or
-        a schedule. Give ``ratio`` or ``power_ratio``, not both.
+        a schedule.
+    std
+        The noise's standard deviation, ``>= 0``: a number or a schedule. Give one of
+        ``power_ratio``, ``ratio`` and ``std``.
     """
 
     WINDOW = 5.0  # s, Popovici eq. 24
@@ -512,21 +521,31 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         omega_r: float | Schedule = 3.0,
         *,
         ratio: float | Schedule | None = None,
+        std: float | Schedule | None = None,
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
-            self, power_ratio=power_ratio, omega_r=omega_r, ratio=ratio
+            self, power_ratio=power_ratio, omega_r=omega_r, ratio=ratio, std=std
         )
         gym.Wrapper.__init__(self, env)
-        if ratio is not None and power_ratio is not None:
+        given = {
+            name: value
+            for name, value in (("power_ratio", power_ratio), ("ratio", ratio), ("std", std))
+            if value is not None
+        }
+        if len(given) > 1:
             raise ValueError(
-                f"give MotorNoise a ratio (the OCM's noise intensity) or a power_ratio (the "
-                f"noise's share of the stick's power), not both; got ratio={ratio!r} and "
-                f"power_ratio={power_ratio!r}"
+                "give MotorNoise one level: a power_ratio (the noise's share of the stick's "
+                "power), a ratio (the OCM's noise intensity) or a std (absolute); got "
+                + " and ".join(f"{name}={value!r}" for name, value in given.items())
             )
         omega = _Parameter(env, "omega_r", omega_r, _positive())
+        self.power_ratio = self.ratio = self.std = None
         if ratio is not None:
             level = _Parameter(env, "ratio", ratio, _positive(allow_zero=True))
-            self.ratio, self.power_ratio = level.given, None
+            self.ratio = level.given
+        elif std is not None:
+            level = _Parameter(env, "std", std, _positive(allow_zero=True))
+            self.std = level.given
         else:
             level = _Parameter(
                 env,
@@ -534,7 +553,7 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 0.3 if power_ratio is None else power_ratio,
                 _range(0.0, 1.0, high_inclusive=False),
             )
-            self.ratio, self.power_ratio = None, level.given
+            self.power_ratio = level.given
         self.omega_r = omega.given
         dt = _dt(env)
         self._level = level
@@ -571,12 +590,14 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._k = 0
         return observation, info
 
-    def _noise_to_command(self, k: int) -> float:
-        """``var(n) / var(command)`` over sample ``k`` (the class docstring's two forms)."""
+    def _noise_std(self, k: int, variance: float) -> float:
+        """The noise's standard deviation over sample ``k`` (the class docstring's forms)."""
         level = self._level.at(k)
+        if self.std is not None:
+            return level
         if self.ratio is None:
-            return level / (1.0 - level)
-        return math.pi * level * self._omega.at(k) / 2.0
+            return math.sqrt(level / (1.0 - level) * variance)
+        return math.sqrt(math.pi * level * self._omega.at(k) / 2.0 * variance)
 
     def _command_variance(self, command: float) -> float:
         """Population variance of the last commands, this one included (as np.var)."""
@@ -600,7 +621,7 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         k = self._k
         self._k += 1
         j = k if k < self._last_filter else self._last_filter
-        scale = math.sqrt(self._noise_to_command(k) * variance) / self._unit_std[j]
+        scale = self._noise_std(k, variance) / self._unit_std[j]
         noise = scale * self._state
         self._state = self._phi[j] * self._state + self._gamma[j] * float(
             self._rng.standard_normal()
@@ -1042,7 +1063,7 @@ WRAPPERS: dict[str, type[gym.Wrapper]] = {
 
 #: The noise level of each noise wrapper, the argument set to 0 for a noise-free run.
 NOISE_LEVELS: dict[str, tuple[str, ...]] = {
-    "motor_noise": ("power_ratio", "ratio"),
+    "motor_noise": ("power_ratio", "ratio", "std"),
     "observation_noise": ("ratio", "std"),
 }
 

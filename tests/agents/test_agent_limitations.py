@@ -267,27 +267,46 @@ def test_motor_noise_at_the_ocms_ratio_has_the_ocms_intensity():
         assert measured == pytest.approx(np.pi * value * 10.0 / 2.0, rel=0.2), (low, value)
 
 
+def test_motor_noise_at_an_absolute_level_does_not_follow_the_commands():
+    """``std``: the noise's own spread, whatever the agent commands, so an agent cannot
+    quieten it by commanding less (as it can a noise scaled to its commands)."""
+    spreads = []
+    for amplitude in (0.1, 1.0):
+        env = MotorNoise(base(measurement_time=60.0), std=0.2, omega_r=10.0)
+        commands = amplitude * np.sin(2.0 * np.pi * np.arange(6000) * DT / 1.25)
+        _, _, infos = run(env, commands, seed=4)
+        spreads.append(np.std([info["remnant"] for info in infos[501:]]))
+    # 10 rad/s noise over 55 s: its spread is known to about 3 %
+    np.testing.assert_allclose(spreads, 0.2, rtol=0.1)
+    assert env.std == 0.2 and env.power_ratio is None and env.ratio is None
+
+
 def test_motor_noise_takes_one_level():
     with pytest.raises(
-        ValueError, match=re.escape("not both; got ratio=0.003 and power_ratio=0.1")
+        ValueError, match=re.escape("one level: a power_ratio (the noise's share of the stick's")
     ):
         MotorNoise(base(), power_ratio=0.1, ratio=0.003)
+    with pytest.raises(ValueError, match=re.escape("got ratio=0.003 and std=0.1")):
+        MotorNoise(base(), ratio=0.003, std=0.1)
     with pytest.raises(ValueError, match=re.escape("ratio must be >= 0, got -0.001")):
         MotorNoise(base(), ratio=-0.001)
-    # the default level is a power ratio of 0.3, as before the OCM's form existed
+    with pytest.raises(ValueError, match=re.escape("std must be >= 0, got -0.1")):
+        MotorNoise(base(), std=-0.1)
+    # the default level is a power ratio of 0.3, as before the other forms existed
     default = MotorNoise(base())
-    assert default.power_ratio == 0.3 and default.ratio is None
+    assert default.power_ratio == 0.3 and default.ratio is None and default.std is None
 
 
-def test_a_silenced_ocm_motor_noise_adds_nothing():
+def test_a_silenced_motor_noise_adds_nothing():
     """A noise-free evaluation sets the wrapper's own level to zero, whichever it is."""
     from manualcontrol.agents.training import _silenced
 
-    spec = {"kind": "motor_noise", "ratio": 0.0032, "omega_r": 10.0}
-    assert _silenced(spec) == {"kind": "motor_noise", "ratio": 0.0, "omega_r": 10.0}
-    env = apply_wrappers(base(), [_silenced(spec)])
-    _, _, infos = run(env, np.sin(np.arange(300) * 0.05), seed=1)
-    assert all(info["remnant"] == 0.0 for info in infos[1:])
+    for level in ("ratio", "std"):
+        spec = {"kind": "motor_noise", level: 0.0032, "omega_r": 10.0}
+        assert _silenced(spec) == {"kind": "motor_noise", level: 0.0, "omega_r": 10.0}
+        env = apply_wrappers(base(), [_silenced(spec)])
+        _, _, infos = run(env, np.sin(np.arange(300) * 0.05), seed=1)
+        assert all(info["remnant"] == 0.0 for info in infos[1:])
 
 
 def test_scheduled_stack_is_reproducible_per_seed():
