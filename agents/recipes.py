@@ -51,7 +51,15 @@ The human's problem, as the optimal control model poses it
   K agents human either. Two seeds trained so lower their gain: crossover 1.5-1.7
   rad/s, phase margin 87-104 deg, RMS error 1.3-1.5 times the typical pilot's,
   remnant 5.5-9 % (their held-out returns 1,640-1,720, the typical pilot's law's 850 on
-  that problem), where the OCM on it crosses over at 3.4 rad/s with 48 deg.
+  that problem), where the OCM on it crosses over at 3.4 rad/s with 48 deg: a noise
+  scaled to the commands is one an agent quietens by commanding less. Held at the
+  typical stick's level instead (``MotorNoise`` ``std``, the OCM's intensity there),
+  the noise after the limb leaves no loop at all: the effort cost reads the stick
+  after the noise, whose rate the limb no longer smooths, every step's reward turns
+  negative, and two seeds learned to lose control (validation returns about -2,000
+  from the warm start on). The OCM's problem needs all three at once, not yet trained:
+  the noise after the limb, at a level the agent cannot move, and the effort cost on
+  the stick it commands.
 * **Observation noise at the OCM's level** (``rho`` 0.01, -20 dB), band-limited at the
   neuromuscular break frequency (:class:`~manualcontrol.agents.wrappers.
   ObservationNoise` ``omega_r``): the in-band noise the OCM's pilot is left with after
