@@ -51,8 +51,8 @@ The human's problem, as the optimal control model poses it
   K agents human either. Two seeds trained so lower their gain: crossover 1.5-1.7
   rad/s, phase margin 87-104 deg, RMS error 1.3-1.5 times the typical pilot's,
   remnant 5.5-9 % (their held-out returns 1,640-1,720, the typical pilot's law's 850 on
-  that problem), where the OCM on it crosses over at 3.4 rad/s with 48 deg: a noise
-  scaled to the commands is one an agent quietens by commanding less. Held at the
+  that problem), where the OCM on it crosses over at 3.4 rad/s with 48 deg (a noise
+  scaled to the commands is one an agent can quieten by commanding less). Held at the
   typical stick's level instead (``MotorNoise`` ``std``, the OCM's intensity there),
   the noise after the limb leaves no loop at all: the effort cost reads the stick
   after the noise, whose rate the limb no longer smooths, every step's reward turns
