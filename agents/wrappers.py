@@ -828,7 +828,13 @@ class EffortCost(gym.Wrapper, gym.utils.RecordConstructorArgs):
     first step). ``rate_weight`` is thus in s^2, ``stick_weight`` dimensionless. The
     applied stick is read from the environment's ``info`` (``"u"`` of the tracking
     tasks, ``"action"`` of lane keeping), so the cost is on the stick that moves the
-    element, after any delay, neuromuscular filter or motor noise wrapped inside.
+    element, after any delay, neuromuscular filter or motor noise wrapped inside. With
+    ``stick="commanded"`` it is on the stick before the motor noise instead
+    (:class:`MotorNoise`'s ``info["command"]``): what the agent commands, through
+    whatever wrappers lie between it and the noise (a neuromuscular filter outside the
+    noise). Why: the OCM's controller does not choose its motor noise, whose rate only
+    adds a constant to its cost; in an agent's reward that rate is noise the agent
+    cannot change, which, unsmoothed, can outweigh the whole reward.
 
     Relation to the OCM: the OCM pilot minimises ``J = E{q e^2 + g udot^2}``. A tracking
     task's reward ``-e^2 / var(ft)`` plus this wrapper's ``-rate_weight udot^2`` is,
@@ -848,18 +854,25 @@ class EffortCost(gym.Wrapper, gym.utils.RecordConstructorArgs):
         Weight ``w`` on the squared stick rate (s^2), ``>= 0``: a number or a schedule.
     stick_weight
         Weight ``r`` on the squared stick, ``>= 0``: a number or a schedule.
+    stick
+        ``"applied"`` (default: the stick the element gets) or ``"commanded"`` (the
+        stick before the motor noise; a :class:`MotorNoise` must be wrapped inside).
     """
+
+    STICKS: tuple[str, ...] = ("applied", "commanded")
 
     def __init__(
         self,
         env: gym.Env,
         rate_weight: float | Schedule,
         stick_weight: float | Schedule = 0.0,
+        stick: str = "applied",
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
-            self, rate_weight=rate_weight, stick_weight=stick_weight
+            self, rate_weight=rate_weight, stick_weight=stick_weight, stick=stick
         )
         gym.Wrapper.__init__(self, env)
+        self.stick = check_choice("stick", stick, self.STICKS)
         rate = _Parameter(env, "rate_weight", rate_weight, _positive(allow_zero=True))
         stick = _Parameter(env, "stick_weight", stick_weight, _positive(allow_zero=True))
         self.rate_weight, self.stick_weight = rate.given, stick.given
@@ -878,8 +891,15 @@ class EffortCost(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """The stick applied over the last step (zero at reset), shape (1,)."""
         return np.array((self._previous,))
 
-    @staticmethod
-    def _applied_stick(info: Mapping[str, Any]) -> float:
+    def _applied_stick(self, info: Mapping[str, Any]) -> float:
+        if self.stick == "commanded":
+            if "command" not in info:
+                raise TypeError(
+                    "EffortCost(stick='commanded') reads the stick before the motor noise, "
+                    "info['command'], which a MotorNoise wrapped inside sets; the "
+                    f"environment's info has {sorted(info)}"
+                )
+            return float(info["command"])
         for key in ("u", "action"):
             if key in info:
                 return float(info[key])

@@ -358,6 +358,30 @@ def test_effort_cost_weighs_the_stick_that_moves_the_element():
     assert infos[1]["effort"] == 0.0  # the arm has not moved over the first sample
 
 
+def test_effort_cost_on_the_commanded_stick_leaves_the_motor_noise_out():
+    """``stick="commanded"``: the cost on the stick before the motor noise (here the
+    limb's output, the noise joining after it), so the noise's rate, which the agent
+    cannot change, stays out of its reward; on the applied stick it is in."""
+    limb_then_noise = NeuromuscularFilter(MotorNoise(base(), std=0.3, omega_r=10.0), 10.0, 0.7)
+    commanded = EffortCost(limb_then_noise, rate_weight=1.0, stick="commanded")
+    commands = np.sin(np.arange(300) * 0.05)
+    _, _, infos = run(commanded, commands, seed=3)
+    limb = np.array([info["command"] for info in infos[1:]])
+    rates = np.diff(np.concatenate([[0.0], limb])) / (10.0 * DT)
+    np.testing.assert_allclose([info["effort"] for info in infos[1:]], rates**2, rtol=1e-12)
+    applied = EffortCost(
+        NeuromuscularFilter(MotorNoise(base(), std=0.3, omega_r=10.0), 10.0, 0.7),
+        rate_weight=1.0,
+    )
+    _, _, noisy = run(applied, commands, seed=3)
+    # the same episode: the noise's rate is most of the applied stick's cost
+    assert sum(i["effort"] for i in noisy[1:]) > 10 * sum(i["effort"] for i in infos[1:])
+    with pytest.raises(TypeError, match=re.escape("a MotorNoise wrapped inside sets")):
+        run(EffortCost(base(), rate_weight=1.0, stick="commanded"), commands[:2])
+    with pytest.raises(ValueError, match="stick must be one of"):
+        EffortCost(base(), rate_weight=1.0, stick="noisy")
+
+
 # ---------------------------------------------------------------------------- history
 
 
