@@ -29,6 +29,7 @@ import torch
 from numpy.typing import NDArray
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import FlattenExtractor
+from torch import nn
 
 from manualcontrol.agents.wrappers import (
     ActionDelay,
@@ -212,18 +213,66 @@ class ActorInputs(FlattenExtractor):
         return super().forward(observations) * self.mask
 
 
+class _WithLinearPath(nn.Module):
+    """An MLP extractor whose actor latent also carries the actor's features themselves.
+
+    ``forward_actor`` returns ``[mlp(features), features]``, so the action head (a linear
+    layer on the latent) is a network plus a linear map of the observation.
+    """
+
+    def __init__(self, extractor: nn.Module, features_dim: int) -> None:
+        super().__init__()
+        self.extractor = extractor
+        self.latent_dim_pi = extractor.latent_dim_pi + features_dim
+        self.latent_dim_vf = extractor.latent_dim_vf
+
+    def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.forward_actor(features), self.forward_critic(features)
+
+    def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
+        return torch.cat((self.extractor.forward_actor(features), features), dim=-1)
+
+    def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
+        return self.extractor.forward_critic(features)
+
+
 class InformedCriticPolicy(ActorCriticPolicy):
     """PPO's actor-critic whose actor reads only the first ``actor_inputs`` numbers.
 
     The critic reads the whole observation (:class:`CriticInformation`); the actor's
     features extractor zeroes the rest, so the action depends on the operator's
     observation alone (its weights on the zeroes get no gradient).
+
+    With ``linear_path=True`` the mean action is the network's plus a linear map of the
+    actor's inputs (:class:`_WithLinearPath`; the action head reads both). A linear law,
+    such as the typical pilot's equaliser a warm start begins from, is then the policy
+    exactly, the network's part zero
+    (:func:`~manualcontrol.agents.training.clone_typical_pilot`). Why: on a pure gain
+    that law is a lag, ``c_k = a c_(k-1) + (1 - a) K_p e_k`` with ``a`` 0.99, whose step
+    is 1 % of its command; where the limb's state follows the commands, a network fitted
+    to the law errs by more than that step, and the cloned loop leaves the law's.
     """
 
     def __init__(
-        self, observation_space: gym.spaces.Box, *args: Any, actor_inputs: int, **kwargs: Any
+        self,
+        observation_space: gym.spaces.Box,
+        *args: Any,
+        actor_inputs: int,
+        linear_path: bool = False,
+        **kwargs: Any,
     ) -> None:
         kwargs["share_features_extractor"] = False
+        self.linear_path = bool(linear_path)
         super().__init__(observation_space, *args, **kwargs)
         self.pi_features_extractor = ActorInputs(observation_space, actor_inputs)
         self.features_extractor = self.pi_features_extractor
+
+    def _build_mlp_extractor(self) -> None:
+        super()._build_mlp_extractor()
+        if self.linear_path:
+            self.mlp_extractor = _WithLinearPath(self.mlp_extractor, self.features_dim)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data["linear_path"] = self.linear_path
+        return data

@@ -581,11 +581,21 @@ def clone_typical_pilot(
     with torch.no_grad():
         policy.value_net.bias.fill_(float(np.mean(np.concatenate(returns)[value_at])))
     rng = np.random.default_rng(config.seed)
-    optimiser = torch.optim.Adam(policy.parameters(), lr=1e-3)
+    exact = getattr(policy, "linear_path", False)
+    if exact:  # the law is the policy's linear path, the network's part zero
+        _set_linear_law(policy, law, states.shape[1])
+        parameters = [*policy.mlp_extractor.extractor.value_net.parameters()]
+        parameters += [*policy.value_net.parameters()]
+    else:
+        parameters = list(policy.parameters())
+    optimiser = torch.optim.Adam(parameters, lr=1e-3)
     for _ in range(iterations):
         batch = torch.as_tensor(rng.integers(0, len(states), 256))
-        mean = policy.get_distribution(x[batch]).distribution.mean
-        actor_loss = torch.mean((mean - y[batch]) ** 2)
+        if exact:
+            actor_loss = torch.zeros(())
+        else:
+            mean = policy.get_distribution(x[batch]).distribution.mean
+            actor_loss = torch.mean((mean - y[batch]) ** 2)
         at = torch.as_tensor(rng.choice(value_at, 256))
         value = policy.predict_values(x[at]).squeeze(-1)
         critic_loss = torch.mean((value - value_target[at]) ** 2) / value_scale
@@ -603,6 +613,29 @@ def clone_typical_pilot(
         "residual_rms": float(torch.sqrt(torch.mean(residual**2))),
         "value_explained": float(1.0 - torch.mean(value_residual**2) / value_scale),
     }
+
+
+def _set_linear_law(
+    policy: Any, law: Callable[[FloatArray], FloatArray], observation_size: int
+) -> None:
+    """Make ``policy``'s mean action the linear ``law``: its linear path, the network's zero.
+
+    The law's coefficient on each observed number is its action for that number alone
+    (a small one, so that the stick's clip stays out of it); the law has no constant.
+    """
+    import torch
+
+    step = 1e-3
+    probes = step * np.eye(observation_size)
+    coefficients = np.asarray(law(probes), dtype=np.float64).reshape(observation_size, -1).T / step
+    head = policy.action_net
+    network = policy.mlp_extractor.extractor.latent_dim_pi
+    with torch.no_grad():
+        head.weight.zero_()
+        head.bias.zero_()
+        head.weight[:, network : network + observation_size] = torch.as_tensor(
+            coefficients, dtype=head.weight.dtype
+        )
 
 
 def make_env(config: TrainingConfig, *, noise: bool = True, **overrides: Any) -> gym.Env:

@@ -130,6 +130,34 @@ def test_the_start_on_a_gain_integrates_through_its_efference_copy():
     )
 
 
+def test_a_policy_with_a_linear_path_starts_as_the_lag_law_itself():
+    """On a pure gain the law's step is 1 % of its command: a policy with a linear path
+    takes the law exactly (its network's part zero), at every state, seen or not, and
+    acts through ``predict`` and the agent's short path alike; its critic is fitted."""
+    from manualcontrol.agents.training import TrainedAgent
+
+    config = short(human_problem("gain", warm_start="typical-pilot"))
+    config = dataclasses.replace(
+        config, policy_kwargs={**config.policy_kwargs, "linear_path": True}
+    )
+    law = typical_pilot_law(config)
+    env = make_env(config)
+    policy, kwargs = policy_spec(config, env)
+    assert kwargs["linear_path"] is True
+    model = PPO(policy, env, seed=0, policy_kwargs=kwargs)
+    fit = clone_typical_pilot(model.policy, config, episodes=2, iterations=300)
+    assert fit["residual_rms"] < 1e-5 * fit["law_rms"]
+    assert fit["value_explained"] > 0.0
+    held_out = states_of(config, law, seed=99)
+    far = np.random.default_rng(1).normal(0.0, 0.3, held_out.shape)  # states it never saw
+    for states in (held_out, far):
+        np.testing.assert_allclose(policy_mean(model.policy, states), law(states), atol=1e-5)
+    agent = TrainedAgent(config, model.policy)
+    predicted = model.policy.predict(held_out[:50].astype(np.float32), deterministic=True)[0]
+    acted = np.array([agent.act(state) for state in held_out[:50]])
+    assert acted.tobytes() == predicted.astype(np.float64).reshape(50, 1).tobytes()
+
+
 def test_training_from_the_typical_pilot_says_so_and_saves_the_start(tmp_path):
     lag = recipe("lag", total_timesteps=64)
     # one short update at the recipe's own learning rate (its history's frames need it)
