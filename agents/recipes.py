@@ -36,30 +36,14 @@ The human's problem, as the optimal control model poses it
   and 1.3-2.6 times its RMS error on every element (outside the human 10-40 % and
   0.8-1.25), where through this one it measures 14-21 % and 1.04-1.17
   (``docs/surrogates.md``). Two things about this noise are known and left as the
-  trained agents have them:
-
-  - the OCM's -25 dB is a noise intensity, ``pi rho_u var(u)`` per rad/s
-    (:class:`~manualcontrol.agents.wrappers.MotorNoise` ``ratio``), which through the
-    10-rad/s filter is 5 % of the stick's power, 16 times this level;
-  - the noise joins the command ahead of the limb, whose state the policy reads, so
-    the policy feels it a sample later. On a pure gain the agents cancel it there: a
-    K agent trained at the OCM's intensity keeps 0.3 % remnant from the motor noise
-    alone, where the typical pilot's law, which does not read the limb, shows 4.5 %
-    (and its whole remnant stays at 1 %, as this level's agents show).
-
-  Both mended together (the OCM's intensity, the noise after the limb) do not make the
-  K agents human either. Two seeds trained so lower their gain: crossover 1.5-1.7
-  rad/s, phase margin 87-104 deg, RMS error 1.3-1.5 times the typical pilot's,
-  remnant 5.5-9 % (their held-out returns 1,640-1,720, the typical pilot's law's 850 on
-  that problem), where the OCM on it crosses over at 3.4 rad/s with 48 deg (a noise
-  scaled to the commands is one an agent can quieten by commanding less). Held at the
-  typical stick's level instead (``MotorNoise`` ``std``, the OCM's intensity there),
-  the noise after the limb leaves no loop at all: the effort cost reads the stick
-  after the noise, whose rate the limb no longer smooths, every step's reward turns
-  negative, and two seeds learned to lose control (validation returns about -2,000
-  from the warm start on). The OCM's problem needs all three at once, not yet trained:
-  the noise after the limb, at a level the agent cannot move, and the effort cost on
-  the stick it commands.
+  trained agents have them: the OCM's -25 dB is a noise intensity, ``pi rho_u var(u)``
+  per rad/s (:class:`~manualcontrol.agents.wrappers.MotorNoise` ``ratio``), which
+  through the 10-rad/s filter is 16 times this power; and the noise joins the command
+  ahead of the limb, whose state the policy reads, so the policy feels it a sample
+  later (on a pure gain the agents cancel it there). Posed the OCM's way (its
+  intensity, after the limb, at a level the agent cannot move, with the effort cost on
+  the stick commanded), the pure gain's problem has trained no human agent yet:
+  ``docs/surrogate-noise.md``.
 * **Observation noise at the OCM's level** (``rho`` 0.01, -20 dB), band-limited at the
   neuromuscular break frequency (:class:`~manualcontrol.agents.wrappers.
   ObservationNoise` ``omega_r``): the in-band noise the OCM's pilot is left with after
