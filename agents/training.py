@@ -530,8 +530,10 @@ def clone_typical_pilot(
     critic is fitted because PPO's first updates weigh the actions by advantages from
     it: a random critic's advantages are noise, and its first updates undo the start.
     States within five horizons ``1/(1 - gamma)`` of an episode's truncation are left
-    out of the value fit (their returns are cut short). Returns the states used, the
-    law's RMS action on them and the fit's RMS residual.
+    out of the value fit (their returns are cut short). A policy with a linear path
+    (:class:`~manualcontrol.agents.critic.InformedCriticPolicy` ``linear_path``) takes
+    the law exactly instead, its network's part zero, and only its critic is fitted.
+    Returns the states used, the law's RMS action on them and the fit's RMS residual.
     """
     import torch
 
