@@ -884,14 +884,14 @@ class EffortCost(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._previous = 0.0
         self._k = 0
 
-    #: The last applied stick, from which the next step's rate is taken.
+    #: The last stick the cost read (applied or commanded), from which the next rate is taken.
     hidden_size = 1
 
     def hidden_state(self) -> FloatArray:
-        """The stick applied over the last step (zero at reset), shape (1,)."""
+        """The stick the cost read over the last step (zero at reset), shape (1,)."""
         return np.array((self._previous,))
 
-    def _applied_stick(self, info: Mapping[str, Any]) -> float:
+    def _costed_stick(self, info: Mapping[str, Any]) -> float:
         if self.stick == "commanded":
             if "command" not in info:
                 raise TypeError(
@@ -916,7 +916,7 @@ class EffortCost(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
         observation, reward, terminated, truncated, info = self.env.step(action)
-        stick = self._applied_stick(info)
+        stick = self._costed_stick(info)
         k = self._k
         self._k += 1
         rate = (stick - self._previous) * self._rate_scale
