@@ -634,7 +634,7 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
             reward,
             terminated,
             truncated,
-            {**info, "command": command, "remnant": noise},
+            {**info, "command": command, "remnant": noise, "stick_before_noise": command},
         )
 
 
@@ -830,11 +830,12 @@ class EffortCost(gym.Wrapper, gym.utils.RecordConstructorArgs):
     tasks, ``"action"`` of lane keeping), so the cost is on the stick that moves the
     element, after any delay, neuromuscular filter or motor noise wrapped inside. With
     ``stick="commanded"`` it is on the stick before the motor noise instead
-    (:class:`MotorNoise`'s ``info["command"]``): what the agent commands, through
-    whatever wrappers lie between it and the noise (a neuromuscular filter outside the
-    noise). Why: the OCM's controller does not choose its motor noise, whose rate only
-    adds a constant to its cost; in an agent's reward that rate is noise the agent
-    cannot change, which, unsmoothed, can outweigh the whole reward.
+    (:class:`MotorNoise`'s ``info["stick_before_noise"]``): what the agent commands,
+    through whatever wrappers lie between it and the noise (the limb's output, where a
+    neuromuscular filter sits outside the noise). Why: the OCM's controller does not
+    choose its motor noise, whose rate only adds a constant to its cost; in an agent's
+    reward that rate is noise the agent cannot change, which, unsmoothed, can outweigh
+    the whole reward.
 
     Relation to the OCM: the OCM pilot minimises ``J = E{q e^2 + g udot^2}``. A tracking
     task's reward ``-e^2 / var(ft)`` plus this wrapper's ``-rate_weight udot^2`` is,
@@ -893,13 +894,13 @@ class EffortCost(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _costed_stick(self, info: Mapping[str, Any]) -> float:
         if self.stick == "commanded":
-            if "command" not in info:
+            if "stick_before_noise" not in info:
                 raise TypeError(
                     "EffortCost(stick='commanded') reads the stick before the motor noise, "
-                    "info['command'], which a MotorNoise wrapped inside sets; the "
-                    f"environment's info has {sorted(info)}"
+                    "info['stick_before_noise'], which a MotorNoise wrapped inside sets; "
+                    f"the environment's info has {sorted(info)}"
                 )
-            return float(info["command"])
+            return float(info["stick_before_noise"])
         for key in ("u", "action"):
             if key in info:
                 return float(info[key])

@@ -366,7 +366,12 @@ def test_effort_cost_on_the_commanded_stick_leaves_the_motor_noise_out():
     commanded = EffortCost(limb_then_noise, rate_weight=1.0, stick="commanded")
     commands = np.sin(np.arange(300) * 0.05)
     _, _, infos = run(commanded, commands, seed=3)
-    limb = np.array([info["command"] for info in infos[1:]])
+    # the limb's output: what the applied stick is with the noise taken out
+    limb = np.array([info["u"] - info["remnant"] for info in infos[1:]])
+    before = np.array([info["stick_before_noise"] for info in infos[1:]])
+    np.testing.assert_allclose(before, limb, rtol=0, atol=1e-12)  # (a + n) - n: rounding
+    limb = before
+    assert not np.allclose(limb, commands)  # the limb's output, not the raw command
     rates = np.diff(np.concatenate([[0.0], limb])) / (10.0 * DT)
     np.testing.assert_allclose([info["effort"] for info in infos[1:]], rates**2, rtol=1e-12)
     applied = EffortCost(
@@ -376,8 +381,9 @@ def test_effort_cost_on_the_commanded_stick_leaves_the_motor_noise_out():
     _, _, noisy = run(applied, commands, seed=3)
     # the same episode: the noise's rate is most of the applied stick's cost
     assert sum(i["effort"] for i in noisy[1:]) > 10 * sum(i["effort"] for i in infos[1:])
-    with pytest.raises(TypeError, match=re.escape("a MotorNoise wrapped inside sets")):
-        run(EffortCost(base(), rate_weight=1.0, stick="commanded"), commands[:2])
+    for without_noise in (base(), NeuromuscularFilter(base(), 10.0, 0.7)):
+        with pytest.raises(TypeError, match=re.escape("a MotorNoise wrapped inside sets")):
+            run(EffortCost(without_noise, rate_weight=1.0, stick="commanded"), commands[:2])
     with pytest.raises(ValueError, match="stick must be one of"):
         EffortCost(base(), rate_weight=1.0, stick="noisy")
 
