@@ -37,6 +37,7 @@ from manualcontrol.agents.wrappers import (
     MotorNoise,
     ObservationNoise,
 )
+from manualcontrol.envs._validation import check_bool
 from manualcontrol.envs.tracking import TrackingEnv
 
 FloatArray = NDArray[np.float64]
@@ -248,8 +249,8 @@ class InformedCriticPolicy(ActorCriticPolicy):
     such as the typical pilot's equaliser a warm start begins from, is then the policy
     exactly, the network's part zero
     (:func:`~manualcontrol.agents.training.clone_typical_pilot`). Why: on a pure gain
-    that law is a lag, ``c_k = a c_(k-1) + (1 - a) K_p e_k`` with ``a`` 0.99, whose step
-    is 1 % of its command; where the limb's state follows the commands, a network fitted
+    that law is a lag, ``c_k = a c_(k-1) + (1 - a) K_p e_k`` with ``a`` 0.997, whose step
+    is 0.3 % of its command; where the limb's state follows the commands, a network fitted
     to the law errs by more than that step, and the cloned loop leaves the law's.
     """
 
@@ -262,7 +263,8 @@ class InformedCriticPolicy(ActorCriticPolicy):
         **kwargs: Any,
     ) -> None:
         kwargs["share_features_extractor"] = False
-        self.linear_path = bool(linear_path)
+        self.actor_inputs = actor_inputs
+        self.linear_path = check_bool("linear_path", linear_path)
         super().__init__(observation_space, *args, **kwargs)
         self.pi_features_extractor = ActorInputs(observation_space, actor_inputs)
         self.features_extractor = self.pi_features_extractor
@@ -274,5 +276,5 @@ class InformedCriticPolicy(ActorCriticPolicy):
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
-        data["linear_path"] = self.linear_path
+        data.update(actor_inputs=self.actor_inputs, linear_path=self.linear_path)
         return data

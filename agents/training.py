@@ -407,7 +407,7 @@ def _silenced(spec: Mapping[str, Any]) -> dict[str, Any]:
     """A noise wrapper's specification with its noise level set to zero."""
     spec = dict(spec)
     levels = NOISE_LEVELS.get(spec.get("kind", ""), ())
-    for name in [name for name in levels if name in spec] or levels[:1]:
+    for name in [name for name in levels if spec.get(name) is not None] or levels[:1]:
         spec[name] = 0.0
     return spec
 
@@ -583,8 +583,8 @@ def clone_typical_pilot(
     with torch.no_grad():
         policy.value_net.bias.fill_(float(np.mean(np.concatenate(returns)[value_at])))
     rng = np.random.default_rng(config.seed)
-    exact = getattr(policy, "linear_path", False)
-    if exact:  # the law is the policy's linear path, the network's part zero
+    linear = getattr(policy, "linear_path", False)
+    if linear:  # the law is the policy's linear path, the network's part zero
         _set_linear_law(policy, law, states.shape[1])
         parameters = [*policy.mlp_extractor.extractor.value_net.parameters()]
         parameters += [*policy.value_net.parameters()]
@@ -593,7 +593,7 @@ def clone_typical_pilot(
     optimiser = torch.optim.Adam(parameters, lr=1e-3)
     for _ in range(iterations):
         batch = torch.as_tensor(rng.integers(0, len(states), 256))
-        if exact:
+        if linear:
             actor_loss = torch.zeros(())
         else:
             mean = policy.get_distribution(x[batch]).distribution.mean

@@ -297,6 +297,15 @@ def test_motor_noise_takes_one_level():
     assert default.power_ratio == 0.3 and default.ratio is None and default.std is None
 
 
+def test_a_silenced_spec_zeroes_the_level_it_gives_and_leaves_the_unused_ones():
+    from manualcontrol.agents.training import _silenced
+
+    spec = {"kind": "motor_noise", "power_ratio": None, "ratio": 0.0032, "std": None}
+    quiet = _silenced(spec)
+    assert quiet == {"kind": "motor_noise", "power_ratio": None, "ratio": 0.0, "std": None}
+    apply_wrappers(base(), [quiet])  # one level given, so it builds
+
+
 def test_a_silenced_motor_noise_adds_nothing():
     """A noise-free evaluation sets the wrapper's own level to zero, whichever it is."""
     from manualcontrol.agents.training import _silenced

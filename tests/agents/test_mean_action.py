@@ -82,3 +82,23 @@ def test_a_policy_off_the_short_path_acts_through_predict(kind):
     acted = agent.act(observation)
     assert acted.dtype == np.float64 and acted.shape == (1,)
     assert acted.tobytes() == np.asarray(expected, dtype=np.float64).reshape(1).tobytes()
+
+
+def test_a_policy_with_a_linear_path_saves_and_loads_as_itself(tmp_path):
+    """stable-baselines3's own save and load keep the actor's inputs and the linear path."""
+    policy = PPO(
+        InformedCriticPolicy, env(), seed=4, policy_kwargs={"actor_inputs": 1, "linear_path": True}
+    ).policy
+    with torch.no_grad():
+        policy.action_net.weight.normal_()
+    policy.save(tmp_path / "policy.pt")
+    loaded = InformedCriticPolicy.load(tmp_path / "policy.pt")
+    assert loaded.linear_path and loaded.actor_inputs == 1
+    observations = np.random.default_rng(2).normal(size=(20, policy.observation_space.shape[0]))
+    for observation in observations.astype(np.float32):
+        assert (
+            loaded.predict(observation, deterministic=True)[0].tobytes()
+            == policy.predict(observation, deterministic=True)[0].tobytes()
+        )
+    with pytest.raises(TypeError, match="linear_path must be"):
+        PPO(InformedCriticPolicy, env(), policy_kwargs={"actor_inputs": 1, "linear_path": "no"})

@@ -131,7 +131,7 @@ def test_the_start_on_a_gain_integrates_through_its_efference_copy():
 
 
 def test_a_policy_with_a_linear_path_starts_as_the_lag_law_itself():
-    """On a pure gain the law's step is 1 % of its command: a policy with a linear path
+    """On a pure gain the law's step is 0.3 % of its command: a policy with a linear path
     takes the law exactly (its network's part zero), at every state, seen or not, and
     acts through ``predict`` and the agent's short path alike; its critic is fitted."""
     from manualcontrol.agents.training import TrainedAgent
