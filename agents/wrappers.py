@@ -472,7 +472,10 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
     Popovici et al. track the control variance (eq. 24), so the noise level adapts to
     how hard the agent steers. The stick is ``command + n``. The noise state is not
     observed: like a human's remnant it is a disturbance the agent does not command.
-    ``info["remnant"]`` is ``n``. The level is given in one of three ways:
+    ``info["remnant"]`` is ``n``, ``info["stick_before_noise"]`` the stick it joined (an
+    outer wrapper's own ``info["command"]`` replaces this one's, so the key is its own;
+    :class:`EffortCost` ``stick="commanded"`` reads it). The level is given in one of
+    three ways:
 
     ``power_ratio`` (default 0.3)
         ``var(n) / (var(n) + var(command))`` (thesis eq. 6 with the command as the
@@ -617,7 +620,8 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def step(self, action: Any) -> tuple[FloatArray, float, bool, bool, dict[str, Any]]:  # noqa: D102
         command = _command(action, self._bound)
-        variance = self._command_variance(command)
+        # an absolute level reads no command variance
+        variance = self._command_variance(command) if self.std is None else 0.0
         k = self._k
         self._k += 1
         j = k if k < self._last_filter else self._last_filter
