@@ -234,6 +234,7 @@ def _numba_kernels(job: Callable[[], None]) -> Callable[[], None]:
 def _c_ports() -> None:
 
     from manualcontrol.envs import _dynamics_native, _native
+    from manualcontrol.estimators import _online_native
     from manualcontrol.estimators.filters import _smoother_native
 
     # name -> its C port's binding
@@ -249,6 +250,9 @@ def _c_ports() -> None:
     ]
     if failures:
         raise RuntimeError("C ports not built: " + "; ".join(failures))
+    # the pilot filters' online fast path: it also needs Python's headers, and where they
+    # are missing the Python path runs (the same numbers), so its absence fails nothing
+    _online_native.library()
     _lpv_toolkit()
     for name in ported:  # each member's C path, once
         if name in ESTIMATORS:

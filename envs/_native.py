@@ -21,6 +21,11 @@ sharing the folder builds anew, and a build is written under a temporary name an
 renamed into place, so a failed or interrupted build leaves nothing half-written (two
 processes building at once each rename a whole library).
 
+A CPython extension (:func:`native_extension`: the estimators' online fast path,
+``estimators/_online_native.c``) is built the same way with Python's headers added,
+where they are installed, and loaded as a module; where it is not built its caller's
+Python path runs, with the same numbers.
+
 Where no compiler is found or the build fails, the numba kernels run: the same
 numbers, after their compile. ``MANUALCONTROL_NATIVE=0`` runs the numba kernels
 everywhere (to compare the two, or where a compiler misbehaves).
@@ -31,6 +36,8 @@ from __future__ import annotations
 import ctypes
 import functools
 import hashlib
+import importlib.machinery
+import importlib.util
 import os
 import platform
 import re
@@ -38,6 +45,7 @@ import shlex
 import shutil
 import subprocess
 import sys
+import sysconfig
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -52,6 +60,7 @@ __all__ = [
     "check_port",
     "local_headers",
     "native_enabled",
+    "native_extension",
     "native_failure",
     "native_library",
 ]
@@ -68,7 +77,7 @@ FLAGS: tuple[str, ...] = (
 )
 
 #: Libraries loaded in this process, and why a source could not be built (by source path).
-_LOADED: dict[str, ctypes.CDLL] = {}
+_LOADED: dict[str, Any] = {}
 _FAILED: dict[str, str] = {}
 
 
@@ -144,22 +153,30 @@ def local_headers(source: Path) -> list[Path]:
     return [source.parent / name for name in names]
 
 
-def build_library(source: Path, compiler: list[str], folder: Path) -> Path:
+def build_library(
+    source: Path,
+    compiler: list[str],
+    folder: Path,
+    extra_flags: tuple[str, ...] = (),
+    suffix: str | None = None,
+) -> Path:
     """Build ``source`` with ``compiler`` into ``folder`` (atomically); the library's path.
 
     The name carries a hash of the source and its local headers (:func:`local_headers`),
-    :data:`FLAGS`, the compiler's command,
-    version and target and the platform; a library of that name already there is the
-    same build and is returned as it is. Raises :class:`NativeBuildError` with the
-    compiler's message where it fails or does not finish in five minutes.
+    :data:`FLAGS` and ``extra_flags``, the compiler's command, version and target and
+    the platform; a library of that name already there is the same build and is
+    returned as it is. ``suffix`` ends its name (default: the platform's shared
+    library's). Raises :class:`NativeBuildError` with the compiler's message where it
+    fails or does not finish in five minutes.
     """
     digest = hashlib.sha256()
     digest.update(source.read_bytes())
     for header in local_headers(source):
         digest.update(header.read_bytes())
-    digest.update("\0".join((*FLAGS, *compiler)).encode())
+    digest.update("\0".join((*FLAGS, *extra_flags, *compiler)).encode())
     digest.update(_compiler_identity(compiler).encode())
-    target = folder / f"lib{source.stem}-{digest.hexdigest()[:16]}{_suffix()}"
+    ending = _suffix() if suffix is None else suffix
+    target = folder / f"lib{source.stem}-{digest.hexdigest()[:16]}{ending}"
     if target.is_file():
         return target
     folder.mkdir(parents=True, exist_ok=True)
@@ -168,7 +185,7 @@ def build_library(source: Path, compiler: list[str], folder: Path) -> Path:
     try:
         try:
             done = subprocess.run(
-                [*compiler, *FLAGS, str(source), "-o", partial, "-lm"],
+                [*compiler, *FLAGS, *extra_flags, str(source), "-o", partial, "-lm"],
                 capture_output=True,
                 text=True,
                 timeout=300,
@@ -198,23 +215,68 @@ def native_library(source: Path) -> ctypes.CDLL | None:
     or the build failed (:func:`native_failure` says why); the numba kernels then run.
     Built once per cache and loaded once per process.
     """
+    return _built(
+        Path(source),
+        (),
+        None,
+        lambda path: ctypes.CDLL(str(path)),
+        "the numba kernels run, compiled at first use",
+    )
+
+
+def native_extension(source: Path, name: str) -> Any:
+    """The CPython extension module ``name`` built from ``source``, or None.
+
+    As :func:`native_library`, with Python's own headers (``Python.h``, which a Python
+    installed without its development files lacks) and the interpreter's extension
+    suffix; ``source`` defines ``PyInit_<last part of name>``. It is loaded as that
+    module (not entered in ``sys.modules``). Where it is None the caller's Python path
+    runs: the same numbers, slower.
+    """
+    source = Path(source)
+    fallback = "the Python path runs"
+    include = sysconfig.get_paths().get("include")
+    if not include or not (Path(include) / "Python.h").is_file():
+        if native_enabled():
+            _FAILED.setdefault(
+                str(source), f"Python's headers (Python.h) are not installed: {fallback}"
+            )
+        return None
+
+    def load(path: Path) -> Any:
+        loader = importlib.machinery.ExtensionFileLoader(name, str(path))
+        spec = importlib.util.spec_from_file_location(name, str(path), loader=loader)
+        module = importlib.util.module_from_spec(spec)
+        loader.exec_module(module)
+        return module
+
+    return _built(
+        source, (f"-I{include}",), importlib.machinery.EXTENSION_SUFFIXES[0], load, fallback
+    )
+
+
+def _built(
+    source: Path,
+    extra_flags: tuple[str, ...],
+    suffix: str | None,
+    load: Any,
+    fallback: str,
+) -> Any:
+    """``source`` built (:func:`build_library`) and loaded by ``load``, once a process; or None."""
     if not native_enabled():
         return None
     key = str(source)
     library = _LOADED.get(key)
     if library is not None or key in _FAILED:
         return library
-    source = Path(source)
     compiler = _compiler()
     if compiler is None:
-        _FAILED[key] = (
-            "no C compiler found ($CC or cc): the numba kernels run, compiled at first use"
-        )
+        _FAILED[key] = f"no C compiler found ($CC or cc): {fallback}"
         return None
     errors = []
     for folder in _cache_folders(source):
         try:
-            path = build_library(source, compiler, folder)
+            path = build_library(source, compiler, folder, extra_flags, suffix)
         except NativeBuildError as error:
             errors.append(str(error))
             break  # the compiler's verdict does not depend on the folder
@@ -222,13 +284,13 @@ def native_library(source: Path) -> ctypes.CDLL | None:
             errors.append(f"{folder}: {error}")
             continue
         try:
-            library = ctypes.CDLL(str(path))
-        except OSError as error:  # built but not loadable (a noexec folder): the next
+            library = load(path)
+        except (OSError, ImportError) as error:  # built but not loadable (noexec): the next
             errors.append(f"{path} does not load: {error}")
             continue
         _LOADED[key] = library
         return library
-    _FAILED[key] = "; ".join(errors) + ": the numba kernels run, compiled at first use"
+    _FAILED[key] = "; ".join(errors) + f": {fallback}"
     return None
 
 

@@ -16,8 +16,11 @@ or a person. After every step ``info["estimates"]`` holds the current estimate:
 All are plain dicts, lists and floats, new at every step, so ``info`` pickles (a
 vector env in subprocesses) and a vector env stacks them per key.
 
-Building them costs about as much as the filter's own step, so ``estimates_in_info``
-chooses what a step reports: ``"dicts"`` (the default, as above), ``"arrays"`` (``t``
+Where the C ports build, a pilot filter (DEKF, RML, joint and dual UKF) reads the
+sample, steps and builds these dicts in one C call
+(:mod:`~manualcontrol.estimators._online_native`); elsewhere building them in Python
+costs about as much as the filter's own step. ``estimates_in_info`` chooses what a
+step reports: ``"dicts"`` (the default, as above), ``"arrays"`` (``t``
 and copies of ``mean`` and ``std`` as arrays, columns in :attr:`EstimatorObserver.
 parameter_names` order), or ``"none"`` (nothing; :meth:`EstimatorObserver.
 last_estimate` builds the dicts of the last step on request). The estimates are the

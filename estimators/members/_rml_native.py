@@ -37,6 +37,9 @@ __all__ = ["NativeBatch", "NativeRecords", "declare", "library"]
 SOURCE = Path(__file__).with_name("_rml_native.c")
 #: The layout version ``rml_abi()`` returns: the struct below and the C one agree.
 ABI = 1
+#: The one-sample step (records, inputs, u, e, row) the online fast path calls
+#: (:mod:`~manualcontrol.estimators._online_native`).
+ONLINE_STEP = "bank_step"
 _CHECKED: dict[int, bool] = {}
 
 _SIZES = (

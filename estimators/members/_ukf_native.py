@@ -38,6 +38,9 @@ __all__ = ["NativeBatch", "NativeRecords", "declare", "library"]
 SOURCE = Path(__file__).with_name("_ukf_native.c")
 #: The layout version ``ukf_abi()`` returns: the struct below and the C one agree.
 ABI = 1
+#: The one-sample step (records, inputs, u, e, row) the online fast path calls
+#: (:mod:`~manualcontrol.estimators._online_native`).
+ONLINE_STEP = "ukf_step"
 _CHECKED: dict[int, bool] = {}
 
 _SIZES = (

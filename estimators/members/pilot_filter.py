@@ -45,6 +45,7 @@ happened. Measured figures: docs/estimators.md.
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
 import math
 from collections.abc import Mapping
@@ -56,12 +57,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from manualcontrol.envs._lazy import has_kernel
+from manualcontrol.envs._native import array_address
 from manualcontrol.envs._validation import (
     check_bool,
     check_positive,
     check_real,
 )
 from manualcontrol.envs.recording import Recording
+from manualcontrol.estimators import _online_native
 from manualcontrol.estimators import _pilot_core as core
 from manualcontrol.estimators.analysis.frequency import fit_describing_function
 from manualcontrol.estimators.analysis.metrics import innovation_cost_terms, paired_cost_evidence
@@ -222,6 +225,8 @@ class PilotFilter(FilterShell):
         self._resolved: ResolvedSettings | None = None
         # update_block's (records, row, their stack of one, compiled entry) of this reset
         self._block: tuple[Any, Any, Any, Any] | None = None
+        # the C port's online step of this reset (_online_native), False where none runs
+        self._online: Any = None
 
     # ----------------------------------------------------------------- access
 
@@ -361,6 +366,7 @@ class PilotFilter(FilterShell):
         self._begin(self._records, dt, t0, resolved.estimated)
         row = self._row
         self._row_views = (row.mean[0], row.std[0], row.scalar[0], row.flag[0], row.pinned[0])
+        self._online = None  # bound on the first online sample of this reset
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
         raise NotImplementedError
@@ -426,6 +432,85 @@ class PilotFilter(FilterShell):
         with ``t``. NaN in ``u`` or an input marks a dropped sample.
         """
         return self._estimate_of_row(self._consume(sample))
+
+    def update_plain(self, sample: Mapping[str, float]) -> dict[str, Any]:
+        """:meth:`update` as plain data (see the shell's), in one C call where it can be.
+
+        Where the C port runs, a sample given as a plain dict of floats is read, stepped
+        and answered by its online step (:mod:`~manualcontrol.estimators._online_native`),
+        the same numbers bit for bit; any other goes the checked Python way.
+        """
+        online = self._online
+        if online is None:
+            online = self._bind_online()
+        if online:
+            plain = online.plain(sample, self._k)
+            if plain is not None:
+                self._k += 1
+                return plain
+        return self._plain_of_row(self._consume(sample))
+
+    def update_quiet(self, sample: Mapping[str, float]) -> float:
+        """:meth:`update` without its answer (see the shell's); in one C call where it can be."""
+        online = self._online
+        if online is None:
+            online = self._bind_online()
+        if online:
+            t = online.quiet(sample, self._k)
+            if t is not None:
+                self._k += 1
+                return t
+        return self._consume(sample)
+
+    def _bind_online(self) -> Any:
+        """The C port's online step on this reset's records and row, or False (none runs).
+
+        Bound once a reset, on the first online sample: only where this class's own
+        step runs (``_direct``), the member's port names its one-sample function
+        (``ONLINE_STEP``) and both the port and the online extension are built.
+        """
+        self._require_reset()
+        self._online = False
+        binding = type(self)._native_binding
+        name = getattr(binding, "ONLINE_STEP", None)
+        if not self._direct or name is None:
+            return False
+        native = self._native_records(self._row)
+        lib = None if native is None else _online_native.library()
+        if lib is None:
+            return False
+        mean, std, scalar, flag, pinned = self._row_views
+        keep: list[Any] = [native, self._row]
+        n_p = len(self.parameter_names)
+
+        def address(field: str, array: Any, shape: tuple) -> int:
+            return array_address(type(self).__name__, field, array, shape, keep)
+
+        def health_of() -> dict[str, Any]:
+            return self._health_of_row(flag, pinned).as_dict()
+
+        self._online = lib.OnlineStep(
+            step=_online_native.function_address(binding.library(), name),
+            records=ctypes.addressof(native.struct),
+            inputs=address("inputs", self._inputs, (len(self._inputs),)),
+            n_inputs=len(self._inputs),
+            keys=tuple(self._sample_keys),
+            allowed=frozenset(self._allowed_sample_keys),
+            u_at=self._u_at,
+            e_at=self._e_at,
+            mean=address("mean", mean, (n_p,)),
+            std=address("std", std, (n_p,)),
+            scalar=address("scalar", scalar, (3,)),
+            flag=address("flag", flag, (flag.shape[0],)),
+            pinned=address("pinned", pinned, (n_p,)),
+            n_flag=flag.shape[0],
+            columns=tuple(self._columns),
+            health_of=health_of,
+            t0=float(self._t0),
+            dt=float(self._dt),
+            keep=tuple(keep),
+        )
+        return self._online
 
     def _plain_of_row(self, t: float) -> dict[str, Any]:
         """:meth:`update_plain`'s answer (see the shell's), from the row views set at reset."""
