@@ -21,7 +21,9 @@ precision and the preview model; and the isolated pilot of a resimulation, which
 discretises and runs the LPV toolkit's kernels. The C ports, the members' and the LPV
 toolkit's (matrix exponentials and LPV runs, ``envs/_dynamics_native.c``) and the RTS
 smoother's (``estimators/filters/_smoother_native.c``), are built too
-(``envs/_native.py``: under a second each), and the numba kernels they replace compiled
+(``envs/_native.py``: under a second each), and so is the pilot filters' online step
+(``estimators/_online_native.c``, a CPython extension: where Python's headers are not
+installed it is skipped and the Python path runs), and the numba kernels they replace compiled
 only where they are needed: where no C compiler is found (or ``MANUALCONTROL_NATIVE=0``)
 they are what runs, so the install step compiles them; elsewhere they are only the
 reference the C ports' tests compare with, two of the three minutes of a fresh
