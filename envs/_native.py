@@ -217,6 +217,7 @@ def native_library(source: Path) -> ctypes.CDLL | None:
     """
     return _built(
         Path(source),
+        str(source),
         (),
         None,
         lambda path: ctypes.CDLL(str(path)),
@@ -230,42 +231,62 @@ def native_extension(source: Path, name: str) -> Any:
     As :func:`native_library`, with Python's own headers (``Python.h``, which a Python
     installed without its development files lacks) and the interpreter's extension
     suffix; ``source`` defines ``PyInit_<last part of name>``. It is loaded as that
-    module (not entered in ``sys.modules``). Where it is None the caller's Python path
-    runs: the same numbers, slower.
+    module (not entered in ``sys.modules``). Where it is None (:func:`native_failure`
+    with ``extension=name`` says why) the caller's Python path runs: the same numbers,
+    slower. Not built for a free-threaded Python, whose GIL a module of this kind
+    would turn back on.
     """
     source = Path(source)
+    key = _extension_key(source, name)
+    module = _LOADED.get(key)
+    if module is not None or key in _FAILED or not native_enabled():
+        return module
     fallback = "the Python path runs"
-    include = sysconfig.get_paths().get("include")
-    if not include or not (Path(include) / "Python.h").is_file():
-        if native_enabled():
-            _FAILED.setdefault(
-                str(source), f"Python's headers (Python.h) are not installed: {fallback}"
-            )
+    if sysconfig.get_config_var("Py_GIL_DISABLED"):
+        _FAILED[key] = f"a free-threaded Python: {fallback}"
         return None
+    paths = sysconfig.get_paths()
+    includes = list(dict.fromkeys(paths.get(k) for k in ("include", "platinclude")))
+    if not includes[0] or not (Path(includes[0]) / "Python.h").is_file():
+        _FAILED[key] = f"Python's headers (Python.h) are not installed: {fallback}"
+        return None
+    flags = tuple(f"-I{folder}" for folder in includes if folder)
+    if sys.platform == "darwin":  # Python's symbols are the interpreter's, found at load
+        flags += ("-undefined", "dynamic_lookup")
 
     def load(path: Path) -> Any:
         loader = importlib.machinery.ExtensionFileLoader(name, str(path))
         spec = importlib.util.spec_from_file_location(name, str(path), loader=loader)
         module = importlib.util.module_from_spec(spec)
-        loader.exec_module(module)
+        try:
+            loader.exec_module(module)
+        except Exception as error:  # an init that raises or fails: not loadable
+            raise ImportError(f"{type(error).__name__}: {error}") from error
         return module
 
-    return _built(
-        source, (f"-I{include}",), importlib.machinery.EXTENSION_SUFFIXES[0], load, fallback
-    )
+    return _built(source, key, flags, importlib.machinery.EXTENSION_SUFFIXES[0], load, fallback)
+
+
+def _extension_key(source: Path, name: str) -> str:
+    """The extension's key in the loaded and failed builds (a library's is its path)."""
+    return f"{source}\0extension {name}"
 
 
 def _built(
     source: Path,
+    key: str,
     extra_flags: tuple[str, ...],
     suffix: str | None,
     load: Any,
     fallback: str,
 ) -> Any:
-    """``source`` built (:func:`build_library`) and loaded by ``load``, once a process; or None."""
+    """``source`` built (:func:`build_library`) and loaded by ``load``, once a process; or None.
+
+    ``key`` names the build in :data:`_LOADED` and :data:`_FAILED` (a library and an
+    extension of one source are two builds).
+    """
     if not native_enabled():
         return None
-    key = str(source)
     library = _LOADED.get(key)
     if library is not None or key in _FAILED:
         return library
@@ -294,11 +315,16 @@ def _built(
     return None
 
 
-def native_failure(source: Path) -> str:
-    """Why :func:`native_library` gave None for ``source`` in this process ('' if not)."""
+def native_failure(source: Path, extension: str | None = None) -> str:
+    """Why :func:`native_library` gave None for ``source`` in this process ('' if not).
+
+    With ``extension``, why :func:`native_extension` gave None for that module.
+    """
     if not native_enabled():
-        return "MANUALCONTROL_NATIVE=0: the numba kernels run"
-    return _FAILED.get(str(source), "")
+        ran = "the numba kernels run" if extension is None else "the Python path runs"
+        return f"MANUALCONTROL_NATIVE=0: {ran}"
+    key = str(source) if extension is None else _extension_key(Path(source), extension)
+    return _FAILED.get(key, "")
 
 
 # ------------------------------------------------------------------ the bindings' checks

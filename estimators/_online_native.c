@@ -184,6 +184,10 @@ static int read_and_step(OnlineStep *self, PyObject *const *args, Py_ssize_t nar
     Py_ssize_t position = 0;
     PyObject *key, *value;
     while (PyDict_Next(sample, &position, &key, &value)) {
+        /* an exact str hashes and compares without running Python code, which could
+         * change the dict under PyDict_Next; any other key goes the Python way */
+        if (!PyUnicode_CheckExact(key))
+            return 0;
         int allowed = PySet_Contains(self->allowed, key);
         if (allowed <= 0)
             return allowed;

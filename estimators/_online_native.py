@@ -20,11 +20,13 @@ import ctypes
 from pathlib import Path
 from typing import Any
 
-from manualcontrol.envs._native import native_extension
+from manualcontrol.envs._native import native_extension, native_failure
 
-__all__ = ["ABI", "SOURCE", "function_address", "library"]
+__all__ = ["ABI", "MODULE", "SOURCE", "failure", "function_address", "library"]
 
 SOURCE = Path(__file__).with_name("_online_native.c")
+#: The extension module's name (``PyInit__online_step`` in the source).
+MODULE = "_online_step"
 #: The layout version ``online_abi()`` reports: ``OnlineStep``'s arguments as bound here.
 ABI = 1
 
@@ -35,13 +37,18 @@ def library() -> Any:
     Raises ``RuntimeError`` where the built module's layout differs from this binding's
     (a C edit without the Python one).
     """
-    module = native_extension(SOURCE, "_online_step")
+    module = native_extension(SOURCE, MODULE)
     if module is not None and module.online_abi() != ABI:
         raise RuntimeError(
             f"{SOURCE.name}'s layout {module.online_abi()} differs from its binding's {ABI}: "
             "edit the two together"
         )
     return module
+
+
+def failure() -> str:
+    """Why :func:`library` gave None in this process ('' if it did not)."""
+    return native_failure(SOURCE, extension=MODULE)
 
 
 def function_address(lib: ctypes.CDLL, name: str) -> int:

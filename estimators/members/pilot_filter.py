@@ -48,6 +48,7 @@ from __future__ import annotations
 import ctypes
 import dataclasses
 import math
+import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
@@ -465,15 +466,23 @@ class PilotFilter(FilterShell):
     def _bind_online(self) -> Any:
         """The C port's online step on this reset's records and row, or False (none runs).
 
-        Bound once a reset, on the first online sample: only where this class's own
-        step runs (``_direct``), the member's port names its one-sample function
-        (``ONLINE_STEP``) and both the port and the online extension are built.
+        Bound once a reset, on the first online sample, only where what it replaces is
+        this class's own: the step (``_direct``), the reading of a sample and the
+        building of its answer (a subclass that changes them keeps its Python path);
+        where the member's port names its one-sample function (``ONLINE_STEP``); and
+        where the port and the online extension are built and take these records.
         """
         self._require_reset()
         self._online = False
-        binding = type(self)._native_binding
+        kind = type(self)
+        binding = kind._native_binding
         name = getattr(binding, "ONLINE_STEP", None)
-        if not self._direct or name is None:
+        own = (
+            kind._consume is PilotFilter._consume
+            and kind._plain_of_row is PilotFilter._plain_of_row
+            and kind._health_of_row is FilterShell._health_of_row
+        )
+        if not (self._direct and own) or name is None:
             return False
         native = self._native_records(self._row)
         lib = None if native is None else _online_native.library()
@@ -482,34 +491,40 @@ class PilotFilter(FilterShell):
         mean, std, scalar, flag, pinned = self._row_views
         keep: list[Any] = [native, self._row]
         n_p = len(self.parameter_names)
-
-        def address(field: str, array: Any, shape: tuple) -> int:
-            return array_address(type(self).__name__, field, array, shape, keep)
+        # the step calls back for the health only when the pins change; through a weak
+        # reference, so that the filter and its step are no cycle and go together
+        owner = weakref.ref(self)
 
         def health_of() -> dict[str, Any]:
-            return self._health_of_row(flag, pinned).as_dict()
+            return owner()._health_of_row(flag, pinned).as_dict()
 
-        self._online = lib.OnlineStep(
-            step=_online_native.function_address(binding.library(), name),
-            records=ctypes.addressof(native.struct),
-            inputs=address("inputs", self._inputs, (len(self._inputs),)),
-            n_inputs=len(self._inputs),
-            keys=tuple(self._sample_keys),
-            allowed=frozenset(self._allowed_sample_keys),
-            u_at=self._u_at,
-            e_at=self._e_at,
-            mean=address("mean", mean, (n_p,)),
-            std=address("std", std, (n_p,)),
-            scalar=address("scalar", scalar, (3,)),
-            flag=address("flag", flag, (flag.shape[0],)),
-            pinned=address("pinned", pinned, (n_p,)),
-            n_flag=flag.shape[0],
-            columns=tuple(self._columns),
-            health_of=health_of,
-            t0=float(self._t0),
-            dt=float(self._dt),
-            keep=tuple(keep),
-        )
+        def address(field: str, array: Any, shape: tuple, dtype: Any = np.float64) -> int:
+            return array_address(kind.__name__, field, array, shape, keep, dtype)
+
+        try:
+            self._online = lib.OnlineStep(
+                step=_online_native.function_address(binding.library(), name),
+                records=ctypes.addressof(native.struct),
+                inputs=address("inputs", self._inputs, (len(self._inputs),)),
+                n_inputs=len(self._inputs),
+                keys=tuple(self._sample_keys),
+                allowed=frozenset(self._allowed_sample_keys),
+                u_at=self._u_at,
+                e_at=self._e_at,
+                mean=address("mean", mean, (n_p,)),
+                std=address("std", std, (n_p,)),
+                scalar=address("scalar", scalar, (3,)),
+                flag=address("flag", flag, (flag.shape[0],), np.bool_),
+                pinned=address("pinned", pinned, (n_p,), np.bool_),
+                n_flag=flag.shape[0],
+                columns=tuple(self._columns),
+                health_of=health_of,
+                t0=float(self._t0),
+                dt=float(self._dt),
+                keep=tuple(keep),
+            )
+        except (TypeError, ValueError):  # a layout the step does not take: Python's path
+            self._online = False
         return self._online
 
     def _plain_of_row(self, t: float) -> dict[str, Any]:
