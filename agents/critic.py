@@ -35,6 +35,7 @@ from manualcontrol.agents.wrappers import (
     ActionDelay,
     EffortCost,
     MotorNoise,
+    NeuromuscularFilter,
     ObservationNoise,
 )
 from manualcontrol.envs._validation import check_bool
@@ -69,7 +70,7 @@ def forcing_spacing(env: gym.Env) -> float:
 
 
 #: The wrappers whose hidden state the critic reads (``hidden_size``, ``hidden_state()``).
-_HIDDEN_KINDS = (ActionDelay, ObservationNoise, MotorNoise, EffortCost)
+_HIDDEN_KINDS = (ActionDelay, ObservationNoise, MotorNoise, EffortCost, NeuromuscularFilter)
 
 
 def _chain(env: gym.Env) -> list[gym.Env]:

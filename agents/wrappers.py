@@ -74,6 +74,7 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from manualcontrol.envs._validation import (
+    check_bool,
     check_choice,
     check_int,
     check_positive,
@@ -397,7 +398,14 @@ class NeuromuscularFilter(gym.Wrapper, gym.utils.RecordConstructorArgs):
     applied over sample ``k`` is the position at its start, ``p[k]``: the arm cannot
     answer a command within the same sample. Because the state is the stick's
     position and rate, a change of ``omega_nms`` or ``zeta_nms`` changes how the stick
-    moves on, never where it is. ``[p, v]`` is appended to the observation.
+    moves on, never where it is.
+
+    ``[p, v]`` is appended to the observation (the arm's own sense of where it is), or,
+    with ``observe_state=False``, hidden: the optimal control model's pilot does not
+    sense its limb; it knows the commands it sent and estimates the rest, motor noise
+    included, from the display alone (Kleinman, Baron & Levison 1970). A policy that
+    reads ``p`` sees noise added to its commands before the display shows it, and can
+    cancel it. Hidden, the state is the wrapper's hidden state (module docstring).
 
     Parameters
     ----------
@@ -407,6 +415,8 @@ class NeuromuscularFilter(gym.Wrapper, gym.utils.RecordConstructorArgs):
         Natural frequency (rad/s), ``> 0``: a number or a schedule.
     zeta_nms
         Damping ratio, ``> 0``: a number or a schedule.
+    observe_state
+        Append the limb's state ``[p, v]`` to the observation (default), or hide it.
     """
 
     def __init__(
@@ -414,9 +424,15 @@ class NeuromuscularFilter(gym.Wrapper, gym.utils.RecordConstructorArgs):
         env: gym.Env,
         omega_nms: float | Schedule = 10.5,
         zeta_nms: float | Schedule = 0.35,
+        observe_state: bool = True,
     ) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, omega_nms=omega_nms, zeta_nms=zeta_nms)
+        gym.utils.RecordConstructorArgs.__init__(
+            self, omega_nms=omega_nms, zeta_nms=zeta_nms, observe_state=observe_state
+        )
         gym.Wrapper.__init__(self, env)
+        self.observe_state = check_bool("observe_state", observe_state)
+        #: Numbers of the limb's state the policy does not see (module docstring).
+        self.hidden_size = 0 if self.observe_state else 2
         omega = _Parameter(env, "omega_nms", omega_nms, _positive())
         zeta = _Parameter(env, "zeta_nms", zeta_nms, _positive())
         self.omega_nms, self.zeta_nms = omega.given, zeta.given
@@ -433,14 +449,21 @@ class NeuromuscularFilter(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._phi, self._gamma = exact.phi, exact.gamma[..., 0]
         self._last = size - 1
         self._bound = _stick_bound(env)
-        self.observation_space = _extend_box(
-            env.observation_space, np.full(2, -np.inf), np.full(2, np.inf)
-        )
+        if self.observe_state:
+            self.observation_space = _extend_box(
+                env.observation_space, np.full(2, -np.inf), np.full(2, np.inf)
+            )
         self._x = np.zeros(2)
         self._k = 0
 
     def _observe(self, observation: FloatArray) -> FloatArray:
+        if not self.observe_state:
+            return observation
         return np.concatenate([observation, self._x])
+
+    def hidden_state(self) -> FloatArray:
+        """The limb's state ``[p, v]`` where the policy does not see it (else nothing)."""
+        return self._x.copy() if self.hidden_size else np.zeros(0)
 
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
         observation, info = self.env.reset(**kwargs)

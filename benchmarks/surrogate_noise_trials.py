@@ -1,4 +1,4 @@
-"""The human's problem on a pure gain, with the motor noise read the OCM's way: four trials.
+"""The human's problem on a pure gain, with the motor noise read the OCM's way: five trials.
 
 The recipes' motor noise (``agents/recipes.py``) is the OCM's -25 dB read as a share of
 the stick's power, and it joins the command ahead of the limb, whose state the policy
@@ -17,7 +17,14 @@ the problem one step further towards the OCM's (Kleinman, Baron & Levison 1970),
 ``commanded-effort``
     that, with the effort cost on the stick commanded rather than the noisy one
     (:class:`~manualcontrol.agents.wrappers.EffortCost` ``stick="commanded"``), and the
-    policy started from the typical pilot's law exactly (``linear_path``).
+    policy started from the typical pilot's law exactly (``linear_path``);
+``limb-unseen``
+    the OCM's own posing: the noise at its intensity ahead of the limb, as the OCM adds
+    it to the commanded control (``ocm-intensity``), but the limb's state hidden from
+    the policy (:class:`~manualcontrol.agents.wrappers.NeuromuscularFilter`
+    ``observe_state=False``; the critic still reads it): like the OCM's pilot it knows
+    the commands it sent and sees its motor noise only on the display, after the
+    delay. Started from the law exactly (``linear_path``).
 
 For each trial: the typical pilot's law flown through it (evaluation seed 0, one
 period) and its validation return, then each seed's training (the recipe's length and
@@ -25,8 +32,10 @@ settings), the return of its warm start and of its kept weights on the validatio
 episodes, and the kept agent's human-likeness figures. One torch thread per training,
 ``--jobs`` at a time. Trainings are seeded: a rerun gives the same figures.
 
-Run: .venv/bin/python benchmarks/surrogate_noise_trials.py [--seeds 0 1] [--jobs 2]
-     [--out results/surrogate-noise] [--markdown docs/surrogate-noise.md]
+The page lists every trial: those not run this time are read from ``<out>/trials.json``.
+
+Run: .venv/bin/python benchmarks/surrogate_noise_trials.py [--trials NAME ...] [--seeds 0 1]
+     [--jobs 2] [--out results/surrogate-noise] [--markdown docs/surrogate-noise.md]
 """
 
 import argparse
@@ -36,7 +45,7 @@ import math
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-TRIALS = ("ocm-intensity", "after-limb", "held-level", "commanded-effort")
+TRIALS = ("ocm-intensity", "after-limb", "held-level", "commanded-effort", "limb-unseen")
 #: The OCM's motor noise ratio (-25 dB) and the recipes' noise break (rad/s).
 RHO_U, OMEGA_R = 0.0032, 10.0
 
@@ -46,7 +55,7 @@ def trial_config(trial: str, seed: int):
     from manualcontrol.agents.recipes import human_problem, typical_stick_rms
 
     config = human_problem("gain", seed=seed, warm_start="typical-pilot")
-    after = trial != "ocm-intensity"
+    after = trial not in ("ocm-intensity", "limb-unseen")
     order = ["observation_noise", "action_delay"]
     order += ["motor_noise", "neuromuscular"] if after else ["neuromuscular", "motor_noise"]
     wrappers = []
@@ -57,12 +66,15 @@ def trial_config(trial: str, seed: int):
                 spec = {"kind": "motor_noise", "std": level, "omega_r": OMEGA_R}
             else:
                 spec = {"kind": "motor_noise", "ratio": RHO_U, "omega_r": OMEGA_R}
+        if spec["kind"] == "neuromuscular" and trial == "limb-unseen":
+            spec = {**spec, "observe_state": False}
         wrappers.append(spec)
     changes = {"wrappers": tuple(wrappers)}
     if trial == "commanded-effort":
         effort = {"kind": "effort_cost", "rate_weight": config.effort_rate_weight}
         changes["wrappers"] += ({**effort, "stick": "commanded"},)
         changes["effort_rate_weight"] = 0.0
+    if trial in ("commanded-effort", "limb-unseen"):
         changes["policy_kwargs"] = {**config.policy_kwargs, "linear_path": True}
     return dataclasses.replace(config, **changes)
 
@@ -180,10 +192,13 @@ def main() -> None:
         for future in futures:
             rows.append(future.result())
             print(json.dumps(rows[-1]), flush=True)
+    kept = Path(args.out) / "trials.json"
+    if kept.is_file():  # the trials not run this time, as their last run left them
+        rows += [row for row in json.loads(kept.read_text()) if row["trial"] not in args.trials]
     order = {trial: i for i, trial in enumerate(TRIALS)}
     rows.sort(key=lambda row: (order[row["trial"]], str(row["seed"]) != "law", str(row["seed"])))
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    (Path(args.out) / "trials.json").write_text(json.dumps(rows, indent=2))
+    kept.write_text(json.dumps(rows, indent=2))
     if args.markdown is not None:
         Path(args.markdown).write_text(markdown(rows, "benchmarks/surrogate_noise_trials.py"))
 

@@ -83,6 +83,28 @@ def test_the_critic_reads_the_forcing_ahead_the_element_and_the_delayed_commands
     assert seen == plain.observation_space.shape[0]
 
 
+def test_a_hidden_limbs_state_is_the_critics_last_hidden_part_and_not_the_actors():
+    limb = {"kind": "neuromuscular", "omega_nms": 10.5, "zeta_nms": 0.35}
+    seen = TrainingConfig(**{**SMALL, "wrappers": (*SMALL["wrappers"], limb)})
+    unseen = TrainingConfig(
+        **{**SMALL, "wrappers": (*SMALL["wrappers"], {**limb, "observe_state": False})}
+    )
+    env_seen, env_unseen = make_env(seen), make_env(unseen)
+    layer = _layer(env_unseen)
+    assert layer.actor_inputs == _layer(env_seen).actor_inputs - 2
+    assert env_unseen.observation_space.shape[0] == env_seen.observation_space.shape[0]
+    observed, _ = env_seen.reset(seed=3)
+    informed, _ = env_unseen.reset(seed=3)
+    for command in np.random.default_rng(6).uniform(-1.0, 1.0, 40):
+        observed, *_ = env_seen.step(np.array([command]))
+        informed, *_ = env_unseen.step(np.array([command]))
+    # the display and the rest of the critic's inputs alike; the limb's [p, v] where
+    # the actor saw it, before the critic's progress of the episode where it does not
+    limb_at = _layer(env_seen).actor_inputs - 2
+    np.testing.assert_array_equal(informed[-3:-1], observed[limb_at : limb_at + 2])
+    assert np.abs(informed[-3:-1]).max() > 0.0
+
+
 def test_the_horizon_is_two_discount_horizons_and_the_spacing_a_tenth_of_the_fastest_period():
     assert critic_horizon(0.99, 0.01) == pytest.approx(2.0)
     assert critic_horizon(0.995, 1 / 60) == pytest.approx(2 * (1 / 60) / 0.005)

@@ -88,6 +88,27 @@ def test_neuromuscular_observation_is_stick_position_and_rate():
     assert info["u"] == pytest.approx(position, rel=1e-12)
 
 
+def test_a_hidden_limb_moves_the_stick_alike_and_shows_its_state_only_as_hidden():
+    commands = np.random.default_rng(5).uniform(-1, 1, 120)
+    seen, unseen = (
+        NeuromuscularFilter(base(), 8.0, 0.5),
+        NeuromuscularFilter(base(), 8.0, 0.5, False),
+    )
+    assert seen.hidden_size == 0 and unseen.hidden_size == 2
+    assert unseen.observation_space == unseen.env.observation_space
+    first, _ = unseen.reset(seed=0)
+    assert first.shape == seen.env.observation_space.shape
+    seen.reset(seed=0)
+    for command in commands:
+        observed, *_ = seen.step(np.array([command]))
+        hidden_observation, *_ = unseen.step(np.array([command]))
+        np.testing.assert_array_equal(hidden_observation, observed[:-2])
+        np.testing.assert_array_equal(unseen.hidden_state(), observed[-2:])
+    np.testing.assert_array_equal(seen.unwrapped.recording().u, unseen.unwrapped.recording().u)
+    with pytest.raises(TypeError, match=r"observe_state must be True or False, got 'no'"):
+        NeuromuscularFilter(base(), observe_state="no")
+
+
 def test_motor_noise_reaches_the_requested_power_ratio():
     env = MotorNoise(base(measurement_time=60.0), power_ratio=0.3, omega_r=3.0)
     env.reset(seed=3)
