@@ -155,19 +155,16 @@ def dekf_costs(task, steps, repeats):
         for k in range(len(recording))
     ]
 
-    def run_update():
-        estimator.reset(recording.dt, t0=float(recording.t[0]))
-        start = time.process_time()
-        for sample in table:
-            estimator.update(sample)
-        return time.process_time() - start
+    def updates(name):
+        def run():
+            estimator.reset(recording.dt, t0=float(recording.t[0]))
+            update = getattr(estimator, name)
+            start = time.process_time()
+            for sample in table:
+                update(sample)
+            return time.process_time() - start
 
-    def run_update_plain():
-        estimator.reset(recording.dt, t0=float(recording.t[0]))
-        start = time.process_time()
-        for sample in table:
-            estimator.update_plain(sample)
-        return time.process_time() - start
+        return run
 
     def run_estimate():
         start = time.process_time()
@@ -196,8 +193,8 @@ def dekf_costs(task, steps, repeats):
 
     costs = {}
     for name, run in (
-        ("DEKF.update alone", run_update),
-        ("DEKF.update_plain alone", run_update_plain),
+        ("DEKF.update alone", updates("update")),
+        ("DEKF.update_plain alone", updates("update_plain")),
         ("DEKF.estimate, per sample", run_estimate),
         ("  its compiled step, entry alone", run_compiled_step),
         ("  its sample check alone", run_sample_check),

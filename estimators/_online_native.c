@@ -293,20 +293,15 @@ static int set_new(PyObject *dict, PyObject *key, PyObject *value)
     return status;
 }
 
-/* plain(sample, k): PilotFilter.update_plain's dicts, or None where Python must read it */
-static PyObject *online_plain(OnlineStep *self, PyObject *const *args, Py_ssize_t nargs)
+/* PilotFilter._plain_of_row's dicts of the row, at time t */
+static PyObject *plain_dicts(OnlineStep *self, double t)
 {
-    double t;
-    int read = read_and_step(self, args, nargs, &t);
-    if (read < 0)
-        return NULL;
-    if (read == 0)
-        Py_RETURN_NONE;
     PyObject *plain = PyDict_New();
     if (plain == NULL)
         return NULL;
     const double *scalar = self->scalar; /* prediction, innovation, its variance */
-    if (set_number(plain, key_time, t) < 0 || set_new(plain, key_mean, values_by_column(self, self->mean)) < 0
+    if (set_number(plain, key_time, t) < 0
+        || set_new(plain, key_mean, values_by_column(self, self->mean)) < 0
         || set_new(plain, key_std, values_by_column(self, self->std)) < 0
         || set_number(plain, key_innovation, scalar[1]) < 0
         || set_number(plain, key_innovation_variance, scalar[2]) < 0
@@ -318,8 +313,8 @@ static PyObject *online_plain(OnlineStep *self, PyObject *const *args, Py_ssize_
     return plain;
 }
 
-/* quiet(sample, k): PilotFilter.update_quiet's time, or None where Python must read it */
-static PyObject *online_quiet(OnlineStep *self, PyObject *const *args, Py_ssize_t nargs)
+/* Step on the sample; its dicts (plain) or its time, or None where Python must read it */
+static PyObject *answer(OnlineStep *self, PyObject *const *args, Py_ssize_t nargs, int plain)
 {
     double t;
     int read = read_and_step(self, args, nargs, &t);
@@ -327,7 +322,19 @@ static PyObject *online_quiet(OnlineStep *self, PyObject *const *args, Py_ssize_
         return NULL;
     if (read == 0)
         Py_RETURN_NONE;
-    return PyFloat_FromDouble(t);
+    return plain ? plain_dicts(self, t) : PyFloat_FromDouble(t);
+}
+
+/* plain(sample, k): PilotFilter.update_plain's dicts */
+static PyObject *online_plain(OnlineStep *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    return answer(self, args, nargs, 1);
+}
+
+/* quiet(sample, k): PilotFilter.update_quiet's time */
+static PyObject *online_quiet(OnlineStep *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    return answer(self, args, nargs, 0);
 }
 
 static PyMethodDef online_methods[] = {

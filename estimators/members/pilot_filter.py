@@ -444,7 +444,7 @@ class PilotFilter(FilterShell):
         online = self._online
         if online is None:
             online = self._bind_online()
-        if online:
+        if online:  # the C path where it takes the sample (None: not stepped)
             plain = online.plain(sample, self._k)
             if plain is not None:
                 self._k += 1
