@@ -39,11 +39,15 @@ The human's problem, as the optimal control model poses it
   trained agents have them: the OCM's -25 dB is a noise intensity, ``pi rho_u var(u)``
   per rad/s (:class:`~manualcontrol.agents.wrappers.MotorNoise` ``ratio``), which
   through the 10-rad/s filter is 16 times this power; and the noise joins the command
-  ahead of the limb, whose state the policy reads, so the policy feels it a sample
-  later (on a pure gain the agents cancel it there). Posed the OCM's way (its
-  intensity, after the limb, at a level the agent cannot move, with the effort cost on
-  the stick commanded), the pure gain's problem has trained no human agent yet:
-  ``docs/surrogate-noise.md``.
+  ahead of the limb, as the OCM adds it to the commanded control, but the policy reads
+  the limb's state, which the OCM's pilot does not sense, so the policy feels the noise
+  a sample later (on a pure gain the agents cancel it there). Posed as the OCM poses
+  it (its intensity, ahead of the limb, the limb's state hidden:
+  :class:`~manualcontrol.agents.wrappers.NeuromuscularFilter` ``observe_state``), the
+  pure gain's agents track as humans do in RMS but with too little remnant, too much
+  phase margin and too short an effective delay; posed otherwise (the noise after the
+  limb, at a level the agent cannot move, the effort cost on the stick commanded) they
+  were no closer: no human agent on a pure gain yet (``docs/surrogate-noise.md``).
 * **Observation noise at the OCM's level** (``rho`` 0.01, -20 dB), band-limited at the
   neuromuscular break frequency (:class:`~manualcontrol.agents.wrappers.
   ObservationNoise` ``omega_r``): the in-band noise the OCM's pilot is left with after
