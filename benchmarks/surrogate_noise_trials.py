@@ -1,4 +1,4 @@
-"""The human's problem on a pure gain, with the motor noise read the OCM's way: five trials.
+"""The human's problem on a pure gain, with the motor noise read the OCM's way: six trials.
 
 The recipes' motor noise (``agents/recipes.py``) is the OCM's -25 dB read as a share of
 the stick's power, and it joins the command ahead of the limb, whose state the policy
@@ -24,7 +24,11 @@ the problem one step further towards the OCM's (Kleinman, Baron & Levison 1970),
     the policy (:class:`~manualcontrol.agents.wrappers.NeuromuscularFilter`
     ``observe_state=False``; the critic still reads it): like the OCM's pilot it knows
     the commands it sent and sees its motor noise only on the display, after the
-    delay. Started from the law exactly (``linear_path``).
+    delay. Started from the law exactly (``linear_path``);
+``limb-unseen-one-frame``
+    that, with the policy reading the present frame of the display alone (and its last
+    command), at PPO's default learning rate, as the recipes before their memory: with
+    no past frames to extrapolate from, can it still answer before its delay?
 
 For each trial: the typical pilot's law flown through it (evaluation seed 0, one
 period) and its validation return, then each seed's training (the recipe's length and
@@ -45,7 +49,16 @@ import math
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-TRIALS = ("ocm-intensity", "after-limb", "held-level", "commanded-effort", "limb-unseen")
+TRIALS = (
+    "ocm-intensity",
+    "after-limb",
+    "held-level",
+    "commanded-effort",
+    "limb-unseen",
+    "limb-unseen-one-frame",
+)
+#: The trials whose noise joins ahead of the limb, as the OCM adds it to the command.
+AHEAD_OF_THE_LIMB = ("ocm-intensity", "limb-unseen", "limb-unseen-one-frame")
 #: The OCM's motor noise ratio (-25 dB) and the recipes' noise break (rad/s).
 RHO_U, OMEGA_R = 0.0032, 10.0
 
@@ -55,7 +68,7 @@ def trial_config(trial: str, seed: int):
     from manualcontrol.agents.recipes import human_problem, typical_stick_rms
 
     config = human_problem("gain", seed=seed, warm_start="typical-pilot")
-    after = trial not in ("ocm-intensity", "limb-unseen")
+    after = trial not in AHEAD_OF_THE_LIMB
     order = ["observation_noise", "action_delay"]
     order += ["motor_noise", "neuromuscular"] if after else ["neuromuscular", "motor_noise"]
     wrappers = []
@@ -66,7 +79,7 @@ def trial_config(trial: str, seed: int):
                 spec = {"kind": "motor_noise", "std": level, "omega_r": OMEGA_R}
             else:
                 spec = {"kind": "motor_noise", "ratio": RHO_U, "omega_r": OMEGA_R}
-        if spec["kind"] == "neuromuscular" and trial == "limb-unseen":
+        if spec["kind"] == "neuromuscular" and trial.startswith("limb-unseen"):
             spec = {**spec, "observe_state": False}
         wrappers.append(spec)
     changes = {"wrappers": tuple(wrappers)}
@@ -74,8 +87,13 @@ def trial_config(trial: str, seed: int):
         effort = {"kind": "effort_cost", "rate_weight": config.effort_rate_weight}
         changes["wrappers"] += ({**effort, "stick": "commanded"},)
         changes["effort_rate_weight"] = 0.0
-    if trial in ("commanded-effort", "limb-unseen"):
+    if trial in ("commanded-effort", "limb-unseen", "limb-unseen-one-frame"):
         changes["policy_kwargs"] = {**config.policy_kwargs, "linear_path": True}
+    if trial == "limb-unseen-one-frame":
+        changes["history_length"] = 1
+        changes["algorithm_kwargs"] = {
+            k: v for k, v in config.algorithm_kwargs.items() if k != "learning_rate"
+        }
     return dataclasses.replace(config, **changes)
 
 
