@@ -45,7 +45,8 @@ The human's problem, as the optimal control model poses it
   it (its intensity, ahead of the limb, the limb's state hidden:
   :class:`~manualcontrol.agents.wrappers.NeuromuscularFilter` ``observe_state``), the
   pure gain's agents track as humans do in RMS but with too little remnant, too much
-  phase margin and too short an effective delay; posed otherwise (the noise after the
+  phase margin and too short an effective delay, with the memory of the display or
+  without it; posed otherwise (the noise after the
   limb, at a level the agent cannot move, the effort cost on the stick commanded) they
   were no closer: no human agent on a pure gain yet (``docs/surrogate-noise.md``).
 * **Observation noise at the OCM's level** (``rho`` 0.01, -20 dB), band-limited at the
