@@ -361,6 +361,8 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self.estimates_in_info == "dicts":
             info["estimates"] = self._last
         elif self.estimates_in_info == "arrays":
-            mean, std = self._latest()
+            # the filter's row after this sample where it stayed there (this form keeps
+            # no samples back: no stepping through the estimator property)
+            mean, std = self._latest() if self._last is not None else self._estimator.latest()
             info["estimates"] = {"t": self._t, "mean": mean.copy(), "std": std.copy()}
         return self._observe(observation), reward, terminated, truncated, info
