@@ -520,6 +520,15 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         the OCM's controller does not choose its noise (its intensities are held at its
         solution's variances).
 
+    With ``omega_r=None`` the noise is white, unfiltered: a new value each sample, held
+    over it, for a filter the stick passes through next to shape (a
+    :class:`NeuromuscularFilter` inside this wrapper), as the OCM's motor noise is white
+    where it joins the commanded control and its neuromuscular lag shapes it. Its
+    per-sample variance is then ``V_u / dt`` under ``ratio`` (a held white sequence of
+    that variance has the intensity ``V_u`` below the sample rate), ``std^2`` under
+    ``std`` and the share of the power under ``power_ratio``. The Levison filter ahead
+    of a limb would shape the noise twice.
+
     Parameters
     ----------
     env
@@ -529,7 +538,8 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         noise to command): a number or a schedule. Default 0.3 when neither ``ratio``
         nor ``std`` is given.
     omega_r
-        Break frequency of the noise filter (rad/s), ``> 0``: a number or a schedule.
+        Break frequency of the noise filter (rad/s), ``> 0``: a number or a schedule;
+        or None, white noise (above).
     ratio
         The OCM's motor noise ratio ``rho_u``, ``>= 0`` (-25 dB is 0.0032): a number or
         a schedule.
@@ -544,7 +554,7 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self,
         env: gym.Env,
         power_ratio: float | Schedule | None = None,
-        omega_r: float | Schedule = 3.0,
+        omega_r: float | Schedule | None = 3.0,
         *,
         ratio: float | Schedule | None = None,
         std: float | Schedule | None = None,
@@ -564,7 +574,7 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 "power), a ratio (the OCM's noise intensity) or a std (absolute); got "
                 + " and ".join(f"{name}={value!r}" for name, value in given.items())
             )
-        omega = _Parameter(env, "omega_r", omega_r, _positive())
+        omega = None if omega_r is None else _Parameter(env, "omega_r", omega_r, _positive())
         self.power_ratio = self.ratio = self.std = None
         if ratio is not None:
             level = _Parameter(env, "ratio", ratio, _positive(allow_zero=True))
@@ -580,17 +590,23 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 _range(0.0, 1.0, high_inclusive=False),
             )
             self.power_ratio = level.given
-        self.omega_r = omega.given
         dt = _dt(env)
+        self._dt = dt
         self._level = level
         self._omega = omega
-        self._phi = [math.exp(-w * dt) for w in omega.values]
-        self._gamma = [(1.0 - p) / w for p, w in zip(self._phi, omega.values, strict=True)]
-        # stationary variance of the unit-noise filter state: gamma^2 / (1 - phi^2)
-        self._unit_std = [
-            g / math.sqrt(1.0 - p**2) for p, g in zip(self._phi, self._gamma, strict=True)
-        ]
-        self._last_filter = omega.last
+        if omega is None:  # white: the filter's state is the next unit draw itself
+            self.omega_r = None
+            self._phi, self._gamma, self._unit_std = [0.0], [1.0], [1.0]
+            self._last_filter = 0
+        else:
+            self.omega_r = omega.given
+            self._phi = [math.exp(-w * dt) for w in omega.values]
+            self._gamma = [(1.0 - p) / w for p, w in zip(self._phi, omega.values, strict=True)]
+            # stationary variance of the unit-noise filter state: gamma^2 / (1 - phi^2)
+            self._unit_std = [
+                g / math.sqrt(1.0 - p**2) for p, g in zip(self._phi, self._gamma, strict=True)
+            ]
+            self._last_filter = omega.last
         self._bound = _stick_bound(env)
         # the last commands, oldest first once full (a ring of numbers, not a deque
         # converted to an array every step)
@@ -623,6 +639,8 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
             return level
         if self.ratio is None:
             return math.sqrt(level / (1.0 - level) * variance)
+        if self._omega is None:  # white, held over each sample: V_u / dt
+            return math.sqrt(math.pi * level / self._dt * variance)
         return math.sqrt(math.pi * level * self._omega.at(k) / 2.0 * variance)
 
     def _command_variance(self, command: float) -> float:

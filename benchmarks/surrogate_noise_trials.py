@@ -1,4 +1,4 @@
-"""The human's problem on a pure gain, with the motor noise read the OCM's way: six trials.
+"""The human's problem on a pure gain, with the motor noise read the OCM's way: seven trials.
 
 The recipes' motor noise (``agents/recipes.py``) is the OCM's -25 dB read as a share of
 the stick's power, and it joins the command ahead of the limb, whose state the policy
@@ -29,6 +29,11 @@ the problem one step further towards the OCM's (Kleinman, Baron & Levison 1970),
     that, with the policy reading the present frame of the display alone (and its last
     command), at PPO's default learning rate, as the recipes before their memory: with
     no past frames to extrapolate from, can it still answer before its delay?
+``limb-unseen-white``
+    ``limb-unseen`` with the noise white where it joins the command
+    (``MotorNoise`` ``omega_r=None``), at the OCM's intensity: the limb alone shapes
+    it, as the OCM's neuromuscular lag shapes its white motor noise. The other trials
+    pass it through the 10-rad/s Levison filter first, and the limb shapes it again.
 
 For each trial: the typical pilot's law flown through it (evaluation seed 0, one
 period) and its validation return, then each seed's training (the recipe's length and
@@ -56,9 +61,10 @@ TRIALS = (
     "commanded-effort",
     "limb-unseen",
     "limb-unseen-one-frame",
+    "limb-unseen-white",
 )
 #: The trials whose noise joins ahead of the limb, as the OCM adds it to the command.
-AHEAD_OF_THE_LIMB = ("ocm-intensity", "limb-unseen", "limb-unseen-one-frame")
+AHEAD_OF_THE_LIMB = ("ocm-intensity", "limb-unseen", "limb-unseen-one-frame", "limb-unseen-white")
 #: The OCM's motor noise ratio (-25 dB) and the recipes' noise break (rad/s).
 RHO_U, OMEGA_R = 0.0032, 10.0
 
@@ -78,7 +84,12 @@ def trial_config(trial: str, seed: int):
                 level = math.sqrt(math.pi * RHO_U * OMEGA_R / 2.0) * typical_stick_rms("gain")
                 spec = {"kind": "motor_noise", "std": level, "omega_r": OMEGA_R}
             else:
-                spec = {"kind": "motor_noise", "ratio": RHO_U, "omega_r": OMEGA_R}
+                white = trial == "limb-unseen-white"
+                spec = {
+                    "kind": "motor_noise",
+                    "ratio": RHO_U,
+                    "omega_r": None if white else OMEGA_R,
+                }
         if spec["kind"] == "neuromuscular" and trial.startswith("limb-unseen"):
             spec = {**spec, "observe_state": False}
         wrappers.append(spec)
@@ -87,7 +98,7 @@ def trial_config(trial: str, seed: int):
         effort = {"kind": "effort_cost", "rate_weight": config.effort_rate_weight}
         changes["wrappers"] += ({**effort, "stick": "commanded"},)
         changes["effort_rate_weight"] = 0.0
-    if trial in ("commanded-effort", "limb-unseen", "limb-unseen-one-frame"):
+    if trial in ("commanded-effort", "limb-unseen", "limb-unseen-one-frame", "limb-unseen-white"):
         changes["policy_kwargs"] = {**config.policy_kwargs, "linear_path": True}
     if trial == "limb-unseen-one-frame":
         changes["history_length"] = 1

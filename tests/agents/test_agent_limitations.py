@@ -267,6 +267,37 @@ def test_motor_noise_at_the_ocms_ratio_has_the_ocms_intensity():
         assert measured == pytest.approx(np.pi * value * 10.0 / 2.0, rel=0.2), (low, value)
 
 
+def test_white_motor_noise_at_the_ocms_ratio_has_the_ocms_intensity_below_the_sample_rate():
+    """With ``omega_r=None`` the noise is white, held over each sample, of variance
+    V_u / dt: below the sample rate its one-sided spectrum is the OCM's 2 V_u per Hz,
+    V_u = pi rho_u var(command), which a limb inside the wrapper then shapes (the OCM's
+    lag shapes its white v_u)."""
+    import scipy.signal
+
+    rho = 10**-2.5
+    env = MotorNoise(base(measurement_time=300.0), ratio=rho, omega_r=None)
+    assert env.omega_r is None
+    n = 29990  # the episode's 30,000 steps but a few, for one more step below
+    commands = np.sin(2.0 * np.pi * np.arange(n) * DT / 1.25)  # variance 0.5 per window
+    _, _, infos = run(env, commands, seed=5)
+    noise = np.array([info["remnant"] for info in infos[501:]])
+    intensity = np.pi * rho * 0.5
+    # 29,489 samples of one variance: known to about sqrt(2 / 29489) = 0.8 %
+    assert np.var(noise) == pytest.approx(intensity / DT, rel=0.05)
+    frequencies, spectrum = scipy.signal.welch(noise, fs=1.0 / DT, nperseg=2048)
+    # white: flat at 2 V_u per Hz below 10 Hz (Welch over 28 segments: a few % each bin,
+    # 5 % on the mean of 200 bins), where omega_r = 10 rad/s has fallen tenfold by 2.5 Hz
+    band = (frequencies > 0.5) & (frequencies < 10.0)
+    assert spectrum[band].mean() == pytest.approx(2.0 * intensity, rel=0.05)
+    assert spectrum[frequencies > 25.0].mean() == pytest.approx(2.0 * intensity, rel=0.1)
+    # the hidden state is the next sample's unit draw
+    state = env.hidden_state()[0]
+    *_, info = env.step(np.array([0.0]))
+    assert info["remnant"] == pytest.approx(
+        state * np.sqrt(np.pi * rho / DT * np.var(env._window)), rel=1e-12
+    )
+
+
 def test_motor_noise_at_an_absolute_level_does_not_follow_the_commands():
     """``std``: the noise's own spread, whatever the agent commands, so an agent cannot
     quieten it by commanding less (as it can a noise scaled to its commands)."""
