@@ -46,9 +46,11 @@ The human's problem, as the optimal control model poses it
   :class:`~manualcontrol.agents.wrappers.NeuromuscularFilter` ``observe_state``), the
   pure gain's agents track as humans do in RMS but with too little remnant, too much
   phase margin and too short an effective delay, with the memory of the display or
-  without it; posed otherwise (the noise after the
-  limb, at a level the agent cannot move, the effort cost on the stick commanded) they
-  were no closer: no human agent on a pure gain yet (``docs/surrogate-noise.md``).
+  without it; with the noise also white where it joins, shaped by the limb alone
+  (``MotorNoise`` ``omega_r=None``), one seed of two is human in all but its crossover
+  (2.4 rad/s) and remnant (7 %). Posed otherwise (the noise after the limb, at a level
+  the agent cannot move, the effort cost on the stick commanded) they were no closer:
+  no human agent on a pure gain yet (``docs/surrogate-noise.md``).
 * **Observation noise at the OCM's level** (``rho`` 0.01, -20 dB), band-limited at the
   neuromuscular break frequency (:class:`~manualcontrol.agents.wrappers.
   ObservationNoise` ``omega_r``): the in-band noise the OCM's pilot is left with after
