@@ -1,4 +1,4 @@
-"""The human's problem on a pure gain, with the motor noise read the OCM's way: seven trials.
+"""The human's problem on a pure gain, with the motor noise read the OCM's way: eight trials.
 
 The recipes' motor noise (``agents/recipes.py``) is the OCM's -25 dB read as a share of
 the stick's power, and it joins the command ahead of the limb, whose state the policy
@@ -33,7 +33,13 @@ the problem one step further towards the OCM's (Kleinman, Baron & Levison 1970),
     ``limb-unseen`` with the noise white where it joins the command
     (``MotorNoise`` ``omega_r=None``), at the OCM's intensity: the limb alone shapes
     it, as the OCM's neuromuscular lag shapes its white motor noise. The other trials
-    pass it through the 10-rad/s Levison filter first, and the limb shapes it again.
+    pass it through the 10-rad/s Levison filter first, and the limb shapes it again;
+``limb-unseen-white-held``
+    that, with the noise's level held at the OCM's intensity of the typical pilot's
+    stick (``MotorNoise`` ``std``, white: ``sqrt(pi rho_u / dt)`` times its RMS), as
+    the OCM holds its noise intensities while it optimises: a noise scaled to the
+    commands can be quietened by commanding less, which the OCM's controller does not
+    weigh.
 
 For each trial: the typical pilot's law flown through it (evaluation seed 0, one
 period) and its validation return, then each seed's training (the recipe's length and
@@ -62,11 +68,22 @@ TRIALS = (
     "limb-unseen",
     "limb-unseen-one-frame",
     "limb-unseen-white",
+    "limb-unseen-white-held",
 )
 #: The trials whose noise joins ahead of the limb, as the OCM adds it to the command.
-AHEAD_OF_THE_LIMB = ("ocm-intensity", "limb-unseen", "limb-unseen-one-frame", "limb-unseen-white")
+AHEAD_OF_THE_LIMB = (
+    "ocm-intensity",
+    "limb-unseen",
+    "limb-unseen-one-frame",
+    "limb-unseen-white",
+    "limb-unseen-white-held",
+)
+#: The trials that start from the typical pilot's law exactly (``linear_path``).
+EXACT_START = ("commanded-effort", *AHEAD_OF_THE_LIMB[1:])
 #: The OCM's motor noise ratio (-25 dB) and the recipes' noise break (rad/s).
 RHO_U, OMEGA_R = 0.0032, 10.0
+#: The recipes' sample time (s).
+DT = 0.01
 
 
 def trial_config(trial: str, seed: int):
@@ -83,6 +100,9 @@ def trial_config(trial: str, seed: int):
             if trial in ("held-level", "commanded-effort"):
                 level = math.sqrt(math.pi * RHO_U * OMEGA_R / 2.0) * typical_stick_rms("gain")
                 spec = {"kind": "motor_noise", "std": level, "omega_r": OMEGA_R}
+            elif trial == "limb-unseen-white-held":  # white: V_u / dt per sample
+                level = math.sqrt(math.pi * RHO_U / DT) * typical_stick_rms("gain")
+                spec = {"kind": "motor_noise", "std": level, "omega_r": None}
             else:
                 white = trial == "limb-unseen-white"
                 spec = {
@@ -98,7 +118,7 @@ def trial_config(trial: str, seed: int):
         effort = {"kind": "effort_cost", "rate_weight": config.effort_rate_weight}
         changes["wrappers"] += ({**effort, "stick": "commanded"},)
         changes["effort_rate_weight"] = 0.0
-    if trial in ("commanded-effort", "limb-unseen", "limb-unseen-one-frame", "limb-unseen-white"):
+    if trial in EXACT_START:
         changes["policy_kwargs"] = {**config.policy_kwargs, "linear_path": True}
     if trial == "limb-unseen-one-frame":
         changes["history_length"] = 1
