@@ -48,7 +48,9 @@ The human's problem, as the optimal control model poses it
   phase margin and too short an effective delay, with the memory of the display or
   without it; with the noise also white where it joins, shaped by the limb alone
   (``MotorNoise`` ``omega_r=None``), one seed of two is human in all but its crossover
-  (2.4 rad/s) and remnant (7 %). Posed otherwise (the noise after the limb, at a level
+  (2.4 rad/s) and remnant (7 %); that noise held at the typical pilot's level gives a
+  human remnant (15-16 %) but not a human error (1.45-1.51 times the typical pilot's).
+  Posed otherwise (the noise after the limb, at a level
   the agent cannot move, the effort cost on the stick commanded) they were no closer:
   no human agent on a pure gain yet (``docs/surrogate-noise.md``).
 * **Observation noise at the OCM's level** (``rho`` 0.01, -20 dB), band-limited at the
