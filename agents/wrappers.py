@@ -574,7 +574,10 @@ class MotorNoise(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 "power), a ratio (the OCM's noise intensity) or a std (absolute); got "
                 + " and ".join(f"{name}={value!r}" for name, value in given.items())
             )
-        omega = None if omega_r is None else _Parameter(env, "omega_r", omega_r, _positive())
+        try:
+            omega = None if omega_r is None else _Parameter(env, "omega_r", omega_r, _positive())
+        except TypeError as error:  # the noise may also be white
+            raise TypeError(f"{error}, or None (white noise)") from None
         self.power_ratio = self.ratio = self.std = None
         if ratio is not None:
             level = _Parameter(env, "ratio", ratio, _positive(allow_zero=True))

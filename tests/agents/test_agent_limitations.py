@@ -323,6 +323,8 @@ def test_motor_noise_takes_one_level():
         MotorNoise(base(), ratio=-0.001)
     with pytest.raises(ValueError, match=re.escape("std must be >= 0, got -0.1")):
         MotorNoise(base(), std=-0.1)
+    with pytest.raises(TypeError, match=r"omega_r must be a real number .*got 'white', or None"):
+        MotorNoise(base(), ratio=0.003, omega_r="white")
     # the default level is a power ratio of 0.3, as before the other forms existed
     default = MotorNoise(base())
     assert default.power_ratio == 0.3 and default.ratio is None and default.std is None
