@@ -47,7 +47,8 @@ settings), the return of its warm start and of its kept weights on the validatio
 episodes, and the kept agent's human-likeness figures. One torch thread per training,
 ``--jobs`` at a time. Trainings are seeded: a rerun gives the same figures.
 
-The page lists every trial: those not run this time are read from ``<out>/trials.json``.
+The page lists every trial and seed: those not run this time are read from
+``<out>/trials.json`` (so ``--seeds 2`` adds a third seed to the trials given).
 
 Run: .venv/bin/python benchmarks/surrogate_noise_trials.py [--trials NAME ...] [--seeds 0 1]
      [--jobs 2] [--out results/surrogate-noise] [--markdown docs/surrogate-noise.md]
@@ -242,8 +243,13 @@ def main() -> None:
             rows.append(future.result())
             print(json.dumps(rows[-1]), flush=True)
     kept = Path(args.out) / "trials.json"
-    if kept.is_file():  # the trials not run this time, as their last run left them
-        rows += [row for row in json.loads(kept.read_text()) if row["trial"] not in args.trials]
+    if kept.is_file():  # the rows not run this time (trial and seed), as their last run left them
+        run = {(row["trial"], str(row["seed"])) for row in rows}
+        rows += [
+            row
+            for row in json.loads(kept.read_text())
+            if (row["trial"], str(row["seed"])) not in run
+        ]
     order = {trial: i for i, trial in enumerate(TRIALS)}
     rows.sort(key=lambda row: (order[row["trial"]], str(row["seed"]) != "law", str(row["seed"])))
     Path(args.out).mkdir(parents=True, exist_ok=True)
