@@ -47,9 +47,10 @@ The human's problem, as the optimal control model poses it
   pure gain's agents track as humans do in RMS but with too little remnant, too much
   phase margin and too short an effective delay, with the memory of the display or
   without it; with the noise also white where it joins, shaped by the limb alone
-  (``MotorNoise`` ``omega_r=None``), one seed of two is human in all but its crossover
-  (2.4 rad/s) and remnant (7 %); that noise held at the typical pilot's level gives a
-  human remnant (15-16 %) but not a human error (1.45-1.51 times the typical pilot's).
+  (``MotorNoise`` ``omega_r=None``), their error stays human on three seeds and one is
+  human in all but its crossover (2.4 rad/s) and remnant (7 %); that noise held at the
+  typical pilot's level gives a human remnant (15-19 %) but not a human error (1.45-1.51
+  times the typical pilot's).
   Posed otherwise (the noise after the limb, at a level
   the agent cannot move, the effort cost on the stick commanded) they were no closer:
   no human agent on a pure gain yet (``docs/surrogate-noise.md``).
