@@ -76,7 +76,8 @@ FLAGS: tuple[str, ...] = (
     "-shared",
 )
 
-#: Libraries loaded in this process, and why a source could not be built (by source path).
+#: Libraries and extensions loaded in this process, and why one could not be built (a
+#: library by its source's path, an extension by :func:`_extension_key`).
 _LOADED: dict[str, Any] = {}
 _FAILED: dict[str, str] = {}
 
@@ -236,10 +237,12 @@ def native_extension(source: Path, name: str) -> Any:
     slower. Not built for a free-threaded Python, whose GIL a module of this kind
     would turn back on.
     """
+    if not native_enabled():
+        return None
     source = Path(source)
     key = _extension_key(source, name)
     module = _LOADED.get(key)
-    if module is not None or key in _FAILED or not native_enabled():
+    if module is not None or key in _FAILED:
         return module
     fallback = "the Python path runs"
     if sysconfig.get_config_var("Py_GIL_DISABLED"):

@@ -85,6 +85,7 @@ def test_the_c_answers_are_the_python_answers_bit_for_bit(member, samples):
 def test_quiet_updates_leave_the_python_estimate_in_the_row(member, samples):
     fast, slow = fresh(member), fresh(member)
     times = [fast.update_quiet(sample) for sample in samples[:500]]
+    assert type(fast._online).__name__ == "OnlineStep"  # the C path ran
     expected = [slow._consume(sample) for sample in samples[:500]]
     assert times == expected
     for mine, theirs in zip(fast.latest(), slow.latest(), strict=True):
