@@ -210,24 +210,38 @@ def _lpv_toolkit() -> None:
     resimulate_parameters("precision", parameters, recording)
 
 
+#: LLVM's optimisation level for the numba kernels a C port replaces, where the user's
+#: ``NUMBA_OPT`` does not set one. numba's default, 3, spends about a sixth of these
+#: kernels' compile time (the tests' reference, most of a fresh ``make test``'s
+#: compiling) in passes that buy them nothing: at 1 they ran as fast or faster
+#: (``benchmarks/reference_opt_level.py``). The numbers are the same bytes at any
+#: level: numba asks LLVM for no fast-math, so no level may reorder, contract or
+#: vectorise a floating-point reduction, and the C-against-numba tests pass on either.
+REFERENCE_OPT_LEVEL = "1"
+
+
 def _numba_kernels(job: Callable[[], None]) -> Callable[[], None]:
     """``job`` with the C ports off: the numba kernels they replace compile as well.
 
     A kernel with a C port runs it wherever it builds, but its numba kernels are the
     reference its tests compare it with and what runs where no compiler is found
-    (``envs/_native.py``).
+    (``envs/_native.py``). They compile at :data:`REFERENCE_OPT_LEVEL` unless the
+    environment names a level (numba reads ``NUMBA_OPT`` again before each compile).
     """
 
     def numba_job() -> None:
-        before = os.environ.get("MANUALCONTROL_NATIVE")
+        before = {name: os.environ.get(name) for name in ("MANUALCONTROL_NATIVE", "NUMBA_OPT")}
         os.environ["MANUALCONTROL_NATIVE"] = "0"
+        if before["NUMBA_OPT"] is None:
+            os.environ["NUMBA_OPT"] = REFERENCE_OPT_LEVEL
         try:
             job()
         finally:
-            if before is None:
-                del os.environ["MANUALCONTROL_NATIVE"]
-            else:
-                os.environ["MANUALCONTROL_NATIVE"] = before
+            for name, value in before.items():
+                if value is None:
+                    os.environ.pop(name, None)
+                else:
+                    os.environ[name] = value
 
     numba_job.numba_reference = True  # type: ignore[attr-defined]
     return numba_job
