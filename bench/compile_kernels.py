@@ -210,13 +210,16 @@ def _lpv_toolkit() -> None:
     resimulate_parameters("precision", parameters, recording)
 
 
-#: LLVM's optimisation level for the numba kernels a C port replaces, where the user's
-#: ``NUMBA_OPT`` does not set one. numba's default, 3, spends about a sixth of these
-#: kernels' compile time (the tests' reference, most of a fresh ``make test``'s
-#: compiling) in passes that buy them nothing: at 1 they ran as fast or faster
-#: (``benchmarks/reference_opt_level.py``). The numbers are the same bytes at any
-#: level: numba asks LLVM for no fast-math, so no level may reorder, contract or
-#: vectorise a floating-point reduction, and the C-against-numba tests pass on either.
+#: LLVM's optimisation level of ``--numba-reference``, where the user's ``NUMBA_OPT``
+#: does not set one. There the C ports run and these kernels are only the tests'
+#: reference, most of a fresh ``make test``'s compiling; numba's default level, 3,
+#: spends an eighth of it in passes that change no number: the estimates are the same
+#: bytes at either level (numba asks LLVM for no fast-math, so no level may reorder,
+#: contract or vectorise floating-point arithmetic; the C-against-numba tests pass on
+#: either), and most members run as fast at 1, the Zhao UKFs somewhat slower
+#: (``benchmarks/reference_opt_level.py``), which only a later ``MANUALCONTROL_NATIVE=0``
+#: run, loading these kernels, would notice. Where numba is what runs (no compiler), the
+#: install step keeps numba's default.
 REFERENCE_OPT_LEVEL = "1"
 
 
@@ -225,23 +228,19 @@ def _numba_kernels(job: Callable[[], None]) -> Callable[[], None]:
 
     A kernel with a C port runs it wherever it builds, but its numba kernels are the
     reference its tests compare it with and what runs where no compiler is found
-    (``envs/_native.py``). They compile at :data:`REFERENCE_OPT_LEVEL` unless the
-    environment names a level (numba reads ``NUMBA_OPT`` again before each compile).
+    (``envs/_native.py``).
     """
 
     def numba_job() -> None:
-        before = {name: os.environ.get(name) for name in ("MANUALCONTROL_NATIVE", "NUMBA_OPT")}
+        before = os.environ.get("MANUALCONTROL_NATIVE")
         os.environ["MANUALCONTROL_NATIVE"] = "0"
-        if before["NUMBA_OPT"] is None:
-            os.environ["NUMBA_OPT"] = REFERENCE_OPT_LEVEL
         try:
             job()
         finally:
-            for name, value in before.items():
-                if value is None:
-                    os.environ.pop(name, None)
-                else:
-                    os.environ[name] = value
+            if before is None:
+                del os.environ["MANUALCONTROL_NATIVE"]
+            else:
+                os.environ["MANUALCONTROL_NATIVE"] = before
 
     numba_job.numba_reference = True  # type: ignore[attr-defined]
     return numba_job
@@ -330,16 +329,8 @@ def _run_job(name: str) -> tuple[str, float, str | None]:
     return name, time.process_time() - start, None
 
 
-def compile_kernels(
-    workers: int | None = None,
-    report: Callable[[str], None] = print,
-    numba_reference: bool = False,
-) -> bool:
-    """Run the jobs :func:`selected_jobs` picks on ``workers`` processes; True if all succeeded."""
-    workers = workers or os.cpu_count() or 1
-    start = time.perf_counter()
+def _run_jobs(names: list[str], workers: int, report: Callable[[str], None]) -> bool:
     ok = True
-    names = selected_jobs(numba_reference)
     with ProcessPoolExecutor(max_workers=max(1, min(workers, len(names)))) as pool:
         futures = [pool.submit(_run_job, name) for name in names]
         for future in as_completed(futures):
@@ -349,6 +340,30 @@ def compile_kernels(
             else:
                 ok = False
                 report(f"  not compiled: {name} (compiles at first use instead)\n{failure}")
+    return ok
+
+
+def compile_kernels(
+    workers: int | None = None,
+    report: Callable[[str], None] = print,
+    numba_reference: bool = False,
+) -> bool:
+    """Run the jobs :func:`selected_jobs` picks on ``workers`` processes; True if all succeeded.
+
+    ``numba_reference`` compiles at :data:`REFERENCE_OPT_LEVEL` unless ``NUMBA_OPT`` is set.
+    """
+    workers = workers or os.cpu_count() or 1
+    start = time.perf_counter()
+    names = selected_jobs(numba_reference)
+    # the workers inherit it, and numba reads NUMBA_OPT again before each compile
+    set_level = numba_reference and "NUMBA_OPT" not in os.environ
+    if set_level:
+        os.environ["NUMBA_OPT"] = REFERENCE_OPT_LEVEL
+    try:
+        ok = _run_jobs(names, workers, report)
+    finally:
+        if set_level:
+            del os.environ["NUMBA_OPT"]
     report(f"kernels compiled in {time.perf_counter() - start:.0f} s on {workers} processes")
     if not numba_reference and any(name not in names for name in NUMBA_REFERENCE):
         report(

@@ -5,11 +5,16 @@ them; a job that broke would leave its kernels to compile at first use without a
 word, so each job is run here as the install runs it.
 """
 
+import os
+import subprocess
+import sys
+
 import pytest
 
 from manualcontrol.bench.compile_kernels import (
     JOBS,
     NUMBA_REFERENCE,
+    REFERENCE_OPT_LEVEL,
     _run_job,
     main,
     selected_jobs,
@@ -70,3 +75,43 @@ def test_the_install_step_says_what_it_left_to_the_tests(monkeypatch, capsys):
     assert compiling.compile_kernels(1, print)
     out = capsys.readouterr().out
     assert "compiled: C ports" in out and "--numba-reference compiles them now" in out
+
+
+#: Compiles one kernel through compile_kernels as the only job (a reference job, or an
+#: install job) and prints the level numba compiled it at, from the worker.
+LEVEL_PROBE = """
+import sys
+import numba
+import manualcontrol.bench.compile_kernels as compile_kernels
+
+def probe():
+    numba.njit(lambda x: x + 1)(1)  # numba reads its environment again at a compile
+    print("level", int(numba.core.config.OPT), flush=True)
+
+reference = sys.argv[1] == "reference"
+compile_kernels.JOBS = {"probe": probe}
+compile_kernels.NUMBA_REFERENCE = ("probe",) if reference else ()
+compile_kernels.compile_kernels(1, lambda line: None, numba_reference=reference)
+print("after", compile_kernels.os.environ.get("NUMBA_OPT"))
+"""
+
+
+@pytest.mark.parametrize(
+    ("mode", "user_level", "compiled_at"),
+    [("reference", None, REFERENCE_OPT_LEVEL), ("reference", "2", "2"), ("install", None, "3")],
+)
+def test_the_reference_compiles_at_its_own_level_unless_numba_opt_names_one(
+    mode, user_level, compiled_at
+):
+    environment = {key: value for key, value in os.environ.items() if key != "NUMBA_OPT"}
+    if user_level is not None:
+        environment["NUMBA_OPT"] = user_level
+    printed = subprocess.run(
+        [sys.executable, "-c", LEVEL_PROBE, mode],
+        env=environment,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.split()
+    # compiled at that level, and the environment left as it was found
+    assert printed == ["level", compiled_at, "after", str(user_level)]
