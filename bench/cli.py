@@ -618,7 +618,17 @@ def _load_trial(args: argparse.Namespace) -> Any:
             f"{len(recording)} samples at dt = {resampled['dt']:.6g} s"
         )
     if "e" not in recording and "ft" not in recording and "y" in recording:
-        # a disturbance-only compensatory trial: labs often log no target, which is zero
+        # a disturbance-only compensatory trial: labs often log no target, which is zero;
+        # but a forcing that moves the target says it was not, and e = -y would make the
+        # pilot's describing function -1 at the target's lines, with no word of it
+        forcing = None if getattr(args, "forcing", None) is None else _forcing_of_flag(args)
+        if forcing is not None and forcing.target is not None:
+            raise UsageError(
+                f"{args.recording}: --forcing {args.forcing} moves the target, and the file "
+                "has no target or error column to form the error from: name it (--column "
+                "ft=COLUMN or --column e=COLUMN); if the trial moved no target, give a "
+                "forcing file of its disturbance alone (--forcing FILE.json) or --period"
+            )
         print("no target or error column: the target is taken as zero (e = -y)")
         recording = recording.with_signals(ft=np.zeros(len(recording)))
     if "e" not in recording and "ft" in recording and "y" in recording:

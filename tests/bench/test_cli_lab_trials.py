@@ -159,6 +159,36 @@ def test_a_trial_without_a_target_column_is_read_as_target_zero(trial, tmp_path,
     assert 2.0 < summary["describing_function"]["crossover_frequency"] < 4.5
 
 
+@pytest.mark.parametrize("command", ["describe", "identify"])
+def test_a_trial_without_a_target_column_and_a_forcing_that_moves_it_is_refused(
+    trial, tmp_path, capsys, command
+):
+    table = np.loadtxt(trial, delimiter=",")
+    bare = tmp_path / "bare.csv"
+    np.savetxt(bare, table[:, [0, 3, 4, 2]], delimiter=",", header="time,joystick,cursor,dist")
+    columns = ["--column", "u=joystick", "--column", "y=cursor", "--column", "fd=dist"]
+    columns += ["--element", "1/s", "--disturbance-at", "input"]
+    out_dir = tmp_path / "refused"
+    code, out, err = run(
+        capsys, command, str(bare), *columns, "--forcing", "vanderel-bw4", "--out", str(out_dir)
+    )
+    assert code == EXIT_USAGE
+    assert f"{bare}: --forcing vanderel-bw4 moves the target" in err
+    assert "--column ft=COLUMN or --column e=COLUMN" in err
+    assert "taken as zero" not in out and not out_dir.exists()
+    # the same trial's disturbance alone, as a forcing file: read with the target at zero
+    alone = tmp_path / "disturbance.json"
+    disturbance = forcing_preset("vanderel-bw4").disturbance.to_dict()
+    alone.write_text(json.dumps({"disturbance": disturbance}))
+    code, out, err = run(
+        capsys, "describe", str(bare), *columns, "--forcing", str(alone), "--out", str(out_dir)
+    )
+    assert code == EXIT_OK, err
+    assert "no target or error column: the target is taken as zero (e = -y)" in out
+    summary = json.loads((out_dir / "summary.json").read_text())
+    assert 2.0 < summary["describing_function"]["crossover_frequency"] < 4.5
+
+
 def test_describe_and_identify_a_pursuit_trial(tmp_path, capsys):
     values = dict(K_f=1.0, omega_f=3.3, tau_f=0.0, K_p=1.3, K_v=0.0, tau_v=0.26)
     values.update(omega_nms=10.5, zeta_nms=0.35)
