@@ -57,6 +57,9 @@ What laboratories' own files need, and how it is read:
 * a CSV header written as a comment (``# t,target,stick``): the last comment line before
   the first row of numbers names the columns when that row would otherwise be the header;
 * a trailing separator on every line (``t,u,``): the empty, unnamed last column is dropped;
+* text of another separator or suffix: ``;``, tab or aligned spaces between columns, under
+  ``.tsv``, ``.txt`` or ``.dat`` as well as ``.csv``; where the separator is not a comma,
+  decimal commas (``0,25``, a European spreadsheet's export) are read as points;
 * time stamps rounded when written (float32, few decimals): stamps within 1 % of ``dt`` of
   the uniform grid ``t[0] + i dt`` are read as that grid; stamps off by more (a logging
   clock's jitter) are refused with the jitter measured, or, with ``resample=True``, every
@@ -112,6 +115,10 @@ MEASURED_SIGNALS: tuple[str, ...] = ("y", "e", "u")
 
 FILE_FORMATS: tuple[str, ...] = ("npz", "csv", "mat")
 """File formats :meth:`Recording.save` writes and :meth:`Recording.load` reads."""
+
+TEXT_SUFFIXES: tuple[str, ...] = ("tsv", "txt", "dat")
+"""Suffixes :meth:`Recording.load` also reads as delimited text, the ``"csv"`` format:
+labs' loggers write tab- or space-separated columns under these names."""
 
 FORMAT_TAG = "manualcontrol.recording/1"
 """Value of the ``recording_format`` entry in files written by :meth:`Recording.save`."""
@@ -961,14 +968,21 @@ def load_recording(
     )
 
 
-def _file_format(path: Path, format: str | None) -> str:
+def _file_format(path: Path, format: str | None, reading: bool = False) -> str:
+    """The format ``format`` names, else the suffix's (``reading``: :data:`TEXT_SUFFIXES` too)."""
     if format is not None:
         return check_choice("format", format, FILE_FORMATS)
     kind = path.suffix.lower().lstrip(".")
+    if reading and kind in TEXT_SUFFIXES:
+        return "csv"
     if kind not in FILE_FORMATS:
+        allowed = ".npz, .csv, .mat" + (", or text as .tsv, .txt, .dat" if reading else "")
+        spreadsheet = (
+            " (a spreadsheet workbook: save it as CSV)" if kind in ("xlsx", "xls", "ods") else ""
+        )
         raise ValueError(
-            f"{path}: cannot tell the file format from the suffix {path.suffix!r}; allowed "
-            "suffixes: .npz, .csv, .mat (or pass format='npz', 'csv' or 'mat')"
+            f"{path}: cannot tell the file format from the suffix {path.suffix!r}{spreadsheet}; "
+            f"allowed suffixes: {allowed} (or pass format='npz', 'csv' or 'mat')"
         )
     return kind
 
@@ -1090,7 +1104,7 @@ def _load(
         raise IsADirectoryError(
             f"{path} is a directory, not a recording file (give a .csv, .mat or .npz file)"
         )
-    kind = _file_format(path, format)
+    kind = _file_format(path, format, reading=True)
     if not path.is_file():
         raise FileNotFoundError(f"no such recording file: {path}")
     if kind == "npz":
@@ -1285,12 +1299,22 @@ def _mat_columns(
     return {name: value}, {}
 
 
-def _parse_float(path: Path, number: int, column: str, token: str) -> float:
+def _number(token: str, decimal_comma: bool) -> float:
+    """``float(token)``; with ``decimal_comma``, ``0,25`` too (one comma, no point)."""
+    try:
+        return float(token)
+    except ValueError:
+        if decimal_comma and token.count(",") == 1 and "." not in token:
+            return float(token.replace(",", "."))
+        raise
+
+
+def _parse_float(path: Path, number: int, column: str, token: str, decimal_comma: bool) -> float:
     token = token.strip()
     if not token:
         return math.nan
     try:
-        return float(token)
+        return _number(token, decimal_comma)
     except ValueError:
         raise ValueError(
             f"{path} line {number}, column {column!r}: cannot read {token!r} as a number"
@@ -1304,7 +1328,9 @@ def _read_csv(path: Path) -> _FileTable:
     ``metadata`` are header items, the others are skipped, except that the last one before
     the first row of numbers names the columns when no header row precedes that row
     (``# t,target,stick``). The separator is the first of ``,``, ``;``, tab found in the
-    header. An empty field is a dropped sample (NaN). One empty field more than the
+    header, else runs of spaces (columns aligned by a logger). Where it is not a comma,
+    a decimal comma is read as a point (``0,25``: a European spreadsheet's export). An
+    empty field is a dropped sample (NaN). One empty field more than the
     header names, at the end of a line (a trailing separator), is dropped, and so is an
     unnamed last header column that holds no value in any row.
     """
@@ -1336,16 +1362,16 @@ def _read_csv(path: Path) -> _FileTable:
         delimiter = _csv_delimiter(stripped)
         names = _csv_fields(stripped, delimiter)
         header_line = number
-        if comment is not None and _all_numbers(names):
+        if comment is not None and _all_numbers(names, delimiter != ","):
             commented = _csv_fields(comment[1], _csv_delimiter(comment[1]))
-            if _width(commented) == _width(names) and not _all_numbers(commented):
+            if _width(commented) == _width(names) and not _all_numbers(commented, False):
                 # "# t,target,stick" above the first row: the header, commented out
                 delimiter = _csv_delimiter(comment[1])
                 names = commented
                 header_line = comment[0]
                 numbers_.append(number)
                 data.append(line)
-        _check_csv_header(path, header_line, names)
+        _check_csv_header(path, header_line, names, delimiter != ",")
     if names is None:
         raise ValueError(f"{path} has no header row naming its columns")
     if "dt" in header:
@@ -1360,7 +1386,13 @@ def _read_csv(path: Path) -> _FileTable:
         names = names[:-1]
     width = len(names)
     rows: list[list[float]] = []
-    for number, row in zip(numbers_, csv.reader(data, delimiter=delimiter), strict=True):
+    decimal_comma = delimiter != ","
+    split = (
+        (line.split() for line in data)
+        if delimiter == " "
+        else csv.reader(data, delimiter=delimiter)
+    )
+    for number, row in zip(numbers_, split, strict=True):
         if len(row) == width + 1 and not row[-1].strip():
             row = row[:-1]  # a trailing separator: an empty, unnamed last column
         elif unnamed_last and len(row) == width + 1:
@@ -1376,7 +1408,7 @@ def _read_csv(path: Path) -> _FileTable:
             )
         rows.append(
             [
-                _parse_float(path, number, name, token)
+                _parse_float(path, number, name, token, decimal_comma)
                 for name, token in zip(names, row, strict=True)
             ]
         )
@@ -1386,10 +1418,16 @@ def _read_csv(path: Path) -> _FileTable:
 
 
 def _csv_delimiter(line: str) -> str:
-    return next((d for d in (",", ";", "\t") if d in line), ",")
+    """The first of ``,``, ``;``, tab in ``line``; else ``" "`` (runs of spaces) if it has any."""
+    found = next((d for d in (",", ";", "\t") if d in line), None)
+    if found is None:
+        return " " if len(line.split()) > 1 else ","
+    return found
 
 
 def _csv_fields(line: str, delimiter: str) -> list[str]:
+    if delimiter == " ":
+        return line.split()
     return [name.strip() for name in next(csv.reader([line], delimiter=delimiter))]
 
 
@@ -1398,18 +1436,18 @@ def _width(fields: list[str]) -> int:
     return len(fields) - 1 if len(fields) > 1 and fields[-1] == "" else len(fields)
 
 
-def _all_numbers(fields: list[str]) -> bool:
+def _all_numbers(fields: list[str], decimal_comma: bool) -> bool:
     """Whether the fields are a row of data: numbers, or empty (dropped samples)."""
     filled = [field_ for field_ in fields if field_]
     try:
-        [float(field_) for field_ in filled]
+        [_number(field_, decimal_comma) for field_ in filled]
     except ValueError:
         return False
     return bool(filled)
 
 
-def _check_csv_header(path: Path, number: int, names: list[str]) -> None:
-    if _all_numbers(names):
+def _check_csv_header(path: Path, number: int, names: list[str], decimal_comma: bool) -> None:
+    if _all_numbers(names, decimal_comma):
         raise ValueError(
             f"{path} has no header row naming its columns (line {number} holds numbers)"
         )

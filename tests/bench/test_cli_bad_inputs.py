@@ -245,11 +245,14 @@ def test_random_bytes_named_npz_are_not_a_recording(tmp_path, capsys):
 
 
 def test_a_file_of_unknown_suffix_is_said_in_the_command_lines_words(tmp_path, capsys):
-    path = tmp_path / "trial.txt"
+    path = tmp_path / "trial.json"
     path.write_text("t,u\n0,1\n")
     code, _, err = run(capsys, "identify", path, "--out", tmp_path / "o")
     assert code == EXIT_USAGE
-    assert "allowed suffixes: .npz, .csv, .mat (rename the file to end in one of them)" in err
+    assert (
+        "allowed suffixes: .npz, .csv, .mat, or text as .tsv, .txt, .dat (rename the file to "
+        "end in one of them)"
+    ) in err
     assert "format=" not in err
 
 

@@ -791,23 +791,68 @@ def test_infinite_values_in_file(tmp_path):
 
 
 def test_unknown_suffix_on_load_and_save(tmp_path):
-    path = tmp_path / "run.txt"
+    path = tmp_path / "run.xlsx"
     path.write_text("t\n0\n")
     message = (
-        f"{path}: cannot tell the file format from the suffix '.txt'; allowed suffixes: .npz, "
-        ".csv, .mat (or pass format='npz', 'csv' or 'mat')"
+        f"{path}: cannot tell the file format from the suffix '.xlsx' (a spreadsheet workbook: "
+        "save it as CSV); allowed suffixes: .npz, .csv, .mat, or text as .tsv, .txt, .dat (or "
+        "pass format='npz', 'csv' or 'mat')"
     )
     with pytest.raises(ValueError, match=re.escape(message)):
         Recording.load(path)
+    # text suffixes are read, not written: a saved recording says what it is by its suffix
+    message = (
+        f"{tmp_path / 'run.txt'}: cannot tell the file format from the suffix '.txt'; allowed "
+        "suffixes: .npz, .csv, .mat (or pass format='npz', 'csv' or 'mat')"
+    )
     with pytest.raises(ValueError, match=re.escape(message)):
-        Recording(tiny(), 0.01).save(path)
+        Recording(tiny(), 0.01).save(tmp_path / "run.txt")
     with pytest.raises(ValueError, match=re.escape("suffix ''")):
         Recording(tiny(), 0.01).save(tmp_path / "run")
-    with pytest.raises(
-        ValueError, match=re.escape("format must be one of 'npz', 'csv', 'mat', got 'xlsx'")
-    ):
-        Recording(tiny(), 0.01).save(tmp_path / "run.npz", format="xlsx")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.txt"]
+
+
+def test_text_of_other_separators_and_suffixes_reads_as_the_csv_does(tmp_path):
+    columns = {
+        "time": np.arange(6) / 60,
+        "stick": np.array([0.25, -1.5, 0.0, np.nan, 2.0e-3, 1.0]),
+        "x": np.array([1.0, 0.5, -0.25, 0.125, -1.0e-3, 3.0]),
+    }
+    rows = [[repr(float(value)) for value in row] for row in zip(*columns.values(), strict=True)]
+    reference = Recording.load(write_csv(tmp_path / "run.csv", list(columns), rows))
+
+    def text(separator, comma=False, lost=""):
+        def cell(value):
+            value = lost if value == "nan" else value
+            return value.replace(".", ",") if comma else value
+
+        lines = [separator.join(columns)] + [separator.join(map(cell, row)) for row in rows]
+        return "\n".join(lines) + "\n"
+
+    files = {
+        "semicolon.csv": text(";", comma=True),  # a European spreadsheet's export
+        "tab.tsv": text("\t"),
+        "tab-comma.txt": text("\t", comma=True),
+        "aligned.dat": text("   ", lost="nan"),  # a logger's aligned columns
+    }
+    for name, contents in files.items():
+        (tmp_path / name).write_text(contents)
+        read = Recording.load(tmp_path / name)
+        assert read.dt == reference.dt, name
+        for signal in ("t", "u", "y"):
+            assert np.array_equal(read[signal], reference[signal], equal_nan=True), (name, signal)
+
+
+def test_a_decimal_comma_is_refused_where_the_separator_is_a_comma_and_a_grouped_number_anywhere(
+    tmp_path,
+):
+    path = tmp_path / "comma.csv"
+    path.write_text('t,u\n0,"0,5"\n0.1,1\n')
+    with pytest.raises(ValueError, match=re.escape("line 2, column 'u': cannot read '0,5'")):
+        Recording.load(path)
+    path = tmp_path / "grouped.csv"
+    path.write_text("t;u\n0;1.234,5\n0,1;1\n")
+    with pytest.raises(ValueError, match=re.escape("line 2, column 'u': cannot read '1.234,5'")):
+        Recording.load(path)
 
 
 def test_missing_file(tmp_path):
