@@ -48,8 +48,9 @@ def test_summary_names_the_estimator_its_settings_and_the_errors_against_the_tru
 ):
     out_dir = tmp_path / "o"
     code, out, err = run(
-        capsys, "identify", simulation, "--set", "estimated=K_p,K_v", "--out", out_dir
-    )
+        capsys, "identify", simulation, "--estimator", "dekf", "--set", "estimated=K_p,K_v",
+        "--out", out_dir,
+    )  # fmt: skip
     assert code == EXIT_OK, err
     summary = json.loads((out_dir / "summary.json").read_text())
     assert summary["estimator"] == "dekf"
@@ -104,26 +105,26 @@ def test_identify_refuses_another_estimators_result_unless_overwrite(simulation,
     out_dir = tmp_path / "o"
     assert run(capsys, "identify", simulation, "--out", out_dir)[0] == EXIT_OK
     before = (out_dir / "summary.json").read_bytes()
-    code, _, err = run(capsys, "identify", simulation, "--estimator", "rml", "--out", out_dir)
+    code, _, err = run(capsys, "identify", simulation, "--estimator", "dekf", "--out", out_dir)
     assert code == EXIT_USAGE
     assert (
-        f"manualcontrol identify: error: --out {out_dir}: the folder holds a dekf "
-        "identification (its summary.json); writing a rml identification there would "
+        f"manualcontrol identify: error: --out {out_dir}: the folder holds a rml "
+        "identification (its summary.json); writing a dekf identification there would "
         "replace it: give another --out folder, or pass --overwrite to replace it"
     ) in err
     assert (out_dir / "summary.json").read_bytes() == before
     # the same estimator again: replaced without asking
     assert run(capsys, "identify", simulation, "--out", out_dir)[0] == EXIT_OK
     code, _, err = run(
-        capsys, "identify", simulation, "--estimator", "rml", "--overwrite", "--out", out_dir
+        capsys, "identify", simulation, "--estimator", "dekf", "--overwrite", "--out", out_dir
     )
     assert code == EXIT_OK, err
-    assert json.loads((out_dir / "summary.json").read_text())["estimator"] == "rml"
+    assert json.loads((out_dir / "summary.json").read_text())["estimator"] == "dekf"
     assert listing(out_dir) == ["estimation.npz", "parameters.png", "summary.json"]
     assert listing(tmp_path) == ["o"]  # no staging folder left beside it
     # describe refuses an identification's folder too
     code, _, err = run(capsys, "describe", simulation, "--out", out_dir)
-    assert code == EXIT_USAGE and "the folder holds a rml identification" in err
+    assert code == EXIT_USAGE and "the folder holds a dekf identification" in err
 
 
 def test_no_plot_writes_the_same_result_without_a_figure_and_removes_a_stale_one(
