@@ -1114,11 +1114,14 @@ def _cmd_describe(args: argparse.Namespace) -> int:
             f"open loop (element {element_text}): |H_p H_c| does not cross 1 inside the forcing "
             "band; no crossover"
         )
-    values = ", ".join(
-        f"{name} {fit.values[name]:.3g}"
-        + (f" +- {fit.standard_deviations[name]:.2g}" if name in fit.fitted else " (held)")
-        for name in fit.values
-    )
+
+    def spread(name: str) -> str:
+        if name not in fit.fitted:
+            return " (held)"
+        deviation = fit.standard_deviations[name]
+        return " (on its bound)" if math.isnan(deviation) else f" +- {deviation:.2g}"
+
+    values = ", ".join(f"{name} {fit.values[name]:.3g}{spread(name)}" for name in fit.values)
     print(f"fitted {fit.model} model: {values}")
     loop = ""
     if math.isfinite(fit.crossover_frequency):

@@ -820,7 +820,8 @@ class ModelFit:
     """A pilot model fitted to a describing function.
 
     ``values`` holds every model parameter (fixed ones as given), ``standard_deviations``
-    the fitted ones' (from the weighted residuals' Jacobian), ``response`` the model's
+    the fitted ones' (from the weighted residuals' Jacobian; NaN for one the fit left on
+    a bound, held there for the others'), ``response`` the model's
     counterpart of :attr:`DescribingFunction.pilot` (``U/E``: the error channel, or
     minus the output channel of a two-channel model), ``gain_error_db`` and
     ``phase_error_deg`` the mean absolute gap of the model's predicted ``U`` to the
@@ -1110,17 +1111,29 @@ def _starts(
 
 
 def _standard_deviations(result: Any, fitted: Sequence[str], count: int) -> dict[str, float]:
-    """From ``(J'J)^-1`` scaled by the residual variance (Gauss-Newton, local)."""
-    dof = 2 * count - len(fitted)
-    jacobian = result.jac
+    """From ``(J'J)^-1`` scaled by the residual variance (Gauss-Newton, local).
+
+    A parameter the fit left on a bound (``least_squares``' ``active_mask``) is held
+    there for this, its own deviation NaN: the local covariance assumes the fit could
+    move either way, and along a direction a bound closes it can be unbounded. A lead
+    ``K_v`` at 0 is one: a small lead is, to first order, a shorter delay, so without
+    the bound ``J'J`` is singular along that pair, and the pseudo-inverse put deviations
+    of 10^4 s on a delay the data pin to a hundredth of a second.
+    """
+    free = np.asarray(result.active_mask) == 0
+    dof = 2 * count - int(free.sum())
     if dof <= 0:
         return dict.fromkeys(fitted, math.nan)
+    jacobian = result.jac[:, free]
     variance = 2.0 * result.cost / dof
     try:
         covariance = np.linalg.pinv(jacobian.T @ jacobian) * variance
     except np.linalg.LinAlgError:
         return dict.fromkeys(fitted, math.nan)
-    return {n: float(np.sqrt(max(covariance[i, i], 0.0))) for i, n in enumerate(fitted)}
+    deviations = iter(np.sqrt(np.maximum(np.diag(covariance), 0.0)))
+    return {
+        n: float(next(deviations)) if f else math.nan for n, f in zip(fitted, free, strict=True)
+    }
 
 
 def model_crossover(

@@ -6,6 +6,7 @@ own column names and a '#'-led header, as a laboratory's logger writes it.
 """
 
 import json
+import re
 import warnings
 
 import numpy as np
@@ -406,3 +407,17 @@ def test_forcing_file_bad_inputs(trial, tmp_path, capsys, content, message):
     assert code == EXIT_USAGE
     assert f"--forcing {path}" in err and message in err
     assert not (out_dir / "summary.json").exists()
+
+
+def test_describe_says_which_fitted_parameter_it_left_on_a_bound(tmp_path, capsys):
+    # no lead on a pure gain: K_v ends on its bound 0, with no deviation of its own
+    forcing = ForcingPair(None, forcing_preset("vanderel-bw4").disturbance, "lab", 0)
+    pilot = Pilot("precision", dict(K_p=0.5, K_v=0.0, tau_v=0.25, omega_nms=10.5, zeta_nms=0.35))
+    path = tmp_path / "gain.npz"
+    simulate(pilot, "gain", forcing, dt=1 / 60, seed=4, disturbance_at="input").save(path)
+    code, out, err = run(capsys, "describe", str(path), "--out", str(tmp_path / "d"))
+    assert code == EXIT_OK, err
+    fitted = next(line for line in out.splitlines() if line.startswith("fitted precision model"))
+    assert re.search(r"K_v [0-9.e+-]+ \(on its bound\), tau_v 0\.2[45]\d* \+- 0\.00", fitted), (
+        fitted
+    )

@@ -341,3 +341,30 @@ def test_least_squares_bad_inputs_are_named(clean_run):
     tiny = clean_run.slice_samples(0, 200)  # 2 s: lines 1/120 Hz apart cannot be told apart
     with pytest.raises(ValueError, match=r"stretch \(2 s\) is too short"):
         describing_function(tiny, method="least-squares")
+
+
+def test_a_lead_left_on_its_bound_is_held_there_for_the_others_deviations():
+    # a pilot without lead on a pure gain: the fit leaves K_v on its bound 0, where a small
+    # lead is, to first order, a shorter delay; freed along that pair, the Gauss-Newton
+    # covariance put deviations of 10^4 s on a delay the data pin to a hundredth of a second
+    pilot = dict(K_p=0.5, K_v=0.0, tau_v=0.25, omega_nms=10.5, zeta_nms=0.35)
+    forcing = ForcingPair(None, forcing_preset("vanderel-bw4").disturbance, "lab", 0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run = simulate(
+            Pilot("precision", pilot, remnant="vertregt2020-SI"),
+            "gain",
+            forcing,
+            dt=1 / 60,
+            seed=4,
+            disturbance_at="input",
+        )
+    fit = fit_describing_function(
+        describing_function(run, forcing, element="gain", disturbance_at="input")
+    )
+    assert "K_v" in fit.fitted and fit.values["K_v"] < 1e-6
+    assert math.isnan(fit.standard_deviations["K_v"])
+    deviations = {name: fit.standard_deviations[name] for name in ("tau_v", "omega_nms")}
+    assert deviations["tau_v"] < 0.02 and deviations["omega_nms"] < 1.0, deviations
+    for name, deviation in deviations.items():  # and they say how far the fit may be off
+        assert abs(fit.values[name] - pilot[name]) < 4.0 * deviation, (name, fit.values[name])
