@@ -1177,16 +1177,18 @@ def _cmd_describe(args: argparse.Namespace) -> int:
         "fit": fit.to_dict(),
         "warnings": warnings_found,
     }
-    with _staged(out) as stage:
+    with _staged(out, stale=("bode.png",) if args.no_plot else ()) as stage:
         text = json.dumps(summary, indent=2)
         atomic_write(stage / "summary.json", lambda p: p.write_text(text))
-        plot_describing_function(
-            describing,
-            stage / "bode.png",
-            models={f"fitted {fit.model}": fit.values},
-            model=fit.model,
-        )
-    print(f"wrote {out / 'summary.json'}, {out / 'bode.png'}")
+        if not args.no_plot:
+            plot_describing_function(
+                describing,
+                stage / "bode.png",
+                models={f"fitted {fit.model}": fit.values},
+                model=fit.model,
+            )
+    written = [out / "summary.json"] + ([] if args.no_plot else [out / "bode.png"])
+    print(f"wrote {', '.join(map(str, written))}")
     for warning in warnings_found:
         print(f"manualcontrol describe: warning: {warning}", file=sys.stderr)
     return EXIT_OK
@@ -2085,6 +2087,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=Path("results/describe"),
         help="output folder: summary.json and bode.png replace the ones there once both "
         "are written (default results/describe)",
+    )
+    p.add_argument(
+        "--no-plot",
+        action="store_true",
+        help="skip bode.png (an earlier one in --out is removed, as it would not match): "
+        "drawing it is most of a describe's time, worth saving over many recordings",
     )
     p.add_argument("--overwrite", action="store_true", help="replace an identify result in --out")
     p.set_defaults(run=_cmd_describe, target_period=None)

@@ -145,6 +145,20 @@ def test_no_plot_writes_the_same_result_without_a_figure_and_removes_a_stale_one
     assert listing(drawn) == ["estimation.npz", "notes.txt", "summary.json"]
 
 
+def test_describe_without_its_figure_writes_the_same_summary_and_removes_a_stale_one(
+    simulation, tmp_path, capsys
+):
+    drawn, bare = tmp_path / "drawn", tmp_path / "bare"
+    short = ("--method", "least-squares")  # the run is half of its forcing's period
+    assert run(capsys, "describe", simulation, *short, "--out", drawn)[0] == EXIT_OK
+    code, out, err = run(capsys, "describe", simulation, *short, "--no-plot", "--out", bare)
+    assert code == EXIT_OK, err
+    assert listing(bare) == ["summary.json"] and "bode.png" not in out
+    assert (bare / "summary.json").read_bytes() == (drawn / "summary.json").read_bytes()
+    assert run(capsys, "describe", simulation, *short, "--no-plot", "--out", drawn)[0] == EXIT_OK
+    assert listing(drawn) == ["summary.json"]
+
+
 def test_an_interrupted_identify_leaves_the_earlier_result_whole(
     simulation, tmp_path, capsys, monkeypatch
 ):
