@@ -58,8 +58,9 @@ What laboratories' own files need, and how it is read:
   the first row of numbers names the columns when that row would otherwise be the header;
 * a trailing separator on every line (``t,u,``): the empty, unnamed last column is dropped;
 * text of another separator or suffix: ``;``, tab or aligned spaces between columns, under
-  ``.tsv``, ``.txt`` or ``.dat`` as well as ``.csv``; where the separator is not a comma,
-  decimal commas (``0,25``, a European spreadsheet's export) are read as points;
+  ``.tsv``, ``.txt`` or ``.dat`` as well as ``.csv``; where the separator is not a comma
+  and no number has a point, decimal commas (``0,25``, a European spreadsheet's export)
+  are read as points;
 * time stamps rounded when written (float32, few decimals): stamps within 1 % of ``dt`` of
   the uniform grid ``t[0] + i dt`` are read as that grid; stamps off by more (a logging
   clock's jitter) are refused with the jitter measured, or, with ``resample=True``, every
@@ -1328,8 +1329,9 @@ def _read_csv(path: Path) -> _FileTable:
     ``metadata`` are header items, the others are skipped, except that the last one before
     the first row of numbers names the columns when no header row precedes that row
     (``# t,target,stick``). The separator is the first of ``,``, ``;``, tab found in the
-    header, else runs of spaces (columns aligned by a logger). Where it is not a comma,
-    a decimal comma is read as a point (``0,25``: a European spreadsheet's export). An
+    header, else runs of spaces (columns aligned by a logger). Where it is not a comma
+    and no number has a point, a decimal comma is read as one (``0,25``: a European
+    spreadsheet's export; :func:`_decimal_comma`). An
     empty field is a dropped sample (NaN). One empty field more than the
     header names, at the end of a line (a trailing separator), is dropped, and so is an
     unnamed last header column that holds no value in any row.
@@ -1362,7 +1364,7 @@ def _read_csv(path: Path) -> _FileTable:
         delimiter = _csv_delimiter(stripped)
         names = _csv_fields(stripped, delimiter)
         header_line = number
-        if comment is not None and _all_numbers(names, delimiter != ","):
+        if comment is not None and _all_numbers(names, _decimal_comma(delimiter, [stripped])):
             commented = _csv_fields(comment[1], _csv_delimiter(comment[1]))
             if _width(commented) == _width(names) and not _all_numbers(commented, False):
                 # "# t,target,stick" above the first row: the header, commented out
@@ -1371,7 +1373,7 @@ def _read_csv(path: Path) -> _FileTable:
                 header_line = comment[0]
                 numbers_.append(number)
                 data.append(line)
-        _check_csv_header(path, header_line, names, delimiter != ",")
+        _check_csv_header(path, header_line, names, _decimal_comma(delimiter, [stripped]))
     if names is None:
         raise ValueError(f"{path} has no header row naming its columns")
     if "dt" in header:
@@ -1386,7 +1388,7 @@ def _read_csv(path: Path) -> _FileTable:
         names = names[:-1]
     width = len(names)
     rows: list[list[float]] = []
-    decimal_comma = delimiter != ","
+    decimal_comma = _decimal_comma(delimiter, data)
     split = (
         (line.split() for line in data)
         if delimiter == " "
@@ -1423,6 +1425,16 @@ def _csv_delimiter(line: str) -> str:
     if found is None:
         return " " if len(line.split()) > 1 else ","
     return found
+
+
+def _decimal_comma(delimiter: str, lines: list[str]) -> bool:
+    """Whether numbers in ``lines`` are written with a decimal comma (``0,25``).
+
+    Only where the separator is not a comma, and only where no line holds a point: a
+    file has one decimal mark, and beside points a comma is something else (a
+    thousands separator, ``1,234``), which is refused rather than read as ``1.234``.
+    """
+    return delimiter != "," and not any("." in line for line in lines)
 
 
 def _csv_fields(line: str, delimiter: str) -> list[str]:

@@ -853,6 +853,11 @@ def test_a_decimal_comma_is_refused_where_the_separator_is_a_comma_and_a_grouped
     path.write_text("t;u\n0;1.234,5\n0,1;1\n")
     with pytest.raises(ValueError, match=re.escape("line 2, column 'u': cannot read '1.234,5'")):
         Recording.load(path)
+    # beside decimal points, a comma groups thousands: refused, not read as 1.234
+    path = tmp_path / "thousands.tsv"
+    path.write_text("t\tu\n0.0\t0.5\n0.1\t1,234\n")
+    with pytest.raises(ValueError, match=re.escape("line 3, column 'u': cannot read '1,234'")):
+        Recording.load(path)
 
 
 def test_missing_file(tmp_path):
