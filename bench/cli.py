@@ -2050,7 +2050,9 @@ def build_parser() -> argparse.ArgumentParser:
         "compensatory trial: crossover, phase margin and a fitted pilot model",
     )
     p.add_argument(
-        "recording", type=Path, help="a Recording or an experiment file (.npz, .csv, .mat)"
+        "recording",
+        type=Path,
+        help="a Recording or an experiment file (.npz, .csv, .mat; text as .tsv, .txt, .dat)",
     )
     _add_trial_options(p)
     p.add_argument(
@@ -2085,8 +2087,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--out",
         type=Path,
         default=Path("results/describe"),
-        help="output folder: summary.json and bode.png replace the ones there once both "
-        "are written (default results/describe)",
+        help="output folder: summary.json and bode.png replace the ones there once all are "
+        "written (default results/describe)",
     )
     p.add_argument(
         "--no-plot",

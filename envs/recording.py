@@ -1103,7 +1103,8 @@ def _load(
         dt = check_positive("dt", dt)
     if path.is_dir():
         raise IsADirectoryError(
-            f"{path} is a directory, not a recording file (give a .csv, .mat or .npz file)"
+            f"{path} is a directory, not a recording file (give a .csv, .mat or .npz file, "
+            "or text as .tsv, .txt, .dat)"
         )
     kind = _file_format(path, format, reading=True)
     if not path.is_file():
@@ -1344,6 +1345,7 @@ def _read_csv(path: Path) -> _FileTable:
     names: list[str] | None = None
     delimiter = ","
     comment: tuple[int, str] | None = None  # last plain comment line before the header
+    header_line, header_text = 0, ""  # where the header row is, and its text
     numbers_: list[int] = []
     data: list[str] = []
     for number, line in enumerate(lines, start=1):
@@ -1358,27 +1360,39 @@ def _read_csv(path: Path) -> _FileTable:
                 comment = (number, stripped.lstrip("#").strip())
             continue
         if names is not None:
+            if not data and delimiter == " " and len(stripped.split()) != len(names):
+                # not aligned columns but one column whose name has a space ("stick pos")
+                single = _csv_fields(header_text, ",")
+                if _width(_csv_fields(stripped, ",")) == _width(single):
+                    delimiter, names = ",", single
+                    _check_csv_header(path, header_line, names, False)
             numbers_.append(number)
             data.append(line)
             continue
         delimiter = _csv_delimiter(stripped)
         names = _csv_fields(stripped, delimiter)
-        header_line = number
-        if comment is not None and _all_numbers(names, _decimal_comma(delimiter, [stripped])):
-            commented = _csv_fields(comment[1], _csv_delimiter(comment[1]))
-            if _width(commented) == _width(names) and not _all_numbers(commented, False):
-                # "# t,target,stick" above the first row: the header, commented out
-                delimiter = _csv_delimiter(comment[1])
-                names = commented
-                header_line = comment[0]
+        header_line, header_text = number, stripped
+        if comment is not None:
+            # "# t,target,stick" above a first row of numbers in the comment's separator
+            # (read that way first: "0,5;1" is two numbers under "# t;u", not "0" and "5;1")
+            separator = _csv_delimiter(comment[1])
+            row = _csv_fields(stripped, separator)
+            commented = _csv_fields(comment[1], separator)
+            if (
+                _all_numbers(row, _decimal_comma(separator, [stripped]))
+                and _width(commented) == _width(row)
+                and not _all_numbers(commented, False)
+            ):
+                delimiter, names, header_line = separator, commented, comment[0]
                 numbers_.append(number)
                 data.append(line)
         _check_csv_header(path, header_line, names, _decimal_comma(delimiter, [stripped]))
     if names is None:
         raise ValueError(f"{path} has no header row naming its columns")
+    decimal_comma = _decimal_comma(delimiter, data)
     if "dt" in header:
         try:
-            header["dt"] = float(header["dt"])
+            header["dt"] = _number(header["dt"], decimal_comma)
         except ValueError:
             raise ValueError(
                 f"{path}: cannot read the '# dt:' header {header['dt']!r} as a number"
@@ -1388,7 +1402,6 @@ def _read_csv(path: Path) -> _FileTable:
         names = names[:-1]
     width = len(names)
     rows: list[list[float]] = []
-    decimal_comma = _decimal_comma(delimiter, data)
     split = (
         (line.split() for line in data)
         if delimiter == " "

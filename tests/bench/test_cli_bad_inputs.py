@@ -226,7 +226,7 @@ def test_a_directory_is_not_a_recording(tmp_path, capsys):
         assert code == EXIT_USAGE
         assert err == (
             f"manualcontrol {command}: error: {folder} is a directory, not a recording file "
-            "(give a .csv, .mat or .npz file)\n"
+            "(give a .csv, .mat or .npz file, or text as .tsv, .txt, .dat)\n"
         )
     assert not (tmp_path / "o").exists()
 

@@ -842,6 +842,23 @@ def test_text_of_other_separators_and_suffixes_reads_as_the_csv_does(tmp_path):
             assert np.array_equal(read[signal], reference[signal], equal_nan=True), (name, signal)
 
 
+def test_a_commented_header_over_decimal_commas_and_a_one_column_name_with_a_space(tmp_path):
+    # "# t;u;y" above "0,00;1,5;2": the row read in the comment's separator, as numbers
+    for separator in (";", "\t", " "):
+        path = tmp_path / "commented.txt"
+        path.write_text(
+            f"# dt: 0,01\n# t{separator}u{separator}y\n"
+            + "".join(f"0,0{k}{separator}1,5{separator}-2\n" for k in range(3))
+        )
+        read = Recording.load(path)
+        assert read.dt == 0.01 and list(read.t) == [0.0, 0.01, 0.02], separator
+        assert list(read.u) == [1.5] * 3 and list(read.y) == [-2.0] * 3, separator
+    # a header of one name with a space is that name, not two space-separated columns
+    path = tmp_path / "one.csv"
+    path.write_text("# dt: 0.01\nstick pos\n0.5\n0.6\n")
+    assert list(Recording.load(path, columns={"u": "stick pos"}).u) == [0.5, 0.6]
+
+
 def test_a_decimal_comma_is_refused_where_the_separator_is_a_comma_and_a_grouped_number_anywhere(
     tmp_path,
 ):
