@@ -213,7 +213,7 @@ def _lpv_toolkit() -> None:
 #: LLVM's optimisation level of ``--numba-reference``, where the user's ``NUMBA_OPT``
 #: does not set one. There the C ports run and these kernels are only the tests'
 #: reference, most of a fresh ``make test``'s compiling; numba's default level, 3,
-#: spends an eighth of it in passes that change no number: the estimates are the same
+#: spends part of it in passes that change no number: the estimates are the same
 #: bytes at either level (numba asks LLVM for no fast-math, so no level may reorder,
 #: contract or vectorise floating-point arithmetic; the C-against-numba tests pass on
 #: either), and most members run as fast at 1, the Zhao UKFs somewhat slower

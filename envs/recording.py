@@ -1332,10 +1332,10 @@ def _read_csv(path: Path) -> _FileTable:
     (``# t,target,stick``). The separator is the first of ``,``, ``;``, tab found in the
     header, else runs of spaces (columns aligned by a logger). Where it is not a comma
     and no number has a point, a decimal comma is read as one (``0,25``: a European
-    spreadsheet's export; :func:`_decimal_comma`). An
-    empty field is a dropped sample (NaN). One empty field more than the
-    header names, at the end of a line (a trailing separator), is dropped, and so is an
-    unnamed last header column that holds no value in any row.
+    spreadsheet's export; :func:`_decimal_comma`). An empty field is a dropped sample
+    (NaN). One empty field more than the header names, at the end of a line (a trailing
+    separator), is dropped, and so is an unnamed last header column that holds no value
+    in any row.
     """
     try:
         lines = path.read_text(encoding="utf-8-sig").splitlines()  # -sig: drop a BOM

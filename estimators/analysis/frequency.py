@@ -1117,8 +1117,8 @@ def _standard_deviations(result: Any, fitted: Sequence[str], count: int) -> dict
     there for this, its own deviation NaN: the local covariance assumes the fit could
     move either way, and along a direction a bound closes it can be unbounded. A lead
     ``K_v`` at 0 is one: a small lead is, to first order, a shorter delay, so without
-    the bound ``J'J`` is singular along that pair, and the pseudo-inverse put deviations
-    of 10^4 s on a delay the data pin to a hundredth of a second.
+    the bound ``J'J`` is singular along that pair, and its pseudo-inverse puts an
+    unbounded deviation on a delay the data pin tightly.
     """
     free = np.asarray(result.active_mask) == 0
     dof = 2 * count - int(free.sum())
