@@ -296,20 +296,15 @@ def _structure_name(structure: Any) -> str:
 def _fitted_structure(recording: Recording, model: str) -> Any:
     """The structure the output-error fit identifies: on a pure gain, the lag's precision model.
 
-    Humans equalise a pure gain with a lag (McRuer & Jex 1967), and so does the typical
-    pilot the agent is compared with there
-    (:func:`~manualcontrol.estimators.analysis.human_likeness.reference_pilot`): the
-    precision model without its lag cannot integrate, and its fit of a lagging operator
-    would say nothing about what the operator does.
+    Humans lag there, and so does the typical pilot the agent is compared with
+    (:func:`~manualcontrol.estimators.analysis.human_likeness.reference_pilot`): the rule
+    is :func:`~manualcontrol.pilots.models.model_for_element`'s, which ``describe`` and
+    ``identify`` follow as well.
     """
-    from manualcontrol.envs.elements import make_element
-    from manualcontrol.pilots import make_model
+    from manualcontrol.pilots.models import make_model, model_for_element
 
     element = recording.metadata.get("controlled_element")  # the env's, as it ran
-    if model == "precision" and element is not None:
-        if make_element(dict(element)).kind == "gain":
-            return make_model("precision", lag=True)
-    return make_model(model)
+    return make_model(model_for_element(model, None if element is None else dict(element)))
 
 
 def _held_by_rule(recording: Recording, structure: Any) -> dict[str, float]:

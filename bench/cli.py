@@ -846,6 +846,14 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         for setting in ("remnant_injection='choose'", "start='describing-function'"):
             if f"{setting} needs the describing function" in str(error):
                 flag = setting.replace("'", "")
+                if source:  # the forcing was given: say why it could not be measured
+                    reason = re.search(r"describing function of the run \((.*)\); pass", str(error))
+                    why = cli_words(reason.group(1), "identify") if reason else str(error)
+                    # the filters' measurement has no --method to switch
+                    why = re.sub(r" \(method='least-squares'[^)]*\)", "", why)
+                    raise UsageError(
+                        f"--set {flag} could not measure the describing function: {why}"
+                    ) from None
                 raise UsageError(
                     f"--set {flag} reads the describing function at the forcing "
                     "frequencies: give --forcing PRESET or --period SECONDS (the forcing "
@@ -963,6 +971,17 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             f"describing function ({gaps})"
         )
     print(f"wrote {', '.join(map(str, written))}")
+    if pilot_model and (args.model or settings.get("model", "precision")) == "precision":
+        from manualcontrol.pilots.models import LAGGED_PRECISION, model_for_element
+
+        if model_for_element("precision", element) == LAGGED_PRECISION:
+            print(
+                "manualcontrol identify: warning: on a pure gain humans equalise with a lag "
+                "(McRuer), which the precision model lacks: `manualcontrol describe` fits "
+                f"the lag's model ({LAGGED_PRECISION}) to the describing function, and "
+                f"--model {LAGGED_PRECISION} gives it to the filters",
+                file=sys.stderr,
+            )
     for warning in check.warnings:
         print(f"manualcontrol identify: warning: {cli_words(warning, 'identify')}", file=sys.stderr)
     code = EXIT_OK
@@ -1045,11 +1064,12 @@ def _cmd_describe(args: argparse.Namespace) -> int:
             text += "; --method least-squares reads a shorter stretch"
         raise UsageError(text) from None
     from manualcontrol.envs.tasks import task_named
-    from manualcontrol.pilots.models import MODEL_NAMES, make_model
+    from manualcontrol.pilots.models import MODEL_NAMES, make_model, model_for_element
 
     display = task_named(describing.task)
-    model = args.model or display.pilot_model
-    fitted = ("precision", "preview", "gain-delay")  # their parameters have fit bounds
+    model = args.model or model_for_element(display.pilot_model, element)
+    # their parameters have fit bounds
+    fitted = ("precision", "precision-lag", "preview", "gain-delay")
     if model not in fitted:
         known = "" if model in MODEL_NAMES else " (no such model)"
         raise UsageError(
@@ -1999,7 +2019,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--model",
         default=None,
         help="pilot model structure of the pilot-model estimators (dekf, rml, joint-ukf, "
-        "dual-ukf and their -smoothed twins): precision (default) or preview",
+        "dual-ukf and their -smoothed twins): precision (default), precision-lag "
+        "(McRuer's lag equaliser, which humans adopt on a pure gain) or preview",
     )
     p.add_argument(
         "--set",
@@ -2075,7 +2096,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--model",
         default=None,
         help="pilot model fitted to the describing function: precision (default on a "
-        "compensatory display), preview (pursuit and preview), gain-delay",
+        "compensatory display), precision-lag (McRuer's lag equaliser; the default on a "
+        "pure gain, where humans lag), preview (pursuit and preview), gain-delay",
     )
     p.add_argument(
         "--fix",

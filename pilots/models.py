@@ -35,6 +35,7 @@ __all__ = [
     "CROSSOVER_RANGE",
     "ELEMENT_SCALED",
     "GAIN_CROSSOVER",
+    "LAGGED_PRECISION",
     "MODEL_NAMES",
     "Branch",
     "Channel",
@@ -47,6 +48,7 @@ __all__ = [
     "SchiessRolandModel",
     "element_gain_ranges",
     "make_model",
+    "model_for_element",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -138,6 +140,15 @@ class PilotModel(abc.ABC):
     def nominal(self) -> dict[str, float]:
         """Nominal value of every parameter."""
         return {spec.name: spec.nominal for spec in self.parameters}
+
+    @property
+    def registered_name(self) -> str:
+        """The name :func:`make_model` builds this structure from.
+
+        ``"precision-lag"`` for the precision model with McRuer's lag, whose class is
+        ``"precision"``.
+        """
+        return self.name
 
     def frequency_response(
         self, values: Mapping[str, float], omega: ArrayLike, signal: str
@@ -320,6 +331,10 @@ class PrecisionModel(PilotModel):
     def __post_init__(self) -> None:
         if self.lag not in (True, False):
             raise TypeError(f"lag must be True or False, got {self.lag!r}")
+
+    @property
+    def registered_name(self) -> str:  # noqa: D102
+        return LAGGED_PRECISION if self.lag else self.name
 
     def __repr__(self) -> str:
         return "PrecisionModel(lag=True)" if self.lag else "PrecisionModel()"
@@ -528,8 +543,28 @@ _MODELS: dict[str, type[PilotModel]] = {
     for cls in (PrecisionModel, PreviewModel, SchiessRolandModel, GainDelayModel, PostviewModel)
 }
 
+#: The precision model with McRuer's lag equaliser (``PrecisionModel(lag=True)``) by
+#: name: what a file, a setting or a command line names it by, since humans adopt that
+#: lag on a pure gain and a lab's trial there is described and identified with it.
+LAGGED_PRECISION = "precision-lag"
+
 #: Names accepted by :func:`make_model`.
-MODEL_NAMES: tuple[str, ...] = tuple(_MODELS)
+MODEL_NAMES: tuple[str, ...] = (*_MODELS, LAGGED_PRECISION)
+
+
+def model_for_element(model: str, element: Any) -> str:
+    """``model`` as humans fly ``element``: the precision model with McRuer's lag on a gain.
+
+    Humans equalise a pure gain with a lag (McRuer & Jex 1967): there the loop needs an
+    integrator's slope near crossover that the element does not give. The precision
+    model without its lag cannot integrate, and its fit of a lagging operator ends on
+    its bounds and says nothing about what the operator does. ``element`` is anything
+    :func:`~manualcontrol.envs.elements.make_element` reads, or None (no rule applies).
+    """
+    if model == PrecisionModel.name and element is not None:
+        if make_element(element).kind == "gain":
+            return LAGGED_PRECISION
+    return model
 
 
 def make_model(spec: str | PilotModel, **options: bool) -> PilotModel:
@@ -537,4 +572,6 @@ def make_model(spec: str | PilotModel, **options: bool) -> PilotModel:
     if isinstance(spec, PilotModel):
         return spec
     name = check_choice("pilot model", spec, MODEL_NAMES)
+    if name == LAGGED_PRECISION:
+        return PrecisionModel(**{**options, "lag": True})
     return _MODELS[name](**options)

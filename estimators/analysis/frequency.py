@@ -40,7 +40,7 @@ from manualcontrol.envs.elements import ControlledElement, make_element
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair, Multisine
 from manualcontrol.envs.tasks import TASKS, task_named
-from manualcontrol.pilots.models import PilotModel, make_model
+from manualcontrol.pilots.models import LAGGED_PRECISION, PilotModel, make_model
 
 __all__ = [
     "DESCRIBING_METHODS",
@@ -793,6 +793,7 @@ FIT_BOUNDS: dict[str, tuple[float, float]] = {
     "K_f": (0.1, 10.0),
     "omega_f": (0.1, 30.0),
     "tau_f": (0.0, 2.0),
+    "T_I": (0.0, math.inf),
 }
 #: Starting values tried for the fitted parameters (every combination; ``K_p`` is then
 #: solved for the mean gain of each start): the delays, neuromuscular modes and leads
@@ -803,6 +804,11 @@ FIT_STARTS: dict[str, tuple[float, ...]] = {
     "omega_nms": (7.0, 12.0, 20.0),
     "zeta_nms": (0.2, 0.6),
     "T_L": (0.0, 0.5),
+    # McRuer's lag (the precision model's on a pure gain): the ends and the geometric
+    # middle of its human range, breaks at 1, 0.22 and 0.05 rad/s
+    "T_I": tuple(
+        float(v) for v in np.geomspace(*make_model(LAGGED_PRECISION).spec("T_I").human, 3)
+    ),
 }
 TWO_CHANNEL_STARTS: dict[str, tuple[float, ...]] = {
     "tau_v": (0.15, 0.3),
@@ -990,14 +996,16 @@ def fit_describing_function(
     is held by rule: ``K_v`` is held at 0 where the element is a single integrator ``K/s``, on which
     humans need no lead and the time-domain filters hold it at 0 too (a free lead there
     trades off against the neuromuscular lag along a ridge that remnant moves the fit
-    along), and a pursuit task's ``tau_f`` at 0 (nothing is shown ahead).
+    along), or a pure gain, on which they lag instead (McRuer & Jex 1967; the lead traded
+    against the delay there, to a delay on its lower bound), and a pursuit task's
+    ``tau_f`` at 0 (nothing is shown ahead).
     """
     import scipy.optimize
 
     target = _FitTarget(describing, model)
     structure = target.structure
     names = structure.parameter_names
-    held = {"K_v": 0.0} if _single_integrator(describing) and "K_v" in names else {}
+    held = {"K_v": 0.0} if _needs_no_lead(describing) and "K_v" in names else {}
     display = task_named(describing.task)
     if display.shows_target and not display.shows_preview and "tau_f" in names:
         held["tau_f"] = 0.0  # the target shown, nothing ahead of it
@@ -1056,7 +1064,7 @@ def fit_describing_function(
         if hit and not (n in ("K_v", "tau_f") and x <= 1e-4 * max(scale[fitted.index(n)], 1.0))
     )
     return ModelFit(
-        model=structure.name,
+        model=structure.registered_name,
         values=values,
         standard_deviations=_standard_deviations(best, fitted, target.omega.size),
         fitted=fitted,
@@ -1070,12 +1078,15 @@ def fit_describing_function(
     )
 
 
-def _single_integrator(describing: DescribingFunction) -> bool:
-    """Whether the given element is ``K/s``."""
+def _needs_no_lead(describing: DescribingFunction) -> bool:
+    """Whether the given element is ``K/s`` or a pure gain ``K``.
+
+    McRuer's pilot leads on neither (on ``K`` it lags instead).
+    """
     if describing.element_transfer_function is None:
         return False
     num, den = (np.trim_zeros(c, "f") for c in describing.element_transfer_function)
-    return num.size == 1 and den.size == 2 and den[1] == 0.0
+    return num.size == 1 and (den.size == 1 or (den.size == 2 and den[1] == 0.0))
 
 
 def _wrap(phase: FloatArray) -> FloatArray:

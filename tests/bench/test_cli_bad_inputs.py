@@ -421,7 +421,10 @@ def test_identify_and_describe_refuse_contradictions(tmp_path, capsys, long_run)
         capsys, "describe", recording, "--model", "schiess-roland", "--method", "least-squares",
         "--out", tmp_path / "m",
     )  # fmt: skip
-    assert code == EXIT_USAGE and "--model must be one of precision, preview, gain-delay" in err
+    assert (
+        code == EXIT_USAGE
+        and "--model must be one of precision, precision-lag, preview, gain-delay" in err
+    )
 
 
 def test_lab_file_time_mistakes_are_named_in_flags(tmp_path, capsys, long_run):

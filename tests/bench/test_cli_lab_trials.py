@@ -410,14 +410,47 @@ def test_forcing_file_bad_inputs(trial, tmp_path, capsys, content, message):
 
 
 def test_describe_says_which_fitted_parameter_it_left_on_a_bound(tmp_path, capsys):
-    # no lead on a pure gain: K_v ends on its bound 0, with no deviation of its own
+    # a damping past the human range ends on the fit's bound 1.2, with no deviation of
+    # its own, while the others keep theirs
     forcing = ForcingPair(None, forcing_preset("vanderel-bw4").disturbance, "lab", 0)
-    pilot = Pilot("precision", dict(K_p=0.5, K_v=0.0, tau_v=0.25, omega_nms=10.5, zeta_nms=0.35))
-    path = tmp_path / "gain.npz"
-    simulate(pilot, "gain", forcing, dt=1 / 60, seed=4, disturbance_at="input").save(path)
+    pilot = Pilot("precision", dict(K_p=1.5, K_v=0.0, tau_v=0.25, omega_nms=10.5, zeta_nms=1.6))
+    path = tmp_path / "si.npz"
+    simulate(pilot, "1/s", forcing, dt=1 / 60, seed=4, disturbance_at="input").save(path)
     code, out, err = run(capsys, "describe", str(path), "--out", str(tmp_path / "d"))
     assert code == EXIT_OK, err
     fitted = next(line for line in out.splitlines() if line.startswith("fitted precision model"))
-    assert re.search(r"K_v [0-9.e+-]+ \(on its bound\), tau_v 0\.2[45]\d* \+- 0\.00", fitted), (
-        fitted
+    assert "zeta_nms 1.2 (on its bound)" in fitted, fitted
+    assert re.search(r"tau_v 0\.2[34]\d* \+- 0\.00", fitted), fitted
+
+
+def test_on_a_pure_gain_the_lag_model_is_described_and_named(tmp_path, capsys):
+    # humans lag on a gain (McRuer & Jex 1967): describe fits the precision model with
+    # its lag unless told otherwise; identify keeps its filters' model and says so
+    forcing = ForcingPair(None, forcing_preset("vanderel-bw4").disturbance, "lab", 0)
+    lagging = dict(K_p=8.0, K_v=0.0, T_I=2.5, tau_v=0.25, omega_nms=12.0, zeta_nms=0.5)
+    path = tmp_path / "gain.npz"
+    simulate(Pilot("precision-lag", lagging), "gain", forcing, dt=1 / 60, seed=4,
+             disturbance_at="input").save(path)  # fmt: skip
+    code, out, err = run(capsys, "describe", str(path), "--out", str(tmp_path / "d"))
+    assert code == EXIT_OK, err
+    fitted = next(line for line in out.splitlines() if line.startswith("fitted "))
+    assert fitted.startswith("fitted precision-lag model: K_p ") and "K_v 0 (held)" in fitted
+    fit = json.loads((tmp_path / "d" / "summary.json").read_text())["fit"]
+    assert fit["values"]["T_I"] == pytest.approx(2.5, rel=0.1)
+    assert fit["gain_error_db"] < 1.0
+    code, out, err = run(
+        capsys, "describe", str(path), "--model", "precision", "--out", str(tmp_path / "p")
     )
+    assert code == EXIT_OK and "fitted precision model: " in out  # still to be asked for
+    code, out, err = run(
+        capsys, "identify", str(path), "--element", "1", "--no-plot", "--out", str(tmp_path / "i")
+    )
+    assert "on a pure gain humans equalise with a lag" in err
+    assert "--model precision-lag gives it to the filters" in err
+    code, out, err = run(
+        capsys, "identify", str(path), "--element", "1", "--model", "precision-lag",
+        "--no-plot", "--out", str(tmp_path / "l"),
+    )  # fmt: skip
+    summary = json.loads((tmp_path / "l" / "summary.json").read_text())
+    assert summary["settings"]["model"] == "precision-lag" and "T_I" in summary["estimated"]
+    assert "on a pure gain humans equalise" not in err

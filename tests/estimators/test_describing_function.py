@@ -7,6 +7,7 @@ the measured response by up to one sample (``omega dt`` rad, 5.7 deg at 20 rad/s
 100 Hz, falling with ``dt``), hence the phase tolerance of one sample's lag.
 """
 
+import dataclasses
 import math
 import re
 import warnings
@@ -344,23 +345,20 @@ def test_least_squares_bad_inputs_are_named(clean_run):
 
 
 def test_a_lead_left_on_its_bound_is_held_there_for_the_others_deviations():
-    # a pilot without lead on a pure gain: the fit leaves K_v on its bound 0, where a small
-    # lead is, to first order, a shorter delay; freed along that pair, the Gauss-Newton
-    # covariance put deviations of 10^4 s on a delay the data pin to a hundredth of a second
+    # a pilot without lead, in a file that names no element (so the lead is not held by
+    # rule): the fit leaves K_v on its bound 0, where a small lead is, to first order, a
+    # shorter delay; freed along that pair, the Gauss-Newton covariance put deviations of
+    # 10^4 s on a delay the data pin to a hundredth of a second
     pilot = dict(K_p=0.5, K_v=0.0, tau_v=0.25, omega_nms=10.5, zeta_nms=0.35)
     forcing = ForcingPair(None, forcing_preset("vanderel-bw4").disturbance, "lab", 0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         run = simulate(
-            Pilot("precision", pilot, remnant="vertregt2020-SI"),
-            "gain",
-            forcing,
-            dt=1 / 60,
-            seed=4,
-            disturbance_at="input",
+            Pilot("precision", pilot, remnant="vertregt2020-SI"), "gain", forcing, dt=1 / 60, seed=4
         )
+    metadata = {k: v for k, v in run.metadata.items() if k != "controlled_element"}
     fit = fit_describing_function(
-        describing_function(run, forcing, element="gain", disturbance_at="input")
+        describing_function(dataclasses.replace(run, metadata=metadata), forcing)
     )
     assert "K_v" in fit.fitted and fit.values["K_v"] < 1e-6
     assert math.isnan(fit.standard_deviations["K_v"])
@@ -368,3 +366,47 @@ def test_a_lead_left_on_its_bound_is_held_there_for_the_others_deviations():
     assert deviations["tau_v"] < 0.02 and deviations["omega_nms"] < 1.0, deviations
     for name, deviation in deviations.items():  # and they say how far the fit may be off
         assert abs(fit.values[name] - pilot[name]) < 4.0 * deviation, (name, fit.values[name])
+
+
+#: A lag-equalising operator on a pure gain (McRuer & Jex 1967): no lead, the lag's break
+#: well below the crossover.
+LAGGING_ON_A_GAIN = dict(K_p=8.0, K_v=0.0, T_I=2.5, tau_v=0.25, omega_nms=12.0, zeta_nms=0.5)
+
+
+@pytest.fixture(scope="module")
+def lagging_run():
+    """The lagging operator, noise-free, on a unit gain, the disturbance at its input.
+
+    Through a unit gain the disturbance reaches the output unchanged, so the run flown
+    with it at the output is the lab's with it at the input.
+    """
+    fd = forcing_preset("vanderel-bw4").disturbance
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run = simulate(
+            Pilot("precision-lag", LAGGING_ON_A_GAIN),
+            parse_element("1"),
+            ForcingPair(None, fd, "lab", 0),
+        )
+    return run.with_metadata(
+        forcing=ForcingPair(None, fd, "lab", 0).to_dict(), disturbance_at="input"
+    )
+
+
+def test_the_lag_model_fits_a_lagging_operator_on_a_gain_where_the_precision_model_cannot(
+    lagging_run,
+):
+    measured = describing_function(lagging_run)
+    fit = fit_describing_function(measured, "precision-lag")
+    assert fit.model == "precision-lag"
+    assert fit.fitted == ("K_p", "T_I", "tau_v", "omega_nms", "zeta_nms")  # K_v held on K
+    assert fit.values["K_p"] == pytest.approx(8.0, rel=0.03)
+    assert fit.values["T_I"] == pytest.approx(2.5, rel=0.03)
+    assert fit.values["tau_v"] == pytest.approx(0.25, abs=0.01)
+    assert fit.values["omega_nms"] == pytest.approx(12.0, rel=0.08)
+    assert fit.gain_error_db < 0.2 and fit.phase_error_deg < 2.0
+    assert fit.at_bounds == ()
+    # without the lag the model cannot integrate: its best fit misses by decibels and
+    # ends on its bounds
+    plain = fit_describing_function(measured, "precision")
+    assert plain.gain_error_db > 1.0 and plain.at_bounds

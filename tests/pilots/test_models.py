@@ -17,6 +17,7 @@ from manualcontrol.pilots import (
     make_remnant,
     simulate,
 )
+from manualcontrol.pilots.models import PrecisionModel, model_for_element
 
 OMEGA = np.logspace(-1, 1.3, 25)
 
@@ -208,3 +209,16 @@ def test_injection_point_decides_where_n_enters(injection):
     else:
         np.testing.assert_allclose(u_n[before_delay], 0.0, atol=1e-12)
         assert np.max(np.abs(u_n[30:])) > 0.01
+
+
+def test_the_lag_model_has_a_name_and_is_the_one_humans_fly_on_a_gain():
+    lagging = make_model("precision-lag")
+    assert lagging == PrecisionModel(lag=True) and "T_I" in lagging.parameter_names
+    assert lagging.registered_name == "precision-lag"
+    assert make_model("precision").registered_name == "precision"
+    assert make_model(lagging.registered_name) == lagging  # the name builds it back
+    assert model_for_element("precision", "gain") == "precision-lag"
+    assert model_for_element("precision", {"kind": "gain", "K": 2.0}) == "precision-lag"
+    for element in ("SI", "DI", None):
+        assert model_for_element("precision", element) == "precision"
+    assert model_for_element("preview", "gain") == "preview"  # the rule is the precision model's
