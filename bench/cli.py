@@ -1160,6 +1160,14 @@ def _cmd_describe(args: argparse.Namespace) -> int:
             "tau_v 0.05-0.6 s, omega_nms 4-30 rad/s, zeta_nms 0.05-1.2): the model does not "
             "describe these data there; try holding a parameter (--fix) or another --model"
         )
+    flat = _flat_measured_element(describing)
+    if flat is not None and args.model is None:
+        warnings_found.append(
+            f"no --element, and the element measured from the file is flat, as a pure gain's "
+            f"is ({flat[0]:.1f} dB, phase within {flat[1]:.0f} deg of 0 at the forcing "
+            "lines): give it (--element 1 for a unit gain) and the precision model with "
+            "McRuer's lag, which humans adopt on a gain, is fitted"
+        )
     gap_gain, gap_phase = describing.element_error()
     if math.isfinite(gap_gain) and (gap_gain > 1.0 or gap_phase > 10.0):
         warnings_found.append(
@@ -1216,6 +1224,27 @@ def _cmd_describe(args: argparse.Namespace) -> int:
 
 def _rounded(value: float) -> float | None:
     return round(float(value), 4) if math.isfinite(value) else None
+
+
+def _flat_measured_element(describing: Any) -> tuple[float, float] | None:
+    """A measured element as flat as a pure gain's, where no element was given.
+
+    Returns its mean gain (dB) and largest phase gap to 0 (deg), else None. Flat: within
+    1 dB of its mean gain and 10 deg of zero phase at every forcing line. The element is
+    measured from ``y``, ``u`` and the disturbance, which the element relates exactly,
+    so remnant does not blur it as it blurs the pilot's response.
+    """
+    if describing.element_given:
+        return None
+    measured = np.asarray(describing.element_measured)
+    if measured.size < 3 or not np.all(np.isfinite(measured)):
+        return None
+    gain_db = 20.0 * np.log10(np.abs(measured))
+    phase = np.degrees(np.abs(np.angle(measured)))
+    mean_gain = float(np.mean(gain_db))
+    if np.max(np.abs(gain_db - mean_gain)) > 1.0 or np.max(phase) > 10.0:
+        return None
+    return mean_gain, float(np.max(phase))
 
 
 def _trial_element(recording: Any, args: argparse.Namespace, command: str) -> Any:

@@ -423,7 +423,7 @@ def test_describe_says_which_fitted_parameter_it_left_on_a_bound(tmp_path, capsy
     assert re.search(r"tau_v 0\.2[34]\d* \+- 0\.00", fitted), fitted
 
 
-def test_on_a_pure_gain_the_lag_model_is_described_and_named(tmp_path, capsys):
+def test_on_a_pure_gain_the_lag_model_is_described_and_named(trial, tmp_path, capsys):
     # humans lag on a gain (McRuer & Jex 1967): describe fits the precision model with
     # its lag unless told otherwise; identify keeps its filters' model and says so
     forcing = ForcingPair(None, forcing_preset("vanderel-bw4").disturbance, "lab", 0)
@@ -442,6 +442,27 @@ def test_on_a_pure_gain_the_lag_model_is_described_and_named(tmp_path, capsys):
         capsys, "describe", str(path), "--model", "precision", "--out", str(tmp_path / "p")
     )
     assert code == EXIT_OK and "fitted precision model: " in out  # still to be asked for
+    # a lab's file names no element: the one measured from it is flat, and describe says
+    # to give it, where a single integrator's file hears nothing of the kind
+    from manualcontrol.envs.recording import Recording
+
+    recording = Recording.load(path)
+    table = np.column_stack([recording.t, recording.u, recording.y, recording["fd"]])
+    lab_file = tmp_path / "gain.csv"
+    np.savetxt(lab_file, table, delimiter=",", header="t,stick,output,dist", comments="")
+    code, out, err = run(
+        capsys, "describe", str(lab_file), "--column", "u=stick", "--column", "y=output",
+        "--column", "fd=dist", "--period", "120", "--out", str(tmp_path / "f"),
+    )  # fmt: skip
+    assert code == EXIT_OK, err
+    assert "the element measured from the file is flat, as a pure gain's is" in err
+    assert "(--element 1 for a unit gain)" in err
+    code, out, err = run(
+        capsys, "describe", str(trial), *LAB_COLUMNS, "--disturbance-at", "input",
+        "--period", "120", "--out", str(tmp_path / "s"),
+    )  # fmt: skip
+    assert code == EXIT_OK, err
+    assert "flat, as a pure gain's is" not in err
     code, out, err = run(
         capsys, "identify", str(path), "--element", "1", "--no-plot", "--out", str(tmp_path / "i")
     )
