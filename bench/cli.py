@@ -846,9 +846,10 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         for setting in ("remnant_injection='choose'", "start='describing-function'"):
             if f"{setting} needs the describing function" in str(error):
                 flag = setting.replace("'", "")
-                if source:  # the forcing was given: say why it could not be measured
-                    reason = re.search(r"describing function of the run \((.*)\); pass", str(error))
-                    why = cli_words(reason.group(1), "identify") if reason else str(error)
+                reason = re.search(r"describing function of the run \((.*)\); pass", str(error))
+                if reason and "forcing frequencies are unknown" not in reason.group(1):
+                    # the forcing is known (a flag or the file's own): say why it failed
+                    why = cli_words(reason.group(1), "identify")
                     # the filters' measurement has no --method to switch
                     why = re.sub(r" \(method='least-squares'[^)]*\)", "", why)
                     raise UsageError(
@@ -1939,7 +1940,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--model",
         default="precision",
-        help="pilot model: precision, preview, schiess-roland, gain-delay; its parameters "
+        help="pilot model: precision, precision-lag, preview, schiess-roland, gain-delay; its "
+        "parameters "
         "default to typical values for the element (thesis SI and DI pilots, ...)",
     )
     p.add_argument(

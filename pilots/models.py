@@ -143,10 +143,12 @@ class PilotModel(abc.ABC):
 
     @property
     def registered_name(self) -> str:
-        """The name :func:`make_model` builds this structure from.
+        """The name that names this structure in settings and files.
 
-        ``"precision-lag"`` for the precision model with McRuer's lag, whose class is
-        ``"precision"``.
+        The class's registry name, and ``"precision-lag"`` for the precision model with
+        McRuer's lag (whose class is ``"precision"``), so that a setting or a result
+        saying it rebuilds the lag. Other constructor options (the preview model's near
+        view) are not part of it.
         """
         return self.name
 
@@ -573,5 +575,9 @@ def make_model(spec: str | PilotModel, **options: bool) -> PilotModel:
         return spec
     name = check_choice("pilot model", spec, MODEL_NAMES)
     if name == LAGGED_PRECISION:
+        if options.get("lag", True) is not True:
+            raise ValueError(
+                f"the {LAGGED_PRECISION!r} model has its lag; got lag={options['lag']!r}"
+            )
         return PrecisionModel(**{**options, "lag": True})
     return _MODELS[name](**options)

@@ -35,7 +35,8 @@ class Pilot(PilotSpec):
     ----------
     model
         A :class:`~manualcontrol.pilots.models.PilotModel` or its name
-        (``"precision"``, ``"preview"``, ``"schiess-roland"``, ``"gain-delay"``).
+        (``"precision"``, ``"precision-lag"``, ``"preview"``, ``"schiess-roland"``,
+        ``"gain-delay"``).
     parameters
         Values (floats) or :mod:`~manualcontrol.envs.schedules` for any of the model's
         parameters; the others take the model's nominal values. Unknown names raise.

@@ -40,7 +40,7 @@ from manualcontrol.envs.elements import ControlledElement, make_element
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.signals import ForcingPair, Multisine
 from manualcontrol.envs.tasks import TASKS, task_named
-from manualcontrol.pilots.models import LAGGED_PRECISION, PilotModel, make_model
+from manualcontrol.pilots.models import PilotModel, make_model
 
 __all__ = [
     "DESCRIBING_METHODS",
@@ -804,11 +804,6 @@ FIT_STARTS: dict[str, tuple[float, ...]] = {
     "omega_nms": (7.0, 12.0, 20.0),
     "zeta_nms": (0.2, 0.6),
     "T_L": (0.0, 0.5),
-    # McRuer's lag (the precision model's on a pure gain): the ends and the geometric
-    # middle of its human range, breaks at 1, 0.22 and 0.05 rad/s
-    "T_I": tuple(
-        float(v) for v in np.geomspace(*make_model(LAGGED_PRECISION).spec("T_I").human, 3)
-    ),
 }
 TWO_CHANNEL_STARTS: dict[str, tuple[float, ...]] = {
     "tau_v": (0.15, 0.3),

@@ -148,7 +148,13 @@ def fit_pilot(
     measured = u[window]
     vaf = 100.0 * (1.0 - float(np.sum(error**2)) / float(np.sum(measured**2)))
     return OfflineFit(
-        model.name, values, names, vaf, float(best.cost), bool(best.success), str(best.message)
+        model.registered_name,
+        values,
+        names,
+        vaf,
+        float(best.cost),
+        bool(best.success),
+        str(best.message),
     )
 
 

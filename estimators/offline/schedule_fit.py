@@ -422,7 +422,7 @@ def fit_pilot_sigmoid(
     # fit moves 0.2 % from the model's start at rest), and has no inflection to report
     changed = any(abs(end[n] - start[n]) > 0.01 * max(abs(end[n]), abs(start[n])) for n in varying)
     return SigmoidFit(
-        model=model.name,
+        model=model.registered_name,
         start={n: start[n] for n in order},
         end={n: end[n] for n in order},
         t_mid=t_mid,
@@ -582,7 +582,7 @@ class SigmoidFitEstimator:
     def settings(self) -> dict[str, Any]:
         """The settings this estimator was built with."""
         return {
-            "model": self._model.name,
+            "model": self._model.registered_name,
             "ce": self._ce,
             "anticipation_time": self._anticipation_time,
             "limits": {name: list(bounds) for name, bounds in self._limits.items()},

@@ -103,6 +103,7 @@ def test_identify_cross_checks_in_the_frequency_domain(trial, tmp_path, capsys):
     # unless told, the member the family recommends for a lab's trial, as a session's report
     assert summary["estimator"] == IDENTIFY_ESTIMATOR == DEFAULT_ESTIMATOR == "rml"
     assert summary["closed_loop"]["stable"] is True  # the element given, not Table I's 1.5/s
+    assert "on a pure gain" not in err  # the lag's warning is for a gain's trials alone
     for warning in summary["fit"]["warnings"]:  # the library's words, printed as flags
         assert f"manualcontrol identify: warning: {cli_words(warning, 'identify')}" in err
     assert code == EXIT_OK
@@ -264,6 +265,22 @@ def test_identify_bad_inputs_speak_the_command_line(trial, tmp_path, capsys, ext
     assert code == EXIT_USAGE
     assert message in err
     assert not (out_dir / "summary.json").exists()
+
+
+def test_a_describing_function_setting_says_why_a_given_forcing_could_not_be_measured(
+    trial, tmp_path, capsys
+):
+    # the period given is no whole number of samples: the reason, not a request for the
+    # --period already there
+    code, _, err = run(
+        capsys, "identify", str(trial), *LAB_COLUMNS, "--element", "1/s", "--period", "119.99",
+        "--set", "remnant_injection=choose", "--out", str(tmp_path / "o"),
+    )  # fmt: skip
+    assert code == EXIT_USAGE
+    assert "--set remnant_injection=choose could not measure the describing function: the " in err
+    assert "forcing's period 119.99 s is 7199.4000 samples" in err and "method=" not in err
+    assert "give --forcing PRESET or --period" not in err
+    assert not (tmp_path / "o").exists()
 
 
 def test_too_few_forcing_lines_leave_the_check_without_its_floor(tmp_path, capsys):

@@ -351,3 +351,14 @@ def test_the_double_integrator_starts_the_far_view_break_where_the_filters_do():
     held = make_estimator({**settings, "ce": "DI"}).estimate(recording).final()
     assert held["omega_f"] == 1.0  # pilot_filter.DI_FAR_BREAK, thesis Table 6.3
     assert make_estimator(settings).estimate(recording).final()["omega_f"] == 3.3  # nominal
+
+
+def test_a_sigmoid_fit_of_the_lag_model_names_it_so_its_settings_rebuild_it():
+    # the lag's precision model is the class "precision" with a lag: saved by its class
+    # name, its settings rebuilt a fit without T_I and refused its own estimated names
+    from manualcontrol.estimators.offline.schedule_fit import SigmoidFitEstimator
+
+    estimator = make_estimator({"name": "sigmoid-fit", "model": "precision-lag"})
+    assert estimator.settings["model"] == "precision-lag"
+    rebuilt = SigmoidFitEstimator.from_settings(estimator.settings)
+    assert rebuilt.settings == estimator.settings and "T_I" in rebuilt.settings["estimated"]

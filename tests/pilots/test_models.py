@@ -222,3 +222,5 @@ def test_the_lag_model_has_a_name_and_is_the_one_humans_fly_on_a_gain():
     for element in ("SI", "DI", None):
         assert model_for_element("precision", element) == "precision"
     assert model_for_element("preview", "gain") == "preview"  # the rule is the precision model's
+    with pytest.raises(ValueError, match="'precision-lag' model has its lag; got lag=False"):
+        make_model("precision-lag", lag=False)
