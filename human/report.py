@@ -175,6 +175,23 @@ def identify_run(
     )
 
 
+#: Said beside a pure gain's identification with the lag-less precision model.
+_LAG_CAUTION = (
+    "On a pure gain humans equalise with a lag (McRuer & Jex 1967), which the precision "
+    "model lacks: these values describe the lag-less model, and its frequency check says "
+    "how far that is from the measured describing function. `manualcontrol describe` fits "
+    "the precision model with its lag (`precision-lag`) to a run."
+)
+
+
+def _lag_unmodelled(condition: Any, model: str | None) -> bool:
+    """Whether a condition on a pure gain is identified with the precision model's lag left out."""
+    from manualcontrol.pilots.models import LAGGED_PRECISION, model_for_element
+
+    lagged = model_for_element("precision", condition.options["element"]) == LAGGED_PRECISION
+    return model == "precision" and lagged
+
+
 def _describing(recordings: Sequence[tuple[int, Any]], condition: Any) -> dict[str, Any]:
     """Each measurement run's describing function and the condition's mean."""
     runs, notes, functions = [], [], []
@@ -263,13 +280,16 @@ def _identifications(
             continue
         runs.append({"run": number, "summary": identification.summary})
         results.append((number, identification.result))
+    effective = _effective_settings(condition, settings)
     data: dict[str, Any] = {
         "estimator": estimator,
-        "model": _PILOT_MODEL.get(condition.task),
-        "settings": _effective_settings(condition, settings),
+        "model": effective.get("model", _PILOT_MODEL.get(condition.task)),
+        "settings": effective,
         "runs": runs,
         "notes": notes,
     }
+    if _lag_unmodelled(condition, data["model"]):
+        data["caution"] = _LAG_CAUTION
     if runs:
         names = list(runs[0]["summary"]["final"])
         values = np.array([[run["summary"]["final"][n] for n in names] for run in runs])
@@ -451,6 +471,8 @@ def _markdown(data: Mapping[str, Any], figures: Mapping[str, str]) -> str:
             f"element; settings {ident['settings'] or 'default'}. Final values per run, "
             "then the checks `manualcontrol identify` reports."
         )
+        if ident.get("caution"):
+            lines += ["", ident["caution"]]
         lines += [
             "",
             "| run | " + " | ".join(names) + " | VAF one-step [%] | VAF resim. [%] | "

@@ -186,3 +186,27 @@ def test_the_report_is_replaced_whole_or_left_as_it_was(short_session, monkeypat
 def test_a_folder_without_a_session_is_refused(tmp_path):
     with pytest.raises(SessionError, match="no session here"):
         write_session_report(tmp_path, "P01")
+
+
+def test_a_pure_gains_identification_says_the_precision_model_lacks_the_humans_lag(tmp_path):
+    path = tmp_path / "gain.toml"
+    path.write_text(SHORT.replace('element = "SI"', 'element = "gain"', 1))
+    rng = np.random.default_rng(0)
+    run_session(
+        load_protocol(path),
+        "P10",
+        tmp_path / "out",
+        device_factory=lambda run: ScriptedInput(np.cumsum(rng.normal(0.0, 0.05, 200))),
+        clock=ManualClock(),
+        show=False,
+    )
+    report = write_session_report(tmp_path / "out", "P10")
+    caution = report.data["conditions"]["SI"]["identification"]["caution"]
+    assert caution.startswith("On a pure gain humans equalise with a lag")
+    assert caution in report.markdown.read_text()
+    # with the lag's model asked for, nothing is missing and nothing is said
+    again = write_session_report(
+        tmp_path / "out", "P10", estimator_settings={"SI": {"model": "precision-lag"}}
+    )
+    identification = again.data["conditions"]["SI"]["identification"]
+    assert identification["model"] == "precision-lag" and "caution" not in identification
