@@ -103,6 +103,7 @@ _FLAGS: dict[str, str] = {
     "time_unit": "--time-unit",
     "time_column": "--column t=COLUMN",
     "task": "--task",
+    "model": "--model",
 }
 
 #: Per command, the library's names a message may start with and the flag that sets

@@ -162,8 +162,8 @@ def typical_parameters(
         if element.kind != "gain":
             raise ValueError(
                 "the precision model's lag is McRuer's equalisation of a pure gain; on "
-                f"element={given!r} humans adopt none, and the typical pilot is "
-                "PrecisionModel()'s (the model without the lag)"
+                f"element={given!r} humans adopt none, and the typical pilot is the "
+                "precision model's without it (model='precision')"
             )
         _, gain = _reference_gain(element, t)
         si = _EQUALISATION["integrator"][1]

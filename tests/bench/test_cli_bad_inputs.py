@@ -479,3 +479,15 @@ def test_a_private_algorithm_option_is_refused_before_anything_is_written(tmp_pa
     assert code == EXIT_USAGE and "SAC takes no option '_init_setup_model'" in err
     assert "_init_setup_model" not in err.split("its options:")[1]
     assert not out.exists()
+
+
+def test_simulate_the_lag_model_on_a_gain_and_not_elsewhere(tmp_path, capsys):
+    code, _, err = run(capsys, "simulate", "--model", "precision-lag", "--element", "gain",
+                       "--measurement-time", "10", "--out", tmp_path / "k.npz")  # fmt: skip
+    assert code == EXIT_OK, err
+    assert "T_I" in Recording.load(tmp_path / "k.npz").metadata["pilot"]["parameters"]
+    code, _, err = run(capsys, "simulate", "--model", "precision-lag", "--element", "SI",
+                       "--out", tmp_path / "s.npz")  # fmt: skip
+    assert code == EXIT_USAGE
+    assert "on --element SI humans adopt none" in err and "(--model precision)" in err
+    assert not (tmp_path / "s.npz").exists()
