@@ -782,8 +782,10 @@ def _measured_element(
 #: Bounds of the describing-function fit: the ranges human tracking experiments report
 #: (delays 0.05-0.6 s, neuromuscular frequency 4-30 rad/s, damping 0.05-1.2; preview
 #: times up to 2 s, the far view's break and gain within a factor 10 of what van der El
-#: measured), and gains of any size, which the plant decides. A fit that ends on a bound
-#: says the model does not describe these data there (``ModelFit.at_bounds``).
+#: measured), gains of any size, which the plant decides, and a lag (McRuer's ``T_I``) of
+#: any length but never negative, which would make the equaliser unstable. A fit that
+#: ends on a bound says the model does not describe these data there
+#: (``ModelFit.at_bounds``).
 FIT_BOUNDS: dict[str, tuple[float, float]] = {
     "K_p": (1e-6, math.inf),
     "K_v": (0.0, math.inf),
