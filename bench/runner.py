@@ -384,14 +384,21 @@ def _stop_pool(pool: ProcessPoolExecutor, out: Path) -> None:
     instead. Every stored file is written atomically, so a run cut short leaves only
     its temporary file (``.<name>.*.part*`` in ``runs/``), removed here.
     """
-    # the executor keeps its worker processes here (CPython) and forgets them on shutdown
+    # the executor keeps its worker processes and its manager thread here (CPython) and
+    # forgets them on shutdown
     workers = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)
     pool.shutdown(wait=False, cancel_futures=True)
     for worker in workers:
         if worker.is_alive():
             worker.terminate()
     for worker in workers:
         worker.join(timeout=5.0)
+    # the manager thread closes its wake-up pipe as it ends; left running, it races the
+    # interpreter's exit hook, which writes to that pipe, and a closed one printed
+    # "Exception ignored ... Bad file descriptor" after the interrupt's own message
+    if manager is not None:
+        manager.join(timeout=5.0)
     for leftover in (out / "runs").glob(".*.part*"):
         leftover.unlink(missing_ok=True)
 

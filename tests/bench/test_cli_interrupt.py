@@ -106,6 +106,30 @@ def test_ctrl_c_in_the_process_pool_keeps_the_runs_and_resumes(tmp_path):
     assert "results: " in again.stdout and "(8 runs, 0 failed)" in again.stdout
 
 
+def _sleep(seconds):
+    time.sleep(seconds)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pool forks on Linux")
+def test_a_stopped_pool_leaves_no_manager_thread_to_race_the_exit(tmp_path):
+    # the executor's manager thread closes its wake-up pipe as it ends; still running
+    # when the interpreter exits, it raced the exit hook that writes to that pipe, and
+    # the interrupted command printed "Exception ignored ... Bad file descriptor"
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from manualcontrol.bench.runner import _stop_pool
+
+    (tmp_path / "runs").mkdir()
+    pool = ProcessPoolExecutor(max_workers=2, mp_context=multiprocessing.get_context("fork"))
+    for _ in range(4):
+        pool.submit(_sleep, 30.0)
+    time.sleep(0.3)  # the workers started and busy
+    manager = pool._executor_manager_thread
+    _stop_pool(pool, tmp_path)
+    assert not manager.is_alive()
+
+
 @pytest.fixture
 def recording(tmp_path):
     from manualcontrol.pilots import Pilot, simulate
