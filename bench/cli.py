@@ -1163,7 +1163,7 @@ def _cmd_describe(args: argparse.Namespace) -> int:
             "describe these data there; try holding a parameter (--fix) or another --model"
         )
     flat = _flat_measured_element(describing)
-    if flat is not None and args.model is None:
+    if flat is not None and args.model is None and display.pilot_model == "precision":
         warnings_found.append(
             f"no --element, and the element measured from the file is flat, as a pure gain's "
             f"is ({flat[0]:.1f} dB, phase within {flat[1]:.0f} deg of 0 at the forcing "
@@ -1942,8 +1942,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--model",
         default="precision",
         help="pilot model: precision, precision-lag, preview, schiess-roland, gain-delay; its "
-        "parameters "
-        "default to typical values for the element (thesis SI and DI pilots, ...)",
+        "parameters default to typical values for the element (thesis SI and DI pilots, ...)",
     )
     p.add_argument(
         "--param",
