@@ -317,6 +317,17 @@ def plot_recording(recording: Recording, path: str | Path) -> Path:
     return save_figure(fig, Path(path))
 
 
+def nearest_branch(phase_deg: Any, reference_deg: Any) -> Any:
+    """Each measured phase moved by whole turns to the branch nearest ``reference_deg``.
+
+    A measured phase is known only to a whole turn, and unwrapping it along frequency
+    guesses wrong where a line buried in remnant jumps by more than half a turn; beside
+    a fitted model, the branch nearest the model's phase is the reading the fit made.
+    """
+    phase = np.asarray(phase_deg, dtype=np.float64)
+    return phase + 360.0 * np.round((np.asarray(reference_deg) - phase) / 360.0)
+
+
 def plot_describing_function(
     describing: Any,
     path: str | Path,
@@ -339,6 +350,17 @@ def plot_describing_function(
     fig, axes = subplots(2, 1, figsize=(7.5, 6.5), sharex=True)
     omega = describing.frequencies
     gain, phase = describing.gain_db, describing.phase_deg
+    grid = np.geomspace(omega[0] / 2.0, omega[-1] * 2.0, 400)
+    structure = make_model(model)
+    curves = []
+    for label, values in (models or {}).items():
+        response = loop_response(structure, values, grid)
+        unwrapped = np.degrees(np.unwrap(np.angle(response)))
+        # start on the same branch as the measured phase at the lowest frequency
+        offset = 360.0 * np.round((phase[0] - np.interp(omega[0], grid, unwrapped)) / 360.0)
+        curves.append((label, response, unwrapped + offset))
+    if curves:
+        phase = nearest_branch(phase, np.interp(omega, grid, curves[0][2]))
     strong = describing.snr >= 10.0
     spread = np.isfinite(describing.gain_spread_db)
     for axis, values, error in (
@@ -358,17 +380,11 @@ def plot_describing_function(
                 ms=5,
                 label="measured (SNR < 10)",
             )
-    grid = np.geomspace(omega[0] / 2.0, omega[-1] * 2.0, 400)
-    structure = make_model(model)
-    for (label, values), colour in zip(
-        (models or {}).items(), ("tab:red", "tab:blue", "tab:green", "tab:orange"), strict=False
+    for (label, response, unwrapped), colour in zip(
+        curves, ("tab:red", "tab:blue", "tab:green", "tab:orange"), strict=False
     ):
-        response = loop_response(structure, values, grid)
         axes[0].plot(grid, 20.0 * np.log10(np.abs(response)), color=colour, lw=1.2, label=label)
-        unwrapped = np.degrees(np.unwrap(np.angle(response)))
-        # start on the same branch as the measured phase at the lowest frequency
-        offset = 360.0 * np.round((phase[0] - np.interp(omega[0], grid, unwrapped)) / 360.0)
-        axes[1].plot(grid, unwrapped + offset, color=colour, lw=1.2, label=label)
+        axes[1].plot(grid, unwrapped, color=colour, lw=1.2, label=label)
     axes[0].set_xscale("log")
     axes[0].set_ylabel("|H_p| [dB]")
     axes[1].set_ylabel("phase H_p [deg]")

@@ -141,3 +141,12 @@ def test_only_plain_reusable_figures_are_kept(tmp_path):
         assert subplots(2, 1, reusable=True)[0] is fig
         assert subplots(2, 1, reusable=True)[0] is not fig
     assert set(plt.get_fignums()) == before
+
+
+def test_measured_phases_are_drawn_on_the_fitted_models_branch():
+    from manualcontrol.bench.report import nearest_branch
+
+    # a line buried in remnant read -100 deg where the model, a turn further on, is at
+    # -470: drawn at -460; lines already beside the model stay where they are
+    moved = nearest_branch([-30.0, -253.0, -100.0, 190.0], [-25.0, -300.0, -470.0, -160.0])
+    np.testing.assert_allclose(moved, [-30.0, -253.0, -460.0, -170.0])
