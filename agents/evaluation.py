@@ -281,11 +281,9 @@ def evaluate(
 
 
 def _identified_structure(identified: OfflineFit) -> Any:
-    """The structure an output-error fit identified (the lag's where it holds ``T_I``)."""
+    """The structure an output-error fit identified (its name says whether it lags)."""
     from manualcontrol.pilots import make_model
 
-    if identified.model == "precision" and "T_I" in identified.parameters:
-        return make_model("precision", lag=True)
     return make_model(identified.model)
 
 

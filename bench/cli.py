@@ -973,10 +973,11 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             f"describing function ({gaps})"
         )
     print(f"wrote {', '.join(map(str, written))}")
-    if pilot_model and (args.model or settings.get("model", "precision")) == "precision":
+    model = args.model or settings.get("model", "precision")
+    if pilot_model:
         from manualcontrol.pilots.models import LAGGED_PRECISION, model_for_element
 
-        if model_for_element("precision", element) == LAGGED_PRECISION:
+        if model_for_element(model, element) != model:  # the lag humans adopt left out
             print(
                 "manualcontrol identify: warning: on a pure gain humans equalise with a lag "
                 "(McRuer), which the precision model lacks: `manualcontrol describe` fits "

@@ -184,14 +184,6 @@ _LAG_CAUTION = (
 )
 
 
-def _lag_unmodelled(condition: Any, model: str | None) -> bool:
-    """Whether a condition on a pure gain is identified with the precision model's lag left out."""
-    from manualcontrol.pilots.models import LAGGED_PRECISION, model_for_element
-
-    lagged = model_for_element("precision", condition.options["element"]) == LAGGED_PRECISION
-    return model == "precision" and lagged
-
-
 def _describing(recordings: Sequence[tuple[int, Any]], condition: Any) -> dict[str, Any]:
     """Each measurement run's describing function and the condition's mean."""
     runs, notes, functions = [], [], []
@@ -288,8 +280,11 @@ def _identifications(
         "runs": runs,
         "notes": notes,
     }
-    if _lag_unmodelled(condition, data["model"]):
-        data["caution"] = _LAG_CAUTION
+    from manualcontrol.pilots.models import model_for_element
+
+    model = data["model"]
+    if model is not None and model_for_element(model, condition.options["element"]) != model:
+        data["caution"] = _LAG_CAUTION  # the lag humans adopt on this element left out
     if runs:
         names = list(runs[0]["summary"]["final"])
         values = np.array([[run["summary"]["final"][n] for n in names] for run in runs])
