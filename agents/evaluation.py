@@ -447,8 +447,9 @@ def write_report(
     ]
     if summary["reference_rms_error"] is not None:
         lines.append(
-            f"- precision-model pilot, typical parameters: {summary['reference_rms_error']:.4f} "
-            f"(agent / pilot = {summary['rms_ratio']:.2f})"
+            f"- the typical precision-model pilot in the bare task, no noise: "
+            f"{summary['reference_rms_error']:.4f} (agent / pilot = {summary['rms_ratio']:.2f}; "
+            "the human-likeness rms_ratio gives that pilot this run's remnant)"
         )
     if summary["implausible"]:
         lines += ["", "**Implausible identifications (do not trust these values):**", ""]
