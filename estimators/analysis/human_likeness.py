@@ -53,8 +53,11 @@ participant, each held against the range humans show on that controlled element
     like the typical pilot's, which is what a human-like run has. Against a remnant-free
     reference a human's remnant read as poor tracking wherever the element does not
     integrate it away, on a pure gain above all (``benchmarks/rms_reference.py``
-    measures both references). The mean of ``e`` (a bias) is not added: it is the
-    run's, and counts against it.
+    measures both references). So the figure judges tracking of the forcing, and the
+    remnant is judged by ``remnant_fraction``: whatever in ``e`` is neither periodic
+    with the forcing nor constant (remnant, and also a drift, a start-up transient or a
+    change of behaviour within the run) is given to the reference too. The mean of
+    ``e`` (a constant bias) is not: it is the run's, and counts against it.
 
 Optionally (``identify=True``, tens of seconds) the parameters of the precision model
 (with its lag on a pure gain, as humans fly one:
@@ -179,7 +182,8 @@ _RMS = HumanRange(
     "x typical",
     "within -20/+25 % of the typical precision pilot's error given the run's own remnant "
     "(the error the run's remnant drove added to the typical pilot's): the typical pilot "
-    "with a human's remnant reads near 1 on every element",
+    "with a human's remnant reads near 1 on every element; remnant_fraction judges the "
+    "remnant itself",
 )
 _DELAY = HumanRange(
     0.2,
@@ -638,7 +642,9 @@ def _reference_error(
     ft, fd = coefficients.get("ft", zero), coefficients.get("fd", zero)
     through = element if describing.disturbance_at == "input" else 1.0
     error = (ft - through * fd) / (1.0 + pilot * element)
-    return float(math.sqrt(2.0 * float(np.sum(np.abs(error) ** 2)) / samples**2)), ""
+    # a line both forcings put on one harmonic is listed once for each: one bin, one power
+    _, once = np.unique(omega, return_index=True)
+    return float(math.sqrt(2.0 * float(np.sum(np.abs(error[once]) ** 2)) / samples**2)), ""
 
 
 def _remnant_error(describing: DescribingFunction, e: FloatArray, dt: float) -> float:
@@ -654,7 +660,8 @@ def _remnant_error(describing: DescribingFunction, e: FloatArray, dt: float) -> 
     if lines is None or "e" not in lines.coefficients:
         return 0.0
     power = np.abs(np.fft.rfft(e)) ** 2
-    bins = np.rint(lines.frequencies * e.size * dt / (2.0 * np.pi)).astype(np.int64)
+    # unique: a harmonic both forcings drive is listed once for each
+    bins = np.unique(np.rint(lines.frequencies * e.size * dt / (2.0 * np.pi)).astype(np.int64))
     forcing = set(bins.tolist())
     at_lines = power[bins]
     noise = np.array(
