@@ -216,6 +216,13 @@ class DescribingFunction:
     element_measured
         ``H_c`` measured from the signals (``Y/(U + Fd)`` with the disturbance at the
         input, ``(Y - Fd)/U`` at the output); NaN without ``y``.
+    element_drift
+        The part of ``element_measured`` that the given element's own response to a
+        state that is not periodic over the stretch explains (:func:`_element_drift`),
+        which :meth:`element_error` takes out; zeros without a given element or where
+        the element has no state (a gain). An integrating element whose output wanders
+        (the remnant's slow drift on ``1/s`` or ``1/s^2``) does not repeat, and its
+        Fourier coefficients then hold that transient beside the forcing's response.
     open_loop
         ``H_p H_c``.
     crossover_frequency, phase_margin
@@ -260,6 +267,7 @@ class DescribingFunction:
     element_given: bool
     element_transfer_function: tuple[FloatArray, FloatArray] | None = None
     task: str = "compensatory"
+    element_drift: NDArray[np.complex128] | None = None
     lines: ForcingLines | None = None
     method: str = "fourier"
 
@@ -277,11 +285,16 @@ class DescribingFunction:
         """Mean absolute gap (dB, degrees) between the given and the measured element.
 
         Large values say the element or the disturbance's entry point given does not
-        describe the experiment. NaN when either is missing.
+        describe the experiment. The measured element is read less ``element_drift``:
+        a wandering output is the element's own transient, not a different element.
+        NaN when either is missing.
         """
         if not self.element_given or not np.all(np.isfinite(self.element_measured)):
             return math.nan, math.nan
-        return _mean_errors(self.element_measured, self.element)
+        measured = self.element_measured
+        if self.element_drift is not None:
+            measured = measured - self.element_drift
+        return _mean_errors(measured, self.element)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able summary: per-frequency table and the loop's figures."""
@@ -312,6 +325,51 @@ def _listed(values: FloatArray) -> list[float | None]:
 
 def _finite_or_none(value: float) -> float | None:
     return round(float(value), 6) if math.isfinite(value) else None
+
+
+def _element_drift(
+    spectra: Mapping[str, NDArray[np.complex128]],
+    disturbance_at: str,
+    frequencies: FloatArray,
+    transfer_function: tuple[FloatArray, FloatArray],
+) -> NDArray[np.complex128]:
+    """The part of the measured element its own non-periodic state explains, per line.
+
+    Over a stretch of whole periods the element ``num/den`` (order ``n``, state ``x``)
+    relates the Fourier coefficients of its input ``X`` (``U + Fd`` or ``U``) and output
+    ``Y`` (``Y`` or ``Y - Fd``) as ``Y = H X + C (j omega I - A)^-1 (x(0) - x(T))``:
+    the second term, the response to the state's change over the stretch, vanishes only
+    where the output repeats. ``C (sI - A)^-1 dx`` is ``q(s)/den(s)`` with ``q`` a real
+    polynomial of degree below ``n``, whatever the realisation, so ``q``'s ``n``
+    coefficients are fitted to ``Y - H X`` at every line by real least squares. A wrong
+    element or entry point leaves a residual in each line's own forcing phase, which
+    ``n`` smooth terms cannot follow (a multisine's phases differ line by line); with
+    fewer than ``2 n`` lines nothing is fitted. Returned as ``q/(den X)``, the share of
+    ``Y/X`` it takes. The Fourier method's alone: least-squares sinusoids over a
+    stretch that is not whole periods relate ``X`` and ``Y`` otherwise.
+    """
+    num, den = (
+        np.trim_zeros(np.asarray(c, dtype=np.float64).reshape(-1), "f") for c in transfer_function
+    )
+    order = den.size - 1
+    zero = np.zeros(frequencies.shape, dtype=np.complex128)
+    if order < 1 or frequencies.size < 2 * order or "y" not in spectra:
+        return zero
+    fd = spectra.get("fd", zero)
+    if disturbance_at == "input":
+        x, y = spectra["u"] + fd, spectra["y"]
+    else:
+        x, y = spectra["u"], spectra["y"] - fd
+    s = 1j * frequencies
+    poles = np.polyval(den, s)
+    residual = y - np.polyval(num, s) / poles * x
+    basis = np.column_stack([s**power / poles for power in range(order)])
+    scale = np.abs(basis).max(axis=0)  # columns of one size for the solver
+    stacked = np.vstack([basis.real, basis.imag]) / scale
+    coefficients = np.linalg.lstsq(
+        stacked, np.concatenate([residual.real, residual.imag]), rcond=None
+    )[0]
+    return (basis @ (coefficients / scale)) / x
 
 
 def _mean_errors(
@@ -579,8 +637,14 @@ def describing_function(
         transfer_function = tuple(
             np.asarray(c, dtype=np.float64).reshape(-1) for c in plant.transfer_function(t_middle)
         )
+        drift = (
+            _element_drift(spectra, disturbance_at, frequencies, transfer_function)
+            if fourier
+            else None
+        )
     else:
         response = measured
+        drift = None
     open_loop = pilot * response
     if np.all(np.isfinite(open_loop)):
         crossover, margin = _crossover(frequencies, open_loop)
@@ -607,6 +671,7 @@ def describing_function(
         disturbance_at=disturbance_at,
         element_given=element is not None,
         element_transfer_function=transfer_function,
+        element_drift=drift,
         task=task,
         lines=all_lines,
         method=method,
