@@ -1023,6 +1023,7 @@ def _cmd_describe(args: argparse.Namespace) -> int:
     from manualcontrol.bench.report import plot_describing_function
     from manualcontrol.envs._files import atomic_write
     from manualcontrol.estimators.analysis.frequency import (
+        SHARED_LINE,
         describing_function,
         fit_describing_function,
     )
@@ -1090,8 +1091,14 @@ def _cmd_describe(args: argparse.Namespace) -> int:
         fit = fit_describing_function(describing, model, fixed=fixed or None)
     except ValueError as error:
         raise UsageError(f"--model {model}: {error}") from None
-    counts = {name: describing.source.count(name) for name in ("target", "disturbance")}
-    sets = ", ".join(f"{name} {count}" for name, count in counts.items() if count)
+    counts = {
+        name: describing.source.count(name) for name in ("target", "disturbance", SHARED_LINE)
+    }
+    sets = ", ".join(
+        f"{'target and disturbance' if name == SHARED_LINE else name} {count}"
+        for name, count in counts.items()
+        if count
+    )
     start, end = describing.window
     plural = "s" if describing.periods > 1 else ""
     if not display.shows_error_only:

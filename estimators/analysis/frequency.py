@@ -45,6 +45,7 @@ from manualcontrol.pilots.models import PilotModel, make_model
 __all__ = [
     "DESCRIBING_METHODS",
     "DISTURBANCE_POINTS",
+    "SHARED_LINE",
     "TWO_CHANNEL_TASKS",
     "DescribingFunction",
     "ForcingLines",
@@ -161,17 +162,22 @@ DESCRIBING_METHODS: tuple[str, ...] = ("fourier", "least-squares")
 #: Displays on which the pilot sees the target and the output separately.
 TWO_CHANNEL_TASKS: tuple[str, ...] = tuple(name for name in TASKS if task_named(name).shows_target)
 
+#: The source of a forcing line both the target and the disturbance drive (one harmonic
+#: of each): a compensatory display reads it as any line; a two-channel one cannot tell
+#: its two responses apart there and leaves it out.
+SHARED_LINE = "both"
+
 
 @dataclass(frozen=True)
 class ForcingLines:
     """Fourier coefficients of the recorded signals at every forcing line of a stretch.
 
     ``coefficients`` maps ``u``, ``e`` and, where recorded, ``y``, ``fd`` and ``ft`` to
-    their coefficients at ``frequencies`` (rad/s, ascending; ``source`` says target or
-    disturbance); ``snr`` is u's signal-to-noise ratio at each line (as
-    :attr:`DescribingFunction.snr`). A model with any number of perception channels is
-    fitted to these: its predicted ``U`` from the perceptions' coefficients against the
-    measured ``U``.
+    their coefficients at ``frequencies`` (rad/s, ascending, one per harmonic; ``source``
+    says target, disturbance or both, :data:`SHARED_LINE`); ``snr`` is u's
+    signal-to-noise ratio at each line (as :attr:`DescribingFunction.snr`). A model
+    with any number of perception channels is fitted to these: its predicted ``U`` from
+    the perceptions' coefficients against the measured ``U``.
     """
 
     frequencies: FloatArray
@@ -191,7 +197,9 @@ class DescribingFunction:
     frequencies
         Forcing frequencies (rad/s).
     source
-        ``"target"`` or ``"disturbance"``: which forcing function each belongs to.
+        ``"target"``, ``"disturbance"`` or ``"both"`` (:data:`SHARED_LINE`, a harmonic
+        both drive): which forcing function each belongs to. A two-channel display's
+        function is read at the disturbance's lines alone, where the target is still.
     pilot
         ``H_p = U/E`` from the Fourier coefficients over the whole stretch.
     gain_spread_db, phase_spread_deg
@@ -566,7 +574,7 @@ def describing_function(
                 f"signal {name!r} has dropped samples (NaN) in {where}; fill or cut them first"
             )
         signals[name] = values
-    lines = sorted(set(lines))
+    lines = _one_per_harmonic(lines)
     harmonics = np.array([h for h, _ in lines], dtype=np.int64)
     source = tuple(s for _, s in lines)
     frequencies = 2.0 * np.pi * harmonics / period
@@ -678,15 +686,32 @@ def describing_function(
     )
 
 
+def _one_per_harmonic(lines: Sequence[tuple[int, str]]) -> list[tuple[int, str]]:
+    """``(harmonic, source)`` in ascending order, one per harmonic.
+
+    A harmonic the target and the disturbance both drive is one bin of every signal:
+    listed once for each, its power would count twice (a remnant share below zero) and
+    its response twice in a fit. It is listed once, its source :data:`SHARED_LINE`.
+    """
+    sources: dict[int, set[str]] = {}
+    for harmonic, source in lines:
+        sources.setdefault(harmonic, set()).add(source)
+    return [
+        (harmonic, next(iter(kinds)) if len(kinds) == 1 else SHARED_LINE)
+        for harmonic, kinds in sorted(sources.items())
+    ]
+
+
 def _shown_lines(task: str, source: tuple[str, ...]) -> NDArray[np.bool_]:
     """The lines the describing function is read at: all, or a two-channel task's disturbance's."""
     if task not in TWO_CHANNEL_TASKS:
         return np.ones(len(source), dtype=np.bool_)
     shown = np.array([kind == "disturbance" for kind in source])
     if not shown.any():
+        shared = " line the target does not share" if SHARED_LINE in source else ""
         raise ValueError(
             f"a {task} task's describing function is read at the disturbance's lines, "
-            "where the target is still, and this forcing has no disturbance"
+            f"where the target is still, and this forcing has no disturbance{shared}"
         )
     return shown
 

@@ -642,9 +642,7 @@ def _reference_error(
     ft, fd = coefficients.get("ft", zero), coefficients.get("fd", zero)
     through = element if describing.disturbance_at == "input" else 1.0
     error = (ft - through * fd) / (1.0 + pilot * element)
-    # a line both forcings put on one harmonic is listed once for each: one bin, one power
-    _, once = np.unique(omega, return_index=True)
-    return float(math.sqrt(2.0 * float(np.sum(np.abs(error[once]) ** 2)) / samples**2)), ""
+    return float(math.sqrt(2.0 * float(np.sum(np.abs(error) ** 2)) / samples**2)), ""
 
 
 def _remnant_error(describing: DescribingFunction, e: FloatArray, dt: float) -> float:
@@ -660,8 +658,7 @@ def _remnant_error(describing: DescribingFunction, e: FloatArray, dt: float) -> 
     if lines is None or "e" not in lines.coefficients:
         return 0.0
     power = np.abs(np.fft.rfft(e)) ** 2
-    # unique: a harmonic both forcings drive is listed once for each
-    bins = np.unique(np.rint(lines.frequencies * e.size * dt / (2.0 * np.pi)).astype(np.int64))
+    bins = np.rint(lines.frequencies * e.size * dt / (2.0 * np.pi)).astype(np.int64)
     forcing = set(bins.tolist())
     at_lines = power[bins]
     noise = np.array(

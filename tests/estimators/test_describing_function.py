@@ -19,6 +19,7 @@ import scipy.optimize
 from manualcontrol.envs.elements import Integrator, parse_element
 from manualcontrol.envs.signals import ForcingPair, Multisine, forcing_preset
 from manualcontrol.estimators.analysis.frequency import (
+    SHARED_LINE,
     describing_function,
     fit_describing_function,
     fit_weights,
@@ -253,6 +254,53 @@ def test_a_wrong_entry_point_is_not_explained_away_as_drift(drifting_runs, eleme
 def test_a_gain_has_no_state_to_drift(clean_run):
     measured = describing_function(clean_run, element="1")
     assert np.all(measured.element_drift == 0.0)
+
+
+def _shared_forcing():
+    """vanderel-bw4 with the disturbance moved onto the target's harmonics."""
+    forcing = forcing_preset("vanderel-bw4")
+    target = forcing.target
+    shared = Multisine(
+        target.frequencies,
+        forcing.disturbance.amplitudes,
+        forcing.disturbance.phases,
+        target.measurement_time,
+    )
+    return ForcingPair(target, shared)
+
+
+def test_a_harmonic_both_forcings_drive_is_one_line():
+    # one bin of every signal: listed once for each forcing, its power counted twice made
+    # the remnant share of a noise-free run -100 %
+    pair = _shared_forcing()
+    run = _simulate(element=Integrator(1.0), forcing=pair)
+    measured = describing_function(run)
+    assert measured.frequencies.size == pair.target.frequencies.size
+    assert np.all(np.diff(measured.frequencies) > 0.0)
+    assert set(measured.source) == {SHARED_LINE}
+    assert abs(measured.remnant_share) < 1e-6
+    # the response at the shared lines is the pilot's, as at any line
+    assert response_error(measured, "precision", HUMAN_SI)[0] < 0.2
+
+
+def test_a_two_channel_display_leaves_a_shared_line_out():
+    # pursuit: at a line the target also drives, U/E mixes the pilot's two responses
+    forcing = forcing_preset("vanderel-bw4")
+    disturbance = forcing.disturbance
+    harmonics = disturbance.harmonics.copy()
+    harmonics[0] = forcing.target.harmonics[0]  # one disturbance line onto the target's
+    moved = Multisine(
+        2.0 * np.pi * harmonics / disturbance.measurement_time,
+        disturbance.amplitudes,
+        disturbance.phases,
+        disturbance.measurement_time,
+    )
+    pilot = Pilot("preview", {**PREVIEW_PILOT, "tau_f": 0.0})
+    run = simulate(pilot, "SI", ForcingPair(forcing.target, moved), task="pursuit", seed=3)
+    measured = describing_function(run)
+    assert measured.frequencies.size == harmonics.size - 1
+    assert set(measured.source) == {"disturbance"}
+    assert SHARED_LINE in measured.lines.source
 
 
 def test_forcing_read_off_the_recorded_signals(clean_run):

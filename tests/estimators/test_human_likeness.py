@@ -166,8 +166,8 @@ def test_the_remnant_error_over_several_periods_reads_each_line_at_its_bin():
 
 
 def test_a_harmonic_both_forcings_drive_is_one_line_of_error():
-    # the target's and the disturbance's lines on the same harmonics: each bin is listed
-    # once per forcing, and counted twice its error power would be read twice
+    # the target's and the disturbance's lines on the same harmonics: one bin each, read
+    # once (counted twice, its error power would be read twice)
     forcing = forcing_preset("vanderel-bw4")
     target = forcing.target
     shared = Multisine(
