@@ -227,10 +227,11 @@ class DescribingFunction:
     element_drift
         The part of ``element_measured`` that the given element's own response to a
         state that is not periodic over the stretch explains (:func:`_element_drift`),
-        which :meth:`element_error` takes out; zeros without a given element or where
-        the element has no state (a gain). An integrating element whose output wanders
-        (the remnant's slow drift on ``1/s`` or ``1/s^2``) does not repeat, and its
-        Fourier coefficients then hold that transient beside the forcing's response.
+        which :meth:`element_error` takes out: an element with a slow mode (an
+        integrator) whose output wanders, as under a remnant's slow drift, does not
+        repeat, and its Fourier coefficients hold that transient beside the forcing's
+        response. Zeros on a gain (no state); None without a given element or with
+        ``method="least-squares"``, whose stretch need not be whole periods.
     open_loop
         ``H_p H_c``.
     crossover_frequency, phase_margin
@@ -336,48 +337,69 @@ def _finite_or_none(value: float) -> float | None:
 
 
 def _element_drift(
-    spectra: Mapping[str, NDArray[np.complex128]],
+    whole: Mapping[str, NDArray[np.complex128]],
+    size: int,
+    forcing_bins: NDArray[np.int64],
+    bins: NDArray[np.int64],
     disturbance_at: str,
-    frequencies: FloatArray,
     transfer_function: tuple[FloatArray, FloatArray],
+    dt: float,
 ) -> NDArray[np.complex128]:
-    """The part of the measured element its own non-periodic state explains, per line.
+    """The part of the measured element its own non-periodic state explains, at ``bins``.
 
-    Over a stretch of whole periods the element ``num/den`` (order ``n``, state ``x``)
-    relates the Fourier coefficients of its input ``X`` (``U + Fd`` or ``U``) and output
-    ``Y`` (``Y`` or ``Y - Fd``) as ``Y = H X + C (j omega I - A)^-1 (x(0) - x(T))``:
-    the second term, the response to the state's change over the stretch, vanishes only
-    where the output repeats. ``C (sI - A)^-1 dx`` is ``q(s)/den(s)`` with ``q`` a real
-    polynomial of degree below ``n``, whatever the realisation, so ``q``'s ``n``
-    coefficients are fitted to ``Y - H X`` at every line by real least squares. A wrong
-    element or entry point leaves a residual in each line's own forcing phase, which
-    ``n`` smooth terms cannot follow (a multisine's phases differ line by line); with
-    fewer than ``2 n`` lines nothing is fitted. Returned as ``q/(den X)``, the share of
-    ``Y/X`` it takes. The Fourier method's alone: least-squares sinusoids over a
-    stretch that is not whole periods relate ``X`` and ``Y`` otherwise.
+    ``whole`` holds the discrete Fourier transforms of the stretch (whole periods,
+    ``size`` samples; ``forcing_bins`` every forcing line's bin). The element
+    ``num/den`` (order ``n``) takes ``X`` (``u + fd``, or ``u`` with the disturbance at
+    the output) to ``Y`` (``y``, or ``y - fd``). Where ``y`` repeats over the stretch,
+    ``Y = H X`` at every bin; where it wanders, each of the element's modes ``lambda``
+    adds its non-periodic response, a sampled exponential whose transform over the
+    stretch is ``c z/(z - exp(lambda dt))`` at ``z = exp(j omega dt)`` (a geometric
+    sum; ``c`` real). Together they are ``z q(z)/den_d(z)``, ``den_d`` the element's
+    poles mapped by ``exp(lambda dt)`` and ``q`` a real polynomial of degree below
+    ``n``, whatever the realisation.
+
+    ``q`` is fitted by real least squares to ``Y - H X`` at the bins that carry no
+    forcing line, up to the highest line: the element relates ``x`` and ``y`` there too
+    (both carry the remnant), and a wrong element's error at the forcing lines cannot
+    steer the fit, as it could if fitted at the lines themselves (``n`` coefficients can
+    match the lowest lines' error). Returned as ``z q/(den_d X)`` at ``bins``, the share
+    of ``Y/X`` it takes; zeros for a gain (no state) or too few bins to fit. The element
+    is read at the stretch's middle: a time-varying one's transient is not its own.
     """
     num, den = (
         np.trim_zeros(np.asarray(c, dtype=np.float64).reshape(-1), "f") for c in transfer_function
     )
     order = den.size - 1
-    zero = np.zeros(frequencies.shape, dtype=np.complex128)
-    if order < 1 or frequencies.size < 2 * order or "y" not in spectra:
+    zero = np.zeros(bins.shape, dtype=np.complex128)
+    if order < 1 or "y" not in whole:
         return zero
-    fd = spectra.get("fd", zero)
+    fd = whole.get("fd", np.zeros_like(whole["u"]))
     if disturbance_at == "input":
-        x, y = spectra["u"] + fd, spectra["y"]
+        x, y = whole["u"] + fd, whole["y"]
     else:
-        x, y = spectra["u"], spectra["y"] - fd
-    s = 1j * frequencies
-    poles = np.polyval(den, s)
-    residual = y - np.polyval(num, s) / poles * x
-    basis = np.column_stack([s**power / poles for power in range(order)])
-    scale = np.abs(basis).max(axis=0)  # columns of one size for the solver
-    stacked = np.vstack([basis.real, basis.imag]) / scale
+        x, y = whole["u"], whole["y"] - fd
+    quiet = np.zeros(x.size, dtype=np.bool_)
+    quiet[1 : int(forcing_bins.max()) + 1] = True
+    quiet[forcing_bins] = False
+    quiet_bins = np.flatnonzero(quiet)
+    if quiet_bins.size < 2 * order:
+        return zero
+    poles = np.real(np.poly(np.exp(np.roots(den) * dt)))
+
+    def transient(at: NDArray[np.int64]) -> NDArray[np.complex128]:
+        z = np.exp(2j * np.pi * at / size)  # exp(j omega dt) at those bins
+        return np.column_stack([z ** (power + 1) / np.polyval(poles, z) for power in range(order)])
+
+    s = 2j * np.pi * quiet_bins / (size * dt)
+    residual = y[quiet_bins] - np.polyval(num, s) / np.polyval(den, s) * x[quiet_bins]
+    fitted = transient(quiet_bins)
+    scale = np.abs(fitted).max(axis=0)  # columns of one size for the solver
     coefficients = np.linalg.lstsq(
-        stacked, np.concatenate([residual.real, residual.imag]), rcond=None
+        np.vstack([fitted.real, fitted.imag]) / scale,
+        np.concatenate([residual.real, residual.imag]),
+        rcond=None,
     )[0]
-    return (basis @ (coefficients / scale)) / x
+    return (transient(bins) @ (coefficients / scale)) / x[bins]
 
 
 def _mean_errors(
@@ -596,6 +618,7 @@ def describing_function(
         source = tuple(kind for kind, keep in zip(source, shown, strict=True) if keep)
         bins = harmonics * count
         spectra = {name: values[bins] for name, values in whole.items()}
+        transforms = (whole, size, every_bin, bins)
         pilot = spectra["u"] / spectra["e"]
         lines_at = set(every_bin.tolist())  # no line of either forcing counts as a neighbour
         snr = _signal_to_noise(np.abs(whole["u"]) ** 2, bins, lines_at, neighbours)
@@ -610,6 +633,7 @@ def describing_function(
         at_lines = np.abs(all_lines.coefficients["u"])
         remnant_share = 1.0 - float(at_lines @ at_lines / u_power.sum())
     else:
+        transforms = None  # the element's transient is read off whole periods' transforms
         try:
             fit = _SinusoidFit(signals, dt, frequencies)
         except ValueError as error:
@@ -646,9 +670,9 @@ def describing_function(
             np.asarray(c, dtype=np.float64).reshape(-1) for c in plant.transfer_function(t_middle)
         )
         drift = (
-            _element_drift(spectra, disturbance_at, frequencies, transfer_function)
-            if fourier
-            else None
+            None
+            if transforms is None
+            else _element_drift(*transforms, disturbance_at, transfer_function, dt)
         )
     else:
         response = measured
