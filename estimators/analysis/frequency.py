@@ -141,6 +141,13 @@ def _crossover(frequencies: FloatArray, open_loop: NDArray[np.complex128]) -> tu
 #: (``y = H_c (u + fd)``, e.g. a force on the stick or a gust on the aircraft).
 DISTURBANCE_POINTS: tuple[str, ...] = ("output", "input")
 
+#: Injected signal-to-noise ratio under which a line is left out of the measured
+#: crossover: below 1 the remnant's power at the line exceeds the forcing's, ``U/E``
+#: errs by more than its own size (``|N/U| > 1``), and one such line read as a dip of
+#: ``|H_ol|`` below 1 made a spurious crossing (the weight :func:`fit_weights` gives it,
+#: ``SNR/(1 + SNR)``, is below one half there).
+_CROSSOVER_SNR = 1.0
+
 #: Relative power below the strongest line under which a bin of a recorded forcing
 #: signal is not a forcing line (60 dB: amplitude profiles of tracking experiments span
 #: well under 30 dB; a signal that does not repeat over the stretch leaks far above it).
@@ -236,7 +243,9 @@ class DescribingFunction:
         ``H_p H_c``.
     crossover_frequency, phase_margin
         First downward crossing of ``|H_ol| = 1`` (rad/s) and the margin there
-        (degrees); NaN when the open loop does not cross inside the forcing band.
+        (degrees), read between the lines the remnant does not swamp
+        (``snr_injected`` at least 1, :data:`_CROSSOVER_SNR`); NaN when the open loop
+        does not cross inside the forcing band.
     remnant_share
         Fraction of u's variance over the stretch that lies off the forcing frequencies.
     period, periods, window
@@ -678,8 +687,11 @@ def describing_function(
         response = measured
         drift = None
     open_loop = pilot * response
-    if np.all(np.isfinite(open_loop)):
-        crossover, margin = _crossover(frequencies, open_loop)
+    # a line the remnant swamps says nothing of |H_ol|: read between it, one can cross 1
+    # a decade below the loop's crossover (a DI pilot's 0.2 rad/s for 2)
+    readable = snr_injected >= _CROSSOVER_SNR
+    if np.all(np.isfinite(open_loop)) and np.count_nonzero(readable) >= 2:
+        crossover, margin = _crossover(frequencies[readable], open_loop[readable])
     else:
         crossover, margin = math.nan, math.nan
     start = float(recording.t[first])

@@ -36,7 +36,7 @@ participant, each held against the range humans show on that controlled element
     the remnant's own power at the lines counts as forcing, so the figure reads the
     remnant power ratio ``P_r`` low by the remnant's share at those few bins.
 ``rms_ratio``
-    the recorded error's RMS over the stretch against that of the typical
+    the recorded error's RMS about its mean over the stretch against that of the typical
     precision-model pilot (:func:`reference_pilot`; with its lag on a pure gain) on the
     same element and forcing, given the recording's own remnant. The reference's error
     at the forcing lines is its periodic steady state,
@@ -56,8 +56,13 @@ participant, each held against the range humans show on that controlled element
     measures both references). So the figure judges tracking of the forcing, and the
     remnant is judged by ``remnant_fraction``: whatever in ``e`` is neither periodic
     with the forcing nor constant (remnant, and also a drift, a start-up transient or a
-    change of behaviour within the run) is given to the reference too. The mean of
-    ``e`` (a constant bias) is not: it is the run's, and counts against it.
+    change of behaviour within the run) is given to the reference too. The run's error
+    is read about its mean, its standard deviation ``sigma_e`` (``error_sd``), the
+    error variance manual-control studies report: a slow remnant's wander, as double
+    integrators' operators have (the thesis's 0.01 rad/s remnant), puts most of the
+    error it drives into the stretch's mean, which no neighbouring bin could tell from
+    a constant offset. A constant offset of ``e`` is therefore not judged by this
+    figure (``rms_error`` keeps the plain RMS, offset included).
 
 Optionally (``identify=True``, tens of seconds) the parameters of the precision model
 (with its lag on a pure gain, as humans fly one:
@@ -380,7 +385,9 @@ class Verdict:
 class HumanLikeness:
     """What :func:`human_likeness` measured; see the module docstring for each figure.
 
-    ``reference`` holds the typical precision pilot's parameters (None where there is
+    ``rms_error`` is the run's RMS error over the stretch and ``error_sd`` its standard
+    deviation (about its mean, what ``rms_ratio`` reads); ``reference`` holds the
+    typical precision pilot's parameters (None where there is
     none for the element), ``reference_rms_error`` that pilot's error at the forcing
     lines, ``remnant_rms_error`` the error the recording's remnant drove (its mean
     removed), which ``rms_ratio`` adds to the reference's; ``identified`` the
@@ -396,6 +403,7 @@ class HumanLikeness:
     pilot_gain_flatness: float
     lead: float
     rms_error: float
+    error_sd: float
     reference: Mapping[str, float] | None
     reference_rms_error: float
     remnant_rms_error: float
@@ -427,12 +435,10 @@ class HumanLikeness:
     def rms_ratio(self) -> float:
         """Recorded RMS error over the typical pilot's given this run's remnant.
 
-        ``rms_error / hypot(reference_rms_error, remnant_rms_error)`` (module docstring);
+        ``error_sd / hypot(reference_rms_error, remnant_rms_error)`` (module docstring);
         NaN without a reference.
         """
-        if not math.isfinite(self.reference_rms_error) or self.reference_rms_error <= 0.0:
-            return math.nan
-        return self.rms_error / math.hypot(self.reference_rms_error, self.remnant_rms_error)
+        return _rms_ratio(self.error_sd, self.reference_rms_error, self.remnant_rms_error)
 
     def figures(self) -> dict[str, float]:
         """Every figure of :data:`FIGURES` by name."""
@@ -452,6 +458,7 @@ class HumanLikeness:
             "element": self.element_kind,
             "figures": {name: _finite_or_none(v) for name, v in self.figures().items()},
             "rms_error": _finite_or_none(self.rms_error),
+            "error_sd": _finite_or_none(self.error_sd),
             "reference_rms_error": _finite_or_none(self.reference_rms_error),
             "remnant_rms_error": _finite_or_none(self.remnant_rms_error),
             "reference_pilot": None if self.reference is None else dict(self.reference),
@@ -645,8 +652,15 @@ def _reference_error(
     return float(math.sqrt(2.0 * float(np.sum(np.abs(error) ** 2)) / samples**2)), ""
 
 
+def _rms_ratio(error_sd: float, reference_rms: float, remnant_rms: float) -> float:
+    """The run's error about its mean over the reference's given its remnant (NaN: none)."""
+    if not math.isfinite(reference_rms) or reference_rms <= 0.0:
+        return math.nan
+    return error_sd / math.hypot(reference_rms, remnant_rms)
+
+
 def _remnant_error(describing: DescribingFunction, e: FloatArray, dt: float) -> float:
-    """RMS of the error the remnant drove in ``e``, its mean removed.
+    """RMS of the error the remnant drove in ``e``, about its mean.
 
     ``e`` is the describing function's stretch (whole periods), so by Parseval its
     variance is its power at every bin but the mean: off the forcing lines it is all
@@ -796,6 +810,7 @@ def human_likeness(
     error_signal = recording if "e" in recording else recording.with_error_signal()
     e = np.asarray(error_signal["e"][-samples:], dtype=np.float64)
     rms = float(np.sqrt(np.mean(e**2)))
+    sd = float(np.std(e))
     remnant_rms = _remnant_error(describing, e, recording.dt)
     t_middle = 0.5 * sum(describing.window)
     if reference is None:
@@ -817,9 +832,7 @@ def human_likeness(
         "pilot_gain_flatness": flatness,
         "lead": slope,
         "remnant_fraction": describing.remnant_share,
-        "rms_ratio": rms / math.hypot(reference_rms, remnant_rms)
-        if math.isfinite(reference_rms) and reference_rms > 0.0
-        else math.nan,
+        "rms_ratio": _rms_ratio(sd, reference_rms, remnant_rms),
     }
     if describing.periods == 1:
         messages.append(
@@ -835,6 +848,7 @@ def human_likeness(
         pilot_gain_flatness=flatness,
         lead=slope,
         rms_error=rms,
+        error_sd=sd,
         reference=None if reference is None else dict(reference),
         reference_rms_error=reference_rms,
         remnant_rms_error=remnant_rms,
