@@ -449,7 +449,8 @@ def write_report(
         lines.append(
             f"- the typical precision-model pilot in the bare task, no noise: "
             f"{summary['reference_rms_error']:.4f} (agent / pilot = {summary['rms_ratio']:.2f}; "
-            "the human-likeness rms_ratio gives that pilot this run's remnant)"
+            "the human-likeness rms_ratio gives that pilot this run's remnant and reads the "
+            "run's error about its mean)"
         )
     if summary["implausible"]:
         lines += ["", "**Implausible identifications (do not trust these values):**", ""]

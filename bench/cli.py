@@ -1141,8 +1141,7 @@ def _cmd_describe(args: argparse.Namespace) -> int:
         )
     else:
         print(
-            f"open loop (element {element_text}): |H_p H_c| does not cross 1 inside the forcing "
-            "band; no crossover"
+            f"open loop (element {element_text}): no crossover: {describing.no_crossover_reason()}"
         )
 
     def spread(name: str) -> str:

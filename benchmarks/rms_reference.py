@@ -1,7 +1,7 @@
 """The RMS ratio's reference with and without the run's own remnant.
 
-``human_likeness``'s ``rms_ratio`` holds a run's RMS error against the typical
-precision pilot's on the same element and forcing. Against that pilot without remnant
+``human_likeness``'s ``rms_ratio`` holds a run's error (its RMS about its mean) against
+the typical precision pilot's on the same element and forcing. Against that pilot without remnant
 (the reference before it took the run's remnant), a human's remnant reads as poor
 tracking wherever the element does not integrate it away. Here the typical pilot
 itself, with a Levison remnant of 15, 30 or 40 % of the stick's power, is judged both

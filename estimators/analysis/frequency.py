@@ -299,6 +299,23 @@ class DescribingFunction:
         """Phase of ``H_p`` in degrees, unwrapped from the lowest frequency."""
         return np.degrees(np.unwrap(np.angle(self.pilot)))
 
+    @property
+    def readable_lines(self) -> NDArray[np.bool_]:
+        """The lines the crossover is read between: the remnant does not swamp them."""
+        return np.asarray(self.snr_injected >= _CROSSOVER_SNR)
+
+    def no_crossover_reason(self) -> str:
+        """Why ``crossover_frequency`` is NaN, in words (where the lines were read)."""
+        band = f"{self.frequencies[0]:.2f}-{self.frequencies[-1]:.2f} rad/s"
+        readable = int(np.count_nonzero(self.readable_lines))
+        if readable == self.frequencies.size:
+            return f"the open loop's gain does not cross 1 inside the forcing band ({band})"
+        return (
+            f"the open loop's gain does not cross 1 between the {readable} of "
+            f"{self.frequencies.size} forcing lines in {band} the remnant does not swamp "
+            f"(injected signal-to-noise ratio {_CROSSOVER_SNR:g} or more)"
+        )
+
     def element_error(self) -> tuple[float, float]:
         """Mean absolute gap (dB, degrees) between the given and the measured element.
 

@@ -9,7 +9,8 @@ participant, each held against the range humans show on that controlled element
 ``crossover_frequency``, ``phase_margin``
     of the open loop ``Y_p Y_c`` measured at the forcing frequencies (the describing
     function of :func:`~manualcontrol.estimators.analysis.frequency.describing_function`: Fourier
-    coefficients over the last whole forcing periods, interpolated between lines).
+    coefficients over the last whole forcing periods, interpolated between the lines the
+    remnant does not swamp).
 ``effective_delay``
     ``tau_e`` of McRuer's crossover model (McRuer & Jex 1967, eq. 1 of their review),
     ``Y_p Y_c = omega_c exp(-j omega tau_e) / (j omega)``, fitted to the measured open
@@ -185,8 +186,9 @@ _RMS = HumanRange(
     0.8,
     1.25,
     "x typical",
-    "within -20/+25 % of the typical precision pilot's error given the run's own remnant "
-    "(the error the run's remnant drove added to the typical pilot's): the typical pilot "
+    "the run's error about its mean within -20/+25 % of the typical precision pilot's "
+    "given the run's own remnant (the error the run's remnant drove added to the typical "
+    "pilot's): the typical pilot "
     "with a human's remnant reads near 1 on every element; remnant_fraction judges the "
     "remnant itself",
 )
@@ -433,7 +435,7 @@ class HumanLikeness:
 
     @property
     def rms_ratio(self) -> float:
-        """Recorded RMS error over the typical pilot's given this run's remnant.
+        """The run's error about its mean over the typical pilot's given this run's remnant.
 
         ``error_sd / hypot(reference_rms_error, remnant_rms_error)`` (module docstring);
         NaN without a reference.
@@ -527,12 +529,16 @@ def fit_crossover_model(
     weights: FloatArray,
     crossover_frequency: float,
     phase_margin: float,
+    *,
+    readable: NDArray[np.bool_] | None = None,
 ) -> CrossoverFit | None:
     """Fit ``omega_c exp(-j omega tau_e)/(j omega)`` around crossover (module docstring).
 
     ``frequencies`` (rad/s, ascending), ``open_loop`` and ``weights`` (>= 0) one value a
     line; ``crossover_frequency`` and ``phase_margin`` (deg) as measured, which choose the
-    band and the phase branch. None when there is no crossover (NaN).
+    band and the phase branch; ``readable`` the lines the crossover was read between
+    (:attr:`~manualcontrol.estimators.analysis.frequency.DescribingFunction.readable_lines`,
+    default all), whose phase places the branch. None when there is no crossover (NaN).
     """
     frequencies = np.asarray(frequencies, dtype=np.float64)
     open_loop = np.asarray(open_loop, dtype=np.complex128)
@@ -541,7 +547,7 @@ def fit_crossover_model(
         return None
     if frequencies.size < 2:
         raise ValueError(f"the crossover model needs 2 or more lines, got {frequencies.size}")
-    phase = _branch(frequencies, open_loop, crossover_frequency, phase_margin)
+    phase = _branch(frequencies, open_loop, crossover_frequency, phase_margin, readable)
     logw = np.log(frequencies)
     distance = np.abs(logw - math.log(crossover_frequency))
     band = distance <= math.log(CROSSOVER_BAND)
@@ -795,12 +801,10 @@ def human_likeness(
         weights,
         describing.crossover_frequency,
         describing.phase_margin,
+        readable=describing.readable_lines,
     )
     if fit is None:
-        why = (
-            f"|Y_p Y_c| does not cross 1 inside the forcing band "
-            f"({describing.frequencies[0]:.2f}-{describing.frequencies[-1]:.2f} rad/s)"
-        )
+        why = describing.no_crossover_reason()
         for name in ("crossover_frequency", "phase_margin", "effective_delay"):
             notes[name] = why
     flatness, slope, why = _equalisation(describing)
@@ -995,13 +999,30 @@ def plot_human_likeness(
 
 
 def _branch(
-    omega: FloatArray, open_loop: ComplexArray, crossover: float, margin: float
+    omega: FloatArray,
+    open_loop: ComplexArray,
+    crossover: float,
+    margin: float,
+    readable: NDArray[np.bool_] | None = None,
 ) -> FloatArray:
-    """Unwrapped open-loop phase (rad) on the branch the phase margin reads (PM - 180 deg)."""
-    phase = np.unwrap(np.angle(open_loop))
+    """Open-loop phase (rad) on the branch the phase margin reads (PM - 180 deg).
+
+    Unwrapped along the ``readable`` lines (default all), those the crossover was read
+    between; every other line is put on the branch nearest that guide. Unwrapped
+    through a swamped line, whose phase may be anything, the lines beyond it could land
+    a turn away.
+    """
+    angle = np.angle(open_loop)
+    use = np.ones(omega.shape, dtype=np.bool_) if readable is None else np.asarray(readable)
+    if np.count_nonzero(use) < 2:
+        use = np.ones(omega.shape, dtype=np.bool_)
+    logw = np.log(omega)
+    guide = np.unwrap(angle[use])
+    along = np.interp(logw, logw[use], guide)
+    phase = angle + 2.0 * math.pi * np.round((along - angle) / (2.0 * math.pi))
     if not (math.isfinite(crossover) and math.isfinite(margin)):
         return phase
-    at = float(np.interp(math.log(crossover), np.log(omega), phase))
+    at = float(np.interp(math.log(crossover), logw[use], guide))
     return phase + 2.0 * math.pi * round((math.radians(margin - 180.0) - at) / (2.0 * math.pi))
 
 

@@ -88,6 +88,30 @@ def test_describe_prints_crossover_and_the_fitted_model(trial, tmp_path, capsys)
     assert "--disturbance-at (now output)" in err
 
 
+def test_describe_counts_a_harmonic_both_forcings_drive_once(tmp_path, capsys):
+    # the target and the disturbance on the same ten harmonics: ten lines, not twenty,
+    # and no remnant share below zero from power counted twice
+    forcing = forcing_preset("vanderel-bw4")
+    target = forcing.target
+    shared = Multisine(
+        target.frequencies,
+        forcing.disturbance.amplitudes,
+        forcing.disturbance.phases,
+        target.measurement_time,
+    )
+    run_ = simulate(Pilot.typical("precision", "SI"), "SI", ForcingPair(target, shared), seed=0)
+    path = tmp_path / "shared.csv"
+    table = np.column_stack([run_.t, run_.u, run_.y, run_.ft, run_.fd])
+    np.savetxt(path, table, delimiter=",", header="t,u,y,ft,fd", comments="")
+    code, out, err = run(
+        capsys, "describe", str(path), "--element", "SI", "--period", "120", "--no-plot",
+        "--out", str(tmp_path / "d"),
+    )  # fmt: skip
+    assert code == EXIT_OK, err
+    assert "at 10 forcing frequencies (target and disturbance 10)" in out
+    assert "remnant: 0 % of u's variance" in out
+
+
 def test_identify_cross_checks_in_the_frequency_domain(trial, tmp_path, capsys):
     out_dir = tmp_path / "i"
     code, out, err = run(
