@@ -130,6 +130,9 @@ ComplexArray = NDArray[np.complex128]
 EQUALISATION_BAND: tuple[float, float] = (0.5, 5.0)
 #: The crossover model is fitted over ``[omega_c / CROSSOVER_BAND, omega_c * CROSSOVER_BAND]``.
 CROSSOVER_BAND = 2.0
+#: Share of the error's mean square in its mean above which a note says so: no figure
+#: judges a steady offset (``rms_ratio`` reads the error about its mean).
+_OFFSET_SHARE = 0.25
 #: Fewest lines the crossover model is fitted to (the nearest to crossover, if the band
 #: holds fewer).
 _FEWEST_LINES = 3
@@ -842,6 +845,14 @@ def human_likeness(
         messages.append(
             "one forcing period: the describing function has no spread between periods, and "
             "remnant moves every figure more than over several periods"
+        )
+    offset_share = 1.0 - (sd / rms) ** 2 if rms > 0.0 else 0.0
+    if offset_share > _OFFSET_SHARE:
+        messages.append(
+            f"the error's mean over the stretch, {float(np.mean(e)):.3g}, is "
+            f"{100.0 * offset_share:.0f} % of its mean square: a steady offset, or a slow "
+            "remnant's wander, which rms_ratio (read about the mean) does not judge "
+            f"(rms_error {rms:.3g} holds it)"
         )
     verdict = Verdict(plant.kind, _judge(plant.kind, figures, notes))
     return HumanLikeness(

@@ -212,6 +212,9 @@ def test_a_constant_offset_is_in_rms_error_and_not_in_the_ratio(runs):
     assert offset.error_sd == pytest.approx(result.error_sd, rel=1e-9)
     assert offset.rms_error == pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-12)
     assert offset.rms_error > 2.0 * result.rms_error
+    # no figure judges it, and a note says so
+    assert any("steady offset" in note for note in offset.notes)
+    assert not any("steady offset" in note for note in result.notes)
 
 
 def test_a_slow_remnants_wander_on_a_double_integrator_is_not_poor_tracking():
