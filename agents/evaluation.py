@@ -101,7 +101,9 @@ class Evaluation:
         return {
             "rms_error": self.rms_error,
             "reference_rms_error": self.reference_rms_error,
-            "rms_ratio": (
+            # the plain RMS against the typical pilot flown without noise: not the
+            # human-likeness rms_ratio, which gives that pilot the run's remnant
+            "bare_task_rms_ratio": (
                 None
                 if self.reference_rms_error is None
                 else self.rms_error / self.reference_rms_error
@@ -448,7 +450,8 @@ def write_report(
     if summary["reference_rms_error"] is not None:
         lines.append(
             f"- the typical precision-model pilot in the bare task, no noise: "
-            f"{summary['reference_rms_error']:.4f} (agent / pilot = {summary['rms_ratio']:.2f}; "
+            f"{summary['reference_rms_error']:.4f} "
+            f"(agent / pilot = {summary['bare_task_rms_ratio']:.2f}; "
             "the human-likeness rms_ratio gives that pilot this run's remnant and reads the "
             "run's error about its mean)"
         )

@@ -184,6 +184,9 @@ def test_evaluation_report(trained, tmp_path):
     assert human.reference == pytest.approx(REFERENCE_PILOTS["SI"])
     # the frequency-domain reference and the env's reference run agree (one period each)
     assert human.reference_rms_error == pytest.approx(summary["reference_rms_error"], rel=0.02)
+    assert summary["bare_task_rms_ratio"] == pytest.approx(
+        summary["rms_error"] / summary["reference_rms_error"]
+    )
     assert "## Human-likeness" in text and "verdict:" in text
     assert (tmp_path / "human_likeness.png").read_bytes().startswith(b"\x89PNG")
 
