@@ -14,7 +14,10 @@ the 10-line ``popovici2017``):
 - near misses the check must still catch, the element with 1.5 times its gain and with
   an extra lag at 12 rad/s: the smallest gap over the drifting runs beside the raw gap
   of the same pilot without remnant (what the check reads where nothing wanders);
-- the wrong entry point (``vanderel-bw4``, which has a disturbance): its smallest gap.
+- the wrong entry point (``vanderel-bw4``, which has a disturbance): its smallest gap;
+- the measured crossover frequency over the runs, read across every line and, as
+  ``describing_function`` reads it, across the lines the remnant does not swamp
+  (injected signal-to-noise ratio 1 or more), beside the pilot model's own.
 
 Run: .venv/bin/python benchmarks/element_check.py [--seeds N]
 """
@@ -24,7 +27,11 @@ import warnings
 
 import numpy as np
 
-from manualcontrol.estimators.analysis.frequency import describing_function
+from manualcontrol.estimators.analysis.frequency import (
+    _crossover,
+    describing_function,
+    model_crossover,
+)
 from manualcontrol.pilots import LevisonRemnant, Pilot, simulate
 
 #: Each element (as the preset or text ``simulate`` takes) and its near misses.
@@ -66,9 +73,10 @@ def main() -> None:
     args = parser.parse_args()
     print(
         "| element | forcing | entry | right: raw | right: less the transient | "
-        "x1.5 gain: no remnant / drifting | extra lag: no remnant / drifting | wrong entry |"
+        "x1.5 gain: no remnant / drifting | extra lag: no remnant / drifting | wrong entry | "
+        "crossover: every line / unswamped / model |"
     )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for element, near_misses in ELEMENTS.items():
         for forcing, at in FORCINGS:
             runs = [
@@ -102,9 +110,19 @@ def main() -> None:
                 entry_cell = f"{entry[0]:.1f} / {entry[1]:.0f}"
             else:
                 entry_cell = "-"
+            every = [_crossover(m.frequencies, m.open_loop)[0] for m in right]
+            unswamped = [m.crossover_frequency for m in right]
+            pilot = Pilot.typical("precision", element)
+            values = {name: float(schedule(0.0)) for name, schedule in pilot.parameters.items()}
+            model = model_crossover(pilot.model, values, right[0])[0]
+            crossover_cell = (
+                f"{np.nanmin(every):.2f}-{np.nanmax(every):.2f} / "
+                f"{np.nanmin(unswamped):.2f}-{np.nanmax(unswamped):.2f} / {model:.2f}"
+            )
             print(
                 f"| {element} | {forcing} | {at} | {raw[0]:.1f} / {raw[1]:.0f} | "
-                f"{fixed[0]:.2f} / {fixed[1]:.1f} | {cells[0]} | {cells[1]} | {entry_cell} |"
+                f"{fixed[0]:.2f} / {fixed[1]:.1f} | {cells[0]} | {cells[1]} | {entry_cell} | "
+                f"{crossover_cell} |"
             )
     print("gaps in dB / deg; right: largest over the runs; near misses and entry: smallest")
 

@@ -116,22 +116,37 @@ def forcing_frequency_response(
     return FrequencyResponse(frequencies, pilot, open_loop, crossover, margin)
 
 
-def _crossover(frequencies: FloatArray, open_loop: NDArray[np.complex128]) -> tuple[float, float]:
-    """First downward crossing of ``|H_ol| = 1`` and the phase margin there."""
+def _crossover(
+    frequencies: FloatArray,
+    open_loop: NDArray[np.complex128],
+    weights: FloatArray | None = None,
+) -> tuple[float, float]:
+    """A downward crossing of ``|H_ol| = 1`` and the phase margin there.
+
+    The first, or with ``weights`` (a line's reliability, :func:`fit_weights`) the one
+    read between the best-read pair of lines (the larger of their smaller weights; the
+    first among equals): a slow remnant drives the lowest lines towards the loop's own
+    ``|H_ol| = 1`` (the error the remnant drives is the loop's), which read first made
+    a typical single-integrator pilot cross over at 0.2 rad/s instead of 2.
+    """
     magnitude = np.log(np.abs(open_loop))
     phase = np.unwrap(np.angle(open_loop))
     logw = np.log(frequencies)
-    for i in range(len(frequencies) - 1):
-        if magnitude[i] >= 0.0 > magnitude[i + 1]:
-            fraction = magnitude[i] / (magnitude[i] - magnitude[i + 1])
-            log_crossover = logw[i] + fraction * (logw[i + 1] - logw[i])
-            phase_at = phase[i] + fraction * (phase[i + 1] - phase[i])
-            margin = math.degrees(phase_at) + 180.0
-            # the margin in [-180, 180): a phase of -380 deg at crossover reads as +160,
-            # the same point of the Nyquist plane (which encirclement it is, no one line says)
-            margin = (margin + 180.0) % 360.0 - 180.0
-            return math.exp(log_crossover), margin
-    return math.nan, math.nan
+    downward = np.flatnonzero((magnitude[:-1] >= 0.0) & (magnitude[1:] < 0.0))
+    if downward.size == 0:
+        return math.nan, math.nan
+    i = int(downward[0])
+    if weights is not None:
+        support = np.minimum(weights[downward], weights[downward + 1])
+        i = int(downward[np.argmax(support)])  # argmax: the first of equals
+    fraction = magnitude[i] / (magnitude[i] - magnitude[i + 1])
+    log_crossover = logw[i] + fraction * (logw[i + 1] - logw[i])
+    phase_at = phase[i] + fraction * (phase[i + 1] - phase[i])
+    margin = math.degrees(phase_at) + 180.0
+    # the margin in [-180, 180): a phase of -380 deg at crossover reads as +160,
+    # the same point of the Nyquist plane (which encirclement it is, no one line says)
+    margin = (margin + 180.0) % 360.0 - 180.0
+    return math.exp(log_crossover), margin
 
 
 # ------------------------------------------------------------------ describing function
@@ -242,10 +257,11 @@ class DescribingFunction:
     open_loop
         ``H_p H_c``.
     crossover_frequency, phase_margin
-        First downward crossing of ``|H_ol| = 1`` (rad/s) and the margin there
-        (degrees), read between the lines the remnant does not swamp
-        (``snr_injected`` at least 1, :data:`_CROSSOVER_SNR`); NaN when the open loop
-        does not cross inside the forcing band.
+        A downward crossing of ``|H_ol| = 1`` (rad/s) and the margin there (degrees),
+        read between the lines the remnant does not swamp (``snr_injected`` at least 1,
+        :data:`_CROSSOVER_SNR`): of several, the one between the best-read pair of
+        lines (:func:`_crossover` with :func:`fit_weights`); NaN when the open loop does
+        not cross between them (:meth:`no_crossover_reason`).
     remnant_share
         Fraction of u's variance over the stretch that lies off the forcing frequencies.
     period, periods, window
@@ -708,7 +724,9 @@ def describing_function(
     # a decade below the loop's crossover (a DI pilot's 0.2 rad/s for 2)
     readable = snr_injected >= _CROSSOVER_SNR
     if np.all(np.isfinite(open_loop)) and np.count_nonzero(readable) >= 2:
-        crossover, margin = _crossover(frequencies[readable], open_loop[readable])
+        crossover, margin = _crossover(
+            frequencies[readable], open_loop[readable], fit_weights(snr_injected[readable])
+        )
     else:
         crossover, margin = math.nan, math.nan
     start = float(recording.t[first])

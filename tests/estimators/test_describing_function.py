@@ -20,6 +20,7 @@ from manualcontrol.envs.elements import Integrator, parse_element
 from manualcontrol.envs.signals import ForcingPair, Multisine, forcing_preset
 from manualcontrol.estimators.analysis.frequency import (
     SHARED_LINE,
+    _crossover,
     describing_function,
     fit_describing_function,
     fit_weights,
@@ -296,6 +297,37 @@ def test_a_line_the_remnant_swamps_makes_no_crossover(drifting_runs):
     crossover, margin = model_crossover(pilot.model, values, measured)
     assert measured.crossover_frequency == pytest.approx(crossover, rel=0.15)
     assert measured.phase_margin == pytest.approx(margin, abs=8.0)
+
+
+def test_the_crossover_is_read_between_the_best_read_lines():
+    # a loop crossing 1 once at 2 rad/s, its two lowest lines driven to |H_ol| = 1 by a
+    # slow remnant (as the loop itself drives the error the remnant makes) and read
+    # weakly (weight 0.55-0.7, injected SNR 1.2-2.4): the first crossing is theirs, the
+    # best-read one is the loop's
+    omega = np.array([0.1, 0.2, 0.3, 0.6, 1.0, 1.5, 2.5, 4.0])
+    loop = 2.0 / (1j * omega) * np.exp(-0.3j * omega)
+    loop[0] = 1.05 * np.exp(-2.0j)
+    loop[1] = 0.9 * np.exp(-2.0j)
+    weights = np.array([0.55, 0.7, 0.9, 0.95, 0.99, 0.99, 0.99, 0.99])
+    assert _crossover(omega, loop)[0] < 0.2
+    crossover, margin = _crossover(omega, loop, weights)
+    assert crossover == pytest.approx(2.0, rel=0.05)  # log-log between 1.5 and 2.5 rad/s
+    assert margin == pytest.approx(90.0 - np.degrees(0.3 * crossover), abs=3.0)
+
+
+def test_a_slow_remnant_at_the_lowest_lines_does_not_make_the_crossover():
+    # the typical SI pilot, 15 % slow remnant (0.01 rad/s): read first between the lines
+    # the remnant does not swamp, the loop "crossed over" at 0.17 rad/s; between the
+    # best-read lines, at the model's 2.0 rad/s within the lines' scatter
+    from manualcontrol.pilots import LevisonRemnant
+
+    pilot = Pilot.typical("precision", "SI")
+    slow = LevisonRemnant(omega_r=0.01, injection="feedback", P_r=0.15)
+    run = simulate(pilot.with_remnant(slow), "SI", seed=0, disturbance_at="output")
+    measured = describing_function(run, element="SI")
+    values = {name: float(schedule(0.0)) for name, schedule in pilot.parameters.items()}
+    crossover, _ = model_crossover(pilot.model, values, measured)
+    assert measured.crossover_frequency == pytest.approx(crossover, rel=0.15)
 
 
 def test_a_gain_has_no_state_to_drift(clean_run):
