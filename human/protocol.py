@@ -114,7 +114,7 @@ import numpy as np
 import manualcontrol.envs  # noqa: F401 - registers the environments
 from manualcontrol.envs.elements import make_element
 from manualcontrol.envs.signals import FORCING_PRESETS, ForcingPair
-from manualcontrol.envs.tasks import resolve_forcing
+from manualcontrol.envs.tasks import resolve_forcing, task_named
 from manualcontrol.human.devices import DeviceAction, make_device
 from manualcontrol.human.tasks import TASKS
 
@@ -845,6 +845,32 @@ def _forcing(where: str, value: Any) -> Any:
     return json.loads(json.dumps(table))
 
 
+def _check_lines_apart(where: str, task: str, forcing: Any) -> None:
+    """Refuse target and disturbance lines on one harmonic where the display shows both.
+
+    A pursuit or preview display's describing function is read at the disturbance's
+    lines, where the target is still; at a harmonic both drive, ``U/E`` mixes the pilot's
+    two responses and the line is left out of every run's analysis. A protocol that
+    loses its lines that way is refused before anyone flies it.
+    """
+    if isinstance(forcing, str) or not task_named(task).shows_target:
+        return
+    pair = _forcing_pair(forcing)
+    if pair.target is None or pair.disturbance is None:
+        return
+    shared = sorted(set(pair.target.harmonics.tolist()) & set(pair.disturbance.harmonics.tolist()))
+    if shared:
+        period = pair.target.measurement_time
+        listed = ", ".join(f"{2.0 * math.pi * h / period:.3g}" for h in shared[:5])
+        raise _error(
+            where,
+            f"forcing: the target and the disturbance share {len(shared)} harmonic(s) "
+            f"({listed} rad/s): a {task} display's describing function cannot tell the "
+            "pilot's responses to the two apart there; put the disturbance's lines between "
+            "the target's",
+        )
+
+
 def _env_message(message: str) -> str:
     """An environment's complaint, said with the protocol's key."""
     for key, keyword in _ENV_KEYWORDS.items():
@@ -898,6 +924,7 @@ def _condition(
             raise _error(where, f"element {_show(raw['element'])}: {message}") from None
         options["element"] = json.loads(json.dumps(raw["element"]))
         options["forcing"] = _forcing(where, raw["forcing"])
+        _check_lines_apart(where, task, options["forcing"])
         if "realisation" in raw and "realisations" in raw:
             raise _error(where, "give realisation or realisations, not both")
         if "realisation" in raw:

@@ -327,6 +327,19 @@ def si(key_value):
             "condition 2 (DI)",
             "give realisation or realisations, not both",
         ),
+        (
+            lambda text: swap('task = "compensatory"', 'task = "pursuit"')(text).replace(
+                "measurement_time = 4.0\n\n[[condition]]",
+                "measurement_time = 4.0\n\n[condition.forcing.disturbance]\n"
+                "frequencies = [3.141592653589793]\namplitudes = [0.3]\nphases = [0.5]\n"
+                "measurement_time = 4.0\n\n[[condition]]",
+                1,
+            ),
+            "condition 1 (SI)",
+            "forcing: the target and the disturbance share 1 harmonic(s) (3.14 rad/s): a "
+            "pursuit display's describing function cannot tell the pilot's responses to the "
+            "two apart there",
+        ),
     ],
 )
 def test_mistakes_name_the_file_the_table_the_key_and_the_value(tmp_path, edit, where, message):
@@ -337,6 +350,26 @@ def test_mistakes_name_the_file_the_table_the_key_and_the_value(tmp_path, edit, 
     prefix = f"{path}: {where}: " if where else f"{path}: "
     assert text.startswith(prefix), text
     assert message in text, text
+
+
+@pytest.mark.parametrize(
+    ("task", "disturbance"), [("compensatory", 3.141592653589793), ("pursuit", 6.283185307179586)]
+)
+def test_target_and_disturbance_lines_may_meet_where_the_display_shows_only_the_error(
+    tmp_path, task, disturbance
+):
+    # a compensatory display reads a shared harmonic as one line; a pursuit display
+    # needs its disturbance lines apart from the target's, and these are
+    text = BASE.replace('task = "compensatory"', f'task = "{task}"', 1).replace(
+        "measurement_time = 4.0\n\n[[condition]]",
+        "measurement_time = 4.0\n\n[condition.forcing.disturbance]\n"
+        f"frequencies = [{disturbance}]\namplitudes = [0.3]\nphases = [0.5]\n"
+        "measurement_time = 4.0\n\n[[condition]]",
+        1,
+    )
+    protocol = load_protocol(write(tmp_path, text))
+    assert protocol.conditions[0].task == task
+    assert protocol.conditions[0].options["forcing"]["disturbance"]["frequencies"] == [disturbance]
 
 
 def test_the_file_itself(tmp_path):
