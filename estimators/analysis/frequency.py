@@ -318,7 +318,7 @@ class DescribingFunction:
     @property
     def readable_lines(self) -> NDArray[np.bool_]:
         """The lines the crossover is read between: the remnant does not swamp them."""
-        return np.asarray(self.snr_injected >= _CROSSOVER_SNR)
+        return _readable(self.snr_injected)
 
     def no_crossover_reason(self) -> str:
         """Why ``crossover_frequency`` is NaN, in words (where the lines were read)."""
@@ -372,6 +372,11 @@ class DescribingFunction:
 
 def _listed(values: FloatArray) -> list[float | None]:
     return [_finite_or_none(v) for v in np.asarray(values, dtype=np.float64)]
+
+
+def _readable(snr_injected: FloatArray) -> NDArray[np.bool_]:
+    """The lines the remnant does not swamp (:data:`_CROSSOVER_SNR`)."""
+    return np.asarray(snr_injected >= _CROSSOVER_SNR)
 
 
 def _finite_or_none(value: float) -> float | None:
@@ -722,7 +727,7 @@ def describing_function(
     open_loop = pilot * response
     # a line the remnant swamps says nothing of |H_ol|: read between it, one can cross 1
     # a decade below the loop's crossover (a DI pilot's 0.2 rad/s for 2)
-    readable = snr_injected >= _CROSSOVER_SNR
+    readable = _readable(snr_injected)
     if np.all(np.isfinite(open_loop)) and np.count_nonzero(readable) >= 2:
         crossover, margin = _crossover(
             frequencies[readable], open_loop[readable], fit_weights(snr_injected[readable])

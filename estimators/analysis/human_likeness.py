@@ -1023,18 +1023,30 @@ def _branch(
     through a swamped line, whose phase may be anything, the lines beyond it could land
     a turn away.
     """
-    angle = np.angle(open_loop)
-    use = np.ones(omega.shape, dtype=np.bool_) if readable is None else np.asarray(readable)
-    if np.count_nonzero(use) < 2:
-        use = np.ones(omega.shape, dtype=np.bool_)
     logw = np.log(omega)
-    guide = np.unwrap(angle[use])
-    along = np.interp(logw, logw[use], guide)
-    phase = angle + 2.0 * math.pi * np.round((along - angle) / (2.0 * math.pi))
+    use = np.ones(omega.shape, dtype=np.bool_) if readable is None else np.asarray(readable)
+    phase, use = _guided_phase(logw, np.angle(open_loop), use)
     if not (math.isfinite(crossover) and math.isfinite(margin)):
         return phase
-    at = float(np.interp(math.log(crossover), logw[use], guide))
+    at = float(np.interp(math.log(crossover), logw[use], phase[use]))
     return phase + 2.0 * math.pi * round((math.radians(margin - 180.0) - at) / (2.0 * math.pi))
+
+
+def _guided_phase(
+    logw: FloatArray, angle: FloatArray, trusted: NDArray[np.bool_]
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Phases (rad) unwrapped along the ``trusted`` lines, the others on the nearest branch.
+
+    A line the remnant swamps has a phase that may be anything, and unwrapping through
+    it can put every line beyond a turn away; each untrusted line is moved by whole
+    turns to the branch nearest the trusted lines' phase interpolated at it (in log
+    frequency). Fewer than two trusted lines: all are trusted. Returns the phases and
+    the lines trusted.
+    """
+    if np.count_nonzero(trusted) < 2:
+        trusted = np.ones(angle.shape, dtype=np.bool_)
+    guide = np.interp(logw, logw[trusted], np.unwrap(angle[trusted]))
+    return angle + 2.0 * np.pi * np.round((guide - angle) / (2.0 * np.pi)), trusted
 
 
 def _element_phase(response: ComplexArray) -> FloatArray:
@@ -1053,14 +1065,8 @@ def _measured_phases(describing: DescribingFunction) -> tuple[FloatArray, FloatA
     margin at crossover.
     """
     omega = np.log(describing.frequencies)
-    raw = np.angle(describing.pilot)
-    strong = describing.snr >= 10.0
-    if strong.sum() < 2:
-        strong = np.ones(raw.shape, dtype=bool)
-    guide = np.unwrap(raw[strong])
-    guide -= 2.0 * np.pi * np.round(guide[0] / (2.0 * np.pi))
-    reference = np.interp(omega, omega[strong], guide)
-    pilot = raw + 2.0 * np.pi * np.round((reference - raw) / (2.0 * np.pi))
+    pilot, strong = _guided_phase(omega, np.angle(describing.pilot), describing.snr >= 10.0)
+    pilot -= 2.0 * np.pi * np.round(pilot[strong][0] / (2.0 * np.pi))
     loop = pilot + _element_phase(describing.element)
     crossover, margin = describing.crossover_frequency, describing.phase_margin
     if math.isfinite(crossover) and math.isfinite(margin):
