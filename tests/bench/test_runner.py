@@ -3,6 +3,7 @@
 import json
 import math
 import os
+import signal
 import sys
 
 import pyarrow.parquet as pq
@@ -82,11 +83,15 @@ def test_ray_gives_the_same_numbers(tmp_path):
     """Runs where Ray is installed (extra ``dist``); a local Ray cluster of 2 CPUs."""
     ray = pytest.importorskip("ray")
     suite = parse_suite(SMALL)
+    # ray.init sets this process's SIGTERM handler and shutdown leaves it: put back, so
+    # the later tests this pytest worker runs see the process as they would alone
+    sigterm = signal.getsignal(signal.SIGTERM)
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         remote = run_suite(suite, tmp_path / "ray", backend="ray")
     finally:
         ray.shutdown()
+        signal.signal(signal.SIGTERM, sigterm)
     serial = run_suite(suite, tmp_path / "serial", backend="inprocess")
     assert [r["key"] for r in remote] == [r["key"] for r in serial]
     for a, b in zip(remote, serial, strict=True):
