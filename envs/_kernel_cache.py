@@ -327,10 +327,13 @@ def refresh_kernel_cache(roots: Iterable[Path] | None = None) -> bool:
         entries, closures = _state(roots, previous[0] if previous else {})
         stamps = _stamps(closures, entries)
         # every NUMBA_CACHE_DIR seen is kept in step: a run without it (or with another)
-        # must not leave stale kernels where a later run with it looks
+        # must not leave stale kernels where a later run with it looks. One since removed
+        # holds nothing stale and is forgotten (a run with it again finds it never seen
+        # and empties it once); else every temporary folder ever given stayed listed
         user = _user_cache()
         known = previous[2] if previous else []
-        user_caches = sorted({*known, user} - {None})
+        kept = [u for u in known if os.path.isdir(u)]
+        user_caches = sorted({*kept, user} - {None})
         if previous is None:  # nothing tells which caches are current: drop them all
             _drop_all(roots, user_caches)
             changed = True
@@ -342,7 +345,7 @@ def refresh_kernel_cache(roots: Iterable[Path] | None = None) -> bool:
             if user is not None and user not in known:  # never kept in step: drop it all
                 _drop_all(roots, [user], in_tree=False)
                 changed = True
-            if not changed and entries == previous[0]:
+            if not changed and entries == previous[0] and len(kept) == len(known):
                 return False
         record = {
             "format": _FORMAT,

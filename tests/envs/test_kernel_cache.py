@@ -340,3 +340,20 @@ def test_a_numba_cache_dir_dropped_for_one_run_is_kept_in_step_by_the_next(tmp_p
     assert refresh_kernel_cache([root])
     assert not stale.exists()
     assert not refresh_kernel_cache([root])  # now it is kept in step: nothing to do
+
+
+def test_a_numba_cache_dir_since_removed_is_forgotten(package, monkeypatch):
+    """Else every temporary NUMBA_CACHE_DIR a run was given stays in the record for good."""
+    root = package[0]
+    gone, kept = root.parent / "gone-cache", root.parent / "kept-cache"
+    for folder in (gone, kept):
+        folder.mkdir()
+        monkeypatch.setenv("NUMBA_CACHE_DIR", str(folder))
+        refresh_kernel_cache(package)
+    record = root / "__pycache__" / _kernel_cache._RECORD
+    assert json.loads(record.read_text())["user_caches"] == sorted([str(gone), str(kept)])
+    gone.rmdir()
+    monkeypatch.delenv("NUMBA_CACHE_DIR")
+    assert not refresh_kernel_cache(package)  # no stamp changed: nothing dropped
+    assert json.loads(record.read_text())["user_caches"] == [str(kept)]
+    assert cached(root) == set(CACHES)
