@@ -61,28 +61,34 @@ def test_run_suite_says_how_many_runs_it_kept(tmp_path):
     assert seen[0] == (3, 8) and len(rows) == 8  # the three kept runs are not run again
 
 
-def _ctrl_c_live() -> None:
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+# a terminal's job takes Ctrl-C; pytest run in the background of a shell without job
+# control inherits SIGINT ignored, and so would the command: Python's own Ctrl-C
+# handler is put back first, in the command's process (preexec_fn is unsafe in a
+# process with threads, as a pytest worker can be)
+CTRL_C_LIVE = (
+    "import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+    "runpy.run_module('manualcontrol.bench.cli', run_name='__main__', alter_sys=True)"
+)
 
 
 def test_ctrl_c_in_the_process_pool_keeps_the_runs_and_resumes(tmp_path):
     """A real Ctrl-C to the terminal's process group: the main process and the workers."""
     suite = tmp_path / "long.toml"
-    suite.write_text(textwrap.dedent(SUITE.format(seconds=240.0)))
+    # runs long enough (about 1 s each here) that the Ctrl-C, 0.5 s after the first is
+    # kept, comes well before the eight are done on a machine several times faster
+    suite.write_text(textwrap.dedent(SUITE.format(seconds=1200.0)))
     out = tmp_path / "r"
-    command = [sys.executable, "-m", "manualcontrol.bench.cli", "bench", str(suite)]
-    command += ["--out", str(out), "--workers", "2", "--no-report", "--quiet"]
+    arguments = ["bench", str(suite), "--out", str(out), "--workers", "2"]
+    arguments += ["--no-report", "--quiet"]
+    command = [sys.executable, "-m", "manualcontrol.bench.cli", *arguments]
     env = dict(os.environ, MPLBACKEND="Agg")
     process = subprocess.Popen(
-        command,
+        [sys.executable, "-c", CTRL_C_LIVE, *arguments],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
         env=env,
         start_new_session=True,  # its own process group, as a terminal's job
-        # a terminal's job takes Ctrl-C; pytest run in the background of a shell without
-        # job control inherits SIGINT ignored, and so would the command
-        preexec_fn=_ctrl_c_live,
     )
     deadline = time.monotonic() + 240.0
     # the first run is done in the main process; then the pool's workers run the rest

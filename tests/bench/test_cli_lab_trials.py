@@ -145,7 +145,7 @@ def test_describe_shows_a_remnant_free_runs_ratios_as_beyond_measure(tmp_path, c
     # off the lines such a run holds rounding alone: its ratios' digits mean nothing
     path = tmp_path / "run.npz"
     simulate(Pilot.typical("precision", "SI"), "SI", measurement_time=120.0).save(path)
-    code, out, err = run(capsys, "describe", str(path))
+    code, out, err = run(capsys, "describe", str(path), "--out", str(tmp_path / "described"))
     assert code == EXIT_OK, err
     rows = [line.split() for line in out.splitlines() if line.strip().endswith("target")]
     assert rows and all(row[3] == ">1e+06" and row[4] == ">1e+06" for row in rows)

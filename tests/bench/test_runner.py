@@ -3,8 +3,9 @@
 import json
 import math
 import os
-import signal
+import subprocess
 import sys
+import textwrap
 
 import pyarrow.parquet as pq
 import pytest
@@ -80,19 +81,39 @@ def test_process_pool_and_in_process_give_identical_numbers(tmp_path):
 
 
 def test_ray_gives_the_same_numbers(tmp_path):
-    """Runs where Ray is installed (extra ``dist``); a local Ray cluster of 2 CPUs."""
-    ray = pytest.importorskip("ray")
-    suite = parse_suite(SMALL)
-    # ray.init sets this process's SIGTERM handler and shutdown leaves it: put back, so
-    # the later tests this pytest worker runs see the process as they would alone
-    sigterm = signal.getsignal(signal.SIGTERM)
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    try:
-        remote = run_suite(suite, tmp_path / "ray", backend="ray")
-    finally:
-        ray.shutdown()
-        signal.signal(signal.SIGTERM, sigterm)
-    serial = run_suite(suite, tmp_path / "serial", backend="inprocess")
+    """Runs where Ray is installed (extra ``dist``); a local Ray cluster of 2 CPUs.
+
+    In a process of its own: ``ray.init`` leaves a SIGTERM handler, environment variables
+    and threads behind in the process that calls it, which the later tests of this
+    pytest worker (a process pool forked from it) would inherit.
+    """
+    pytest.importorskip("ray")
+    script = textwrap.dedent(
+        """
+        import json, sys
+        from pathlib import Path
+        import ray
+        from manualcontrol.bench.runner import run_suite
+        from manualcontrol.bench.scenarios import parse_suite
+
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+        try:
+            rows = run_suite(parse_suite(json.loads(sys.argv[1])), Path(sys.argv[2]), backend="ray")
+        finally:
+            ray.shutdown()
+        print(json.dumps(rows))
+        """
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script, json.dumps(SMALL), str(tmp_path / "ray")],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    remote = json.loads(done.stdout.splitlines()[-1])
+    serial = run_suite(parse_suite(SMALL), tmp_path / "serial", backend="inprocess")
     assert [r["key"] for r in remote] == [r["key"] for r in serial]
     for a, b in zip(remote, serial, strict=True):
         assert a["status"] == "ok", a.get("error")
