@@ -126,7 +126,9 @@ FORMAT_TAG = "manualcontrol.recording/1"
 
 FILE_ALIASES: Mapping[str, tuple[str, ...]] = MappingProxyType(
     {
-        "t": ("t", "time", "T"),
+        # a loggers' time column often names its unit: seconds alone, as these say; one
+        # in milliseconds is named with columns= and read with time_unit="ms"
+        "t": ("t", "time", "T", "time_s", "t_s", "time [s]", "time (s)"),
         "ft": ("ft", "f_t", "target", "fofu_t"),
         "fd": ("fd", "f_d", "disturbance"),
         "y": ("y", "x", "output", "ce_output", "theta"),
