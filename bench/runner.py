@@ -403,11 +403,14 @@ def _stop_pool(pool: ProcessPoolExecutor, out: Path) -> None:
     for worker in workers:
         if worker.is_alive():
             worker.terminate()
+    deadline = time.monotonic() + _TERMINATE_GRACE_SECONDS  # one grace for them all
     for worker in workers:
-        worker.join(timeout=_TERMINATE_GRACE_SECONDS)
-        if worker.is_alive():
-            worker.kill()
-            worker.join(timeout=5.0)
+        worker.join(timeout=max(0.0, deadline - time.monotonic()))
+    survivors = [worker for worker in workers if worker.is_alive()]
+    for worker in survivors:
+        worker.kill()
+    for worker in survivors:
+        worker.join(timeout=5.0)
     # the manager thread closes its wake-up pipe as it ends; left running, it races the
     # interpreter's exit hook, which writes to that pipe, and a closed one printed
     # "Exception ignored ... Bad file descriptor" after the interrupt's own message

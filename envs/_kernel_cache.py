@@ -332,7 +332,8 @@ def refresh_kernel_cache(roots: Iterable[Path] | None = None) -> bool:
         # and empties it once); else every temporary folder ever given stayed listed
         user = _user_cache()
         known = previous[2] if previous else []
-        kept = [u for u in known if os.path.isdir(u)]
+        # (this run's own is kept: numba creates it only when it first writes there)
+        kept = [u for u in known if u == user or os.path.isdir(u)]
         user_caches = sorted({*kept, user} - {None})
         if previous is None:  # nothing tells which caches are current: drop them all
             _drop_all(roots, user_caches)

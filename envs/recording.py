@@ -126,9 +126,10 @@ FORMAT_TAG = "manualcontrol.recording/1"
 
 FILE_ALIASES: Mapping[str, tuple[str, ...]] = MappingProxyType(
     {
-        # a loggers' time column often names its unit: seconds alone, as these say; one
-        # in milliseconds is named with columns= and read with time_unit="ms"
-        "t": ("t", "time", "T", "time_s", "t_s", "time [s]", "time (s)"),
+        # a logger's time column often names its unit: seconds alone, as these say (one
+        # in milliseconds is named with columns= and read with time_unit="ms"); not
+        # "t_s", which ignoring case is T_s, the sample period
+        "t": ("t", "time", "T", "time_s", "time [s]", "time (s)"),
         "ft": ("ft", "f_t", "target", "fofu_t"),
         "fd": ("fd", "f_d", "disturbance"),
         "y": ("y", "x", "output", "ce_output", "theta"),

@@ -357,3 +357,18 @@ def test_a_numba_cache_dir_since_removed_is_forgotten(package, monkeypatch):
     assert not refresh_kernel_cache(package)  # no stamp changed: nothing dropped
     assert json.loads(record.read_text())["user_caches"] == [str(kept)]
     assert cached(root) == set(CACHES)
+
+
+def test_this_runs_cache_dir_not_yet_created_is_kept_and_the_record_left_alone(
+    package, monkeypatch
+):
+    """numba creates NUMBA_CACHE_DIR only at its first write: until then it stays listed."""
+    root = package[0]
+    later = root.parent / "created-later"
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(later))
+    assert refresh_kernel_cache(package)  # never seen: kept in step from now on
+    record = root / "__pycache__" / _kernel_cache._RECORD
+    written = record.stat().st_ino
+    assert not refresh_kernel_cache(package)
+    assert json.loads(record.read_text())["user_caches"] == [str(later)]
+    assert record.stat().st_ino == written  # nothing to record: not written again

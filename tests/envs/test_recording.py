@@ -619,13 +619,21 @@ def test_csv_aliases_ignore_case_and_other_delimiters(tmp_path):
     assert rec.dropped_samples("e").all()
 
 
-@pytest.mark.parametrize("name", ["time_s", "Time_s", "t_s", "time [s]", "Time (s)"])
+@pytest.mark.parametrize("name", ["time_s", "Time_s", "time [s]", "Time (s)"])
 def test_a_time_column_named_with_its_unit_in_seconds_is_the_time(tmp_path, name):
     rows = [[f"{i / 60:.6f}", str(i)] for i in range(6)]
     path = write_csv(tmp_path / "trial.csv", [name, "stick"], rows)
     rec = Recording.load(path)
     assert rec.signal_names == ("t", "u") and rec.dt == pytest.approx(1 / 60, rel=1e-4)
     assert rec.metadata.get("ignored_columns", []) == []
+
+
+def test_a_sample_period_named_t_s_is_not_taken_for_the_time(tmp_path):
+    path = tmp_path / "trial.npz"
+    np.savez(path, e=np.arange(4.0), u=np.ones(4), T_s=0.01)
+    rec = Recording.load(path, dt=0.01)
+    assert rec.signal_names == ("t", "e", "u") and rec.dt == 0.01
+    assert "T_s" in rec.metadata["ignored_columns"]
 
 
 def test_mat_from_matlab_with_column_and_row_vectors(tmp_path):
@@ -740,8 +748,8 @@ def test_file_without_time_column_needs_dt(tmp_path):
     path = tmp_path / "no_time.npz"
     np.savez(path, e=np.arange(4.0), u=np.ones(4))
     message = (
-        f"{path} has no time column (looked for t, time, T, time_s, t_s, time [s], time (s)) "
-        "and no dt; pass dt= to build the "
+        f"{path} has no time column (looked for t, time, T, time_s, time [s], time (s)) and "
+        "no dt; pass dt= to build the "
         "time axis, or name the time column with time_column="
     )
     with pytest.raises(ValueError, match=re.escape(message)):
