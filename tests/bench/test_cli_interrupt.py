@@ -116,6 +116,11 @@ def _sleep(seconds):
     time.sleep(seconds)
 
 
+def _say_started_and_sleep(path, seconds):
+    path.touch()
+    time.sleep(seconds)
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the pool forks on Linux")
 def test_a_stopped_pool_leaves_no_manager_thread_to_race_the_exit(tmp_path):
     # the executor's manager thread closes its wake-up pipe as it ends; still running
@@ -150,9 +155,14 @@ def test_a_pool_forked_under_a_sigterm_handler_is_still_stopped(tmp_path):
     previous = signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(signum))
     try:
         pool = ProcessPoolExecutor(max_workers=2, mp_context=multiprocessing.get_context("fork"))
-        for _ in range(4):
-            pool.submit(_sleep, 60.0)
-        time.sleep(0.3)
+        for k in range(4):
+            pool.submit(_say_started_and_sleep, tmp_path / f"started-{k}", 60.0)
+        # both workers inside a run, where the handler's SystemExit is caught as a failed
+        # run (stopped before one, a worker exits on it and the test would prove nothing)
+        deadline = time.monotonic() + 60.0
+        while len(list(tmp_path.glob("started-*"))) < 2 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert len(list(tmp_path.glob("started-*"))) == 2
         workers = list(pool._processes.values())
         manager = pool._executor_manager_thread
         _stop_pool(pool, tmp_path)
