@@ -3,6 +3,8 @@
 import os
 import sys
 
+import pytest
+
 if "PYTEST_XDIST_WORKER" in os.environ:
     # `pytest -n auto` run by hand, as make test does (the Makefile sets these for it):
     # one worker a core, and a worker whose torch, OpenMP and BLAS thread pools each
@@ -16,3 +18,24 @@ if "PYTEST_XDIST_WORKER" in os.environ:
         from threadpoolctl import threadpool_limits
 
         threadpool_limits(1, user_api="blas")
+
+
+@pytest.fixture
+def shared_harmonic_forcing():
+    """vanderel-bw4 with its disturbance moved onto the target's harmonics.
+
+    Each harmonic then carries a line of both forcings, as no built-in preset has it:
+    the describing function, its remnant and the error's reading must count it once.
+    """
+    # imported here: the variables above must be set before numpy and torch load
+    from manualcontrol.envs.signals import ForcingPair, Multisine, forcing_preset
+
+    forcing = forcing_preset("vanderel-bw4")
+    target = forcing.target
+    shared = Multisine(
+        target.frequencies,
+        forcing.disturbance.amplitudes,
+        forcing.disturbance.phases,
+        target.measurement_time,
+    )
+    return ForcingPair(target, shared)

@@ -88,18 +88,13 @@ def test_describe_prints_crossover_and_the_fitted_model(trial, tmp_path, capsys)
     assert "--disturbance-at (now output)" in err
 
 
-def test_describe_counts_a_harmonic_both_forcings_drive_once(tmp_path, capsys):
+def test_describe_counts_a_harmonic_both_forcings_drive_once(
+    tmp_path, capsys, shared_harmonic_forcing
+):
     # the target and the disturbance on the same ten harmonics: ten lines, not twenty,
     # and no remnant share below zero from power counted twice
-    forcing = forcing_preset("vanderel-bw4")
-    target = forcing.target
-    shared = Multisine(
-        target.frequencies,
-        forcing.disturbance.amplitudes,
-        forcing.disturbance.phases,
-        target.measurement_time,
-    )
-    run_ = simulate(Pilot.typical("precision", "SI"), "SI", ForcingPair(target, shared), seed=0)
+    pilot = Pilot.typical("precision", "SI")
+    run_ = simulate(pilot, "SI", shared_harmonic_forcing, seed=0)
     path = tmp_path / "shared.csv"
     table = np.column_stack([run_.t, run_.u, run_.y, run_.ft, run_.fd])
     np.savetxt(path, table, delimiter=",", header="t,u,y,ft,fd", comments="")

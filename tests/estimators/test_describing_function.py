@@ -335,23 +335,10 @@ def test_a_gain_has_no_state_to_drift(clean_run):
     assert np.all(measured.element_drift == 0.0)
 
 
-def _shared_forcing():
-    """vanderel-bw4 with the disturbance moved onto the target's harmonics."""
-    forcing = forcing_preset("vanderel-bw4")
-    target = forcing.target
-    shared = Multisine(
-        target.frequencies,
-        forcing.disturbance.amplitudes,
-        forcing.disturbance.phases,
-        target.measurement_time,
-    )
-    return ForcingPair(target, shared)
-
-
-def test_a_harmonic_both_forcings_drive_is_one_line():
+def test_a_harmonic_both_forcings_drive_is_one_line(shared_harmonic_forcing):
     # one bin of every signal: listed once for each forcing, its power counted twice made
     # the remnant share of a noise-free run -100 %
-    pair = _shared_forcing()
+    pair = shared_harmonic_forcing
     run = _simulate(element=Integrator(1.0), forcing=pair)
     measured = describing_function(run)
     assert measured.frequencies.size == pair.target.frequencies.size

@@ -14,7 +14,6 @@ import pytest
 
 from manualcontrol.envs.recording import Recording
 from manualcontrol.envs.schedules import Sigmoid
-from manualcontrol.envs.signals import ForcingPair, Multisine, forcing_preset
 from manualcontrol.estimators.analysis.frequency import model_crossover
 from manualcontrol.estimators.analysis.human_likeness import (
     FIGURES,
@@ -165,18 +164,10 @@ def test_the_remnant_error_over_several_periods_reads_each_line_at_its_bin():
     assert result.remnant_rms_error == pytest.approx(np.sqrt(np.var(noisy.e - clean.e)), rel=0.03)
 
 
-def test_a_harmonic_both_forcings_drive_is_one_line_of_error():
+def test_a_harmonic_both_forcings_drive_is_one_line_of_error(shared_harmonic_forcing):
     # the target's and the disturbance's lines on the same harmonics: one bin each, read
     # once (counted twice, its error power would be read twice)
-    forcing = forcing_preset("vanderel-bw4")
-    target = forcing.target
-    shared = Multisine(
-        target.frequencies,
-        forcing.disturbance.amplitudes,
-        forcing.disturbance.phases,
-        target.measurement_time,
-    )
-    pair = ForcingPair(target, shared)
+    pair = shared_harmonic_forcing
     pilot = Pilot.typical("precision", "SI")
     clean = simulate(pilot, "SI", pair, seed=1)
     noisy = simulate(pilot.with_remnant(REMNANT), "SI", pair, seed=1)
