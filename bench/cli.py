@@ -1135,9 +1135,12 @@ def _cmd_describe(args: argparse.Namespace) -> int:
         )
     element_text = "given" if describing.element_given else "measured from y, u and fd"
     if math.isfinite(describing.crossover_frequency):
+        crossover_spread, margin_spread = describing.crossover_uncertainty()
         print(
             f"open loop (element {element_text}): crossover {describing.crossover_frequency:.2f} "
-            f"rad/s, phase margin {describing.phase_margin:.0f} deg"
+            f"rad/s +- {100.0 * crossover_spread:.0f} %, phase margin "
+            f"{describing.phase_margin:.0f} +- {margin_spread:.0f} deg (+- one standard deviation "
+            "from the remnant)"
         )
     else:
         print(

@@ -129,17 +129,11 @@ def _crossover(
     ``|H_ol| = 1`` (the error the remnant drives is the loop's), which read first made
     a typical single-integrator pilot cross over at 0.2 rad/s instead of 2.
     """
-    magnitude = np.log(np.abs(open_loop))
-    phase = np.unwrap(np.angle(open_loop))
-    logw = np.log(frequencies)
-    downward = np.flatnonzero((magnitude[:-1] >= 0.0) & (magnitude[1:] < 0.0))
-    if downward.size == 0:
+    crossing = _crossing(open_loop, weights)
+    if crossing is None:
         return math.nan, math.nan
-    i = int(downward[0])
-    if weights is not None:
-        support = np.minimum(weights[downward], weights[downward + 1])
-        i = int(downward[np.argmax(support)])  # argmax: the first of equals
-    fraction = magnitude[i] / (magnitude[i] - magnitude[i + 1])
+    i, fraction, _, phase = crossing
+    logw = np.log(frequencies)
     log_crossover = logw[i] + fraction * (logw[i + 1] - logw[i])
     phase_at = phase[i] + fraction * (phase[i + 1] - phase[i])
     margin = math.degrees(phase_at) + 180.0
@@ -147,6 +141,58 @@ def _crossover(
     # the same point of the Nyquist plane (which encirclement it is, no one line says)
     margin = (margin + 180.0) % 360.0 - 180.0
     return math.exp(log_crossover), margin
+
+
+def _crossing(
+    open_loop: NDArray[np.complex128], weights: FloatArray | None
+) -> tuple[int, float, FloatArray, FloatArray] | None:
+    """Where :func:`_crossover` reads: ``(i, fraction, log|H_ol|, phase)``, or None.
+
+    The pair of lines ``(i, i + 1)`` it reads between, the fraction of the way from
+    ``i`` where ``log|H_ol|`` crosses 0, and the log-magnitudes and unwrapped phases.
+    """
+    magnitude = np.log(np.abs(open_loop))
+    phase = np.unwrap(np.angle(open_loop))
+    downward = np.flatnonzero((magnitude[:-1] >= 0.0) & (magnitude[1:] < 0.0))
+    if downward.size == 0:
+        return None
+    i = int(downward[0])
+    if weights is not None:
+        support = np.minimum(weights[downward], weights[downward + 1])
+        i = int(downward[np.argmax(support)])  # argmax: the first of equals
+    fraction = float(magnitude[i] / (magnitude[i] - magnitude[i + 1]))
+    return i, fraction, magnitude, phase
+
+
+def _crossover_uncertainty(
+    frequencies: FloatArray, open_loop: NDArray[np.complex128], snr_injected: FloatArray
+) -> tuple[float, float]:
+    """Standard deviations of :func:`_crossover`'s reading that the remnant implies.
+
+    Of the crossover frequency's natural log (its relative error) and of the phase
+    margin (degrees). At a line ``U/E = H_p + N/E`` errs by ``N/U`` relative, a
+    circular error of mean square ``1/snr_injected`` (the ``snr_injected`` of
+    :class:`DescribingFunction`), so ``log|H_ol|`` and its phase each err by
+    ``1/sqrt(2 snr_injected)``, independently and independently between lines. These
+    are carried to first order through the interpolation between the pair of lines the
+    crossover is read between: ``f = m_i/(m_i - m_j)`` of the log-magnitudes ``m``,
+    ``log omega_c`` and the phase at crossover linear in ``f``. The choice of pair is
+    taken as fixed. NaN without a crossing.
+    """
+    crossing = _crossing(open_loop, fit_weights(snr_injected))
+    if crossing is None:
+        return math.nan, math.nan
+    i, fraction, magnitude, phase = crossing
+    sigma = 1.0 / np.sqrt(2.0 * snr_injected[i : i + 2])
+    drop = magnitude[i] - magnitude[i + 1]
+    sigma_fraction = math.hypot(magnitude[i + 1] * sigma[0], magnitude[i] * sigma[1]) / drop**2
+    log_crossover = abs(math.log(frequencies[i + 1] / frequencies[i])) * sigma_fraction
+    margin = math.sqrt(
+        ((1.0 - fraction) * sigma[0]) ** 2
+        + (fraction * sigma[1]) ** 2
+        + ((phase[i + 1] - phase[i]) * sigma_fraction) ** 2
+    )
+    return float(log_crossover), math.degrees(margin)
 
 
 # ------------------------------------------------------------------ describing function
@@ -320,6 +366,20 @@ class DescribingFunction:
         """The lines the crossover is read between: the remnant does not swamp them."""
         return _readable(self.snr_injected)
 
+    def crossover_uncertainty(self) -> tuple[float, float]:
+        """Standard deviations the remnant implies for the crossover and phase margin.
+
+        ``(relative, degrees)``: of ``log(crossover_frequency)`` (so 0.1 is about 10 %)
+        and of ``phase_margin``, carried from each line's ``snr_injected`` through the
+        reading (:func:`_crossover_uncertainty`). NaN without a crossover.
+        """
+        if not math.isfinite(self.crossover_frequency):
+            return math.nan, math.nan
+        readable = self.readable_lines
+        return _crossover_uncertainty(
+            self.frequencies[readable], self.open_loop[readable], self.snr_injected[readable]
+        )
+
     def no_crossover_reason(self) -> str:
         """Why ``crossover_frequency`` is NaN, in words (where the lines were read)."""
         band = f"{self.frequencies[0]:.2f}-{self.frequencies[-1]:.2f} rad/s"
@@ -349,6 +409,7 @@ class DescribingFunction:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able summary: per-frequency table and the loop's figures."""
+        crossover_spread, margin_spread = self.crossover_uncertainty()
         return {
             "frequencies": _listed(self.frequencies),
             "source": list(self.source),
@@ -359,6 +420,9 @@ class DescribingFunction:
             "snr": _listed(self.snr),
             "crossover_frequency": _finite_or_none(self.crossover_frequency),
             "phase_margin": _finite_or_none(self.phase_margin),
+            # standard deviations (crossover_uncertainty): of the crossover's log, in deg
+            "crossover_frequency_sd_log": _finite_or_none(crossover_spread),
+            "phase_margin_sd": _finite_or_none(margin_spread),
             "remnant_share": _finite_or_none(self.remnant_share),
             "period": self.period,
             "periods": self.periods,

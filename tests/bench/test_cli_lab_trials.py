@@ -74,6 +74,13 @@ def test_describe_prints_crossover_and_the_fitted_model(trial, tmp_path, capsys)
     assert "open loop (element given): crossover" in out
     assert "fitted precision model: K_p" in out and "K_v 0 (held)" in out
     summary = json.loads((out_dir / "summary.json").read_text())
+    described = summary["describing_function"]
+    spread, margin_spread = described["crossover_frequency_sd_log"], described["phase_margin_sd"]
+    assert 0.0 < spread < 0.5 and 0.0 < margin_spread < 30.0
+    assert (
+        f"crossover {described['crossover_frequency']:.2f} rad/s +- {100 * spread:.0f} %, "
+        f"phase margin {described['phase_margin']:.0f} +- {margin_spread:.0f} deg"
+    ) in out
     crossover = summary["describing_function"]["crossover_frequency"]
     assert 2.0 < crossover < 4.5  # a human's crossover on 1/s
     assert summary["fit"]["values"]["K_p"] == pytest.approx(3.0, rel=0.25)

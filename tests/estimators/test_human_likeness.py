@@ -6,6 +6,7 @@ the remnant's known share of u (``u_n``, the part of u the remnant caused, and t
 calibrated ``P_r``), and a time-domain simulation of the reference pilot.
 """
 
+import math
 import re
 import warnings
 
@@ -18,6 +19,7 @@ from manualcontrol.estimators.analysis.frequency import model_crossover
 from manualcontrol.estimators.analysis.human_likeness import (
     FIGURES,
     HUMAN_RANGES,
+    _judge,
     fit_crossover_model,
     human_likeness,
     plot_human_likeness,
@@ -376,3 +378,37 @@ def test_bad_reference_names_the_parameter(runs):
     _, recording = runs["SI", False]
     with pytest.raises(ValueError, match=re.escape("reference has parameter(s) ['K_x']")):
         human_likeness(recording, reference={"K_x": 1.0})
+
+
+def test_a_reading_outside_by_less_than_its_uncertainty_is_not_judged_outside():
+    # the typical gain pilot (3.2 rad/s, 34 deg) with 40 % remnant: seed 5 reads a
+    # margin of 21 deg, 0.6 of its stated deviation (16 deg) below the range; seed 0
+    # reads 14 deg at a deviation of 2.3 deg, and stays outside
+    lagged = make_model("precision", lag=True)
+    remnant = LevisonRemnant(omega_r=10.0, injection="feedback", P_r=0.4)
+    pilot = Pilot(lagged, reference_pilot("gain"), remnant=remnant)
+    within = human_likeness(simulate(pilot, "gain", seed=5))
+    margin = next(j for j in within.verdict.judgements if j.name == "phase_margin")
+    assert margin.value < HUMAN_RANGES["gain"]["phase_margin"].low
+    assert margin.inside and "within 2 standard deviations" in margin.note
+    assert "phase_margin" not in within.verdict.outside
+    beyond = human_likeness(simulate(pilot, "gain", seed=0))
+    assert "phase_margin" in beyond.verdict.outside
+
+
+def test_a_crossover_far_outside_stays_outside_whatever_its_uncertainty():
+    # a superhuman loop (9 rad/s on K/s) is outside even at a 20 % deviation; a reading
+    # 10 % below the range is inside at 10 %, outside at 4 %
+    figures = {name: math.nan for name in FIGURES}
+    notes = {}
+
+    def crossover(value, spread):
+        figures["crossover_frequency"] = value
+        judged = _judge("integrator", figures, notes, {"crossover_frequency": spread})
+        return next(j for j in judged if j.name == "crossover_frequency").inside
+
+    assert crossover(9.0, 0.2) is False
+    low = HUMAN_RANGES["integrator"]["crossover_frequency"].low
+    assert crossover(0.9 * low, 0.1) is True
+    assert crossover(0.9 * low, 0.04) is False
+    assert crossover(0.9 * low, math.nan) is False
