@@ -1135,12 +1135,21 @@ def _cmd_describe(args: argparse.Namespace) -> int:
         )
     element_text = "given" if describing.element_given else "measured from y, u and fd"
     if math.isfinite(describing.crossover_frequency):
+        crossover, margin = describing.crossover_frequency, describing.phase_margin
         crossover_spread, margin_spread = describing.crossover_uncertainty()
+        spread = ""
+        if math.isfinite(crossover_spread):  # one standard deviation each way
+            low, high = (
+                crossover * math.exp(-crossover_spread),
+                crossover * math.exp(crossover_spread),
+            )
+            spread = (
+                f" (within one standard deviation of the remnant: {low:.2f}-{high:.2f} rad/s,"
+                f" {margin - margin_spread:.0f} to {margin + margin_spread:.0f} deg)"
+            )
         print(
-            f"open loop (element {element_text}): crossover {describing.crossover_frequency:.2f} "
-            f"rad/s +- {100.0 * crossover_spread:.0f} %, phase margin "
-            f"{describing.phase_margin:.0f} +- {margin_spread:.0f} deg (+- one standard deviation "
-            "from the remnant)"
+            f"open loop (element {element_text}): crossover {crossover:.2f} rad/s, phase margin "
+            f"{margin:.0f} deg{spread}"
         )
     else:
         print(

@@ -77,9 +77,12 @@ def test_describe_prints_crossover_and_the_fitted_model(trial, tmp_path, capsys)
     described = summary["describing_function"]
     spread, margin_spread = described["crossover_frequency_sd_log"], described["phase_margin_sd"]
     assert 0.0 < spread < 0.5 and 0.0 < margin_spread < 30.0
+    crossover, margin = described["crossover_frequency"], described["phase_margin"]
     assert (
-        f"crossover {described['crossover_frequency']:.2f} rad/s +- {100 * spread:.0f} %, "
-        f"phase margin {described['phase_margin']:.0f} +- {margin_spread:.0f} deg"
+        f"crossover {crossover:.2f} rad/s, phase margin {margin:.0f} deg (within one standard "
+        f"deviation of the remnant: {crossover * np.exp(-spread):.2f}-"
+        f"{crossover * np.exp(spread):.2f} rad/s, {margin - margin_spread:.0f} to "
+        f"{margin + margin_spread:.0f} deg)"
     ) in out
     crossover = summary["describing_function"]["crossover_frequency"]
     assert 2.0 < crossover < 4.5  # a human's crossover on 1/s

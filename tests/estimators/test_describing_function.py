@@ -28,6 +28,7 @@ from manualcontrol.estimators.analysis.frequency import (
     model_crossover,
     response_error,
 )
+from manualcontrol.estimators.analysis.human_likeness import HUMAN_RANGES
 from manualcontrol.pilots import Pilot, make_model, simulate
 
 HUMAN_SI = dict(K_p=3.0, K_v=0.0, tau_v=0.25, omega_nms=12.0, zeta_nms=0.5)
@@ -576,24 +577,49 @@ def test_the_lag_model_fits_a_lagging_operator_on_a_gain_where_the_precision_mod
     assert plain.gain_error_db > 1.0 and plain.at_bounds
 
 
-def test_the_crossover_uncertainty_is_the_first_order_spread_of_its_reading():
-    # against the reading itself, redone on lines each perturbed by its injected
-    # signal-to-noise ratio's circular error: at a small error the first order is exact
-    # (4,000 draws: the sampled deviations within 5 %)
-    frequencies = np.geomspace(0.5, 15.0, 10)
-    open_loop = 3.0 / (1j * frequencies) * np.exp(-0.3j * frequencies)
-    snr = np.geomspace(4e3, 4e4, 10)
-    rng = np.random.default_rng(0)
-    noise = rng.standard_normal((4000, 10)) + 1j * rng.standard_normal((4000, 10))
-    readings = np.array(
-        [
-            _crossover(frequencies, open_loop * (1 + e / np.sqrt(2 * snr)), fit_weights(snr))
-            for e in noise
-        ]
+def _first_order_spread(frequencies, open_loop, snr, i):
+    """The reading's deviations carried to first order through the pair (i, i + 1)."""
+    m = np.log(np.abs(open_loop[i : i + 2]))
+    phase = np.unwrap(np.angle(open_loop))[i : i + 2]
+    sigma = 1.0 / np.sqrt(2.0 * snr[i : i + 2])
+    fraction = m[0] / (m[0] - m[1])
+    sigma_fraction = np.hypot(m[1] * sigma[0], m[0] * sigma[1]) / (m[0] - m[1]) ** 2
+    log_crossover = np.log(frequencies[i + 1] / frequencies[i]) * sigma_fraction
+    margin = np.sqrt(
+        ((1 - fraction) * sigma[0]) ** 2
+        + (fraction * sigma[1]) ** 2
+        + ((phase[1] - phase[0]) * sigma_fraction) ** 2
     )
-    crossover, margin = _crossover_uncertainty(frequencies, open_loop, snr)
-    assert crossover == pytest.approx(np.std(np.log(readings[:, 0])), rel=0.05)
-    assert margin == pytest.approx(np.std(readings[:, 1]), rel=0.05)
+    return log_crossover, np.degrees(margin)
+
+
+def test_the_crossover_uncertainty_is_the_first_order_spread_at_a_small_error():
+    # two downward crossings; the second pair is the better read, and the reading's
+    # deviations are those of that pair (the sampled percentiles within 12 %)
+    frequencies = np.array([0.5, 1.0, 2.0, 3.0, 4.5, 7.0, 11.0])
+    magnitude = np.array([2.0, 0.6, 1.6, 1.3, 0.8, 0.4, 0.2])
+    open_loop = magnitude * np.exp(-1j * np.array([1.2, 1.5, 1.7, 1.9, 2.2, 2.6, 3.0]))
+    snr = np.array([200.0, 200.0, 2e4, 2e4, 2e4, 2e4, 2e4])
+    expected = _first_order_spread(frequencies, open_loop, snr, 3)
+    assert _crossover(frequencies, open_loop, fit_weights(snr))[0] > 3.0  # the second pair
+    stated = _crossover_uncertainty(frequencies, open_loop, snr)
+    np.testing.assert_allclose(stated, expected, rtol=0.12)
+
+
+def test_a_pair_of_lines_both_near_one_leaves_the_crossover_within_them():
+    # there the first order grows without bound (1.4 of the log, 177 deg for lines
+    # read to 10 %), though the reading cannot leave the pair: a 9.8 rad/s loop with a
+    # 5 deg margin was judged inside the human range on both
+    frequencies = np.array([4.0, 8.0, 12.0, 20.0])
+    open_loop = np.exp([0.5, 0.01, -0.01, -0.6]) * np.exp(-1j * np.array([2.0, 2.3, 3.1, 3.6]))
+    snr = np.full(4, 50.0)
+    assert _first_order_spread(frequencies, open_loop, snr, 1)[0] > 1.0
+    crossover = _crossover(frequencies, open_loop, fit_weights(snr))[0]
+    log_spread, margin_spread = _crossover_uncertainty(frequencies, open_loop, snr)
+    assert log_spread < np.log(frequencies[2] / frequencies[1])
+    assert margin_spread < 60.0
+    human = HUMAN_RANGES["integrator"]["crossover_frequency"]
+    assert np.log(crossover / human.high) > 2.0 * log_spread  # judged outside
 
 
 def test_the_crossover_uncertainty_is_the_scatter_of_the_reading_over_remnant_seeds():
