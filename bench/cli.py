@@ -1137,7 +1137,10 @@ def _cmd_describe(args: argparse.Namespace) -> int:
     if math.isfinite(describing.crossover_frequency):
         crossover, margin = describing.crossover_frequency, describing.phase_margin
         crossover_spread, margin_spread = describing.crossover_uncertainty()
-        spread = ""
+        spread = (
+            " (no deviation stated: redone on the lines perturbed as the remnant may, most "
+            "readings lose the crossing)"
+        )
         if math.isfinite(crossover_spread):  # one standard deviation each way
             low, high = (
                 crossover * math.exp(-crossover_spread),

@@ -151,7 +151,7 @@ def _crossover(
 
 #: Draws of :func:`_crossover_uncertainty`, and the seed of its fixed draw: the same
 #: lines get the same statement in every process (400 draws: the deviation's own
-#: sampling error about 4 %).
+#: sampling error about 5 %).
 _UNCERTAINTY_DRAWS = 400
 _UNCERTAINTY_SEED = 0
 
@@ -175,7 +175,8 @@ def _crossover_uncertainty(
     where over half the draws have none.
     """
     weights = fit_weights(snr_injected)
-    if not math.isfinite(_crossover(frequencies, open_loop, weights)[0]):
+    crossover, margin = _crossover(frequencies, open_loop, weights)
+    if not math.isfinite(crossover):
         return math.nan, math.nan
     rng = np.random.default_rng(_UNCERTAINTY_SEED)
     shape = (_UNCERTAINTY_DRAWS, frequencies.size)
@@ -186,10 +187,11 @@ def _crossover_uncertainty(
     crossed = np.isfinite(readings[:, 0])
     if np.count_nonzero(crossed) < _UNCERTAINTY_DRAWS / 2:
         return math.nan, math.nan
+    # the margins about the reading's own, on the same turn: _crossover wraps them to
+    # [-180, 180), and a reading near -180 would else spread over a whole turn
+    margins = (readings[crossed, 1] - margin + 180.0) % 360.0 - 180.0
     low, high = np.percentile(
-        np.column_stack([np.log(readings[crossed, 0]), readings[crossed, 1]]),
-        [15.87, 84.13],
-        axis=0,
+        np.column_stack([np.log(readings[crossed, 0]), margins]), [15.87, 84.13], axis=0
     )
     spread = 0.5 * (high - low)
     return float(spread[0]), float(spread[1])

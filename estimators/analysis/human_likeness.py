@@ -755,14 +755,13 @@ def _judge(
         if not inside and measurable:
             beyond = _beyond(value, human, logarithmic)
             if beyond <= _UNCERTAINTY_ALLOWANCE * spread:
-                if logarithmic:  # log units as a relative distance
-                    distance = f"{100.0 * math.expm1(beyond):.0f} %"
-                    deviation = f"{100.0 * math.expm1(spread):.0f} %"
-                else:
-                    distance, deviation = f"{beyond:.1f} deg", f"{spread:.1f} deg"
+                side = "below" if value < human.low else "above"
+                deviation = (
+                    f"{100.0 * math.expm1(spread):.0f} %" if logarithmic else f"{spread:.1f} deg"
+                )
                 note = (
-                    f"read {distance} outside it, within {_UNCERTAINTY_ALLOWANCE:g} of the "
-                    f"standard deviations the remnant leaves the reading (one is {deviation})"
+                    f"read {beyond / spread:.1f} standard deviations {side} it (one is "
+                    f"{deviation}), within the {_UNCERTAINTY_ALLOWANCE:g} the remnant allows"
                 )
                 judgements.append(Judgement(name, value, human, True, note))
                 continue

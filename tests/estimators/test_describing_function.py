@@ -624,7 +624,7 @@ def test_a_pair_of_lines_both_near_one_leaves_the_crossover_within_them():
 
 def test_the_crossover_uncertainty_is_the_scatter_of_the_reading_over_remnant_seeds():
     # the typical DI pilot with 40 % remnant, 16 seeds: the median deviation it states
-    # against the deviation of the readings (measured: 0.035 for 0.034 of the log, 2.5
+    # against the deviation of the readings (measured: 0.033 for 0.034 of the log, 3.0
     # for 3.2 deg; it falls short where the lines at crossover are barely read)
     from manualcontrol.pilots import LevisonRemnant
 
@@ -643,3 +643,37 @@ def test_no_crossover_has_no_uncertainty(clean_run):
     measured = describing_function(clean_run.with_signals(u=0.01 * clean_run.u), element="1/s")
     assert math.isnan(measured.crossover_frequency)
     assert all(math.isnan(v) for v in measured.crossover_uncertainty())
+
+
+def test_a_margin_near_half_a_turn_spreads_on_its_own_turn():
+    # _crossover wraps margins to [-180, 180): read near -180 deg, a draw past it came
+    # back near +180 and the spread was a whole turn (177 deg for 5)
+    frequencies = np.array([1.0, 2.0, 4.0, 8.0, 16.0])
+    magnitude = np.array([4.0, 2.0, 0.8, 0.4, 0.2])
+    open_loop = magnitude * np.exp(-1j * np.radians([300.0, 330.0, 367.0, 380.0, 390.0]))
+    snr = np.full(5, 100.0)
+    margin = _crossover(frequencies, open_loop, fit_weights(snr))[1]
+    assert -180.0 < margin < -177.0
+    expected = _first_order_spread(frequencies, open_loop, snr, 1)[1]
+    assert _crossover_uncertainty(frequencies, open_loop, snr)[1] == pytest.approx(
+        expected, rel=0.12
+    )
+
+
+def test_the_uncertainty_is_read_over_the_readable_lines_and_not_stated_when_lost(clean_run):
+    measured = describing_function(clean_run, element="1/s")
+    swamped = measured.snr_injected.copy()
+    swamped[::3] = 0.5  # every third line under the crossover's threshold
+    partly = dataclasses.replace(measured, snr_injected=swamped)
+    readable = partly.readable_lines
+    assert 0 < np.count_nonzero(readable) < readable.size
+    expected = _crossover_uncertainty(
+        partly.frequencies[readable], partly.open_loop[readable], swamped[readable]
+    )
+    assert partly.crossover_uncertainty() == expected
+    # lines near |H_ol| = 1 read at a signal-to-noise ratio of 1: most draws lose the
+    # crossing, and no deviation is stated
+    lost = np.exp([0.02, -0.02]) * np.exp(-1j * np.array([1.5, 1.7]))
+    assert all(
+        math.isnan(v) for v in _crossover_uncertainty(np.array([2.0, 3.0]), lost, np.ones(2))
+    )
