@@ -171,8 +171,8 @@ def _crossover_uncertainty(
     84th percentiles (one standard deviation of a normal spread; robust to the draws
     that cross between another pair). Sampled rather than carried to first order: the
     first order grows without bound where both lines of the pair lie near
-    ``|H_ol| = 1``, while the reading cannot leave the pair. NaN without a crossing, or
-    where over half the draws have none.
+    ``|H_ol| = 1``, while a redone reading stays between the lines it crosses between.
+    NaN without a crossing, or where over half the draws have none.
     """
     weights = fit_weights(snr_injected)
     crossover, margin = _crossover(frequencies, open_loop, weights)
