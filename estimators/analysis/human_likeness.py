@@ -756,9 +756,9 @@ def _judge(
             beyond = _beyond(value, human, logarithmic)
             if beyond <= _UNCERTAINTY_ALLOWANCE * spread:
                 side = "below" if value < human.low else "above"
-                deviation = (
-                    f"{100.0 * math.expm1(spread):.0f} %" if logarithmic else f"{spread:.1f} deg"
-                )
+                deviation = f"{spread:.1f} {human.unit}"
+                if logarithmic:  # a deviation of the log, as a relative one
+                    deviation = f"{100.0 * math.expm1(spread):.0f} %"
                 note = (
                     f"read {beyond / spread:.1f} standard deviations {side} it (one is "
                     f"{deviation}), within the {_UNCERTAINTY_ALLOWANCE:g} the remnant allows"
