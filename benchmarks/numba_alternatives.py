@@ -2,13 +2,14 @@
 
 The estimators' kernels are numba; warm they are fast, but a fresh clone's first
 ``estimate`` compiles for about 30 CPU-s. This measures the alternative of a compiled
-extension built at install, on one estimator: ``estimators/members/_dekf_native.c``,
-a plain C99 port of the DEKF's compiled path (``_dekf_core.dekf_step``/``dekf_run``
-and everything they call), operation for operation, which the package builds with the
-system ``cc`` and calls through ``ctypes`` on the records the project's own
-``DEKF.estimate`` builds (``_dekf_native.py``; ``envs/_native.py`` builds it). Since this
-measurement the DEKF runs it wherever it builds; ``MANUALCONTROL_NATIVE=0`` runs
-numba, which is how the numba figures here are taken.
+extension built at install, on one estimator: ``estimators/members/_dekf_native.c``, a
+plain C99 port of the DEKF's compiled path (``_dekf_core.dekf_step``, the
+``dekf_step_many`` loop a run goes through, and everything they call), operation for
+operation, which the package builds with the system ``cc`` and calls through ``ctypes``
+on the records the project's own ``DEKF.estimate`` builds (``_dekf_native.py``;
+``envs/_native.py`` builds it). Since this measurement the DEKF runs it wherever it
+builds; ``MANUALCONTROL_NATIVE=0`` runs numba, which is how the numba figures here are
+taken.
 On a 30-s simulated run (precision pilot, ``popovici2017``, seed 0, as
 ``benchmarks/first_use.py``) and each ``--configs`` setting of the DEKF, side by side:
 
@@ -100,7 +101,7 @@ first = cpu() - imported
 start = time.perf_counter()
 estimator.estimate(recording)
 warm = time.perf_counter() - start
-compiled = len(_dekf_core.dekf_run.signatures) + len(_dekf_core.dekf_step.signatures)
+compiled = len(_dekf_core.dekf_step_many.signatures) + len(_dekf_core.dekf_step.signatures)
 cached = sum(
     len(files) for folder, _, files in os.walk(os.environ["NUMBA_CACHE_DIR"])
     if "manualcontrol-native" not in folder
@@ -354,6 +355,24 @@ def kept_stop(state):
 # ------------------------------------------------------------------- steady speed
 
 
+def numba_run(records, inputs, u, e, out):
+    """A whole run on numba's path, as ``DEKF._run`` makes it without the C port.
+
+    The batched loop on the records and ``out`` as a stack of one, sample ``k`` into
+    row ``k``.
+    """
+    import numpy as np
+
+    from manualcontrol.estimators.filters.batch import stack_of_one
+    from manualcontrol.estimators.members import _dekf_core as core
+
+    stacked, stacked_out = stack_of_one((records, out))
+    n = len(u)
+    every = np.ones(n, dtype=np.bool_)
+    first = np.zeros(n, dtype=np.int64)
+    core.dekf_step_many(*stacked, inputs, u, e, every, first, np.arange(n), stacked_out)
+
+
 def steady(lib, port, settings, repeats):
     """Per-sample figures of numba and C in this process (the two taking turns)."""
     import numpy as np
@@ -378,9 +397,9 @@ def steady(lib, port, settings, repeats):
                 struct = port.records(lib, estimator._records, out)
                 start = time.process_time()
                 struct.run(inputs, u, e)
-            else:  # what DEKF._run calls
+            else:  # what DEKF._run calls on numba's path
                 start = time.process_time()
-                core.dekf_run(*estimator._records, inputs, u, e, out)
+                numba_run(estimator._records, inputs, u, e, out)
             kernel_time[kind].append(time.process_time() - start)
 
         estimator._run = timed
@@ -480,8 +499,8 @@ def steady(lib, port, settings, repeats):
     loop_c(DEKF(**settings), stepped)
     reference = {}
 
-    def keep(inputs, u_, e_, out, inner=core.dekf_run):
-        inner(*check._records, inputs, u_, e_, out)
+    def keep(inputs, u_, e_, out):
+        numba_run(check._records, inputs, u_, e_, out)
         reference["out"] = out
 
     check = DEKF(**settings)

@@ -106,6 +106,7 @@ class FilterBatch:
         self._inputs = np.zeros((self.n, len(self._input_names)))
         self._all = np.ones(self.n, dtype=np.bool_)
         self._rows = np.arange(self.n, dtype=np.int64)
+        self._out_rows = np.zeros(self.n, dtype=np.int64)  # one-row outputs
 
     def reset_copies(self, copies: Sequence[int] | NDArray[np.bool_]) -> None:
         """Start the given copies (indices, or a mask over the copies) afresh.
@@ -163,7 +164,7 @@ class FilterBatch:
         if self._native is not None:
             self._native.step(inputs, u, e, np.ascontiguousarray(active))
             return
-        arguments = (*self._records, inputs, u, e, active, self._rows, self._out)
+        arguments = (*self._records, inputs, u, e, active, self._rows, self._out_rows, self._out)
         if self._entry is None:
             # read here, on numba's path only: the C port needs neither the kernel nor numba
             self._entry = compiled_entry(self._member._step_many_kernel, arguments)

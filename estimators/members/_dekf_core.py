@@ -1,11 +1,12 @@
-"""Compiled core of the Dual Extended Kalman Filter: one step, and a whole run.
+"""Compiled core of the Dual Extended Kalman Filter: one step, and the loop over it.
 
 Pure numerics on small records (namedtuples of arrays):
 :func:`dekf_step` advances a :data:`DEKFBelief` by one sample and writes that
-sample's estimate into row ``row`` of a :data:`DEKFOutput`; :func:`dekf_run` loops it
-over a recording, and :func:`dekf_step_many` steps a stack of filters on one sample
-each. The online ``DEKF.update``, the batch ``DEKF.estimate`` and the batched online
-path all call :func:`dekf_step`, so they give identical numbers. The covariance algebra (Joseph
+sample's estimate into row ``row`` of a :data:`DEKFOutput`; :func:`dekf_step_many`
+loops it, over a stack of filters on one sample each, or over a recording for one
+filter (a stack of one, sample ``k`` into row ``k``). The online ``DEKF.update``, the
+batch ``DEKF.estimate`` and the batched online path all call :func:`dekf_step`, so
+they give identical numbers. The covariance algebra (Joseph
 correction, symmetrisation, health checks, windowed variances, pin tracking) is the
 family's shared code in :mod:`manualcontrol.estimators.filters`.
 
@@ -133,7 +134,6 @@ _KERNELS = (
     "_apply_phi_transpose",
     "_store_phi",
     "dekf_step",
-    "dekf_run",
     "dekf_step_many",
     "inputs_in_use",
     "noise_levels",

@@ -284,24 +284,21 @@ def dekf_step(model, config, belief, monitor, report, scratch, inputs_k, u_k, e_
 
 
 @numba.njit(cache=True, _nrt=False)
-def dekf_run(model, config, belief, monitor, report, scratch, inputs, u, e, out):
-    """:func:`dekf_step` over every sample; ``inputs`` has shape ``(n, n_inputs)``."""
-    for k in range(u.shape[0]):
-        dekf_step(model, config, belief, monitor, report, scratch, inputs[k], u[k], e[k], k, out)
-
-
-@numba.njit(cache=True, _nrt=False)
 def dekf_step_many(
-    model, config, belief, monitor, report, scratch, inputs, u, e, active, rows, out
+    model, config, belief, monitor, report, scratch, inputs, u, e, active, rows, out_rows, out
 ):
     """:func:`dekf_step` on sample ``i`` wherever ``active[i]`` is set, in order.
 
     The records are stacked (:func:`~manualcontrol.estimators.filters.batch.stack_records`):
     sample ``i`` (``inputs[i], u[i], e[i]``) steps the filter in row ``rows[i]`` of
-    each, whose estimate goes to row 0 of its one-row output. Many filters on one
-    sample each: ``rows = arange(n)``. One filter on a block of samples, in time order:
-    ``rows`` all zero on a stack of one
-    (:func:`~manualcontrol.estimators.filters.batch.stack_of_one`).
+    each, whose estimate goes to row ``out_rows[i]`` of that filter's output. Many
+    filters on one sample each: ``rows = arange(n)``, ``out_rows`` zero (one-row
+    outputs). One filter on a block of samples, in time order: ``rows`` all zero on a
+    stack of one (:func:`~manualcontrol.estimators.filters.batch.stack_of_one`), and
+    ``out_rows`` zero for the online block (the latest estimate in the row) or
+    ``arange(n)`` for a whole run (sample ``k`` into row ``k``): the one compiled loop
+    serves the batch, the online block and the offline run, so a member compiles no
+    separate run loop (each loop is compiled, the step's code optimised into it, anew).
     """
     records = (model, config, belief, monitor, report, scratch, out)
     last = 0
@@ -312,4 +309,4 @@ def dekf_step_many(
             if r != last:  # a block of one filter's samples takes its views once
                 views = take(records, r)
                 last = r
-            dekf_step(*views[:6], inputs[i], u[i], e[i], 0, views[6])
+            dekf_step(*views[:6], inputs[i], u[i], e[i], out_rows[i], views[6])

@@ -14,7 +14,8 @@
  * the first samples on.) tests/estimators/test_dekf_native.py holds the two equal.
  *
  * Sources ported (manualcontrol/estimators/...):
- *   members/_dekf_core.py      dekf_step, dekf_run, _apply_phi, _apply_phi_transpose, _store_phi
+ *   members/_dekf_core.py      dekf_step, dekf_step_many, _apply_phi, _apply_phi_transpose,
+ *                              _store_phi
  *   _pilot_core.py             noise_levels, inputs_in_use, report_frozen, report_row
  *   filters/monitor.py         belief_health, track_pins, window_push, window_variance
  *   filters/kalman.py          joseph_correct (scalar measurement: _joseph_scalar), clamp
@@ -829,7 +830,8 @@ void dekf_step(const DekfRecords *rec, const double *inputs_k, double u_k, doubl
     report_row(rec, finite, cov_ok, dropped, row);
 }
 
-/* dekf_run: dekf_step over every sample; inputs has shape (n, n_in) */
+/* dekf_run: dekf_step over every sample, sample k into row k (numba: dekf_step_many on a
+ * stack of one); inputs has shape (n, n_in) */
 void dekf_run(const DekfRecords *rec, const double *inputs, const double *u, const double *e,
               int64_t n)
 {

@@ -8,7 +8,8 @@ first use, that its layout and its constants (``CFG_*``, ``SC_*``, divergence co
 tolerances) are the Python modules' own. :class:`NativeRecords` fills its struct of
 pointers from a DEKF's records and an output record (every array's dtype, contiguity
 and shape checked) and steps one sample, a block in row 0, or a whole run, where
-numba's ``dekf_step``, ``dekf_step_many`` on a stack of one and ``dekf_run`` would.
+numba's ``dekf_step`` and ``dekf_step_many`` on a stack of one (every sample into
+row 0, or sample ``k`` into row ``k``) would.
 :class:`NativeBatch` does ``dekf_step_many`` on stacked records
 (:class:`~manualcontrol.estimators.batch.FilterBatch`).
 
@@ -262,7 +263,7 @@ class NativeRecords:
         return n
 
     def run(self, inputs: np.ndarray, u: np.ndarray, e: np.ndarray) -> None:
-        """``dekf_run``: sample ``k`` into output row ``k`` (``inputs`` ``(n, n_in)``)."""
+        """A whole run: sample ``k`` into output row ``k`` (``inputs`` ``(n, n_in)``)."""
         n = self._check_samples(inputs, u, e)
         if n > self.rows or 0 < self.struct.store_rows < n:
             raise ValueError(f"the output record has {self.rows} rows for {n} samples")

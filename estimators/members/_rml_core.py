@@ -218,7 +218,6 @@ _KERNELS = (
     "_adapt_process_noise",
     "_remnant_weight",
     "bank_step",
-    "bank_run",
     "bank_step_many",
     "bicubic_weights",
     "inputs_in_use",

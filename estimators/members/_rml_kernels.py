@@ -451,15 +451,8 @@ def bank_step(model, config, lines, belief, monitor, report, s, inputs_k, u_k, e
 
 
 @numba.njit(cache=True, _nrt=False)
-def bank_run(model, config, lines, belief, monitor, report, s, inputs, u, e, out):
-    """:func:`bank_step` over every sample."""
-    for k in range(u.shape[0]):
-        bank_step(model, config, lines, belief, monitor, report, s, inputs[k], u[k], e[k], k, out)
-
-
-@numba.njit(cache=True, _nrt=False)
 def bank_step_many(
-    model, config, lines, belief, monitor, report, s, inputs, u, e, active, rows, out
+    model, config, lines, belief, monitor, report, s, inputs, u, e, active, rows, out_rows, out
 ):
     """:func:`bank_step` on every filter bank of a stack whose ``active[i]`` is set.
 
@@ -474,4 +467,4 @@ def bank_step_many(
             if r != last:  # a block of one filter's samples takes its views once
                 views = take(records, r)
                 last = r
-            bank_step(*views[:7], inputs[i], u[i], e[i], 0, views[7])
+            bank_step(*views[:7], inputs[i], u[i], e[i], out_rows[i], views[7])

@@ -17,7 +17,7 @@
  * tests/estimators/test_rml_native.py holds the two equal.
  *
  * Sources ported (manualcontrol/estimators/...):
- *   members/_rml_core.py       bank_step, bank_run, bank_step_many, _read,
+ *   members/_rml_core.py       bank_step, bank_step_many, _read,
  *                              _delayed_inputs, _member_parameters, _member_step,
  *                              _bank_points, _update_parameters, _adapt_process_noise,
  *                              _remnant_weight
@@ -1004,7 +1004,8 @@ void bank_step(const RmlRecords *rec, const double *inputs_k, double u_k, double
     rec->extra[row * 3 + 2] = has_r ? omega : 0.0;
 }
 
-/* bank_run: bank_step over every sample; inputs has shape (n, n_in) */
+/* bank_run: bank_step over every sample, sample k into row k (numba: bank_step_many on a
+ * stack of one); inputs has shape (n, n_in) */
 void bank_run(const RmlRecords *rec, const double *inputs, const double *u, const double *e,
               int64_t n)
 {

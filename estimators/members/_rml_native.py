@@ -9,9 +9,9 @@ tolerances, the bank's slot and injection codes, the drift rule's ``_FILLED``) a
 Python modules' own. :class:`NativeRecords` fills its struct of pointers from an RML's
 records and an output record (every array's dtype, contiguity and shape checked, the
 records' scalar fields copied) and steps one sample, a block in row 0, or a whole run,
-where numba's ``bank_step``, ``bank_step_many`` on a stack of one and ``bank_run``
-would. :class:`NativeBatch` does ``bank_step_many`` on stacked records
-(:class:`~manualcontrol.estimators.batch.FilterBatch`).
+where numba's ``bank_step`` and ``bank_step_many`` on a stack of one (every sample into
+row 0, or sample ``k`` into row ``k``) would. :class:`NativeBatch` does
+``bank_step_many`` on stacked records (:class:`~manualcontrol.estimators.batch.FilterBatch`).
 
 The struct points into the records' arrays, so C reads and writes where numba would
 (``config.base[0]`` included, which a causal start sets); a :class:`NativeRecords` is
@@ -310,7 +310,7 @@ class NativeRecords:
         return n
 
     def run(self, inputs: np.ndarray, u: np.ndarray, e: np.ndarray) -> None:
-        """``bank_run``: sample ``k`` into output row ``k`` (``inputs`` ``(n, n_in)``)."""
+        """A whole run: sample ``k`` into output row ``k`` (``inputs`` ``(n, n_in)``)."""
         n = self._check_samples(inputs, u, e)
         if n > self.rows or 0 < self.struct.store_rows < n:
             raise ValueError(f"the output record has {self.rows} rows for {n} samples")

@@ -220,15 +220,8 @@ def joint_step(model, config, belief, monitor, report, scratch, inputs_k, u_k, e
 
 
 @numba.njit(cache=True, _nrt=False)
-def joint_run(model, config, belief, monitor, report, scratch, inputs, u, e, out):
-    """:func:`joint_step` over every sample."""
-    for k in range(u.shape[0]):
-        joint_step(model, config, belief, monitor, report, scratch, inputs[k], u[k], e[k], k, out)
-
-
-@numba.njit(cache=True, _nrt=False)
 def joint_step_many(
-    model, config, belief, monitor, report, scratch, inputs, u, e, active, rows, out
+    model, config, belief, monitor, report, scratch, inputs, u, e, active, rows, out_rows, out
 ):
     """:func:`joint_step` on every filter of a stack whose ``active[i]`` is set.
 
@@ -243,7 +236,7 @@ def joint_step_many(
             if r != last:  # a block of one filter's samples takes its views once
                 views = take(records, r)
                 last = r
-            joint_step(*views[:6], inputs[i], u[i], e[i], 0, views[6])
+            joint_step(*views[:6], inputs[i], u[i], e[i], out_rows[i], views[6])
 
 
 @numba.njit(cache=True, _nrt=False)
@@ -550,17 +543,21 @@ def dual_step(model, config, belief, monitor, report, scratch, theta, inputs_k, 
 
 
 @numba.njit(cache=True, _nrt=False)
-def dual_run(model, config, belief, monitor, report, scratch, theta, inputs, u, e, out):
-    """:func:`dual_step` over every sample."""
-    for k in range(u.shape[0]):
-        dual_step(
-            model, config, belief, monitor, report, scratch, theta, inputs[k], u[k], e[k], k, out
-        )
-
-
-@numba.njit(cache=True, _nrt=False)
 def dual_step_many(
-    model, config, belief, monitor, report, scratch, theta, inputs, u, e, active, rows, out
+    model,
+    config,
+    belief,
+    monitor,
+    report,
+    scratch,
+    theta,
+    inputs,
+    u,
+    e,
+    active,
+    rows,
+    out_rows,
+    out,
 ):
     """:func:`dual_step` on every filter of a stack whose ``active[i]`` is set.
 
@@ -575,4 +572,4 @@ def dual_step_many(
             if r != last:  # a block of one filter's samples takes its views once
                 views = take(records, r)
                 last = r
-            dual_step(*views[:7], inputs[i], u[i], e[i], 0, views[7])
+            dual_step(*views[:7], inputs[i], u[i], e[i], out_rows[i], views[7])

@@ -15,7 +15,8 @@
  * an argument, as the Python does (the unscented filters evaluate it at sigma points).
  *
  * Sources ported (manualcontrol/estimators/...):
- *   members/_ukf_core.py       joint_step, joint_run, dual_step, dual_run, _point_parameters,
+ *   members/_ukf_core.py       joint_step, joint_step_many, dual_step, dual_step_many,
+ *                              _point_parameters,
  *                              _propagate, _measure, _set_point, _predict_sensitivity,
  *                              _output_at, _theta_images, _correct_sensitivity
  *   filters/unscented.py       sigma_points, weighted_mean, weighted_covariance,
@@ -1177,7 +1178,8 @@ void ukf_step(const UkfRecords *rec, const double *inputs_k, double u_k, double 
         joint_step(rec, inputs_k, u_k, e_k, row);
 }
 
-/* ukf_run: joint_run / dual_run, the step over every sample; inputs (n, n_in) */
+/* ukf_run: the step over every sample, sample k into row k (numba: joint_step_many /
+ * dual_step_many on a stack of one); inputs (n, n_in) */
 void ukf_run(const UkfRecords *rec, const double *inputs, const double *u, const double *e,
              int64_t n)
 {

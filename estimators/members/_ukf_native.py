@@ -10,8 +10,9 @@ first use, that its layout and its constants (``CFG_*``, ``SC_*``, divergence co
 tolerances, the sensitivity step) are the Python modules' own. :class:`NativeRecords`
 fills its struct of pointers from a joint or dual filter's records and an output record
 (every array's dtype, contiguity and shape checked) and steps one sample, a block in
-row 0, or a whole run, where numba's ``joint_step``/``dual_step``, the ``*_step_many``
-loops on a stack of one and ``joint_run``/``dual_run`` would. :class:`NativeBatch`
+row 0, or a whole run, where numba's ``joint_step``/``dual_step`` and the
+``*_step_many`` loops on a stack of one (every sample into row 0, or sample ``k`` into
+row ``k``) would. :class:`NativeBatch`
 does ``*_step_many`` on stacked records
 (:class:`~manualcontrol.estimators.batch.FilterBatch`).
 
@@ -345,7 +346,7 @@ class NativeRecords:
         return n
 
     def run(self, inputs: np.ndarray, u: np.ndarray, e: np.ndarray) -> None:
-        """``joint_run``/``dual_run``: sample ``k`` into output row ``k``."""
+        """A whole run: sample ``k`` into output row ``k``."""
         n = self._check_samples(inputs, u, e)
         if n > self.rows or 0 < self.struct.store_rows < n:
             raise ValueError(f"the output record has {self.rows} rows for {n} samples")

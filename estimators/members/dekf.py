@@ -166,7 +166,6 @@ class DEKF(PilotFilter):
     _step_many_kernel = LazyKernel(
         "manualcontrol.estimators.members._dekf_kernels", "dekf_step_many"
     )
-    _run_kernel = LazyKernel("manualcontrol.estimators.members._dekf_kernels", "dekf_run")
     _native_binding = _dekf_native
 
     @property

@@ -181,9 +181,8 @@ class PilotFilter(FilterShell):
     describing function and the restarts. Subclasses set :attr:`name` and
     :attr:`settings_type` and implement ``_start`` (build their records from the
     resolved settings), ``_new_output`` (output records for ``n`` rows, with smoother
-    storage or without), the compiled kernels (``_step_kernel``, ``_run_kernel``,
-    ``_step_many_kernel``; ``_native_binding``, their C port) and, for smoothing,
-    ``_smoother_inputs``.
+    storage or without), the compiled kernels (``_step_kernel``, ``_step_many_kernel``;
+    ``_native_binding``, their C port) and, for smoothing, ``_smoother_inputs``.
     """
 
     settings_type: ClassVar[type[PilotFilterSettings]] = PilotFilterSettings
@@ -193,11 +192,11 @@ class PilotFilter(FilterShell):
     #: read, so a filter whose C port runs never does).
     _step_kernel: ClassVar[Any] = None
     #: The same step over a stack of filters (:class:`~manualcontrol.estimators.batch.
-    #: FilterBatch`), ``kernel(*stacked_records, inputs, u, e, active, rows, stacked_out)``;
-    #: also this filter's :meth:`update_block` (a stack of one, every row 0).
+    #: FilterBatch`), ``kernel(*stacked_records, inputs, u, e, active, rows, out_rows,
+    #: stacked_out)``; also this filter's :meth:`update_block` (a stack of one, every
+    #: row 0) and its whole run in ``estimate`` (a stack of one, sample ``k`` into output
+    #: row ``k``): numba compiles one loop around the step, not one for each use.
     _step_many_kernel: ClassVar[Any] = None
-    #: The whole-recording kernel, ``kernel(*records, inputs, u, e, out)``.
-    _run_kernel: ClassVar[Any] = None
 
     def __init__(self, settings: PilotFilterSettings | None = None, **changes: Any) -> None:
         super().__init__(settings, **changes)
@@ -383,12 +382,30 @@ class PilotFilter(FilterShell):
         self._call_step("_step_kernel", (*self._records, inputs, u, e, 0, out))
 
     def _run(self, inputs: FloatArray, u: FloatArray, e: FloatArray, out: Any) -> None:
+        """Every sample in order, sample ``k``'s estimate into row ``k`` of ``out``.
+
+        The C port's run where it runs, else the batched kernel on this filter's records
+        and ``out`` as a stack of one (:attr:`_step_many_kernel`).
+        """
         native = self._native_records(out)
-        if native is None:
-            type(self)._run_kernel(*self._records, inputs, u, e, out)
-        else:
+        if native is not None:
             native.run(inputs, u, e)
             self._native = None  # the binding would keep a whole run's output alive
+            return
+        from manualcontrol.estimators.filters.batch import stack_of_one
+
+        stacked, stacked_out = stack_of_one((self._records, out))
+        n = len(u)
+        type(self)._step_many_kernel(
+            *stacked,
+            inputs,
+            u,
+            e,
+            np.ones(n, dtype=np.bool_),
+            np.zeros(n, dtype=np.int64),
+            np.arange(n, dtype=np.int64),
+            stacked_out,
+        )
 
     # ------------------------------------------------------------------ C ports
 
@@ -629,6 +646,7 @@ class PilotFilter(FilterShell):
             u,
             e,
             np.ones(k, dtype=np.bool_),
+            np.zeros(k, dtype=np.int64),
             np.zeros(k, dtype=np.int64),
             out,
         )

@@ -696,7 +696,6 @@ class RML(PilotFilter):
     _step_many_kernel = LazyKernel(
         "manualcontrol.estimators.members._rml_kernels", "bank_step_many"
     )
-    _run_kernel = LazyKernel("manualcontrol.estimators.members._rml_kernels", "bank_run")
     _native_binding = _rml_native
 
     def __init__(self, settings: RMLSettings | None = None, **changes: Any) -> None:

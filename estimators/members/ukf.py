@@ -265,7 +265,6 @@ class JointUKF(_UnscentedPilotFilter):
     settings_type = UKFSettings
     _step_kernel = LazyKernel(_KERNEL_MODULE, "joint_step")
     _step_many_kernel = LazyKernel(_KERNEL_MODULE, "joint_step_many")
-    _run_kernel = LazyKernel(_KERNEL_MODULE, "joint_run")
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
         internal = self._internal
@@ -300,7 +299,6 @@ class DualUKF(_UnscentedPilotFilter):
     settings_type = DualUKFSettings
     _step_kernel = LazyKernel(_KERNEL_MODULE, "dual_step")
     _step_many_kernel = LazyKernel(_KERNEL_MODULE, "dual_step_many")
-    _run_kernel = LazyKernel(_KERNEL_MODULE, "dual_run")
 
     def _start(self, resolved: ResolvedSettings, common: CommonArrays) -> None:
         internal = self._internal

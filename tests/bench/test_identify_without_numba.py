@@ -323,7 +323,6 @@ def test_the_dekf_names_its_kernels_lazily():
 
     assert DEKF._step_kernel is _dekf_kernels.dekf_step
     assert DEKF()._step_many_kernel is _dekf_kernels.dekf_step_many
-    assert DEKF._run_kernel is _dekf_kernels.dekf_run
 
 
 @pytest.mark.parametrize(
@@ -342,7 +341,6 @@ def test_the_pilot_filters_name_their_kernels_lazily(member, kernels, prefix):
     kernels = importlib.import_module(f"manualcontrol.estimators.members.{kernels}")
     assert cls._step_kernel is getattr(kernels, f"{prefix}_step")
     assert cls._step_many_kernel is getattr(kernels, f"{prefix}_step_many")
-    assert cls._run_kernel is getattr(kernels, f"{prefix}_run")
 
 
 def test_zhaos_filters_name_their_kernels_lazily():

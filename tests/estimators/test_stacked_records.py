@@ -102,3 +102,23 @@ def test_views_returned_to_python_are_counted_references_of_the_stack():
         np.testing.assert_array_equal(view.matrix, views[0].matrix)
     views[0].matrix[0, 0] = 5.0
     assert views[-1].matrix[0, 0] == 5.0  # views of one row, not copies
+
+
+@pytest.mark.parametrize("store", [False, True], ids=["plain", "smoother storage"])
+@pytest.mark.parametrize("member", ["dekf", "rml", "joint-ukf", "dual-ukf"])
+def test_a_run_an_online_block_and_a_batch_type_alike_so_numba_compiles_one_loop(member, store):
+    # numba compiles a kernel once per tuple of argument types. The batched loop serves
+    # three callers: a whole run in estimate (the filter's records and its n-row output
+    # as a stack of one), update_block (the same records and the one-row output) and a
+    # FilterBatch (n copies stacked): were their records to type differently, numba
+    # would compile the loop, and the step optimised into it, once for each
+    from manualcontrol.estimators.filters.batch import stack_of_one
+    from manualcontrol.estimators.registry import ESTIMATORS
+
+    estimator = ESTIMATORS[member].build({})
+    estimator.reset(0.01, var_u0=1.0, var_e0=1.0)
+    records = estimator._records
+    run = numba.typeof(stack_of_one((records, estimator._new_output(50, store=store))))
+    block = numba.typeof(stack_of_one((records, estimator._row)))
+    batch = numba.typeof((stack_records(records, 3), stack_records(estimator._row, 3)))
+    assert run == block == batch
