@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from manualcontrol.envs._lazy import has_kernel
 from manualcontrol.envs._validation import check_int
-from manualcontrol.estimators.filters.batch import put_record, stack_records
+from manualcontrol.estimators.filters.batch import loop_samples, put_record, stack_records
 from manualcontrol.estimators.shell import compiled_entry
 
 __all__ = ["FilterBatch", "batched_members"]
@@ -145,8 +145,8 @@ class FilterBatch:
         inputs = self._inputs
         for j, name in enumerate(self._input_names):
             inputs[:, j] = signals[name]
-        u = np.ascontiguousarray(signals["u"], dtype=np.float64)
-        e = np.ascontiguousarray(signals["e"], dtype=np.float64)
+        u = loop_samples(signals["u"])
+        e = loop_samples(signals["e"])
         if u.shape != (self.n,) or e.shape != (self.n,):
             raise ValueError(
                 f"signals must hold {self.n} values each (one per copy), "

@@ -40,11 +40,24 @@ import numpy as np
 from numba.core import types
 from numba.extending import lower_builtin, type_callable
 
-__all__ = ["put_record", "stack_of_one", "stack_records", "take"]
+__all__ = ["loop_samples", "put_record", "stack_of_one", "stack_records", "take"]
 
 
 def _is_record(value: Any) -> bool:
     return isinstance(value, tuple) and hasattr(value, "_fields")
+
+
+def loop_samples(values: Any) -> np.ndarray:
+    """``values`` as the batched loops take samples: C-contiguous float64, writable.
+
+    numba types a read-only array apart from a writable one and compiles a kernel once
+    per type: a recording's signals are read-only, a batch's and a block's are not, so
+    without this the loop, with the filter's step optimised into it, would be compiled
+    twice for the same numbers. A read-only array is copied (one pass over the samples,
+    against a filter step per sample).
+    """
+    array = np.ascontiguousarray(values, dtype=np.float64)
+    return array if array.flags.writeable else array.copy()
 
 
 def stack_records(record: Any, n: int) -> Any:

@@ -392,15 +392,15 @@ class PilotFilter(FilterShell):
             native.run(inputs, u, e)
             self._native = None  # the binding would keep a whole run's output alive
             return
-        from manualcontrol.estimators.filters.batch import stack_of_one
+        from manualcontrol.estimators.filters.batch import loop_samples, stack_of_one
 
         stacked, stacked_out = stack_of_one((self._records, out))
         n = len(u)
         type(self)._step_many_kernel(
             *stacked,
-            inputs,
-            u,
-            e,
+            loop_samples(inputs),
+            loop_samples(u),
+            loop_samples(e),
             np.ones(n, dtype=np.bool_),
             np.zeros(n, dtype=np.int64),
             np.arange(n, dtype=np.int64),
@@ -632,7 +632,7 @@ class PilotFilter(FilterShell):
         if native is not None:
             native.block(inputs, u, e)
             return
-        from manualcontrol.estimators.filters.batch import stack_of_one
+        from manualcontrol.estimators.filters.batch import loop_samples, stack_of_one
 
         records = self._records
         block = self._block
@@ -642,9 +642,9 @@ class PilotFilter(FilterShell):
         k = len(u)
         arguments = (
             *stacked,
-            inputs,
-            u,
-            e,
+            loop_samples(inputs),
+            loop_samples(u),
+            loop_samples(e),
             np.ones(k, dtype=np.bool_),
             np.zeros(k, dtype=np.int64),
             np.zeros(k, dtype=np.int64),

@@ -104,21 +104,59 @@ def test_views_returned_to_python_are_counted_references_of_the_stack():
     assert views[-1].matrix[0, 0] == 5.0  # views of one row, not copies
 
 
-@pytest.mark.parametrize("store", [False, True], ids=["plain", "smoother storage"])
+class _TypesSeen:
+    """A member's batched kernel that notes the types numba dispatches each call on."""
+
+    def __init__(self, kernel):
+        self.kernel, self.seen = kernel, []
+
+    def __call__(self, *arguments):
+        self.seen.append(tuple(self.kernel.typeof_pyval(a) for a in arguments))
+        self.kernel(*arguments)
+
+    def typeof_pyval(self, argument):
+        return self.kernel.typeof_pyval(argument)
+
+    @property
+    def overloads(self):  # what shell.compiled_entry reads the entry point from
+        entry = self
+
+        class Overloads:
+            def __getitem__(self, types):
+                return type("Overload", (), {"entry_point": staticmethod(entry)})
+
+        return Overloads()
+
+
 @pytest.mark.parametrize("member", ["dekf", "rml", "joint-ukf", "dual-ukf"])
-def test_a_run_an_online_block_and_a_batch_type_alike_so_numba_compiles_one_loop(member, store):
+def test_a_run_an_online_block_and_a_batch_dispatch_alike_so_numba_compiles_one_loop(
+    member, monkeypatch
+):
     # numba compiles a kernel once per tuple of argument types. The batched loop serves
     # three callers: a whole run in estimate (the filter's records and its n-row output
-    # as a stack of one), update_block (the same records and the one-row output) and a
-    # FilterBatch (n copies stacked): were their records to type differently, numba
-    # would compile the loop, and the step optimised into it, once for each
-    from manualcontrol.estimators.filters.batch import stack_of_one
+    # as a stack of one, on a recording's read-only signals), update_block (the same
+    # records and the one-row output) and a FilterBatch (copies stacked): were any of
+    # their arguments to type differently, numba would compile the loop, and the step
+    # optimised into it, once more (a read-only u did: 6 CPU-s for the DEKF)
+    from manualcontrol.estimators.batch import FilterBatch
     from manualcontrol.estimators.registry import ESTIMATORS
+    from manualcontrol.pilots import Pilot, simulate
 
-    estimator = ESTIMATORS[member].build({})
-    estimator.reset(0.01, var_u0=1.0, var_e0=1.0)
-    records = estimator._records
-    run = numba.typeof(stack_of_one((records, estimator._new_output(50, store=store))))
-    block = numba.typeof(stack_of_one((records, estimator._row)))
-    batch = numba.typeof((stack_records(records, 3), stack_records(estimator._row, 3)))
-    assert run == block == batch
+    monkeypatch.setenv("MANUALCONTROL_NATIVE", "0")  # numba's path, where the types matter
+    recording = simulate(
+        Pilot("precision"), "popovici2017", "popovici2017", measurement_time=2.0, seed=0
+    )
+    assert not recording.u.flags.writeable  # a recording's signals are read-only
+    estimator = ESTIMATORS[member].build({"initial_variance": "causal", "initial": {"K_p": 1.0}})
+    seen = _TypesSeen(type(estimator)._step_many_kernel)
+    monkeypatch.setattr(type(estimator), "_step_many_kernel", seen)
+    estimator.estimate(recording, smooth=True)
+    signals = estimator.signals(recording)
+    keys = estimator.sample_keys
+    estimator.reset(recording.dt)
+    estimator.update_block(np.column_stack([signals[key][:5] for key in keys]))
+    batch = FilterBatch(estimator, 3)
+    batch.reset(recording.dt)
+    batch.step({key: np.full(3, signals[key][0]) for key in keys})
+    assert len(seen.seen) == 3  # the run, the block and the batch all went through it
+    assert len(set(seen.seen)) == 1
