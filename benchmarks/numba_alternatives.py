@@ -363,14 +363,11 @@ def numba_run(records, inputs, u, e, out):
     """
     import numpy as np
 
-    from manualcontrol.estimators.filters.batch import stack_of_one
+    from manualcontrol.estimators.filters.batch import one_filter_loop, stack_of_one
     from manualcontrol.estimators.members import _dekf_core as core
 
-    stacked, stacked_out = stack_of_one((records, out))
-    n = len(u)
-    every = np.ones(n, dtype=np.bool_)
-    first = np.zeros(n, dtype=np.int64)
-    core.dekf_step_many(*stacked, inputs, u, e, every, first, np.arange(n), stacked_out)
+    stacked = stack_of_one((records, out))
+    core.dekf_step_many(*one_filter_loop(stacked, inputs, u, e, np.arange(len(u))))
 
 
 def steady(lib, port, settings, repeats):

@@ -40,7 +40,14 @@ import numpy as np
 from numba.core import types
 from numba.extending import lower_builtin, type_callable
 
-__all__ = ["loop_samples", "put_record", "stack_of_one", "stack_records", "take"]
+__all__ = [
+    "loop_samples",
+    "one_filter_loop",
+    "put_record",
+    "stack_of_one",
+    "stack_records",
+    "take",
+]
 
 
 def _is_record(value: Any) -> bool:
@@ -58,6 +65,24 @@ def loop_samples(values: Any) -> np.ndarray:
     """
     array = np.ascontiguousarray(values, dtype=np.float64)
     return array if array.flags.writeable else array.copy()
+
+
+def one_filter_loop(
+    stacked: tuple[Any, Any], inputs: Any, u: Any, e: Any, out_rows: np.ndarray
+) -> tuple:
+    """The batched loop's arguments that run one filter through samples in order.
+
+    ``stacked`` is :func:`stack_of_one` of the filter's ``(records, out)``; sample
+    ``k`` (``inputs[k], u[k], e[k]``) steps it and writes its estimate into row
+    ``out_rows[k]`` of ``out``: ``arange`` for a whole run, zeros for the online block.
+    """
+    records, out = stacked
+    n = len(u)
+    every = np.ones(n, dtype=np.bool_)
+    first = np.zeros(n, dtype=np.int64)  # the one filter of the stack
+    samples = (loop_samples(inputs), loop_samples(u), loop_samples(e))
+    rows = np.ascontiguousarray(out_rows, dtype=np.int64)
+    return (*records, *samples, every, first, rows, out)
 
 
 def stack_records(record: Any, n: int) -> Any:

@@ -392,20 +392,11 @@ class PilotFilter(FilterShell):
             native.run(inputs, u, e)
             self._native = None  # the binding would keep a whole run's output alive
             return
-        from manualcontrol.estimators.filters.batch import loop_samples, stack_of_one
+        from manualcontrol.estimators.filters.batch import one_filter_loop, stack_of_one
 
-        stacked, stacked_out = stack_of_one((self._records, out))
-        n = len(u)
-        type(self)._step_many_kernel(
-            *stacked,
-            loop_samples(inputs),
-            loop_samples(u),
-            loop_samples(e),
-            np.ones(n, dtype=np.bool_),
-            np.zeros(n, dtype=np.int64),
-            np.arange(n, dtype=np.int64),
-            stacked_out,
-        )
+        stacked = stack_of_one((self._records, out))
+        rows = np.arange(len(u), dtype=np.int64)  # sample k into row k
+        type(self)._step_many_kernel(*one_filter_loop(stacked, inputs, u, e, rows))
 
     # ------------------------------------------------------------------ C ports
 
@@ -632,24 +623,14 @@ class PilotFilter(FilterShell):
         if native is not None:
             native.block(inputs, u, e)
             return
-        from manualcontrol.estimators.filters.batch import loop_samples, stack_of_one
+        from manualcontrol.estimators.filters.batch import one_filter_loop, stack_of_one
 
         records = self._records
         block = self._block
         if block is None or block[0] is not records or block[1] is not self._row:
             block = (records, self._row, stack_of_one((records, self._row)), None)
-        stacked, out = block[2]
-        k = len(u)
-        arguments = (
-            *stacked,
-            loop_samples(inputs),
-            loop_samples(u),
-            loop_samples(e),
-            np.ones(k, dtype=np.bool_),
-            np.zeros(k, dtype=np.int64),
-            np.zeros(k, dtype=np.int64),
-            out,
-        )
+        rows = np.zeros(len(u), dtype=np.int64)  # every sample into the one row
+        arguments = one_filter_loop(block[2], inputs, u, e, rows)
         if block[3] is None:
             block = (*block[:3], compiled_entry(type(self)._step_many_kernel, arguments))
         else:
