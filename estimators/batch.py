@@ -156,13 +156,15 @@ class FilterBatch:
             if np.isinf(values).any():  # NaN marks a dropped sample; inf is a mistake
                 copies = np.flatnonzero(np.isinf(values)).tolist()
                 raise ValueError(f"signal {name!r} is infinite for copies {copies}")
-        active = self._all if active is None else np.asarray(active, dtype=np.bool_)
+        # a fresh contiguous copy: the compiled loop reads the mask as contiguous (a
+        # strided view, such as every other flag of a longer mask, read the wrong flags)
+        active = self._all if active is None else np.array(active, dtype=np.bool_)
         if active.shape != (self.n,):
             raise ValueError(
                 f"active must hold {self.n} flags (one per copy), got shape {active.shape}"
             )
         if self._native is not None:
-            self._native.step(inputs, u, e, np.ascontiguousarray(active))
+            self._native.step(inputs, u, e, active)
             return
         arguments = (*self._records, inputs, u, e, active, self._rows, self._out_rows, self._out)
         if self._entry is None:

@@ -1,6 +1,7 @@
 """The one shell every member of the estimator family subclasses.
 
-A member of the family is its settings, its model and a compiled step/run pair. The
+A member of the family is its settings, its model and a compiled step with a loop over
+it for whole runs. The
 protocol around them is the same for every member and lives here once
 (:class:`FilterShell`): building from settings or keyword changes, ``configure``,
 pickling as a fresh estimator, the ``t``/``dt``/sample-count bookkeeping, the online
@@ -24,7 +25,7 @@ diverged) and ``pinned`` (n, p); members with several outputs add ``predictions`
 - ``_step_sample(sample)``, which reads one sample and calls its compiled step on the
   one-row output (through :meth:`FilterShell._call_step`);
 - ``parameter_names`` and ``signals(recording)``;
-- ``estimate(recording, ...)``, which runs its compiled run and returns
+- ``estimate(recording, ...)``, which runs its compiled loop over the recording and returns
   :meth:`FilterShell._assemble`'s result (smoothed by :meth:`FilterShell._finish`);
 - for smoothing, ``_smoother_inputs(out)``.
 """

@@ -181,6 +181,29 @@ def test_filter_batch_restarts_only_the_copies_asked():
     np.testing.assert_array_equal(after[1], fresh.latest()[0])
 
 
+@pytest.mark.parametrize("native", ["1", "0"], ids=["C port", "numba"])
+def test_a_strided_mask_steps_the_copies_it_flags(native, monkeypatch):
+    # every other flag of a longer mask is a strided view: read as if contiguous, the
+    # compiled loop stepped copy 0 alone for [True, False, True]
+    monkeypatch.setenv("MANUALCONTROL_NATIVE", native)
+    sample = {"e": np.array([0.1, 0.2, 0.3]), "u": np.array([0.4, 0.5, 0.6])}
+
+    def stepped(active):
+        batch = FilterBatch(DEKF(**COMPENSATORY), 3)
+        batch.reset(0.01)
+        batch.step(sample)  # the first step types the loop on contiguous flags
+        batch.step(sample, active=active)
+        return batch.latest()[0].copy()
+
+    longer = np.array([True, False, False, True, True, False])
+    strided = stepped(longer[::2])
+    assert not longer[::2].flags.c_contiguous
+    np.testing.assert_array_equal(strided, stepped(np.array([True, False, True])))
+    idle = stepped(np.zeros(3, dtype=np.bool_))
+    assert not np.array_equal(strided[2], idle[2])  # copy 2 was stepped
+    np.testing.assert_array_equal(strided[1], idle[1])  # copy 1 was not
+
+
 def test_bad_inputs_are_named():
     env_id, element = TASKS["compensatory"]
     vector = gym.make_vec(env_id, num_envs=2, **env_kwargs(element, 1.0))
