@@ -3,10 +3,13 @@
 The batched loops step filter ``i`` on ``take(stack, i)``: views of row ``i`` of every
 stacked array. A view that is a copy, another row, or a field in the wrong place would
 step the wrong state, so the compiled ``take`` is checked against the Python one on a
-nested record of every field kind the members' records hold, and through writes.
+nested record of every field kind the members' records hold, and through writes. The
+members' own callers of their batched loop (a run, an online block, a batch) are checked
+to dispatch it on one tuple of types, so numba compiles it once.
 """
 
-from collections import namedtuple
+from collections import defaultdict, namedtuple
+from types import SimpleNamespace
 
 import numba
 import numpy as np
@@ -119,13 +122,7 @@ class _TypesSeen:
 
     @property
     def overloads(self):  # what shell.compiled_entry reads the entry point from
-        entry = self
-
-        class Overloads:
-            def __getitem__(self, types):
-                return type("Overload", (), {"entry_point": staticmethod(entry)})
-
-        return Overloads()
+        return defaultdict(lambda: SimpleNamespace(entry_point=self))
 
 
 @pytest.mark.parametrize("member", ["dekf", "rml", "joint-ukf", "dual-ukf"])
