@@ -1,5 +1,6 @@
 """Training recipes: the configurations `manualcontrol train --recipe` gives."""
 
+import functools
 import json
 
 import gymnasium as gym
@@ -7,6 +8,7 @@ import numpy as np
 import pytest
 
 import manualcontrol.envs  # noqa: F401
+from manualcontrol.agents import training
 from manualcontrol.agents.recipes import (
     human_problem,
     optimal_control_effort_weight,
@@ -148,7 +150,14 @@ def test_the_train_command_refuses_flags_a_recipe_sets(tmp_path, capsys):
     assert not (tmp_path / "a").exists()
 
 
-def test_the_train_command_trains_a_recipe(tmp_path):
+def test_the_train_command_trains_a_recipe(tmp_path, monkeypatch):
+    # the warm start's fit on two episodes and a hundred steps: the command's wiring is
+    # what is tested here (the fit itself in test_warm_start.py), and the recipe's twenty
+    # episodes and 3,000 steps were half of this test's time
+    clone = training.clone_typical_pilot
+    monkeypatch.setattr(
+        training, "clone_typical_pilot", functools.partial(clone, episodes=2, iterations=100)
+    )
     out = tmp_path / "agent"
     code = main(
         ["train", "--recipe", "si", "--steps", "64", "--seed", "2", "--out", str(out), "--quiet"]
@@ -157,6 +166,7 @@ def test_the_train_command_trains_a_recipe(tmp_path):
     config = json.loads((out / "config.json").read_text())
     assert config["seed"] == 2 and config["total_timesteps"] == 64
     assert config["env_kwargs"]["controlled_element"] == "1/s"
+    assert config["warm_start"] == "typical-pilot"
     bound = config["env_kwargs"]["action_bound"]
     weight = optimal_control_effort_weight("1/s", "popovici2017", bound)
     assert config["effort_rate_weight"] == pytest.approx(weight, rel=1e-12)

@@ -9,6 +9,7 @@ CPU time) is never loaded. With ``MANUALCONTROL_NATIVE=0`` the same command runs
 numba kernels and writes the same estimation, byte for byte.
 """
 
+import json
 import os
 import subprocess
 import sys
@@ -29,15 +30,25 @@ from manualcontrol.pilots import Pilot, simulate
 from manualcontrol.pilots.driver import Driver
 from manualcontrol.pilots.driving import simulate_driving
 
-#: One identification through the command's main, then the numba modules it loaded.
+#: Identifications through the command's main, one after the other in one process (the
+#: jobs a JSON list of [recording, estimator, out]): after each, the numba modules loaded
+#: so far, or the error it raised. One process a path, not one a member: each fresh
+#: process paid the interpreter, the imports and (on numba's path) numba's own import
+#: and kernel loading again, most of this file's time.
 SCRIPT = """
-import sys
+import json, sys, traceback
 from manualcontrol.bench.cli import main
-code = main(
-    ["identify", sys.argv[1], "--estimator", sys.argv[3], "--out", sys.argv[2], "--no-plot"]
-)
-assert code == 0, code
-print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "llvmlite")))
+report = {}
+for recording, estimator, out in json.loads(sys.argv[1]):
+    try:
+        code = main(["identify", recording, "--estimator", estimator, "--out", out, "--no-plot"])
+        assert code == 0, code
+    except BaseException:
+        report[estimator] = {"error": traceback.format_exc()}
+        continue
+    loaded = sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "llvmlite"))
+    report[estimator] = {"loaded": loaded}
+print(json.dumps(report))
 """
 
 #: Each member whose whole identify runs in C: its C port, and the pilot, element and
@@ -85,35 +96,100 @@ def run_script(script, *arguments, native=True):
     return done.stdout.strip().splitlines()
 
 
-def identify(recording, out, native, estimator="dekf"):
-    return run_script(SCRIPT, recording, out, estimator, native=native)[-1]
-
-
-@pytest.mark.skipif(
-    _native._compiler() is None, reason="no C compiler: the C ports cannot be built here"
-)
-@pytest.mark.parametrize("estimator", sorted(MEMBERS))
-def test_a_warm_identify_imports_no_numba_and_numba_writes_the_same(
-    estimator, tmp_path, monkeypatch
-):
-    monkeypatch.delenv("MANUALCONTROL_NATIVE", raising=False)
-    port, source, options = MEMBERS[estimator]
-    if port.library() is None or _dynamics_native.library() is None:
-        pytest.skip(f"the {estimator}'s or the LPV toolkit's C port did not build here")
-    if estimator.endswith("-smoothed") and _smoother_native.library() is None:
-        pytest.skip("the RTS smoother's C port did not build here")
-    recording = tmp_path / "run.npz"
+def simulated(source, options, path, seconds=30.0):
+    """The recording a member of :data:`MEMBERS` reads, simulated into ``path``."""
     if source == DRIVING:  # a few seconds of lane keeping keep it fast
-        simulate_driving(Driver(), measurement_time=4.0, **options).save(recording)
+        simulate_driving(Driver(), measurement_time=4.0, **options).save(path)
     else:
         pilot, plant, task = source
-        simulate(Pilot(pilot), plant, task, measurement_time=30.0, **options).save(recording)
-    loaded = identify(recording, tmp_path / "c", native=True, estimator=estimator)
-    assert loaded == "[]", f"the C path imported {loaded}"
-    loaded = identify(recording, tmp_path / "numba", native=False, estimator=estimator)
-    assert "'numba'" in loaded
-    c_bytes = (tmp_path / "c" / "estimation.npz").read_bytes()
-    assert c_bytes == (tmp_path / "numba" / "estimation.npz").read_bytes()
+        simulate(Pilot(pilot), plant, task, measurement_time=seconds, **options).save(path)
+    return path
+
+
+def first_to_load(report, order, estimator):
+    """The first member, up to ``estimator`` in ``order``, after which numba was loaded.
+
+    The members run in one process: one that loads numba leaves it loaded for those
+    after it, which can then no longer be told apart (its own test names it).
+    """
+    for name in order[: order.index(estimator) + 1]:
+        if report[name].get("loaded"):
+            return name
+    return None
+
+
+def c_path_missing(estimator, whole_identify=True):
+    """Why ``estimator``'s C path cannot run here, or None where it can.
+
+    A whole identify needs the LPV toolkit's port too (and the smoother's, smoothed);
+    the online updates only the member's.
+    """
+    port = MEMBERS[estimator][0]
+    if _native._compiler() is None:
+        return "no C compiler: the C ports cannot be built here"
+    if port.library() is None:
+        return f"the {estimator}'s C port did not build here"
+    if not whole_identify:
+        return None
+    if _dynamics_native.library() is None:
+        return "the LPV toolkit's C port did not build here"
+    if estimator.endswith("-smoothed") and _smoother_native.library() is None:
+        return "the RTS smoother's C port did not build here"
+    return None
+
+
+def both_paths(tmp_path_factory, script, members, seconds, whole_identify):
+    """``script`` on every member's recording, through C in one process and numba in another.
+
+    Returns the folder, the members run (in order) and each path's report: the last line
+    the script prints, JSON keyed by member.
+    """
+    folder = tmp_path_factory.mktemp("paths")
+    with pytest.MonkeyPatch.context() as patch:  # the ports are asked for by name here
+        patch.delenv("MANUALCONTROL_NATIVE", raising=False)
+        order = [name for name in members if c_path_missing(name, whole_identify) is None]
+    recordings = {}  # members reading the same run share its file
+    jobs = {True: [], False: []}
+    for estimator in order:
+        _, source, options = MEMBERS[estimator]
+        key = repr((source, sorted(options.items())))
+        if key not in recordings:
+            path = folder / f"run{len(recordings)}.npz"
+            recordings[key] = simulated(source, options, path, seconds)
+        for native in jobs:
+            place = folder / ("c" if native else "numba") / estimator
+            job = [str(recordings[key]), estimator, str(place)]
+            jobs[native].append(job if whole_identify else job[:2])
+    reports = {
+        native: json.loads(run_script(script, json.dumps(batch), native=native)[-1])
+        for native, batch in jobs.items()
+    }
+    return folder, order, reports
+
+
+@pytest.fixture(scope="module")
+def identified(tmp_path_factory):
+    """Every member's identify through C in one process, through numba in another."""
+    return both_paths(tmp_path_factory, SCRIPT, sorted(MEMBERS), 30.0, whole_identify=True)
+
+
+@pytest.mark.parametrize("estimator", sorted(MEMBERS))
+def test_a_warm_identify_imports_no_numba_and_numba_writes_the_same(
+    estimator, identified, monkeypatch
+):
+    monkeypatch.delenv("MANUALCONTROL_NATIVE", raising=False)
+    reason = c_path_missing(estimator)
+    if reason is not None:
+        pytest.skip(reason)
+    folder, order, reports = identified
+    through_c, through_numba = reports[True][estimator], reports[False][estimator]
+    assert "error" not in through_c, through_c.get("error")
+    assert "error" not in through_numba, through_numba.get("error")
+    loader = first_to_load(reports[True], order, estimator)
+    assert loader is None, f"the C path imported numba (first after {loader})"
+    assert "numba" in through_numba["loaded"]
+    c_bytes = (folder / "c" / estimator / "estimation.npz").read_bytes()
+    assert c_bytes == (folder / "numba" / estimator / "estimation.npz").read_bytes()
 
 
 #: A preview pilot's simulation: the target ahead read in numpy, the loop in C.
@@ -126,67 +202,79 @@ print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "ll
 """
 
 
-#: A member's online path: reset as ``estimate`` resets it, then ``update`` a sample at
-#: a time (the default observer's step), the same numbers through C and numba.
+#: Each member's online path, one after the other in one process (the jobs a JSON list
+#: of [recording, estimator]): reset as ``estimate`` resets it, then ``update`` a sample
+#: at a time (the default observer's step); the means it gave (hex of their bytes) and
+#: the numba modules loaded so far, or the error it raised.
 UPDATES = """
-import sys
+import json, sys, traceback
 import numpy as np
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import make_estimator
-recording = Recording.load(sys.argv[1])
-estimator = make_estimator({"name": sys.argv[2]})
-keys = tuple(estimator.sample_keys)
-signals = estimator.signals(recording)
-if not isinstance(signals, dict):
-    signals = dict(zip(keys, signals))
-settings = estimator.settings
-options = {}
-if hasattr(getattr(settings, "noise", None), "initial_variance"):
-    first = slice(0, round(settings.noise.window / recording.dt) + 1)
-    options = {"var_u0": float(np.nanvar(signals["u"][first])),
-               "var_e0": float(np.nanvar(signals["e"][first]))}
-elif hasattr(estimator, "initial_states_of"):
-    options = {"initial_states": estimator.initial_states_of(recording)}
-elif "speed" in recording.metadata and hasattr(settings, "speed"):
-    options = {"speed": recording.metadata["speed"]}
-estimator.reset(recording.dt, t0=float(recording.t[0]), **options)
-means = []
-for k in range(200):
-    estimate = estimator.update({key: float(signals[key][k]) for key in keys})
-    means.append([float(value) for value in estimate.mean.values()])
-print(np.asarray(means).tobytes().hex())
-print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "llvmlite")))
+
+def updates(path, name):
+    recording = Recording.load(path)
+    estimator = make_estimator({"name": name})
+    keys = tuple(estimator.sample_keys)
+    signals = estimator.signals(recording)
+    if not isinstance(signals, dict):
+        signals = dict(zip(keys, signals))
+    settings = estimator.settings
+    options = {}
+    if hasattr(getattr(settings, "noise", None), "initial_variance"):
+        first = slice(0, round(settings.noise.window / recording.dt) + 1)
+        options = {"var_u0": float(np.nanvar(signals["u"][first])),
+                   "var_e0": float(np.nanvar(signals["e"][first]))}
+    elif hasattr(estimator, "initial_states_of"):
+        options = {"initial_states": estimator.initial_states_of(recording)}
+    elif "speed" in recording.metadata and hasattr(settings, "speed"):
+        options = {"speed": recording.metadata["speed"]}
+    estimator.reset(recording.dt, t0=float(recording.t[0]), **options)
+    means = []
+    for k in range(200):
+        estimate = estimator.update({key: float(signals[key][k]) for key in keys})
+        means.append([float(value) for value in estimate.mean.values()])
+    return np.asarray(means).tobytes().hex()
+
+report = {}
+for path, name in json.loads(sys.argv[1]):
+    try:
+        means = updates(path, name)
+    except BaseException:
+        report[name] = {"error": traceback.format_exc()}
+        continue
+    loaded = sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "llvmlite"))
+    report[name] = {"means": means, "loaded": loaded}
+print(json.dumps(report))
 """
 
 #: The members whose online step has a C port, and the recording each reads.
 ONLINE_MEMBERS = [name for name in MEMBERS if not name.endswith("-smoothed")]
 
 
-@pytest.mark.skipif(
-    _native._compiler() is None, reason="no C compiler: the C ports cannot be built here"
-)
+@pytest.fixture(scope="module")
+def updated(tmp_path_factory):
+    """Every member's online updates through C in one process, through numba in another."""
+    return both_paths(tmp_path_factory, UPDATES, ONLINE_MEMBERS, 5.0, whole_identify=False)
+
+
 @pytest.mark.parametrize("estimator", ONLINE_MEMBERS)
 def test_an_online_update_imports_no_numba_and_numba_gives_the_same(
-    estimator, tmp_path, monkeypatch
+    estimator, updated, monkeypatch
 ):
     # the step kernel is read by name only where numba takes the step
     monkeypatch.delenv("MANUALCONTROL_NATIVE", raising=False)
-    port, source, options = MEMBERS[estimator]
-    if port.library() is None:
-        pytest.skip(f"the {estimator}'s C port did not build here")
-    recording = tmp_path / "run.npz"
-    if source == DRIVING:
-        simulate_driving(Driver(), measurement_time=4.0, **options).save(recording)
-    else:
-        pilot, plant, task = source
-        simulate(Pilot(pilot), plant, task, measurement_time=5.0, **options).save(recording)
-    outputs = {
-        native: run_script(UPDATES, recording, estimator, native=native)[-2:]
-        for native in (True, False)
-    }
-    assert outputs[True][1] == "[]", f"the C path imported {outputs[True][1]}"
-    assert "'numba'" in outputs[False][1]
-    assert outputs[True][0] == outputs[False][0]
+    reason = c_path_missing(estimator, whole_identify=False)
+    if reason is not None:
+        pytest.skip(reason)
+    _, order, reports = updated
+    through_c, through_numba = reports[True][estimator], reports[False][estimator]
+    assert "error" not in through_c, through_c.get("error")
+    assert "error" not in through_numba, through_numba.get("error")
+    loader = first_to_load(reports[True], order, estimator)
+    assert loader is None, f"the C path imported numba (first after {loader})"
+    assert "numba" in through_numba["loaded"]
+    assert through_c["means"] == through_numba["means"]
 
 
 #: The online observer's thin form: built, stepped through a block and read.
