@@ -1,6 +1,7 @@
 """A typical pilot's start: PPO's policy begins as the typical pilot's equaliser."""
 
 import dataclasses
+import functools
 import json
 import warnings
 
@@ -262,9 +263,14 @@ def test_a_start_with_a_history_at_ppos_default_learning_rate_is_warned_of():
 
 
 def test_the_train_command_warns_of_a_history_at_ppos_default_rate_before_training(
-    tmp_path, capsys
+    tmp_path, capsys, monkeypatch
 ):
+    from manualcontrol.agents import training
     from manualcontrol.bench.cli import main
+
+    # the warning is what is tested: the start fitted on two episodes and a hundred steps
+    clone = functools.partial(training.clone_typical_pilot, episodes=2, iterations=100)
+    monkeypatch.setattr(training, "clone_typical_pilot", clone)
 
     flags = [
         "train", "--warm-start", "typical-pilot", "--algorithm", "ppo", "--history", "5",
