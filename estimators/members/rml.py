@@ -458,6 +458,18 @@ class RMLSettings(PilotFilterSettings):
                 "incomparable between passes (each weights by its own estimate); set "
                 "r2_remnant=0 (R = r2 var(u)) to restart"
             )
+        previewing = "ft_far" in make_model(self.model).perceptions and not self.pursuit
+        if self.remnant.injection == CHOOSE_CAUSAL_INJECTION and previewing:
+            # the choice's describing function is of the filter's own samples, and the
+            # preview model's carry the target ahead (ft_ahead), not the target ft that
+            # its two-channel fit needs: refused here rather than at the first decision
+            raise ValueError(
+                "remnant_injection='choose-causal' measures the describing function from "
+                "the filter's own samples, which on the preview model hold the target "
+                "ahead, not the target ft its two-channel fit needs: give "
+                "remnant_injection='choose' (offline, the whole run's choice), 'input' or "
+                "'output', or fit the pursuit form (anticipation_time=0)"
+            )
         if self.delay_order != 3:
             raise ValueError(
                 "delay_order does not apply to the RML, whose delays act on the inputs through "

@@ -101,6 +101,15 @@ def test_causal_choice_refuses_what_it_cannot_do(stick_remnant_run):
         estimator.estimate(bare)
     with pytest.raises(ValueError, match=r"remnant_injection must be one of .*'choose-causal'"):
         RML(model="precision", remnant_injection="causal")
+    # the preview model's samples hold the target ahead, not the target ft the choice's
+    # two-channel describing function needs: refused when set, not at the first decision
+    preview = dict(model="preview", ce="SI", anticipation_time=0.9)
+    with pytest.raises(ValueError, match="on the preview model hold the target ahead"):
+        RML(**preview, remnant_injection="choose-causal")
+    # its pursuit form reads ft itself, and the offline choice reads the whole recording
+    pursuit = {**preview, "anticipation_time": 0.0, "initial": {"tau_f": 0.0}}
+    assert "ft" in RML(**pursuit, remnant_injection="choose-causal").sample_keys
+    RML(**preview, remnant_injection="choose")
 
 
 def _stepped(estimator, recording, **reset):
