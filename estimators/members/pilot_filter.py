@@ -582,7 +582,9 @@ class PilotFilter(FilterShell):
         ``k`` calls of :meth:`update`, bit for bit, with one entry into compiled code
         instead of ``k``. The estimate after the last sample is in the row
         (:meth:`latest`, :meth:`latest_plain`). The online observer feeds it the samples
-        nobody read an estimate between.
+        nobody read an estimate between. A subclass with its own ``_step`` or
+        ``_consume`` has them called for every sample, as :meth:`update` calls them (in
+        Python, one sample at a time).
         """
         reason = self.batchable() if hasattr(self, "batchable") else ""
         if not has_kernel(type(self), "_step_many_kernel") or reason:
@@ -603,6 +605,11 @@ class PilotFilter(FilterShell):
             row, column = np.argwhere(infinite)[0]
             raise ValueError(f"sample {int(row)} of the block has {keys[column]} infinite")
         k = len(values)
+        if not (self._direct and type(self)._consume is PilotFilter._consume):
+            t_last = self._t0 + (self._k + k - 1) * self._dt if t is None else float(t)
+            for row in values.tolist():
+                self._consume(dict(zip(keys, row, strict=True)))
+            return t_last
         if k:
             n_inputs = len(self._inputs)
             self._step_block(

@@ -590,7 +590,7 @@ def test_periodic_extension_is_exact_for_a_multisine():
     np.testing.assert_allclose(extension(later), signal(later), atol=1e-12)
 
 
-def test_a_subclass_with_its_own_step_is_called_every_sample():
+def test_a_subclass_with_its_own_step_is_called_every_sample_and_in_a_block():
     class Counting(DEKF):
         steps = 0
 
@@ -603,3 +603,26 @@ def test_a_subclass_with_its_own_step_is_called_every_sample():
     for k in range(5):
         dekf.update({"e": 0.1 * k, "u": 0.05 * k})
     assert Counting.steps == 5
+    # a block (the online observer's "none" form) calls it too, and a subclass that
+    # reads its samples its own way gets them so, as update gives them
+    samples = np.column_stack([0.1 * np.arange(5), 0.05 * np.arange(5)])  # e, u
+    dekf.reset(0.01)
+    assert dekf.update_block(samples) == pytest.approx(0.04)
+    assert Counting.steps == 10
+
+    class Doubled(DEKF):
+        def _consume(self, sample):
+            return super()._consume({**sample, "u": 2.0 * sample["u"]})
+
+    settings = dict(model="precision", initial_variance="causal", initial={"K_p": 1.3})
+    stepped, blocked = Doubled(**settings), Doubled(**settings)
+    stepped.reset(0.01)
+    for e, u in samples:
+        stepped.update({"e": e, "u": u})
+    blocked.reset(0.01)
+    blocked.update_block(samples)
+    assert blocked.latest()[0].tobytes() == stepped.latest()[0].tobytes()
+    plain = DEKF(**settings)
+    plain.reset(0.01)
+    plain.update_block(samples)
+    assert plain.latest()[0].tobytes() != blocked.latest()[0].tobytes()
