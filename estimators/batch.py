@@ -111,14 +111,33 @@ class FilterBatch:
     def reset_copies(self, copies: Sequence[int] | NDArray[np.bool_]) -> None:
         """Start the given copies (indices, or a mask over the copies) afresh.
 
-        The initial belief does not depend on the time of the first sample, so a copy
-        restarted mid-run is the copy a fresh reset gives.
+        A mask is ``n`` booleans (an array or a list of them); anything else is read as
+        indices. The initial belief does not depend on the time of the first sample, so a
+        copy restarted mid-run is the copy a fresh reset gives.
         """
         self._require_reset()
         records, row = self._initial
-        for i in np.flatnonzero(np.asarray(copies)) if _is_mask(copies) else copies:
-            put_record(self._records, records, int(i))
-            put_record(self._out, row, int(i))
+        for i in self._copy_indices(copies):
+            put_record(self._records, records, i)
+            put_record(self._out, row, i)
+
+    def _copy_indices(self, copies: Any) -> list[int]:
+        """The indices ``copies`` names: a mask's set flags, or indices checked in range."""
+        array = np.asarray(copies)
+        if array.dtype == np.bool_:  # a mask, as an array or as a list of bools
+            if array.shape != (self.n,):
+                raise ValueError(
+                    f"copies as a mask must hold one flag per copy ({self.n}), got shape "
+                    f"{array.shape}"
+                )
+            return np.flatnonzero(array).tolist()
+        if array.ndim != 1 or (array.size and array.dtype.kind not in "iu"):
+            raise ValueError(f"copies must be indices or a mask over the copies, got {copies!r}")
+        indices = array.tolist()
+        outside = [i for i in indices if not 0 <= i < self.n]
+        if outside:
+            raise ValueError(f"copies must lie in 0..{self.n - 1}, got {outside}")
+        return indices
 
     def _require_reset(self) -> None:
         if self._records is None:
@@ -212,7 +231,3 @@ class FilterBatch:
             "prediction": prediction,
             "health": health.as_dict(),
         }
-
-
-def _is_mask(copies: Any) -> bool:
-    return isinstance(copies, np.ndarray) and copies.dtype == np.bool_

@@ -181,6 +181,27 @@ def test_filter_batch_restarts_only_the_copies_asked():
     np.testing.assert_array_equal(after[1], fresh.latest()[0])
 
 
+def test_filter_batch_reads_a_list_of_flags_as_a_mask_and_refuses_other_copies():
+    # a list of bools was read as indices (False and True: copies 0 and 1)
+    batch = FilterBatch(DEKF(**COMPENSATORY), 3)
+    batch.reset(0.01)
+    batch.step({"e": np.array([0.1, 0.2, 0.3]), "u": np.array([0.4, 0.5, 0.6])})
+    stepped = batch.latest()[0].copy()
+    batch.reset_copies([False, False, True])
+    after = batch.latest()[0]
+    np.testing.assert_array_equal(after[:2], stepped[:2])
+    fresh = FilterBatch(DEKF(**COMPENSATORY), 3)
+    fresh.reset(0.01)
+    np.testing.assert_array_equal(after[2], fresh.latest()[0][2])
+    assert not np.array_equal(after[2], stepped[2])
+    with pytest.raises(ValueError, match=r"copies must lie in 0\.\.2, got \[3\]"):
+        batch.reset_copies([3])
+    with pytest.raises(ValueError, match=r"one flag per copy \(3\), got shape \(2,\)"):
+        batch.reset_copies([True, False])
+    with pytest.raises(ValueError, match="copies must be indices or a mask"):
+        batch.reset_copies([0.5])
+
+
 @pytest.mark.parametrize("native", ["1", "0"], ids=["C port", "numba"])
 def test_a_strided_mask_steps_the_copies_it_flags(native, monkeypatch):
     # every other flag of a longer mask is a strided view: read as if contiguous, the
