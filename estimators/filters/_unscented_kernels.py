@@ -13,6 +13,7 @@ from manualcontrol.estimators.filters._linalg_kernels import (
     add_product,
     cholesky,
     cholesky_semidefinite,
+    cholesky_semidefinite_pivoted,
     cholesky_solve_rows,
     log_determinant,
     symmetrise,
@@ -24,10 +25,14 @@ def sigma_points(x, P, spread, L, X):
     """Sigma points of ``(x, P)`` into the rows of ``X`` (centre last).
 
     ``P`` may be semidefinite (:func:`~.linalg.cholesky_semidefinite`: directions of
-    zero variance get no spread); False if it is not, or not finite.
+    zero variance get no spread); False if it is not, or not finite. Where the
+    unpivoted factor refuses ``P``, the pivoted one
+    (:func:`~.linalg.cholesky_semidefinite_pivoted`, ``X`` its scratch) tells a
+    semidefinite ``P`` rounded below zero from an indefinite one; a ``P`` the first
+    takes gets the same points as before it.
     """
     n = x.shape[0]
-    if not cholesky_semidefinite(P, L):
+    if not cholesky_semidefinite(P, L) and not cholesky_semidefinite_pivoted(P, L, X):
         return False
     for i in range(n):
         for j in range(n):

@@ -156,6 +156,7 @@ _KERNELS = (
     "add_product",
     "cholesky",
     "cholesky_semidefinite",
+    "cholesky_semidefinite_pivoted",
     "cholesky_solve_rows",
     "log_determinant",
     "symmetrise",

@@ -13,7 +13,8 @@
  * Sources ported (manualcontrol/estimators/...):
  *   filters/linalg.py    TINY, SEMIDEFINITE_TOLERANCE, symmetrise, cholesky,
  *                        cholesky_solve_rows, matmul_transposed,
- *                        cholesky_semidefinite, log_determinant, add_product
+ *                        cholesky_semidefinite, cholesky_semidefinite_pivoted,
+ *                        log_determinant, add_product
  *   filters/unscented.py weighted_mean, weighted_covariance
  *   filters/kalman.py    KalmanWork, joseph_scalar
  *   filters/monitor.py   PIN_FRACTION, track_pins, window_push, window_variance
@@ -148,6 +149,74 @@ static int cholesky_semidefinite(const double *A, double *L, int64_t n)
                 s -= L[i * n + k] * L[j * n + k];
             L[i * n + j] = s / d;
         }
+    }
+    return 1;
+}
+
+/* cholesky_semidefinite_pivoted: a square root L (A = L L^T, rows in A's order, not
+ * triangular) of a positive semidefinite A by Cholesky with diagonal pivoting, the
+ * largest remaining pivot first; work is scratch of (n + 2, n): the factor in pivoted
+ * order, the remaining pivots and the order */
+static int cholesky_semidefinite_pivoted(const double *A, double *L, double *work, int64_t n)
+{
+    double largest = 0.0;
+    for (int64_t i = 0; i < n; i++) {
+        if (!isfinite(A[i * n + i]))
+            return 0;
+        largest = py_max(largest, A[i * n + i]);
+    }
+    double floor_ = SEMIDEFINITE_TOLERANCE * largest;
+    double *pivots = work + n * n;
+    double *order = work + (n + 1) * n;
+    for (int64_t i = 0; i < n; i++) {
+        order[i] = (double)i;
+        pivots[i] = A[i * n + i];
+        for (int64_t j = 0; j < n; j++)
+            work[i * n + j] = 0.0;
+    }
+    for (int64_t k = 0; k < n; k++) {
+        int64_t m = k;
+        double best = pivots[k];
+        for (int64_t i = k + 1; i < n; i++)
+            if (pivots[i] > best) {
+                best = pivots[i];
+                m = i;
+            }
+        if (!isfinite(best))
+            return 0;
+        if (m != k) {
+            pivots[m] = pivots[k];
+            pivots[k] = best;
+            double held = order[k];
+            order[k] = order[m];
+            order[m] = held;
+            for (int64_t j = 0; j < k; j++) {
+                held = work[k * n + j];
+                work[k * n + j] = work[m * n + j];
+                work[m * n + j] = held;
+            }
+        }
+        if (best <= floor_) {
+            if (best < -1e3 * floor_ - 1e-300)
+                return 0;
+            break;
+        }
+        double d = sqrt(best);
+        work[k * n + k] = d;
+        int64_t at = (int64_t)order[k];
+        for (int64_t i = k + 1; i < n; i++) {
+            int64_t other = (int64_t)order[i];
+            double s = other > at ? A[other * n + at] : A[at * n + other];
+            for (int64_t j = 0; j < k; j++)
+                s -= work[i * n + j] * work[k * n + j];
+            work[i * n + k] = s / d;
+            pivots[i] -= work[i * n + k] * work[i * n + k];
+        }
+    }
+    for (int64_t i = 0; i < n; i++) {
+        int64_t row = (int64_t)order[i];
+        for (int64_t j = 0; j < n; j++)
+            L[row * n + j] = work[i * n + j];
     }
     return 1;
 }

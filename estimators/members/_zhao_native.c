@@ -144,7 +144,7 @@ typedef struct {
 static int sigma_points(const double *x, const double *P, double spread, double *L,
                         double *X, int64_t n)
 {
-    if (!cholesky_semidefinite(P, L, n))
+    if (!cholesky_semidefinite(P, L, n) && !cholesky_semidefinite_pivoted(P, L, X, n))
         return 0;
     for (int64_t i = 0; i < n; i++) {
         for (int64_t j = 0; j < n; j++) {

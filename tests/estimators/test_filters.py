@@ -25,7 +25,11 @@ from manualcontrol.estimators.filters.kalman import (
     predict_covariance,
     textbook_correct,
 )
-from manualcontrol.estimators.filters.linalg import cholesky, cholesky_semidefinite
+from manualcontrol.estimators.filters.linalg import (
+    cholesky,
+    cholesky_semidefinite,
+    cholesky_semidefinite_pivoted,
+)
 from manualcontrol.estimators.filters.smoothers import (
     LINK_CROSS,
     LINK_RANDOM_WALK,
@@ -322,6 +326,34 @@ def test_cholesky_refuses_indefinite_and_semidefinite_factor_accepts_rank_defici
     np.testing.assert_allclose(L @ L.T, [[1.0, 1.0], [1.0, 1.0]], atol=1e-15)
     assert not cholesky_semidefinite(np.array([[1.0, 2.0], [2.0, 1.0]]), L)
     assert not cholesky_semidefinite(np.array([[np.nan, 0.0], [0.0, 1.0]]), L)
+
+
+def test_the_pivoted_factor_takes_the_singular_covariances_rounding_pushes_below_zero():
+    # covariances of rank n - 1 (one direction the data pinned) with spreads four decades
+    # apart: rounding leaves some of them a last unpivoted pivot clearly below zero
+    rng = np.random.default_rng(0)
+    n = 6
+    refused = 0
+    for _ in range(20_000):
+        scales = 10.0 ** rng.uniform(-3, 1, n)
+        B = rng.normal(size=(n, n - 1)) * scales[:, None]
+        A = B @ B.T
+        L, pivoted, work = np.zeros((n, n)), np.zeros((n, n)), np.zeros((n + 2, n))
+        if cholesky_semidefinite(A, L):
+            continue
+        refused += 1
+        assert cholesky_semidefinite_pivoted(A, pivoted, work)
+        # a square root (rows in A's order, not triangular), exact to rounding
+        assert np.abs(pivoted @ pivoted.T - A).max() <= 1e-15 * np.abs(A).max()
+    assert refused >= 2
+    # a positive definite one: its factor; an indefinite one or a non-finite one: refused
+    A = np.array([[4.0, 1.0, 0.5], [1.0, 9.0, 2.0], [0.5, 2.0, 1.0]])
+    L, work = np.zeros((3, 3)), np.zeros((5, 3))
+    assert cholesky_semidefinite_pivoted(A, L, work)
+    np.testing.assert_allclose(L @ L.T, A, rtol=0, atol=1e-15)
+    L, work = np.zeros((2, 2)), np.zeros((4, 2))
+    assert not cholesky_semidefinite_pivoted(np.array([[1.0, 2.0], [2.0, 1.0]]), L, work)
+    assert not cholesky_semidefinite_pivoted(np.array([[np.nan, 0.0], [0.0, 1.0]]), L, work)
 
 
 def test_projected_points_give_a_consistent_prior():

@@ -47,6 +47,11 @@ FILTERS = {"joint": JointUKF, "dual": DualUKF}
 
 # the thesis's DI preview pilot (its tau_f left to the preset's start)
 PREVIEW = TYPICAL_PREVIEW["DI"]
+# precision pilots on SI and DI whose runs start at rest (a still stick)
+STILL_PILOTS = {
+    "SI": {"K_p": 1.3, "K_v": 0.0, "tau_v": 0.26, "omega_nms": 10.5, "zeta_nms": 0.35},
+    "DI": {"K_p": 0.24, "K_v": 0.36, "tau_v": 0.3, "omega_nms": 8.0, "zeta_nms": 0.45},
+}
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +74,21 @@ def runs():
     )
     preview = Pilot("preview", PREVIEW)
     ahead = simulate(preview, "DI", "vanderel-bw4", seed=1, measurement_time=8.0)
+    # pilots starting at rest: a causal start's first variances are the floor
+    still = {
+        element: simulate(
+            Pilot("precision", STILL_PILOTS[element]),
+            element,
+            "vanderel-bw4",
+            seed=3,
+            run_in=0.0,
+            measurement_time=8.0,
+        )
+        for element in ("SI", "DI")
+    }
     return {
+        "still SI": still["SI"],
+        "still DI": still["DI"],
         "base": base,
         "gaps": gaps,
         "blackout": blackout,
@@ -107,6 +126,18 @@ CASES = {
             "estimated": ("K_p", "K_v", "tau_v", "omega_nms"),
             "pinned_time": math.inf,
         },
+        {},
+    ),
+    # the pivoted factor (the dual's parameter filter on SI, the joint's on DI): the
+    # first update by a still stick leaves a covariance singular but for rounding
+    "causal start from a still stick, SI": (
+        "still SI",
+        {"ce": "SI", "initial_variance": "causal", "initial": {"K_p": 1.3}},
+        {},
+    ),
+    "causal start from a still stick, DI": (
+        "still DI",
+        {"ce": "DI", "initial_variance": "causal", "initial": {"K_p": 0.24}},
         {},
     ),
     "50 Hz, second-order Pade, smoothed": ("fifty", {"delay_order": 2}, {"smooth": True}),

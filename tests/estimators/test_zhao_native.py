@@ -109,7 +109,10 @@ CASES = {
         {"P0_fraction": 3.0, "limits": "none", "estimated": ("K_p", "K_c", "tau_p", "T_I")},
         {},
     ),
-    "a stop without sigma points (Merwe, R_d near zero)": (
+    # outputs measured with almost no noise leave a covariance singular but for
+    # rounding: the unpivoted factor refused it (the filter stopped at 2.55 s), the
+    # pivoted one takes it
+    "R_d near zero, Merwe points (the pivoted factor)": (
         "base",
         {"R_d": (1e-30, 1e-30), "scheme": "merwe"},
         {},
@@ -185,8 +188,10 @@ def test_the_c_port_estimates_what_numba_does_bit_for_bit(case, runs, monkeypatc
     assert same_bytes(estimator._records[1].P, other._records[1].P)
     if case.startswith("a non-finite"):
         assert numba.health.diverged
-    if case.startswith(("a covariance", "a stop")):
+    if case.startswith("a covariance"):
         assert numba.health.diverged
+    if case.startswith("R_d near zero"):
+        assert not numba.health.diverged
     if case.startswith("dropped"):
         assert np.asarray(numba.dropped).any() and np.asarray(numba.pinned).any()
     if options.get("smooth") or options.get("smoother_inputs"):
