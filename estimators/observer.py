@@ -16,8 +16,9 @@ or a person. After every step ``info["estimates"]`` holds the current estimate:
 All are plain dicts, lists and floats, new at every step, so ``info`` pickles (a
 vector env in subprocesses) and a vector env stacks them per key.
 
-Where the C ports build, a pilot filter (DEKF, RML, joint and dual UKF) reads the
-sample, steps and builds these dicts in one C call
+Where the C ports build, a pilot filter (DEKF, RML, joint and dual UKF; not the RML's
+causal remnant choice, which steps two passes and decides between them in Python) reads
+the sample, steps and builds these dicts in one C call
 (:mod:`~manualcontrol.estimators._online_native`); elsewhere building them in Python
 costs about as much as the filter's own step. ``estimates_in_info`` chooses what a
 step reports: ``"dicts"`` (the default, as above), ``"arrays"`` (``t``
@@ -35,6 +36,11 @@ end of an episode, or every :data:`BLOCK_SAMPLES` samples
 members with a batched step). What is read is what stepping every sample would have
 given, bit for bit; the loop pays for the filter's arithmetic and not for entering
 compiled code each step.
+
+A sample the filter refuses (an infinite value; NaN marks a dropped sample) raises
+``ValueError`` and is left out, in every form, and the steps after it go on: at the
+step that completes it, or with ``"none"`` when its block is stepped (the message
+names its time), the samples around it stepped first.
 
 With ``append_to_observation=True`` the means of the estimated parameters are
 appended to the observation (in the estimator's order; the initial values before the
@@ -207,7 +213,12 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return self._estimator
 
     def _step_kept(self) -> None:
-        """Step the filter through the kept samples (the ``"none"`` form's block)."""
+        """Step the filter through the kept samples (the ``"none"`` form's block).
+
+        A sample the filter refuses (an infinite value; NaN is a dropped sample) is
+        left out, as the other forms leave it out at its own step, and the rest are
+        stepped before the refusal is raised: nothing kept is lost.
+        """
         if self._kept:
             kept, self._kept = self._kept, 0
             width = len(self._kept_keys) + 1
@@ -215,7 +226,23 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
             # after the last whole sample: the next sample's display, kept already
             self._kept_values = values[kept * width :]
             block = np.array(values[: kept * width], dtype=np.float64).reshape(kept, width)
-            self._estimator.update_block(block, t=self._t)
+            refused = np.isinf(block).any(axis=1)
+            if not refused.any():
+                self._estimator.update_block(block, t=self._t)
+                return
+            first = int(np.flatnonzero(refused)[0])
+            # the block's samples are the steps just before this one, at the env's times
+            times = self.env.unwrapped.times[self._step_index - kept : self._step_index]
+            for part in np.split(np.arange(kept), np.flatnonzero(refused)):
+                part = part[~refused[part]]
+                if len(part):
+                    self._estimator.update_block(block[part], t=float(times[part[-1]]))
+            column = int(np.flatnonzero(np.isinf(block[first]))[0])
+            key = (*self._kept_keys, "u")[column]
+            raise ValueError(
+                f"the sample at t = {times[first]:.6g} s has {key} infinite; it was left out "
+                "of the estimate (NaN marks a dropped sample)"
+            )
 
     @staticmethod
     def _as_plain(estimate: Any) -> dict[str, Any]:
@@ -337,26 +364,28 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._last = None
             self._kept += 1
             self._step_index += 1
+            if not (terminated or truncated):  # first: a refusal below leaves it kept
+                self._keep_display(info)
             if self._kept == BLOCK_SAMPLES or terminated or truncated:
                 self._step_kept()
-            if not (terminated or truncated):
-                self._keep_display(info)
             return observation, reward, terminated, truncated, info
         sample = self._pending
         sample["u"] = float(info["u"])
         quiet = self._update_quiet
-        if self.estimates_in_info == "dicts" or quiet is None:
-            plain = self._update_plain
-            if plain is None:
-                self._last = self._as_plain(self.estimator.update(sample))
-            else:
-                self._last = plain(sample)
-            self._t = self._last["t"]
-        else:  # the thin path: the estimate stays in the filter's row until asked
-            self._t = quiet(sample)
-            self._last = None
-        self._step_index += 1
-        self._pending = self._display(info)
+        try:
+            if self.estimates_in_info == "dicts" or quiet is None:
+                plain = self._update_plain
+                if plain is None:
+                    self._last = self._as_plain(self.estimator.update(sample))
+                else:
+                    self._last = plain(sample)
+                self._t = self._last["t"]
+            else:  # the thin path: the estimate stays in the filter's row until asked
+                self._t = quiet(sample)
+                self._last = None
+        finally:  # a sample the filter refuses is left out, and the next one comes
+            self._step_index += 1
+            self._pending = self._display(info)
         # the env's info is a new dict every step
         if self.estimates_in_info == "dicts":
             info["estimates"] = self._last

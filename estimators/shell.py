@@ -23,7 +23,9 @@ diverged) and ``pinned`` (n, p); members with several outputs add ``predictions`
 - ``_new_output(n, store)``, its output records for ``n`` rows (with smoother storage
   or without);
 - ``_step_sample(sample)``, which reads one sample and calls its compiled step on the
-  one-row output (through :meth:`FilterShell._call_step`);
+  one-row output (through :meth:`FilterShell._call_step`); the filters on pilot models
+  replace :meth:`FilterShell._consume`, which calls it, whole instead (their sample is
+  read into a prepared input vector, and the C port's entry steps it);
 - ``parameter_names`` and ``signals(recording)``;
 - ``estimate(recording, ...)``, which runs its compiled loop over the recording and returns
   :meth:`FilterShell._assemble`'s result (smoothed by :meth:`FilterShell._finish`);

@@ -23,11 +23,12 @@ filter and feeds it nothing on that step.
 ``info["estimates"]`` (``estimates_in_info="arrays"``, the default) holds ``t`` (``N``:
 the time of each copy's last sample, NaN where a copy has had none since its reset),
 ``mean`` and ``std`` (``N x p``, columns in :attr:`VectorEstimatorObserver.
-parameter_names` order), copies made at every step. ``"none"`` reports nothing:
-:meth:`VectorEstimatorObserver.latest` gives views of the arrays and
-:meth:`VectorEstimatorObserver.last_estimate` one copy's estimate as the single
-observer's dicts. Per-copy dicts are not offered at every step: building them would
-cost more than the filters.
+parameter_names` order; zeros in a row whose ``t`` is NaN: no estimate yet, the initial
+values being the estimator's ``resolved.initial``), copies made at every step.
+``"none"`` reports nothing: :meth:`VectorEstimatorObserver.latest` gives views of the
+arrays and :meth:`VectorEstimatorObserver.last_estimate` one copy's estimate as the
+single observer's dicts. Per-copy dicts are not offered at every step: building them
+would cost more than the filters.
 """
 
 from __future__ import annotations

@@ -361,6 +361,52 @@ def test_a_block_of_samples_is_refused_with_the_reason():
         choosing.update_block(np.zeros((3, 2)))
 
 
+class _InfiniteDisplay(gym.Wrapper):
+    """Shows an infinite error at t = 0.5 s (a broken display or wrapper)."""
+
+    def step(self, action):
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        if info["t"] == 0.5:
+            info = {**info, "e": float("inf")}
+        return observation, reward, terminated, truncated, info
+
+
+@pytest.mark.parametrize("form", ["dicts", "arrays", "none"])
+def test_a_sample_the_filter_refuses_is_left_out_in_every_form_and_the_rest_go_on(form):
+    # the "none" form dropped its whole kept block (up to 256 samples) and stamped the
+    # estimate before it with the latest time; the dicts form raised again at every
+    # later step, its pending sample never replaced
+    def flown(form):
+        inner = gym.make(
+            "ManualControl/CompensatoryTracking-v0",
+            controlled_element="DI",
+            run_in=0.0,
+            measurement_time=3.0,
+        )
+        settings = dict(model="precision", ce="DI", initial_variance="causal")
+        env = EstimatorObserver(
+            _InfiniteDisplay(inner), DEKF(**settings, initial={"K_p": 0.24}), estimates_in_info=form
+        )
+        env.reset(seed=0)
+        refusals = []
+        for k in range(300):
+            try:
+                env.step([0.1 * np.sin(0.05 * k)])
+            except ValueError as error:
+                refusals.append(str(error))
+        return env, refusals
+
+    env, refusals = flown(form)
+    assert len(refusals) == 1 and "inf" in refusals[0]
+    if form == "none":  # refused when its block is stepped, saying which sample
+        assert refusals[0].startswith("the sample at t = 0.5 s has e infinite")
+    assert env.estimator._k == 299  # every other sample went in
+    last = env.last_estimate()
+    assert last["t"] == pytest.approx(2.99)
+    reference, _ = flown("dicts")
+    assert last == reference.last_estimate()
+
+
 def test_an_unknown_estimates_form_is_refused():
     with pytest.raises(ValueError, match="estimates_in_info must be one of 'dicts', 'arrays'"):
         EstimatorObserver(
