@@ -161,16 +161,18 @@ class FilterBatch:
                 f"signals lack {', '.join(map(repr, missing))}; the batch needs "
                 f"{', '.join(map(repr, self.sample_keys))}"
             )
+        shapes = {key: np.shape(signals[key]) for key in self.sample_keys}
+        wrong = {key: shape for key, shape in shapes.items() if shape != (self.n,)}
+        if wrong:  # a scalar would broadcast to every copy unnoticed
+            raise ValueError(
+                f"signals must hold {self.n} values each (one per copy), got "
+                + ", ".join(f"{key} {shape}" for key, shape in wrong.items())
+            )
         inputs = self._inputs
         for j, name in enumerate(self._input_names):
             inputs[:, j] = signals[name]
         u = loop_samples(signals["u"])
         e = loop_samples(signals["e"])
-        if u.shape != (self.n,) or e.shape != (self.n,):
-            raise ValueError(
-                f"signals must hold {self.n} values each (one per copy), "
-                f"got u {u.shape} and e {e.shape}"
-            )
         for name, values in (("u", u), ("e", e), *zip(self._input_names, inputs.T, strict=True)):
             if np.isinf(values).any():  # NaN marks a dropped sample; inf is a mistake
                 copies = np.flatnonzero(np.isinf(values)).tolist()

@@ -259,3 +259,9 @@ def test_bad_inputs_are_named():
         batch.step({"e": np.zeros(2)})
     with pytest.raises(ValueError, match=r"signal 'e' is infinite for copies \[1\]"):
         batch.step({"e": np.array([0.0, np.inf]), "u": np.zeros(2)})
+    # an input as one number was given to every copy unnoticed
+    previewing = FilterBatch(DEKF(**PREVIEW), 2)
+    previewing.reset(0.01)
+    zeros = {key: np.zeros(2) for key in previewing.sample_keys}
+    with pytest.raises(ValueError, match=r"signals must hold 2 values each .* got y \(\)"):
+        previewing.step({**zeros, "y": 0.3})
