@@ -205,6 +205,7 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._kept_keys = order[:-1]  # what the display gives, read before the action
         self._kept_values: list[float] = []
         self._kept_t = 0.0
+        self._consumed_t: float | None = None
 
     @property
     def estimator(self) -> Any:
@@ -229,6 +230,7 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
             refused = np.isinf(block).any(axis=1)
             if not refused.any():
                 self._estimator.update_block(block, t=self._t)
+                self._consumed_t = self._t
                 return
             first = int(np.flatnonzero(refused)[0])
             # the block's samples are the steps just before this one, at the env's times
@@ -236,7 +238,9 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
             for part in np.split(np.arange(kept), np.flatnonzero(refused)):
                 part = part[~refused[part]]
                 if len(part):
-                    self._estimator.update_block(block[part], t=float(times[part[-1]]))
+                    self._consumed_t = float(times[part[-1]])
+                    self._estimator.update_block(block[part], t=self._consumed_t)
+            self._t = self._consumed_t  # the estimate's time: its last sample's
             column = int(np.flatnonzero(np.isinf(block[first]))[0])
             key = (*self._kept_keys, "u")[column]
             raise ValueError(
@@ -320,6 +324,7 @@ class EstimatorObserver(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def reset(self, **kwargs: Any) -> tuple[FloatArray, dict[str, Any]]:  # noqa: D102
         observation, info = self.env.reset(**kwargs)
         self._kept, self._kept_values = 0, []  # an episode left unfinished: its samples go
+        self._consumed_t = None  # the last sample the filter took (its time)
         self._reset_estimator(float(info["t"]))
         ahead = self._target_ahead()
         self._ahead = None if ahead is None else ahead.tolist()  # floats, read per step

@@ -362,17 +362,22 @@ def test_a_block_of_samples_is_refused_with_the_reason():
 
 
 class _InfiniteDisplay(gym.Wrapper):
-    """Shows an infinite error at t = 0.5 s (a broken display or wrapper)."""
+    """Shows an infinite error at time ``at`` (a broken display or wrapper)."""
+
+    def __init__(self, env, at):
+        super().__init__(env)
+        self.at = at
 
     def step(self, action):
         observation, reward, terminated, truncated, info = self.env.step(action)
-        if info["t"] == 0.5:
+        if info["t"] == self.at:
             info = {**info, "e": float("inf")}
         return observation, reward, terminated, truncated, info
 
 
+@pytest.mark.parametrize("at", [0.5, 2.99], ids=["mid-run", "the last sample"])
 @pytest.mark.parametrize("form", ["dicts", "arrays", "none"])
-def test_a_sample_the_filter_refuses_is_left_out_in_every_form_and_the_rest_go_on(form):
+def test_a_sample_the_filter_refuses_is_left_out_in_every_form_and_the_rest_go_on(form, at):
     # the "none" form dropped its whole kept block (up to 256 samples) and stamped the
     # estimate before it with the latest time; the dicts form raised again at every
     # later step, its pending sample never replaced
@@ -385,7 +390,9 @@ def test_a_sample_the_filter_refuses_is_left_out_in_every_form_and_the_rest_go_o
         )
         settings = dict(model="precision", ce="DI", initial_variance="causal")
         env = EstimatorObserver(
-            _InfiniteDisplay(inner), DEKF(**settings, initial={"K_p": 0.24}), estimates_in_info=form
+            _InfiniteDisplay(inner, at),
+            DEKF(**settings, initial={"K_p": 0.24}),
+            estimates_in_info=form,
         )
         env.reset(seed=0)
         refusals = []
@@ -399,10 +406,10 @@ def test_a_sample_the_filter_refuses_is_left_out_in_every_form_and_the_rest_go_o
     env, refusals = flown(form)
     assert len(refusals) == 1 and "inf" in refusals[0]
     if form == "none":  # refused when its block is stepped, saying which sample
-        assert refusals[0].startswith("the sample at t = 0.5 s has e infinite")
+        assert refusals[0].startswith(f"the sample at t = {at:g} s has e infinite")
     assert env.estimator._k == 299  # every other sample went in
     last = env.last_estimate()
-    assert last["t"] == pytest.approx(2.99)
+    assert last["t"] == pytest.approx(2.98 if at == 2.99 else 2.99)  # the last one taken
     reference, _ = flown("dicts")
     assert last == reference.last_estimate()
 
