@@ -102,15 +102,16 @@ def cholesky_semidefinite_pivoted(A, L, work):
     but for rounding. A covariance the data have made singular (an update by a
     measurement of almost no noise: a causal start whose stick has been still, so
     that its variance is the floor) has an unpivoted last pivot whose rounding error
-    grows with the pivots before it: measured -3e-10 against a tolerance of 2e-10,
-    for a smallest eigenvalue of -2e-17. Taking the largest pivot first keeps every
+    grows with the pivots before it, past the tolerance, while its smallest eigenvalue
+    is at the rounding of the largest. Taking the largest pivot first keeps every
     pivot's error near the rounding of the largest, and leaves the zero direction
     last, where it gets no spread. ``L`` is the factor with its rows put back in
-    ``A``'s order, so ``L L^T = A`` and any code spreading points along its columns
-    reads it as the unpivoted factor. Returns False for a clearly negative pivot or
-    non-finite entries. ``work`` is scratch of at least ``(n + 2, n)``: the factor in
-    pivoted order, the remaining pivots and the order. Reads the lower triangle of
-    ``A`` only.
+    ``A``'s order, so ``L L^T = A`` and points spread along its columns are points of
+    ``A``; it is not triangular (:func:`~.unscented.triangular_sigma_points` is for code
+    that needs that). Returns False for a clearly negative pivot or non-finite entries
+    (every remaining pivot is checked where the factor stops). ``work`` is scratch of
+    at least ``(n + 2, n)``: the factor in pivoted order, the remaining pivots and the
+    order. Reads the lower triangle of ``A`` only.
     """
     n = A.shape[0]
     largest = 0.0
@@ -146,8 +147,9 @@ def cholesky_semidefinite_pivoted(A, L, work):
                 work[k, j] = work[m, j]
                 work[m, j] = held
         if best <= floor:  # every remaining pivot is as small: no spread along them
-            if best < -1e3 * floor - 1e-300:
-                return False
+            for i in range(k, n):  # unless one is clearly negative, or not a number
+                if not work[pivots, i] >= -1e3 * floor - 1e-300:
+                    return False
             break
         d = np.sqrt(best)
         work[k, k] = d

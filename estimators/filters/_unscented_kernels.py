@@ -31,9 +31,30 @@ def sigma_points(x, P, spread, L, X):
     semidefinite ``P`` rounded below zero from an indefinite one; a ``P`` the first
     takes gets the same points as before it.
     """
-    n = x.shape[0]
     if not cholesky_semidefinite(P, L) and not cholesky_semidefinite_pivoted(P, L, X):
         return False
+    _spread_points(x, spread, L, X)
+    return True
+
+
+@numba.njit(cache=True, _nrt=False)
+def triangular_sigma_points(x, P, spread, L, X):
+    """:func:`sigma_points` from the unpivoted factor alone: ``L`` lower triangular.
+
+    For code that reads ``L`` after the points as a triangular matrix (the dual UKF's
+    parameter sensitivity solves ``D E = M`` by back-substitution, ``E = c L``); the
+    pivoted factor's rows are permuted. False where the unpivoted factor refuses ``P``.
+    """
+    if not cholesky_semidefinite(P, L):
+        return False
+    _spread_points(x, spread, L, X)
+    return True
+
+
+@numba.njit(cache=True, _nrt=False)
+def _spread_points(x, spread, L, X):
+    """``x`` plus and minus ``spread`` times each column of ``L`` into ``X``, centre last."""
+    n = x.shape[0]
     for i in range(n):
         for j in range(n):
             d = spread * L[j, i]
@@ -41,7 +62,6 @@ def sigma_points(x, P, spread, L, X):
             X[n + i, j] = x[j] - d
     for j in range(n):
         X[2 * n, j] = x[j]
-    return True
 
 
 @numba.njit(cache=True, _nrt=False)

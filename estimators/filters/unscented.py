@@ -16,7 +16,8 @@ its own compiled step); the functions here generate the points, take the moments
 correct the belief:
 
 * :func:`sigma_points`: the points of ``(x, P)`` into ``X`` (rows), False when ``P`` is
-  not positive definite;
+  not positive semidefinite (:func:`triangular_sigma_points` where the factor must be
+  the lower triangular one);
 * :func:`weighted_mean` and :func:`weighted_covariance`: moments of the images, with
   additive noise (``Q`` or ``R``); :func:`cross_covariance` between two point sets;
 * :func:`unscented_correct`: ``K = C_xz S^-1`` (Cholesky solve), ``x^+ = x^- + K r``,
@@ -54,6 +55,7 @@ if TYPE_CHECKING:  # what tools read; at run time each kernel is imported on fir
         cross_covariance,
         project_points,
         sigma_points,
+        triangular_sigma_points,
         unscented_correct,
         weighted_covariance,
         weighted_mean,
@@ -68,6 +70,7 @@ __all__ = [
     "project_points",
     "sigma_points",
     "sigma_weights",
+    "triangular_sigma_points",
     "unscented_correct",
     "unscented_work",
     "weighted_covariance",
@@ -147,6 +150,8 @@ def unscented_work(n: int, m: int) -> UnscentedWork:
 #: The numba kernels (and what they import), imported from their module on first use.
 _KERNELS = (
     "sigma_points",
+    "triangular_sigma_points",
+    "_spread_points",
     "weighted_mean",
     "weighted_covariance",
     "cross_covariance",

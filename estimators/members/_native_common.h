@@ -197,8 +197,9 @@ static int cholesky_semidefinite_pivoted(const double *A, double *L, double *wor
             }
         }
         if (best <= floor_) {
-            if (best < -1e3 * floor_ - 1e-300)
-                return 0;
+            for (int64_t i = k; i < n; i++)
+                if (!(pivots[i] >= -1e3 * floor_ - 1e-300))
+                    return 0;
             break;
         }
         double d = sqrt(best);

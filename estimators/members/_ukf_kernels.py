@@ -37,6 +37,7 @@ from manualcontrol.estimators.filters._unscented_kernels import (
     cross_covariance,
     project_points,
     sigma_points,
+    triangular_sigma_points,
     unscented_correct,
     weighted_covariance,
     weighted_mean,
@@ -400,12 +401,13 @@ def dual_step(model, config, belief, monitor, report, scratch, theta, inputs_k, 
     if with_theta:
         for j in range(p.shape[0]):
             theta.point_p[j] = p[j]
-        ok = sigma_points(th, Pp, t_spread, tw.L, tw.X)
+        # E below is read as lower triangular (_correct_sensitivity)
+        ok = triangular_sigma_points(th, Pp, t_spread, tw.L, tw.X)
         if ok:
             if constrain_prior(
                 tw.X, tc.wm, tc.wc, t_count, tc.limit, report.lo, report.hi, th, Pp, theta.zero
             ):
-                ok = sigma_points(th, Pp, t_spread, tw.L, tw.X)
+                ok = triangular_sigma_points(th, Pp, t_spread, tw.L, tw.X)
                 project_points(tw.X, t_count, tc.limit, report.lo, report.hi)
         if ok:
             for t in range(n_t):

@@ -19,11 +19,13 @@
  *                              _point_parameters,
  *                              _propagate, _measure, _set_point, _predict_sensitivity,
  *                              _output_at, _theta_images, _correct_sensitivity
- *   filters/unscented.py       sigma_points, weighted_mean, weighted_covariance,
+ *   filters/unscented.py       sigma_points, triangular_sigma_points, _spread_points,
+ *                              weighted_mean, weighted_covariance,
  *                              cross_covariance, unscented_correct, project_points,
  *                              constrain_prior (Julier & Uhlmann 1997; Zhao et al. 2019
  *                              Algorithms 1-2; Kandepu, Foss & Imsland 2008)
  *   filters/linalg.py          symmetrise, cholesky, cholesky_semidefinite,
+ *                              cholesky_semidefinite_pivoted,
  *                              cholesky_solve_rows, log_determinant, add_product
  *   _pilot_core.py             noise_levels, inputs_in_use, report_frozen, report_row
  *                              (Popovici eqs. 24-25, thesis eqs. 29-30)
@@ -174,12 +176,10 @@ typedef struct {
 
 /* ================================================================= unscented.py */
 
-/* sigma_points: the points of (x, P) into the rows of X (2n + 1, n), centre last */
-static int sigma_points(const double *x, const double *P, double spread, double *L, double *X,
-                        int64_t n)
+/* spread_points: x plus and minus spread times each column of L into X, centre last */
+static void spread_points(const double *x, double spread, const double *L, double *X,
+                          int64_t n)
 {
-    if (!cholesky_semidefinite(P, L, n) && !cholesky_semidefinite_pivoted(P, L, X, n))
-        return 0;
     for (int64_t i = 0; i < n; i++)
         for (int64_t j = 0; j < n; j++) {
             double d = spread * L[j * n + i];
@@ -188,6 +188,27 @@ static int sigma_points(const double *x, const double *P, double spread, double 
         }
     for (int64_t j = 0; j < n; j++)
         X[2 * n * n + j] = x[j];
+}
+
+/* sigma_points: the points of (x, P) into the rows of X (2n + 1, n), centre last; the
+ * pivoted factor where the unpivoted one refuses P (X its scratch) */
+static int sigma_points(const double *x, const double *P, double spread, double *L, double *X,
+                        int64_t n)
+{
+    if (!cholesky_semidefinite(P, L, n) && !cholesky_semidefinite_pivoted(P, L, X, n))
+        return 0;
+    spread_points(x, spread, L, X, n);
+    return 1;
+}
+
+/* triangular_sigma_points: sigma_points from the unpivoted factor alone (L lower
+ * triangular) */
+static int triangular_sigma_points(const double *x, const double *P, double spread, double *L,
+                                   double *X, int64_t n)
+{
+    if (!cholesky_semidefinite(P, L, n))
+        return 0;
+    spread_points(x, spread, L, X, n);
     return 1;
 }
 
@@ -1073,11 +1094,12 @@ void dual_step(const UkfRecords *rec, const double *inputs_k, double u_k, double
     if (with_theta) {
         for (int64_t j = 0; j < rec->n_p; j++)
             rec->t_point_p[j] = p[j];
-        ok = sigma_points(th, Pp, t_spread, tw->L, tw->X, n_t);
+        /* E below is read as lower triangular (correct_sensitivity) */
+        ok = triangular_sigma_points(th, Pp, t_spread, tw->L, tw->X, n_t);
         if (ok) {
             if (constrain_prior(tw->X, n_t, tc, t_count, rec->lo, rec->hi, th, Pp,
                                 rec->t_zero)) {
-                ok = sigma_points(th, Pp, t_spread, tw->L, tw->X, n_t);
+                ok = triangular_sigma_points(th, Pp, t_spread, tw->L, tw->X, n_t);
                 project_points(tw->X, 2 * n_t + 1, n_t, t_count, tc->limit, rec->lo, rec->hi);
             }
         }

@@ -25,6 +25,7 @@
  *                                     cross_covariance, unscented_correct (Algorithm 1,
  *                                     Algorithm 2 step 3)
  *   estimators/filters/linalg.py      symmetrise, cholesky, cholesky_semidefinite,
+ *                                     cholesky_semidefinite_pivoted,
  *                                     cholesky_solve_rows, log_determinant, add_product
  *   estimators/filters/kalman.py      clamp (estimate projection onto limits)
  *   estimators/filters/monitor.py     belief_health, track_pins

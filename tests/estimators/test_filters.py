@@ -354,6 +354,18 @@ def test_the_pivoted_factor_takes_the_singular_covariances_rounding_pushes_below
     L, work = np.zeros((2, 2)), np.zeros((4, 2))
     assert not cholesky_semidefinite_pivoted(np.array([[1.0, 2.0], [2.0, 1.0]]), L, work)
     assert not cholesky_semidefinite_pivoted(np.array([[np.nan, 0.0], [0.0, 1.0]]), L, work)
+    # a clearly negative pivot left behind where the factor stops (a zero pivot first)
+    assert not cholesky_semidefinite_pivoted(np.array([[0.0, 0.0], [0.0, -1.0]]), L, work)
+    L, work = np.zeros((3, 3)), np.zeros((5, 3))
+    assert not cholesky_semidefinite_pivoted(np.diag([1.0, 0.0, -1.0]), L, work)
+    infinite = np.diag([1.0, 0.0, 0.0])
+    infinite[2, 0] = infinite[0, 2] = np.inf
+    assert not cholesky_semidefinite_pivoted(infinite, L, work)
+    # n = 1
+    L, work = np.zeros((1, 1)), np.zeros((3, 1))
+    assert cholesky_semidefinite_pivoted(np.array([[4.0]]), L, work) and L[0, 0] == 2.0
+    assert cholesky_semidefinite_pivoted(np.array([[0.0]]), L, work) and L[0, 0] == 0.0
+    assert not cholesky_semidefinite_pivoted(np.array([[-1.0]]), L, work)
 
 
 def test_projected_points_give_a_consistent_prior():

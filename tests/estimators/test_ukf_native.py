@@ -128,7 +128,7 @@ CASES = {
         },
         {},
     ),
-    # the pivoted factor (the dual's parameter filter on SI, the joint's on DI): the
+    # the pivoted factor (the dual's state filter on SI, the joint's on DI): the
     # first update by a still stick leaves a covariance singular but for rounding
     "causal start from a still stick, SI": (
         "still SI",
