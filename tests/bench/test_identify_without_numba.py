@@ -31,13 +31,14 @@ from manualcontrol.pilots.driver import Driver
 from manualcontrol.pilots.driving import simulate_driving
 
 #: Identifications through the command's main, one after the other in one process (the
-#: jobs a JSON list of [recording, estimator, out]): after each, the numba modules loaded
-#: so far, or the error it raised. One process a path, not one a member: each fresh
-#: process paid the interpreter, the imports and (on numba's path) numba's own import
-#: and kernel loading again, most of this file's time.
+#: jobs a JSON list of [recording, estimator, out]): after each, the numba modules and
+#: the C ports loaded so far, or the error it raised. One process a path, not one a
+#: member: each fresh process paid the interpreter, the imports and (on numba's path)
+#: numba's own import and kernel loading again, most of this file's time.
 SCRIPT = """
 import json, sys, traceback
 from manualcontrol.bench.cli import main
+from manualcontrol.envs import _native
 report = {}
 for recording, estimator, out in json.loads(sys.argv[1]):
     try:
@@ -47,7 +48,7 @@ for recording, estimator, out in json.loads(sys.argv[1]):
         report[estimator] = {"error": traceback.format_exc()}
         continue
     loaded = sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "llvmlite"))
-    report[estimator] = {"loaded": loaded}
+    report[estimator] = {"loaded": loaded, "ports": sorted(_native._LOADED)}
 print(json.dumps(report))
 """
 
@@ -106,14 +107,15 @@ def simulated(source, options, path, seconds=30.0):
     return path
 
 
-def first_to_load(report, order, estimator):
-    """The first member, up to ``estimator`` in ``order``, after which numba was loaded.
+def first_to_load(report, order, estimator, what="loaded"):
+    """The first member, up to ``estimator`` in ``order``, after which ``what`` was loaded.
 
-    The members run in one process: one that loads numba leaves it loaded for those
-    after it, which can then no longer be told apart (its own test names it).
+    ``what``: ``"loaded"``, numba's modules; ``"ports"``, C ports. The members run in one
+    process: one that loads either leaves it loaded for those after it, which can then
+    no longer be told apart (its own test names it).
     """
     for name in order[: order.index(estimator) + 1]:
-        if report[name].get("loaded"):
+        if report[name].get(what):
             return name
     return None
 
@@ -190,6 +192,9 @@ def test_a_warm_identify_imports_no_numba_and_numba_writes_the_same(
     loader = first_to_load(reports[True], order, estimator)
     assert loader is None, f"the C path imported numba (first after {loader})"
     assert "numba" in through_numba["loaded"]
+    # numba's path ran no C port (numba is loaded by the first member alone)
+    porter = first_to_load(reports[False], order, estimator, "ports")
+    assert porter is None, f"numba's path loaded a C port (first after {porter})"
     c_bytes = (folder / "c" / estimator / "estimation.npz").read_bytes()
     assert c_bytes == (folder / "numba" / estimator / "estimation.npz").read_bytes()
 
@@ -206,11 +211,12 @@ print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "ll
 
 #: Each member's online path, one after the other in one process (the jobs a JSON list
 #: of [recording, estimator]): reset as ``estimate`` resets it, then ``update`` a sample
-#: at a time (the default observer's step); the means it gave (hex of their bytes) and
-#: the numba modules loaded so far, or the error it raised.
+#: at a time (the default observer's step); the means it gave (hex of their bytes), the
+#: numba modules and the C ports loaded so far, or the error it raised.
 UPDATES = """
 import json, sys, traceback
 import numpy as np
+from manualcontrol.envs import _native
 from manualcontrol.envs.recording import Recording
 from manualcontrol.estimators import make_estimator
 
@@ -246,7 +252,7 @@ for path, name in json.loads(sys.argv[1]):
         report[name] = {"error": traceback.format_exc()}
         continue
     loaded = sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "llvmlite"))
-    report[name] = {"means": means, "loaded": loaded}
+    report[name] = {"means": means, "loaded": loaded, "ports": sorted(_native._LOADED)}
 print(json.dumps(report))
 """
 
@@ -276,6 +282,8 @@ def test_an_online_update_imports_no_numba_and_numba_gives_the_same(
     loader = first_to_load(reports[True], order, estimator)
     assert loader is None, f"the C path imported numba (first after {loader})"
     assert "numba" in through_numba["loaded"]
+    porter = first_to_load(reports[False], order, estimator, "ports")
+    assert porter is None, f"numba's path loaded a C port (first after {porter})"
     assert through_c["means"] == through_numba["means"]
 
 
