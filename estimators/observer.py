@@ -39,8 +39,9 @@ compiled code each step.
 
 A sample the filter refuses (an infinite value; NaN marks a dropped sample) raises
 ``ValueError`` and is left out, in every form, and the steps after it go on: at the
-step that completes it, or with ``"none"`` when its block is stepped (the message
-names its time), the samples around it stepped first.
+step that completes it, or with ``"none"`` when its block is stepped (once a block,
+naming the first such sample's time), the samples around it stepped first. The step
+that raises returns nothing, so where it is an episode's last the caller resets.
 
 With ``append_to_observation=True`` the means of the estimated parameters are
 appended to the observation (in the estimator's order; the initial values before the

@@ -584,7 +584,8 @@ class PilotFilter(FilterShell):
         (:meth:`latest`, :meth:`latest_plain`). The online observer feeds it the samples
         nobody read an estimate between. A subclass with its own ``_step`` or
         ``_consume`` has them called for every sample, as :meth:`update` calls them (in
-        Python, one sample at a time).
+        Python, one sample at a time; each sample a dict of :attr:`sample_keys` without
+        ``t``).
         """
         reason = self.batchable() if hasattr(self, "batchable") else ""
         if not has_kernel(type(self), "_step_many_kernel") or reason:

@@ -604,7 +604,7 @@ def test_a_subclass_with_its_own_step_is_called_every_sample_and_in_a_block():
         dekf.update({"e": 0.1 * k, "u": 0.05 * k})
     assert Counting.steps == 5
     # a block (the online observer's "none" form) calls it too, and a subclass that
-    # reads its samples its own way gets them so, as update gives them
+    # reads its samples its own way gets them (without "t"), as update gives them
     samples = np.column_stack([0.1 * np.arange(5), 0.05 * np.arange(5)])  # e, u
     dekf.reset(0.01)
     assert dekf.update_block(samples) == pytest.approx(0.04)
