@@ -55,6 +55,21 @@ def cholesky(A, L):
 
 
 @numba.njit(cache=True, _nrt=False)
+def semidefinite_floor(A):
+    """Pivots at or below this count as zero in the semidefinite factors.
+
+    :data:`SEMIDEFINITE_TOLERANCE` times ``A``'s largest diagonal entry (at least 0);
+    -1 where a diagonal entry is not finite.
+    """
+    largest = 0.0
+    for i in range(A.shape[0]):
+        if not np.isfinite(A[i, i]):
+            return -1.0
+        largest = max(largest, A[i, i])
+    return SEMIDEFINITE_TOLERANCE * largest
+
+
+@numba.njit(cache=True, _nrt=False)
 def cholesky_semidefinite(A, L):
     """A factor ``L`` (lower, ``A = L L^T``) of a positive *semi*definite ``A``.
 
@@ -65,12 +80,9 @@ def cholesky_semidefinite(A, L):
     negative pivot or non-finite entries.
     """
     n = A.shape[0]
-    largest = 0.0
-    for i in range(n):
-        if not np.isfinite(A[i, i]):
-            return False
-        largest = max(largest, A[i, i])
-    floor = SEMIDEFINITE_TOLERANCE * largest
+    floor = semidefinite_floor(A)
+    if floor < 0.0:
+        return False
     for j in range(n):
         s = A[j, j]
         for k in range(j):
@@ -114,12 +126,9 @@ def cholesky_semidefinite_pivoted(A, L, work):
     order. Reads the lower triangle of ``A`` only.
     """
     n = A.shape[0]
-    largest = 0.0
-    for i in range(n):
-        if not np.isfinite(A[i, i]):
-            return False
-        largest = max(largest, A[i, i])
-    floor = SEMIDEFINITE_TOLERANCE * largest
+    floor = semidefinite_floor(A)
+    if floor < 0.0:
+        return False
     pivots = n
     order = n + 1
     for i in range(n):

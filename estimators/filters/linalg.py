@@ -66,6 +66,7 @@ _KERNELS = (
     "matmul",
     "matmul_transposed",
     "add_product",
+    "semidefinite_floor",
 )
 __getattr__ = kernels_on_first_use(
     globals(), "manualcontrol.estimators.filters._linalg_kernels", _KERNELS

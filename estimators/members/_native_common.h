@@ -13,7 +13,8 @@
  * Sources ported (manualcontrol/estimators/...):
  *   filters/linalg.py    TINY, SEMIDEFINITE_TOLERANCE, symmetrise, cholesky,
  *                        cholesky_solve_rows, matmul_transposed,
- *                        cholesky_semidefinite, cholesky_semidefinite_pivoted,
+ *                        semidefinite_floor, cholesky_semidefinite,
+ *                        cholesky_semidefinite_pivoted,
  *                        log_determinant, add_product
  *   filters/unscented.py weighted_mean, weighted_covariance
  *   filters/kalman.py    KalmanWork, joseph_scalar
@@ -117,17 +118,26 @@ static void matmul_transposed(const double *A, const double *B, double *out, int
         }
 }
 
-/* cholesky_semidefinite: a lower factor of a positive semidefinite A; pivots under
- * SEMIDEFINITE_TOLERANCE times the largest diagonal entry count as zero */
-static int cholesky_semidefinite(const double *A, double *L, int64_t n)
+/* semidefinite_floor: SEMIDEFINITE_TOLERANCE times A's largest diagonal entry (at least
+ * 0); -1 where a diagonal entry is not finite */
+static double semidefinite_floor(const double *A, int64_t n)
 {
     double largest = 0.0;
     for (int64_t i = 0; i < n; i++) {
         if (!isfinite(A[i * n + i]))
-            return 0;
+            return -1.0;
         largest = py_max(largest, A[i * n + i]);
     }
-    double floor_ = SEMIDEFINITE_TOLERANCE * largest;
+    return SEMIDEFINITE_TOLERANCE * largest;
+}
+
+/* cholesky_semidefinite: a lower factor of a positive semidefinite A; pivots under
+ * SEMIDEFINITE_TOLERANCE times the largest diagonal entry count as zero */
+static int cholesky_semidefinite(const double *A, double *L, int64_t n)
+{
+    double floor_ = semidefinite_floor(A, n);
+    if (floor_ < 0.0)
+        return 0;
     for (int64_t j = 0; j < n; j++) {
         double s = A[j * n + j];
         for (int64_t k = 0; k < j; k++)
@@ -159,13 +169,9 @@ static int cholesky_semidefinite(const double *A, double *L, int64_t n)
  * order, the remaining pivots and the order */
 static int cholesky_semidefinite_pivoted(const double *A, double *L, double *work, int64_t n)
 {
-    double largest = 0.0;
-    for (int64_t i = 0; i < n; i++) {
-        if (!isfinite(A[i * n + i]))
-            return 0;
-        largest = py_max(largest, A[i * n + i]);
-    }
-    double floor_ = SEMIDEFINITE_TOLERANCE * largest;
+    double floor_ = semidefinite_floor(A, n);
+    if (floor_ < 0.0)
+        return 0;
     double *pivots = work + n * n;
     double *order = work + (n + 1) * n;
     for (int64_t i = 0; i < n; i++) {

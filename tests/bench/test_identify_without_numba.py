@@ -120,6 +120,19 @@ def first_to_load(report, order, estimator, what="loaded"):
     return None
 
 
+def assert_each_path_ran_alone(reports, order, estimator):
+    """``estimator`` ran without error on both paths, C without numba, numba without C."""
+    through_c, through_numba = reports[True][estimator], reports[False][estimator]
+    assert "error" not in through_c, through_c.get("error")
+    assert "error" not in through_numba, through_numba.get("error")
+    loader = first_to_load(reports[True], order, estimator)
+    assert loader is None, f"the C path imported numba (first after {loader})"
+    assert "numba" in through_numba["loaded"]
+    # numba's path ran no C port (numba itself is loaded by the first member alone)
+    porter = first_to_load(reports[False], order, estimator, "ports")
+    assert porter is None, f"numba's path loaded a C port (first after {porter})"
+
+
 def c_path_missing(estimator, whole_identify=True):
     """Why ``estimator``'s C path cannot run here, or None where it can.
 
@@ -186,15 +199,7 @@ def test_a_warm_identify_imports_no_numba_and_numba_writes_the_same(
     if reason is not None:
         pytest.skip(reason)
     folder, order, reports = identified
-    through_c, through_numba = reports[True][estimator], reports[False][estimator]
-    assert "error" not in through_c, through_c.get("error")
-    assert "error" not in through_numba, through_numba.get("error")
-    loader = first_to_load(reports[True], order, estimator)
-    assert loader is None, f"the C path imported numba (first after {loader})"
-    assert "numba" in through_numba["loaded"]
-    # numba's path ran no C port (numba is loaded by the first member alone)
-    porter = first_to_load(reports[False], order, estimator, "ports")
-    assert porter is None, f"numba's path loaded a C port (first after {porter})"
+    assert_each_path_ran_alone(reports, order, estimator)
     c_bytes = (folder / "c" / estimator / "estimation.npz").read_bytes()
     assert c_bytes == (folder / "numba" / estimator / "estimation.npz").read_bytes()
 
@@ -276,15 +281,8 @@ def test_an_online_update_imports_no_numba_and_numba_gives_the_same(
     if reason is not None:
         pytest.skip(reason)
     _, order, reports = updated
-    through_c, through_numba = reports[True][estimator], reports[False][estimator]
-    assert "error" not in through_c, through_c.get("error")
-    assert "error" not in through_numba, through_numba.get("error")
-    loader = first_to_load(reports[True], order, estimator)
-    assert loader is None, f"the C path imported numba (first after {loader})"
-    assert "numba" in through_numba["loaded"]
-    porter = first_to_load(reports[False], order, estimator, "ports")
-    assert porter is None, f"numba's path loaded a C port (first after {porter})"
-    assert through_c["means"] == through_numba["means"]
+    assert_each_path_ran_alone(reports, order, estimator)
+    assert reports[True][estimator]["means"] == reports[False][estimator]["means"]
 
 
 #: The online observer's thin form: built, stepped through a block and read.
