@@ -467,8 +467,9 @@ class RMLSettings(PilotFilterSettings):
                 "remnant_injection='choose-causal' measures the describing function from "
                 "the filter's own samples, which on the preview model hold the target "
                 "ahead, not the target ft its two-channel fit needs: give "
-                "remnant_injection='choose' (offline, the whole run's choice), 'input' or "
-                "'output', or fit the pursuit form (anticipation_time=0)"
+                "remnant_injection='choose' (offline, the whole run's choice), "
+                "remnant_injection='input' or remnant_injection='output', or fit the "
+                "model's pursuit form (an anticipation time of 0)"
             )
         if self.delay_order != 3:
             raise ValueError(

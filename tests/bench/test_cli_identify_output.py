@@ -365,3 +365,19 @@ def test_the_library_names_its_keywords(simulation):
     assert unstable["stable"] is False
     assert unstable["message"].startswith("the identified precision pilot (K_p=")
     assert "the identified the" not in unstable["message"]
+
+
+def test_a_causal_remnant_choice_on_the_preview_model_is_refused_in_flags(tmp_path, capsys):
+    run_path = tmp_path / "preview.npz"
+    simulate(Pilot.typical("preview", "SI"), "SI", measurement_time=5.0).save(run_path)
+    out_dir = tmp_path / "o"
+    code, _, err = run(
+        capsys, "identify", run_path, "--estimator", "rml", "--out", out_dir,
+        "--set", "model=preview", "--set", "ce=SI", "--set", "anticipation_time=0.9",
+        "--set", "remnant_injection=choose-causal",
+    )  # fmt: skip
+    assert code == EXIT_USAGE
+    assert "error: --set remnant_injection=choose-causal measures" in err
+    assert "give --set remnant_injection=choose (offline" in err
+    assert "--set remnant_injection=input or --set remnant_injection=output" in err
+    assert not out_dir.exists()
