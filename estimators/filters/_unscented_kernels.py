@@ -28,8 +28,8 @@ def sigma_points(x, P, spread, L, X):
     zero variance get no spread); False if it is not, or not finite. Where the
     unpivoted factor refuses ``P``, the pivoted one
     (:func:`~.linalg.cholesky_semidefinite_pivoted`, ``X`` its scratch) tells a
-    semidefinite ``P`` rounded below zero from an indefinite one; a ``P`` the first
-    takes gets the same points as before it.
+    semidefinite ``P`` rounded below zero from an indefinite one; a ``P`` the unpivoted
+    factor takes is spread along that factor's columns alone.
     """
     if not cholesky_semidefinite(P, L) and not cholesky_semidefinite_pivoted(P, L, X):
         return False
