@@ -662,14 +662,13 @@ def simulate(
     assembled, index = _build_loop(setup, traces, remnant, loop)
     columns = dict(signals)
 
-    def run(forced: bool, noise_scale: float) -> dict[str, FloatArray]:
-        cols = dict(columns)
-        if not forced:
-            for name in ("ft", "fd", "ft_far", "ft_near_rate"):
-                if name in cols:
-                    cols[name] = np.zeros(n)
+    def run(forced: bool) -> dict[str, FloatArray]:
+        # forced: every input but the remnant's noise; else the noise alone, every input
+        # the forcing makes (the target, the disturbance and what the pilot reads of
+        # the target: ahead, near, the postview track's edge) at zero
+        cols = {name: value if forced else np.zeros(n) for name, value in columns.items()}
         if noise is not None:
-            cols["noise"] = noise * noise_scale
+            cols["noise"] = np.zeros(n) if forced else noise
         return _run(assembled, index, cols, delays, dt, x0 if forced else None)
 
     measured = slice(setup.n_run_in, n)
@@ -681,11 +680,11 @@ def simulate(
         x0 = initial_loop_state(setup, traces, remnant, columns, initial_state, loop)
         metadata["initial_state"] = {k: [float(v) for v in vs] for k, vs in initial_state.items()}
     if noise is None:
-        outputs = run(True, 0.0)
+        outputs = run(True)
     else:
         gain = remnant.K_r
-        forced = run(True, 0.0)
-        unit = run(False, 1.0)
+        forced = run(True)
+        unit = run(False)
         if remnant.P_r is not None and remnant_signal is None:
             gain = _calibrate(
                 setup, traces, remnant, noise, columns, sampled, delays, forced, unit, loop
@@ -783,7 +782,7 @@ def _calibrate(
         linear_columns.update(linear_setup.forcing_signals(mean, sampled))
     zero = {name: np.zeros_like(value) for name, value in linear_columns.items()}
     linear_forced = _run(
-        linear, index, {**linear_columns, "noise": 0.0 * noise}, linear_delays, setup.dt
+        linear, index, {**linear_columns, "noise": np.zeros_like(noise)}, linear_delays, setup.dt
     )
     linear_unit = _run(linear, index, {**zero, "noise": noise}, linear_delays, setup.dt)
     gain = gain_for_ratio(linear_forced["u"][measured], linear_unit["u"][measured], ratio)

@@ -201,6 +201,34 @@ def test_constant_pilot_hits_the_power_ratio_exactly():
     assert recording.metadata["remnant"]["K_r"] > 0
 
 
+@pytest.mark.parametrize(
+    ("model", "task", "element", "forcing", "options"),
+    [
+        ("precision", "compensatory", "SI", "vanderel-bw4", {}),
+        ("preview", "preview", "SI", "vanderel-bw4", {}),
+        (
+            "postview",
+            "postview",
+            "gain",
+            "boer-kenyon1998-postview",
+            {"dt": 1 / 36, "run_in": 0.0, "loop": "sampled"},
+        ),
+    ],
+)
+def test_the_remnant_part_is_the_remnant_alone(model, task, element, forcing, options):
+    # u_n is the loop driven by the remnant alone: with a fixed gain it is the same
+    # whatever the forcing (a postview pilot's track edge once leaked into it), and the
+    # rest of u is the remnant-free run
+    pilot = Pilot(model, Pilot.typical(model, element).parameters, remnant=LevisonRemnant(K_r=0.5))
+    kwargs = {"task": task, "measurement_time": 30.0, "seed": 4, **options}
+    first = simulate(pilot, element, forcing, realisation=0, **kwargs)
+    second = simulate(pilot, element, forcing, realisation=1, **kwargs)
+    assert not np.array_equal(first.ft, second.ft)
+    np.testing.assert_array_equal(first["u_n"], second["u_n"])
+    free = simulate(pilot.with_remnant(None), element, forcing, realisation=1, **kwargs)
+    np.testing.assert_allclose(second.u - second["u_n"], free.u, rtol=0, atol=1e-12)
+
+
 def test_same_seed_same_recording_bit_for_bit():
     pilot = Pilot("preview", {"tau_f": Sigmoid(0.6, 0.3, 50.0, 10.0)}, remnant="vertregt2020-SI")
     first = simulate(pilot, "SI", "vanderel-bw4", seed=11)
