@@ -39,6 +39,7 @@ if TYPE_CHECKING:  # what tools read; at run time each name is imported on first
         closed_loop,
         remnant_power_ratio,
         simulate,
+        simulate_many,
     )
     from manualcontrol.pilots.stability import (
         UnstableLoopError,
@@ -73,6 +74,7 @@ __all__ = [
     "remnant_power_ratio",
     "simulate",
     "simulate_driving",
+    "simulate_many",
     "simulate_ocm",
     "solve_ocm",
     "typical_parameters",
@@ -113,6 +115,7 @@ __getattr__, __dir__ = lazy_exports(
             "closed_loop",
             "remnant_power_ratio",
             "simulate",
+            "simulate_many",
         ),
         "manualcontrol.pilots.stability": (
             "UnstableLoopError",

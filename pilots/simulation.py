@@ -45,10 +45,12 @@ disturbance as injected, and its metadata say where (``"disturbance_at"``).
 
 from __future__ import annotations
 
+import contextvars
 import dataclasses
+import inspect
 import math
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Hashable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -73,7 +75,7 @@ from manualcontrol.envs.elements import ControlledElement
 from manualcontrol.envs.recording import MEASURED_SIGNALS, Recording
 from manualcontrol.envs.schedules import Schedule
 from manualcontrol.envs.signals import ForcingPair
-from manualcontrol.envs.tasks import TASKS
+from manualcontrol.envs.tasks import TASKS, resolve_forcing
 from manualcontrol.pilots._random import as_generator
 from manualcontrol.pilots.loop import (
     LOOP_OUTPUTS,
@@ -102,6 +104,7 @@ __all__ = [
     "isolated_pilot_outputs",
     "remnant_power_ratio",
     "simulate",
+    "simulate_many",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -522,6 +525,79 @@ def _measurement_noise(noise: Mapping[str, float] | None) -> dict[str, float]:
 # ------------------------------------------------------------------------ simulate
 
 
+class _SharedWork:
+    """What the runs of one :func:`simulate_many` call compute once, by what it depends on.
+
+    Each entry is kept under a key naming everything its computation read that differs
+    between those runs: the loop (the pilot's, or its twin at the mean parameter values
+    that calibrates the remnant) by the time grid; the forced run of a loop also by the
+    forcing realisation; the remnant's run also by the seed. What else a computation
+    reads (pilot, element, task, options) is the same for every run of the call.
+
+    The warnings a computation gives (a parameter outside the human range, say) are
+    kept with its value and given again to every run that uses it, as each run alone
+    would give them.
+    """
+
+    def __init__(self) -> None:
+        self._kept: dict[Hashable, tuple[Any, list[warnings.WarningMessage]]] = {}
+
+    def get(self, key: Hashable | None, compute: Callable[[], Any]) -> Any:
+        """The value kept under ``key``, computed now if it is not; None: never kept."""
+        if key is None:
+            return compute()
+        if key not in self._kept:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                value = compute()
+            self._kept[key] = value, caught
+        value, caught = self._kept[key]
+        for warning in caught:
+            warnings.warn(warning.message, warning.category, stacklevel=2)
+        return value
+
+
+#: The shared work of the :func:`simulate_many` call this :func:`simulate` belongs to
+#: (None outside one: everything is computed for the run alone).
+_SHARED: contextvars.ContextVar[_SharedWork | None] = contextvars.ContextVar(
+    "shared simulation work", default=None
+)
+
+
+def _keys(
+    setup: SimulationSetup, realisation: int, seed: Any, remnant_signal: Any
+) -> dict[str, Hashable | None]:
+    """The :class:`_SharedWork` keys of one run's loop, forced run and remnant run.
+
+    None where nothing is shared: outside :func:`simulate_many`, and for the remnant
+    of a seed that is a generator or None (its noise is its own).
+    """
+    if _SHARED.get() is None:
+        return {"loop": None, "forced": None, "remnant": None}
+    grid = (setup.n_samples, float(setup.time[0]), setup.dt)
+    if remnant_signal is not None:
+        noise: Hashable | None = "signal"  # one signal for every run of the call
+    elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+        noise = ("seed", int(seed))
+    else:
+        noise = None
+    return {
+        "loop": grid,
+        "forced": (*grid, "realisation", realisation),
+        "remnant": None if noise is None else (*grid, noise),
+    }
+
+
+def _shared(key: Hashable | None, compute: Callable[[], Any]) -> Any:
+    """``compute()``, or what this :func:`simulate_many` call computed under ``key``."""
+    work = _SHARED.get()
+    return compute() if work is None else work.get(key, compute)
+
+
+def _tagged(tag: str, key: Hashable | None) -> Hashable | None:
+    return None if key is None else (tag, key)
+
+
 def simulate(
     pilot: PilotSpec,
     element: str | ControlledElement | Mapping[str, Any] = "SI",
@@ -645,12 +721,20 @@ def simulate(
     noise_variances = _measurement_noise(measurement_noise)
     rng, seed_used = as_generator(seed)
     x0 = None
-    traces = setup.parameter_traces()
+    keys = _keys(setup, realisation, seed, remnant_signal)
+    # called here when nothing is shared: its warnings point at simulate's caller
+    traces = (
+        setup.parameter_traces()
+        if keys["loop"] is None
+        else _shared(_tagged("traces", keys["loop"]), setup.parameter_traces)
+    )
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UnstableLoopWarning)
         stable = check_stable(setup, on_unstable=on_unstable)
-    sampled = setup.sampled_forcing()
-    signals = setup.forcing_signals(traces, sampled)
+    sampled, signals = _shared(
+        _tagged("forcing", keys["forced"]),
+        lambda: (sampled := setup.sampled_forcing(), setup.forcing_signals(traces, sampled)),
+    )
     n = setup.n_samples
     remnant = pilot.remnant
     if remnant_signal is not None:
@@ -659,7 +743,9 @@ def simulate(
     else:
         noise = rng.standard_normal(n) if remnant is not None else None
     delays = traces[pilot.model.delay_parameter] if pilot.delay_order is None else None
-    assembled, index = _build_loop(setup, traces, remnant, loop)
+    assembled, index = _shared(
+        _tagged("loop", keys["loop"]), lambda: _build_loop(setup, traces, remnant, loop)
+    )
     columns = dict(signals)
 
     def run(forced: bool) -> dict[str, FloatArray]:
@@ -680,14 +766,14 @@ def simulate(
         x0 = initial_loop_state(setup, traces, remnant, columns, initial_state, loop)
         metadata["initial_state"] = {k: [float(v) for v in vs] for k, vs in initial_state.items()}
     if noise is None:
-        outputs = run(True)
+        outputs = _shared(_tagged("forced", keys["forced"]), lambda: run(True))
     else:
         gain = remnant.K_r
-        forced = run(True)
-        unit = run(False)
+        forced = _shared(_tagged("forced", keys["forced"]), lambda: run(True))
+        unit = _shared(_tagged("remnant", keys["remnant"]), lambda: run(False))
         if remnant.P_r is not None and remnant_signal is None:
             gain = _calibrate(
-                setup, traces, remnant, noise, columns, sampled, delays, forced, unit, loop
+                setup, traces, remnant, noise, columns, sampled, delays, forced, unit, loop, keys
             )
         # the loop is linear and starts at rest: the run with both is their sum (to
         # rounding), one stepping of the loop less
@@ -740,6 +826,94 @@ def simulate(
     return Recording(signals=recorded, dt=setup.dt, parameters=parameters, metadata=metadata)
 
 
+#: :func:`simulate`'s keywords that :func:`simulate_many` takes for all its runs.
+_RUN_OPTIONS: tuple[str, ...] = tuple(
+    name
+    for name, parameter in inspect.signature(simulate).parameters.items()
+    if parameter.kind is inspect.Parameter.KEYWORD_ONLY and name not in ("realisation", "seed")
+)
+
+
+def simulate_many(
+    pilot: PilotSpec,
+    element: str | ControlledElement | Mapping[str, Any] = "SI",
+    forcing: str | ForcingPair = "vanderel-bw4",
+    *,
+    runs: Sequence[tuple[int, int | None]],
+    **options: Any,
+) -> Iterator[Recording]:
+    """Many runs of one pilot: :func:`simulate` for each ``(realisation, seed)`` of ``runs``.
+
+    A Monte Carlo over forcing realisations and remnant seeds, as a benchmark suite's
+    batch or an experiment design runs it. ``options`` are :func:`simulate`'s other
+    keywords, the same for every run. The recordings come one at a time, in the order
+    of ``runs`` (``list(...)`` for all of them at once), so thousands of runs hold one
+    recording in memory, beside what they share.
+
+    Each recording is bit for bit the one :func:`simulate` returns for its realisation
+    and seed; what the runs share is computed once. The loop is linear and starts at
+    rest, so a run with remnant is the sum of the loop driven by the forcing alone and
+    by the remnant alone. The loop is connected and discretised once for all runs (the
+    pilot, the element and the time grid are the same); the forced run is stepped once
+    per realisation and the remnant's once per seed (as is the linear loop at the mean
+    parameter values that calibrates the remnant's gain). Over 5 realisations and 20
+    seeds the loop is stepped 50 times instead of 400. A seed given as None draws
+    fresh noise per run, and its remnant run is its own.
+
+    Each pair's realisation and seed are checked when called; ``options`` are checked as
+    :func:`simulate` checks them, when the first run is simulated. A run that fails (an
+    unstable loop, say) raises from the iteration; the runs before it have been yielded.
+    """
+    for name in ("realisation", "seed"):
+        if name in options:
+            raise TypeError(
+                f"simulate_many takes each run's realisation and seed in runs, not {name}="
+            )
+    reject_unknown("simulate_many", options, _RUN_OPTIONS)
+    pairs = list(runs) if isinstance(runs, Sequence) and not isinstance(runs, str) else None
+    if pairs is None or not all(
+        isinstance(pair, (tuple, list)) and len(pair) == 2 for pair in pairs
+    ):
+        raise TypeError(f"runs must be a sequence of (realisation, seed) pairs, got {runs!r}")
+    # each pair checked now, as simulate checks it, not when its turn comes
+    resolve_forcing(forcing)
+    for i, (realisation, seed) in enumerate(pairs):
+        try:
+            resolve_forcing(forcing, realisation)
+            if not isinstance(seed, np.random.Generator):
+                as_generator(seed)
+        except (TypeError, ValueError) as error:
+            raise type(error)(f"runs[{i}]: {error}") from None
+    return _simulations(pilot, element, forcing, pairs, options)
+
+
+def _simulations(
+    pilot: PilotSpec,
+    element: str | ControlledElement | Mapping[str, Any],
+    forcing: str | ForcingPair,
+    pairs: Sequence[Sequence[Any]],
+    options: Mapping[str, Any],
+) -> Iterator[Recording]:
+    work = _SharedWork()
+    for realisation, seed in pairs:
+        # shared only while this call's own simulate runs: whatever the caller does
+        # between two recordings simulates on its own
+        token = _SHARED.set(work)
+        try:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                recording = simulate(
+                    pilot, element, forcing, realisation=realisation, seed=seed, **options
+                )
+        finally:
+            _SHARED.reset(token)
+            # each run's warnings, as simulate alone gives them, at the line that
+            # iterates (the caller of next())
+            for warning in caught:
+                warnings.warn(warning.message, warning.category, stacklevel=2)
+        yield recording
+
+
 def _loss_of_control_end(e: FloatArray, limit: float) -> int:
     """Samples an environment would have recorded before its loss-of-control end.
 
@@ -761,30 +935,56 @@ def _calibrate(
     forced: Mapping[str, FloatArray],
     unit: Mapping[str, FloatArray],
     loop: str,
+    keys: Mapping[str, Hashable | None],
 ) -> float:
-    """Remnant gain for the requested power ratio (thesis Part I Sec. IV-D)."""
+    """Remnant gain for the requested power ratio (thesis Part I Sec. IV-D).
+
+    ``keys`` are the run's :func:`_keys`: the linear loop and its runs are shared as
+    the time-varying ones are.
+    """
     measured = slice(setup.n_run_in, setup.n_samples)
     ratio = float(remnant.P_r)
     if not (setup.pilot.is_time_varying or setup.element.is_time_varying):
         return gain_for_ratio(forced["u"][measured], unit["u"][measured], ratio)
     # Linear simulation at the mean parameter values gives the first gain.
     mean = {name: np.full_like(trace, trace.mean()) for name, trace in traces.items()}
-    linear_setup = dataclasses.replace(
-        setup,
-        pilot=setup.pilot.with_parameters(
-            **{name: float(trace.mean()) for name, trace in traces.items()}
-        ),
+    means = {name: float(trace.mean()) for name, trace in traces.items()}
+    linear_pilot = (
+        setup.pilot.with_parameters(**means)
+        if keys["loop"] is None
+        else _shared(
+            _tagged("linear pilot", keys["loop"]), lambda: setup.pilot.with_parameters(**means)
+        )
     )
-    linear, index = _build_loop(linear_setup, mean, remnant, loop)
+    linear_setup = dataclasses.replace(setup, pilot=linear_pilot)
+    linear, index = _shared(
+        _tagged("linear loop", keys["loop"]),
+        lambda: _build_loop(linear_setup, mean, remnant, loop),
+    )
     linear_delays = None if delays is None else mean[setup.pilot.model.delay_parameter]
     linear_columns = dict(columns)
     if "ft_far" in columns:
-        linear_columns.update(linear_setup.forcing_signals(mean, sampled))
+        linear_columns.update(
+            _shared(
+                _tagged("linear forcing", keys["forced"]),
+                lambda: linear_setup.forcing_signals(mean, sampled),
+            )
+        )
     zero = {name: np.zeros_like(value) for name, value in linear_columns.items()}
-    linear_forced = _run(
-        linear, index, {**linear_columns, "noise": np.zeros_like(noise)}, linear_delays, setup.dt
+    linear_forced = _shared(
+        _tagged("linear forced", keys["forced"]),
+        lambda: _run(
+            linear,
+            index,
+            {**linear_columns, "noise": np.zeros_like(noise)},
+            linear_delays,
+            setup.dt,
+        ),
     )
-    linear_unit = _run(linear, index, {**zero, "noise": noise}, linear_delays, setup.dt)
+    linear_unit = _shared(
+        _tagged("linear remnant", keys["remnant"]),
+        lambda: _run(linear, index, {**zero, "noise": noise}, linear_delays, setup.dt),
+    )
     gain = gain_for_ratio(linear_forced["u"][measured], linear_unit["u"][measured], ratio)
     # Check on the time-varying run; re-solve there when off by more than 5 %.
     realised = remnant_power_ratio(

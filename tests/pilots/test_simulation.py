@@ -17,6 +17,7 @@ Tolerances, and why:
 import functools
 import re
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +36,7 @@ from manualcontrol.pilots import (
     UnstableLoopWarning,
     remnant_power_ratio,
     simulate,
+    simulate_many,
 )
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -227,6 +229,128 @@ def test_the_remnant_part_is_the_remnant_alone(model, task, element, forcing, op
     np.testing.assert_array_equal(first["u_n"], second["u_n"])
     free = simulate(pilot.with_remnant(None), element, forcing, realisation=1, **kwargs)
     np.testing.assert_allclose(second.u - second["u_n"], free.u, rtol=0, atol=1e-12)
+
+
+def _bytes(recording):
+    arrays = {**dict(recording.signals), **{f"p:{k}": v for k, v in recording.parameters.items()}}
+    return {name: (np.asarray(v).dtype.str, np.asarray(v).tobytes()) for name, v in arrays.items()}
+
+
+@pytest.mark.parametrize(
+    ("pilot", "element", "forcing", "options"),
+    [
+        # time-varying, remnant calibrated to P_r: the linear loop at the mean values too
+        (
+            Pilot(
+                "preview",
+                {**PREVIEW_SI, "tau_f": Sigmoid(0.6, 0.3, 10.0, 5.0)},
+                remnant=LevisonRemnant(omega_r=10.0, injection="feedback", P_r=0.35),
+            ),
+            "SI",
+            "vanderel-bw4",
+            {"run_in": 5.0, "measurement_time": 20.0, "keep_run_in": True},
+        ),
+        # no remnant, measurement noise drawn from the seed, a start state
+        (
+            Pilot("precision", COMPENSATORY),
+            "DI",
+            "vanderel-bw4",
+            {
+                "run_in": 0.0,
+                "measurement_time": 20.0,
+                "measurement_noise": {"u": 0.01},
+                "initial_state": {"y": (0.1, 0.0), "u": (0.0, 0.0)},
+            },
+        ),
+        # sampled loop, the postview display's edge among the forcing inputs
+        (
+            Pilot("postview", remnant=LevisonRemnant(K_r=0.5)),
+            "gain",
+            "boer-kenyon1998-postview",
+            {"dt": 1 / 36, "run_in": 0.0, "measurement_time": 20.0, "loop": "sampled"},
+        ),
+    ],
+)
+def test_simulate_many_gives_simulate_bit_for_bit(pilot, element, forcing, options):
+    runs = [(0, 1), (1, 1), (0, 2), (1, 2), (1, None)]
+    together = list(simulate_many(pilot, element, forcing, runs=runs, **options))
+    for (realisation, seed), recording in zip(runs[:-1], together, strict=False):
+        alone = simulate(pilot, element, forcing, realisation=realisation, seed=seed, **options)
+        assert _bytes(recording) == _bytes(alone)
+        assert recording.metadata == alone.metadata
+    # a seed of None draws fresh noise: not another run's remnant
+    assert not np.array_equal(together[-1].u, together[1].u)
+
+
+def test_simulate_many_steps_the_loop_once_per_realisation_and_once_per_seed(monkeypatch):
+    from manualcontrol.pilots import simulation
+
+    steps = []
+    step = simulation._run
+    monkeypatch.setattr(
+        simulation, "_run", lambda *args, **kwargs: steps.append(1) or step(*args, **kwargs)
+    )
+    pilot = Pilot(
+        "preview",
+        {**PREVIEW_SI, "tau_f": Sigmoid(0.6, 0.3, 10.0, 5.0)},
+        remnant=LevisonRemnant(omega_r=10.0, injection="feedback", P_r=0.35),
+    )
+    runs = [(realisation, seed) for seed in range(3) for realisation in range(2)]
+    recordings = simulate_many(pilot, "SI", runs=runs, run_in=5.0, measurement_time=10.0)
+    assert len(list(recordings)) == 6
+    # the time-varying loop and the linear one at the mean values (which calibrates the
+    # remnant): each stepped by the forcing once per realisation, by the remnant once
+    # per seed; 2 x (2 + 3) against 4 x 6 run by run
+    assert len(steps) == 10
+
+
+def test_simulate_many_warns_each_run_as_simulate_does_at_the_callers_line():
+    # a gain below the human range on 1/s: the shared parameter traces warn once, but
+    # every run is told, as it is alone
+    pilot = Pilot("precision", {**Pilot.typical("precision", "1/s").parameters, "K_p": 0.2})
+    options = {"measurement_time": 10.0, "run_in": 0.0}
+    runs = [(0, 1), (1, 1), (0, 2)]
+    with warnings.catch_warnings(record=True) as alone:
+        warnings.simplefilter("always")
+        for realisation, seed in runs:
+            simulate(pilot, "1/s", realisation=realisation, seed=seed, **options)
+    with warnings.catch_warnings(record=True) as together:
+        warnings.simplefilter("always")
+        list(simulate_many(pilot, "1/s", runs=runs, **options))
+    said = [(w.category, str(w.message)) for w in together]
+    assert said == [(w.category, str(w.message)) for w in alone]
+    assert len(said) >= 3 and all(category is HumanLimitWarning for category, _ in said)
+    assert {w.filename for w in alone + together} == {__file__}
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "message"),
+    [
+        ({"runs": [(0, 1)], "seed": 3}, TypeError, "in runs, not seed="),
+        ({"runs": [(0, 1)], "realisation": 1}, TypeError, "in runs, not realisation="),
+        (
+            {"runs": [(0, 1)], "run_time": 3.0},
+            TypeError,
+            "simulate_many got unknown key(s) 'run_time'",
+        ),
+        (
+            {"runs": [0, 1]},
+            TypeError,
+            "runs must be a sequence of (realisation, seed) pairs, got [0, 1]",
+        ),
+        ({"runs": "01"}, TypeError, "runs must be a sequence of (realisation, seed) pairs"),
+        ({"runs": [(0, 1), (12, 1)]}, ValueError, "runs[1]: realisation must lie in [0, 9]"),
+        (
+            {"runs": [(0, "x")]},
+            TypeError,
+            "runs[0]: seed must be an int, a numpy Generator or None",
+        ),
+        ({"runs": [(0, -1)]}, ValueError, "runs[0]: seed must be >= 0, got -1"),
+    ],
+)
+def test_simulate_many_refuses_bad_runs_and_options_when_called(kwargs, error, message):
+    with pytest.raises(error, match=re.escape(message)):
+        simulate_many(Pilot("precision"), **kwargs)
 
 
 def test_same_seed_same_recording_bit_for_bit():
