@@ -15,13 +15,17 @@
 
 Scenarios that differ only in their estimator share one simulation: a worker
 simulates it once and runs every estimator on the same recording (one row per
-estimator, the ``estimator`` column naming it). Each scenario is seeded by its own
-settings only, so the numbers are identical whatever the backend and the number of
-workers. Every finished run is stored at once
-under ``<out>/runs/<key>.json`` (its row) and ``<key>.npz`` (the estimator's
-traces); a suite run again skips those (resume), and a failing scenario is recorded
-as failed with its error while the batch goes on. At the end the rows are written to
-``results.csv`` and ``results.parquet``.
+estimator, the ``estimator`` column naming it). The runs of one pilot's Monte Carlo (a
+batch's realisations and seeds) are simulated together where a worker gets several
+(:func:`run_scenario_groups`, :func:`~manualcontrol.pilots.simulate_many`): the loop is
+discretised once, the forced run stepped once per realisation and the remnant's once
+per seed; the process pool hands each worker a batch's runs one or more seeds at a
+time. Each scenario is seeded by its own settings only, so the numbers are identical
+whatever the backend, the number of workers and what was simulated together. Every
+finished run is stored at once under ``<out>/runs/<key>.json`` (its row) and
+``<key>.npz`` (the estimator's traces); a suite run again skips those (resume), and a
+failing scenario is recorded as failed with its error while the batch goes on. At the
+end the rows are written to ``results.csv`` and ``results.parquet``.
 
 Ctrl-C stops a run cleanly: the pool's workers ignore it (no traceback from them), the
 main process cancels what has not started, stops the workers and raises
@@ -46,7 +50,7 @@ import signal
 import sys
 import time
 import traceback
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
@@ -66,6 +70,7 @@ __all__ = [
     "SuiteInterrupted",
     "make_estimator",
     "run_scenario",
+    "run_scenario_groups",
     "run_scenarios",
     "run_suite",
     "write_table",
@@ -91,8 +96,6 @@ def simulate_scenario(scenario: Scenario) -> Recording:
         from manualcontrol.bench.driving import simulate_lane_keeping
 
         return simulate_lane_keeping(scenario)
-    from manualcontrol.pilots import simulate
-
     if scenario.system is not None:
         from manualcontrol.pilots.open_loop import simulate_open_loop
 
@@ -106,27 +109,120 @@ def simulate_scenario(scenario: Scenario) -> Recording:
             seed=scenario.remnant_seed,
             keep_run_in=True,
         )
-    postview = {} if scenario.gap is None else {"gap": scenario.build_gap()}
+    from manualcontrol.pilots import simulate
+
     return simulate(
         scenario.build_pilot(),
         scenario.element,
         scenario.forcing,
         realisation=scenario.realisation,
-        task=scenario.task,
-        available_preview=scenario.available_preview,
-        dt=scenario.dt,
-        run_in=scenario.run_in,
-        measurement_time=scenario.measurement_time,
         seed=scenario.remnant_seed,
-        loop=scenario.loop,
-        keep_run_in=True,
-        loss_of_control=scenario.loss_of_control,
-        **postview,
-        start_time=scenario.start_time,
-        initial_state=scenario.initial_state,
-        measurement_noise=scenario.measurement_noise,
-        disturbance_at=scenario.disturbance_at,
+        **_tracking_options(scenario),
     )
+
+
+def _tracking_options(scenario: Scenario) -> dict[str, Any]:
+    """:func:`~manualcontrol.pilots.simulate`'s keywords for a tracking scenario.
+
+    All of them but the realisation and the seed, which are each run's own.
+    """
+    postview = {} if scenario.gap is None else {"gap": scenario.build_gap()}
+    return {
+        "task": scenario.task,
+        "available_preview": scenario.available_preview,
+        "dt": scenario.dt,
+        "run_in": scenario.run_in,
+        "measurement_time": scenario.measurement_time,
+        "loop": scenario.loop,
+        "keep_run_in": True,
+        "loss_of_control": scenario.loss_of_control,
+        **postview,
+        "start_time": scenario.start_time,
+        "initial_state": scenario.initial_state,
+        "measurement_noise": scenario.measurement_noise,
+        "disturbance_at": scenario.disturbance_at,
+    }
+
+
+def _monte_carlo_key(scenario: Scenario) -> str | None:
+    """What the runs of one pilot's Monte Carlo share: all but realisation and seed.
+
+    Scenarios with the same key are simulated together
+    (:func:`~manualcontrol.pilots.simulate_many`); None for the runs simulated alone
+    (lane keeping and open-loop systems).
+    """
+    if scenario.task == "lane-keeping" or scenario.system is not None:
+        return None
+    data = scenario.to_dict()
+    for name in ("estimator", "realisation", "remnant_seed"):
+        data.pop(name)
+    return json.dumps(data, sort_keys=True, default=str)
+
+
+#: A simulation as a group's runs use it: the recording (None when it failed), the
+#: error and its traceback (None when it did not), and the seconds it took.
+_Simulated = tuple[Recording | None, tuple[BaseException, str] | None, float]
+
+
+def _simulate_alone(scenario: Scenario) -> _Simulated:
+    started = time.perf_counter()
+    try:
+        recording = simulate_scenario(scenario)
+    except Exception as error:
+        return None, (error, traceback.format_exc(limit=6)), time.perf_counter() - started
+    return recording, None, time.perf_counter() - started
+
+
+def _simulations(groups: Sequence[Sequence[Scenario]]) -> Iterator[_Simulated]:
+    """Each group's simulation, in order; a Monte Carlo's runs simulated together.
+
+    Consecutive groups of one pilot's Monte Carlo (:func:`_monte_carlo_key`) share
+    their loop and its runs (:func:`~manualcontrol.pilots.simulate_many`): every
+    recording is the one the group would simulate alone, bit for bit. Each simulation
+    counts the seconds of its own recording, the shared work included where it was
+    first needed. A run that fails is simulated again alone, so its row says what it
+    says alone (error and traceback), and the runs after it are simulated together
+    again; Monte Carlo runs that cannot even be set up together are each run alone.
+    """
+    from manualcontrol.pilots import simulate_many
+
+    i = 0
+    while i < len(groups):
+        first = groups[i][0]
+        key = _monte_carlo_key(first)
+        end = i + 1
+        while key is not None and end < len(groups) and _monte_carlo_key(groups[end][0]) == key:
+            end += 1
+        firsts = [group[0] for group in groups[i:end]]
+        runs = None
+        if len(firsts) > 1:
+            try:
+                runs = simulate_many(
+                    first.build_pilot(),
+                    first.element,
+                    first.forcing,
+                    runs=[(scenario.realisation, scenario.remnant_seed) for scenario in firsts],
+                    **_tracking_options(first),
+                )
+            except Exception:
+                runs = None  # each run alone says what is wrong with it
+        if runs is None:
+            for scenario in firsts:
+                yield _simulate_alone(scenario)
+            i = end
+            continue
+        for scenario in firsts:
+            started = time.perf_counter()
+            try:
+                recording = next(runs)
+            except Exception:
+                recording = None
+            i += 1
+            if recording is None:
+                # outside the handler: the row's traceback is the run's own, unchained
+                yield _simulate_alone(scenario)
+                break  # the iteration ended with the error: start again after it
+            yield recording, None, time.perf_counter() - started
 
 
 def run_scenario(scenario: Scenario, out: Path | None = None) -> dict[str, Any]:
@@ -145,18 +241,43 @@ def run_scenarios(scenarios: Sequence[Scenario], out: Path | None = None) -> lis
     Returns one row per scenario, in order (see :func:`run_scenario`). A failed
     simulation fails every row; a failed estimator fails its own row only.
     """
-    from manualcontrol.bench.scoring import score
+    _check_group(scenarios)
+    return _run_group(scenarios, out, _simulate_alone(scenarios[0]))
 
+
+def run_scenario_groups(
+    groups: Sequence[Sequence[Scenario]], out: Path | None = None
+) -> Iterator[list[dict[str, Any]]]:
+    """:func:`run_scenarios` for each group, in order, yielding each group's rows as it ends.
+
+    Consecutive groups that are runs of one pilot's Monte Carlo (a batch's realisations
+    and seeds) are simulated together, their shared work done once
+    (:func:`~manualcontrol.pilots.simulate_many`); every row is the one
+    :func:`run_scenarios` gives its group alone, bit for bit, but for its times.
+    """
+    for group in groups:
+        _check_group(group)
+    for group, simulated in zip(groups, _simulations(groups), strict=True):
+        yield _run_group(group, out, simulated)
+
+
+def _run_chunk(groups: Sequence[Sequence[Scenario]], out: Path) -> list[dict[str, Any]]:
+    """Every row of ``groups`` (:func:`run_scenario_groups`): a pool worker's task."""
+    return [row for rows in run_scenario_groups(groups, out) for row in rows]
+
+
+def _check_group(scenarios: Sequence[Scenario]) -> None:
     if len({scenario.simulation_key for scenario in scenarios}) > 1:
         raise ValueError("run_scenarios takes scenarios that share one simulation")
-    started = time.perf_counter()
-    recording = None
-    failure = None
-    try:
-        recording = simulate_scenario(scenarios[0])
-    except Exception as error:
-        failure = error, traceback.format_exc(limit=6)
-    simulation_time = time.perf_counter() - started
+
+
+def _run_group(
+    scenarios: Sequence[Scenario], out: Path | None, simulated: _Simulated
+) -> list[dict[str, Any]]:
+    """The rows of one group, from its simulation (see :func:`run_scenarios`)."""
+    from manualcontrol.bench.scoring import score
+
+    recording, failure, simulation_time = simulated
     twins = _twinned_filters(scenarios)
     shared: dict[str, Any] = {}
     rows = []
@@ -497,8 +618,8 @@ def _run_groups(
 ) -> None:
     """Run every group with ``backend``, handing each row to ``collect`` as it comes."""
     if backend == "inprocess" or (backend == "process" and len(groups) <= 1):
-        for group in groups:
-            for row in run_scenarios(group, out):
+        for rows in run_scenario_groups(groups, out):
+            for row in rows:
                 collect(row)
     elif backend == "process":
         count = (
@@ -512,15 +633,15 @@ def _run_groups(
         with _one_thread_here():
             for row in run_scenarios(groups[0], out):
                 collect(row)
-        rest = groups[1:]
-        if rest:
+        chunks = _chunks(groups[1:], count)
+        if chunks:
             pool = ProcessPoolExecutor(
-                max_workers=min(count, len(rest)),
+                max_workers=min(count, len(chunks)),
                 initializer=_one_thread,
                 mp_context=_pool_context(),
             )
             try:
-                futures = [pool.submit(run_scenarios, group, out) for group in rest]
+                futures = [pool.submit(_run_chunk, chunk, out) for chunk in chunks]
                 for future in as_completed(futures):
                     for row in future.result():
                         collect(row)
@@ -532,6 +653,40 @@ def _run_groups(
         for group_rows in _run_with_ray(groups, out):
             for row in group_rows:
                 collect(row)
+
+
+#: Tasks per worker the process pool's groups are cut into: more balance the workers'
+#: loads at the end of a suite, fewer share more of each Monte Carlo's simulations.
+_CHUNKS_PER_WORKER = 8
+
+
+def _chunks(groups: Sequence[Sequence[Scenario]], workers: int) -> list[list[Sequence[Scenario]]]:
+    """The pool's tasks: each a pilot's Monte Carlo runs of one or more whole seeds.
+
+    A seed's runs (every realisation of the batch with that seed) are never split: a
+    task of ``k`` seeds of ``R`` realisations steps each of its loops ``R + k`` times
+    instead of ``2 k R`` (see :func:`~manualcontrol.pilots.simulate_many`). Seeds are added to a
+    task until it holds about ``1 / (8 workers)`` of the groups, so the workers end
+    the suite about together. Results do not depend on the cutting: each row is stored
+    under its own key and the table keeps the suite's order.
+    """
+    families: dict[Any, dict[int, list[Sequence[Scenario]]]] = {}
+    for index, group in enumerate(groups):
+        key = _monte_carlo_key(group[0])
+        seeds = families.setdefault(("alone", index) if key is None else key, {})
+        seeds.setdefault(group[0].remnant_seed, []).append(group)
+    size = max(1, math.ceil(len(groups) / (workers * _CHUNKS_PER_WORKER)))
+    tasks: list[list[Sequence[Scenario]]] = []
+    for seeds in families.values():
+        task: list[Sequence[Scenario]] = []
+        for seed in sorted(seeds):
+            task.extend(sorted(seeds[seed], key=lambda group: group[0].realisation))
+            if len(task) >= size:
+                tasks.append(task)
+                task = []
+        if task:
+            tasks.append(task)
+    return tasks
 
 
 def write_table(rows: Sequence[Mapping[str, Any]], out: str | Path) -> tuple[Path, Path | None]:

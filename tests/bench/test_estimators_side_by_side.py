@@ -6,12 +6,12 @@ import warnings
 
 import pytest
 
-from manualcontrol.bench import runner
 from manualcontrol.bench.cli import EXIT_OK, EXIT_USAGE, main
 from manualcontrol.bench.report import write_report
 from manualcontrol.bench.runner import run_suite
 from manualcontrol.bench.scenarios import SuiteError, load_suite, parse_suite
 from manualcontrol.estimators.members.pilot_filter import GenericValuesWarning
+from manualcontrol.pilots import simulation
 
 SUITE = {
     "name": "three",
@@ -49,15 +49,15 @@ def test_each_run_is_simulated_once_and_read_by_every_estimator(tmp_path, monkey
         "total_derivative": "dimensional",
     }
     simulated = []
-    original = runner.simulate_scenario
+    original = simulation.simulate
 
-    def counting(scenario):
-        simulated.append(scenario.simulation_key)
-        return original(scenario)
+    def counting(*args, realisation, seed, **kwargs):
+        simulated.append((realisation, seed))
+        return original(*args, realisation=realisation, seed=seed, **kwargs)
 
-    monkeypatch.setattr(runner, "simulate_scenario", counting)
+    monkeypatch.setattr(simulation, "simulate", counting)
     rows = run_suite(suite, tmp_path, backend="inprocess")
-    assert sorted(simulated) == sorted({s.simulation_key for s in scenarios})
+    assert sorted(simulated) == sorted({(s.realisation, s.remnant_seed) for s in scenarios})
     assert [row["estimator"] for row in rows] == ["dekf", "joint-ukf", "dual-ukf"] * 2
     assert all(row["status"] == "ok" for row in rows), [row.get("error") for row in rows]
     keys = [row["key"] for row in rows]

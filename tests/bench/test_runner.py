@@ -1,5 +1,6 @@
 """Runner: backends agree, finished runs are resumed, failures are rows, reports are written."""
 
+import dataclasses
 import json
 import math
 import os
@@ -206,7 +207,11 @@ def test_first_run_is_made_here_and_the_pool_forks_from_this_process(tmp_path, m
     # compile once: the first scenario runs in this process (compiling or loading the
     # kernels), the rest in forked workers, which inherit the compiled code
     parent = os.getpid()
-    monkeypatch.setattr(runner, "run_scenarios", _run_where)
+    monkeypatch.setattr(
+        runner, "_run_group", lambda scenarios, out, simulated: _run_where(scenarios)
+    )
+    monkeypatch.setattr(runner, "_simulate_alone", lambda scenario: (None, None, 0.0))
+    monkeypatch.setattr(runner, "_simulations", lambda groups: ((None, None, 0.0) for _ in groups))
     rows = run_suite(parse_suite(SMALL), tmp_path, backend="process", workers=2)
     pids = [row["pid"] for row in rows]
     assert pids[0] == parent
@@ -277,3 +282,122 @@ def test_the_shared_pass_counts_for_the_online_row_whichever_comes_first(monkeyp
     shared = {}
     assert runner._estimate(online, None, keys, shared) == ("online", 0.0)
     assert runner._estimate(twin, None, keys, shared) == ("smoothed", 0.0)
+
+
+MONTE_CARLO = {
+    **SMALL,
+    "batch": [{**SMALL["batch"][0], "realisations": [0, 1], "remnant_seeds": [3, 4]}],
+}
+
+
+def _loop_steps(monkeypatch):
+    """A list that grows by one at every stepping of a simulated loop."""
+    from manualcontrol.pilots import simulation
+
+    steps = []
+    step = simulation._run
+
+    def counting(*args, **kwargs):
+        steps.append(1)
+        return step(*args, **kwargs)
+
+    monkeypatch.setattr(simulation, "_run", counting)
+    return steps
+
+
+def _same_runs(together, apart, folders):
+    from manualcontrol.estimators.protocol import load_result
+
+    for a, b in zip(together, apart, strict=True):
+        assert a["key"] == b["key"] and a["status"] == b["status"] == "ok", a.get("error")
+        assert numbers(a) == numbers(b)  # no NaN among them: == is bit for bit here
+        shared, alone = (load_result(folder / "runs" / f"{a['key']}.npz") for folder in folders)
+        assert shared.mean.tobytes() == alone.mean.tobytes()
+        assert shared.std.tobytes() == alone.std.tobytes()
+
+
+def test_a_monte_carlo_run_together_gives_each_run_alone_bit_for_bit(tmp_path, monkeypatch):
+    groups = runner._groups(parse_suite(MONTE_CARLO).scenarios())
+    assert len(groups) == 4
+    steps = _loop_steps(monkeypatch)
+    together = list(runner._simulations(groups))
+    stepped_together = len(steps)
+    alone = [runner._simulate_alone(group[0]) for group in groups]
+    # a constant pilot: alone, each run steps the forced loop and the remnant's (2 x 4);
+    # together, once per realisation and once per seed (2 + 2)
+    assert (stepped_together, len(steps) - stepped_together) == (4, 8)
+    for (shared, _, _), (own, _, _) in zip(together, alone, strict=True):
+        assert shared.equals(own)
+        assert all(shared[name].tobytes() == own[name].tobytes() for name in own.signals)
+    folders = tmp_path / "together", tmp_path / "apart"
+    rows = [row for rows in runner.run_scenario_groups(groups, folders[0]) for row in rows]
+    apart = [row for group in groups for row in runner.run_scenarios(group, folders[1])]
+    _same_runs(rows, apart, folders)
+
+
+def test_a_failed_simulation_in_a_monte_carlo_fails_its_own_rows_only(tmp_path, monkeypatch):
+    import manualcontrol.pilots as pilots
+    from manualcontrol.pilots import simulation
+
+    groups = runner._groups(parse_suite(MONTE_CARLO).scenarios())
+    simulate = simulation.simulate
+
+    def failing(*args, realisation, seed, **kwargs):
+        if (realisation, seed) == (1, 3):
+            raise FloatingPointError("loop exploded")
+        return simulate(*args, realisation=realisation, seed=seed, **kwargs)
+
+    for where in (simulation, pilots):  # together, and a scenario alone
+        monkeypatch.setattr(where, "simulate", failing)
+    rows = [
+        row for rows in runner.run_scenario_groups(groups, tmp_path / "together") for row in rows
+    ]
+    failed = [row for row in rows if row["status"] == "failed"]
+    assert [(row["realisation"], row["remnant_seed"]) for row in failed] == [(1, 3)]
+    (group,) = [g for g in groups if (g[0].realisation, g[0].remnant_seed) == (1, 3)]
+    (alone,) = runner.run_scenarios(group, tmp_path / "failed alone")
+    # the row says what the run says alone, traceback and all
+    assert (failed[0]["error"], failed[0]["traceback"]) == (alone["error"], alone["traceback"])
+    assert failed[0]["error"] == "FloatingPointError: loop exploded"
+    for where in (simulation, pilots):
+        monkeypatch.setattr(where, "simulate", simulate)
+    ok = [row for row in rows if row["status"] == "ok"]
+    apart = [
+        runner.run_scenarios(group, tmp_path / "apart")[0]
+        for group in groups
+        if (group[0].realisation, group[0].remnant_seed) != (1, 3)
+    ]
+    _same_runs(ok, apart, (tmp_path / "together", tmp_path / "apart"))
+
+
+def test_a_monte_carlo_that_cannot_be_set_up_together_runs_each_run_alone(tmp_path):
+    scenarios = parse_suite(MONTE_CARLO).scenarios()
+    # a scenario list is not checked as a suite file is: a parameter the model lacks
+    broken = [
+        dataclasses.replace(s, pilot={**s.pilot, "parameters": {"K_q": 1.0}}) for s in scenarios
+    ]
+    groups = runner._groups(broken)
+    rows = [row for rows in runner.run_scenario_groups(groups, tmp_path) for row in rows]
+    assert [row["status"] for row in rows] == ["failed"] * 4
+    assert all("K_q" in row["error"] for row in rows)
+
+
+def test_the_pool_tasks_hold_whole_seeds_of_a_monte_carlo_and_every_group_once():
+    data = json.loads(json.dumps(MONTE_CARLO))
+    data["batch"][0]["realisations"] = [0, 1, 2]
+    data["batch"][0]["remnant_seeds"] = [3, 4, 5, 6]
+    other = {**data["batch"][0], "name": "other", "realisations": [0], "remnant_seeds": [1]}
+    data["batch"].append(other)
+    groups = runner._groups(parse_suite(data).scenarios())
+    for workers in (1, 2, 16):
+        chunks = runner._chunks(groups, workers)
+        assert sorted(g[0].key for c in chunks for g in c) == sorted(g[0].key for g in groups)
+        for chunk in chunks:
+            assert len({g[0].batch for g in chunk}) == 1
+            seeds = {g[0].remnant_seed for g in chunk}
+            batch = chunk[0][0].batch
+            # every realisation of each of its seeds: never a seed split between tasks
+            whole = [g for g in groups if g[0].batch == batch and g[0].remnant_seed in seeds]
+            assert sorted(g[0].key for g in chunk) == sorted(g[0].key for g in whole)
+    # 13 groups, 8 tasks a worker: about 2 groups a task, so one seed (3 groups) each
+    assert [len(chunk) for chunk in runner._chunks(groups, 1)] == [3, 3, 3, 3, 1]

@@ -58,7 +58,7 @@ def refusal(out, found, where, running):
 
 @pytest.fixture
 def fake_runs(monkeypatch):
-    """run_scenarios without simulating: a row per scenario, stored as the runner does."""
+    """run_scenarios (alone and in groups) without simulating: a row per scenario, stored."""
     ran = []
 
     def fake(scenarios, out=None):
@@ -72,6 +72,9 @@ def fake_runs(monkeypatch):
         return rows
 
     monkeypatch.setattr(runner, "run_scenarios", fake)
+    monkeypatch.setattr(
+        runner, "run_scenario_groups", lambda groups, out=None: (fake(g, out) for g in groups)
+    )
     return ran
 
 
