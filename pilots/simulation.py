@@ -290,9 +290,15 @@ def _run(
     for i, name in enumerate(external):
         inputs[:, i] = input_columns[name]
 
+    # every sample its own set (an estimator's traces): the index is 0, 1, ..., n - 1
+    # (it rises by 0 or 1 a sample), and a gather would only copy the matrices
+    own_sets = index is not None and int(index[-1]) == index.shape[0] - 1
+
     def expand(array: FloatArray) -> FloatArray:
         if index is None:
             return array[0] if array.ndim == 3 else array
+        if own_sets and array.shape[0] == index.shape[0]:
+            return array
         return array[index]
 
     exact = Discretization(*(expand(a) for a in assembled.discretization))
