@@ -19,8 +19,8 @@ estimator, the ``estimator`` column naming it). The runs of one pilot's Monte Ca
 batch's realisations and seeds) are simulated together where a worker gets several
 (:func:`run_scenario_groups`, :func:`~manualcontrol.pilots.simulate_many`): the loop is
 discretised once, the forced run stepped once per realisation and the remnant's once
-per seed; the process pool hands each worker a batch's runs one or more seeds at a
-time. Each scenario is seeded by its own settings only, so the numbers are identical
+per seed; the process pool and Ray hand each worker a batch's runs one or more seeds
+at a time. Each scenario is seeded by its own settings only, so the numbers are identical
 whatever the backend, the number of workers and what was simulated together. Every
 finished run is stored at once under ``<out>/runs/<key>.json`` (its row) and
 ``<key>.npz`` (the estimator's traces); a suite run again skips those (resume), and a
@@ -576,7 +576,7 @@ def _stop_pool(pool: ProcessPoolExecutor, out: Path) -> None:
 def _run_with_ray(
     groups: Sequence[Sequence[Scenario]], out: Path
 ) -> Iterable[list[dict[str, Any]]]:
-
+    """Every row of ``groups``, a Ray task's rows at a time (tasks: :func:`_chunks`)."""
     try:
         import ray
     except ImportError as error:
@@ -587,8 +587,10 @@ def _run_with_ray(
         ray.init(
             address=os.environ.get("RAY_ADDRESS"), ignore_reinit_error=True, log_to_driver=False
         )
-    remote = ray.remote(run_scenarios)
-    pending = [remote.remote(group, out) for group in groups]
+    # tasks of whole seeds, as the process pool's, cut for the cluster's cores
+    cores = max(1, int(ray.cluster_resources().get("CPU", 1)))
+    remote = ray.remote(_run_chunk)
+    pending = [remote.remote(chunk, out) for chunk in _chunks(groups, cores)]
     while pending:
         ready, pending = ray.wait(pending, num_returns=1)
         yield ray.get(ready[0])
