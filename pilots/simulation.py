@@ -553,14 +553,28 @@ class _SharedWork:
         if key is None:
             return compute()
         if key not in self._kept:
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                value = compute()
+            try:
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    value = compute()
+            except BaseException:
+                _warn_again(caught)  # as the run alone warns before its error
+                raise
             self._kept[key] = value, caught
         value, caught = self._kept[key]
-        for warning in caught:
-            warnings.warn(warning.message, warning.category, stacklevel=2)
+        _warn_again(caught)
         return value
+
+    def forget(self, *suffix: Hashable) -> None:
+        """Drop what no later run needs: the entries whose key ends with ``suffix``."""
+        for key in [key for key in self._kept if key[1][-len(suffix) :] == suffix]:
+            del self._kept[key]
+
+
+def _warn_again(caught: Sequence[warnings.WarningMessage]) -> None:
+    """Give recorded warnings again, each as it was (its filters apply now)."""
+    for warning in caught:
+        warnings.warn(warning.message, warning.category, stacklevel=3)
 
 
 #: The shared work of the :func:`simulate_many` call this :func:`simulate` belongs to
@@ -583,15 +597,20 @@ def _keys(
     grid = (setup.n_samples, float(setup.time[0]), setup.dt)
     if remnant_signal is not None:
         noise: Hashable | None = "signal"  # one signal for every run of the call
-    elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
-        noise = ("seed", int(seed))
     else:
-        noise = None
+        noise = _seed_key(seed)
     return {
         "loop": grid,
         "forced": (*grid, "realisation", realisation),
         "remnant": None if noise is None else (*grid, noise),
     }
+
+
+def _seed_key(seed: Any) -> Hashable | None:
+    """What keys a seed's remnant run: an int seed's value; None for fresh noise."""
+    if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+        return ("seed", int(seed))
+    return None
 
 
 def _shared(key: Hashable | None, compute: Callable[[], Any]) -> Any:
@@ -854,7 +873,8 @@ def simulate_many(
     batch or an experiment design runs it. ``options`` are :func:`simulate`'s other
     keywords, the same for every run. The recordings come one at a time, in the order
     of ``runs`` (``list(...)`` for all of them at once), so thousands of runs hold one
-    recording in memory, beside what they share.
+    recording in memory, beside the shared runs of the realisations and seeds still to
+    come (each dropped after its last run).
 
     Each recording is bit for bit the one :func:`simulate` returns for its realisation
     and seed; what the runs share is computed once. The loop is linear and starts at
@@ -901,7 +921,10 @@ def _simulations(
     options: Mapping[str, Any],
 ) -> Iterator[Recording]:
     work = _SharedWork()
-    for realisation, seed in pairs:
+    # the last run that needs each realisation's forced run and each seed's remnant run
+    last_of_realisation = {realisation: i for i, (realisation, _) in enumerate(pairs)}
+    last_of_seed = {_seed_key(seed): i for i, (_, seed) in enumerate(pairs)}
+    for i, (realisation, seed) in enumerate(pairs):
         # shared only while this call's own simulate runs: whatever the caller does
         # between two recordings simulates on its own
         token = _SHARED.set(work)
@@ -917,6 +940,11 @@ def _simulations(
             # iterates (the caller of next())
             for warning in caught:
                 warnings.warn(warning.message, warning.category, stacklevel=2)
+        if last_of_realisation[realisation] == i:
+            work.forget("realisation", realisation)
+        if seed_key := _seed_key(seed):
+            if last_of_seed[seed_key] == i:
+                work.forget(seed_key)
         yield recording
 
 

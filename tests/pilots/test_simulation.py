@@ -323,6 +323,51 @@ def test_simulate_many_warns_each_run_as_simulate_does_at_the_callers_line():
     assert {w.filename for w in alone + together} == {__file__}
 
 
+def test_simulate_many_warns_as_simulate_does_before_a_run_fails():
+    # a gain far above the human range warns, then the preview time beyond the 1 s
+    # shown fails: both from the parameter traces, which simulate_many shares
+    pilot = Pilot("preview", {"K_p": 30.0, "tau_f": 1.5})
+
+    def said(call):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with pytest.raises(ValueError, match="tau_f"):
+                call()
+        return [(w.category, str(w.message)) for w in caught]
+
+    alone = said(lambda: simulate(pilot, "SI", seed=1, measurement_time=5.0))
+    together = said(lambda: next(simulate_many(pilot, "SI", runs=[(0, 1)], measurement_time=5.0)))
+    assert together == alone
+    assert [category for category, _ in alone] == [HumanLimitWarning]
+
+
+def test_simulate_many_drops_a_realisations_and_a_seeds_runs_after_their_last_use(monkeypatch):
+    from manualcontrol.pilots import simulation
+
+    works = []
+    original_init = simulation._SharedWork.__init__
+
+    def keeping(self):
+        original_init(self)
+        works.append(self)
+
+    monkeypatch.setattr(simulation._SharedWork, "__init__", keeping)
+    pilot = Pilot("precision", COMPENSATORY, remnant="popovici2017")
+    runs = [(0, 1), (0, 2), (1, 1), (1, 2)]
+    recordings = simulate_many(pilot, "DI", runs=runs, run_in=0.0, measurement_time=5.0)
+
+    def kept():
+        return sorted({tag for tag, _ in works[0]._kept})
+
+    next(recordings)  # realisation 0 and seed 1 are used again
+    assert kept() == ["forced", "forcing", "loop", "remnant", "traces"]
+    next(recordings)  # realisation 0 is done with, seed 2 not yet
+    assert sum(tag == "forced" for tag, _ in works[0]._kept) == 0
+    assert sum(tag == "remnant" for tag, _ in works[0]._kept) == 2
+    list(recordings)
+    assert kept() == ["loop", "traces"]  # nothing a realisation or a seed owned
+
+
 @pytest.mark.parametrize(
     ("kwargs", "error", "message"),
     [
