@@ -50,6 +50,7 @@ import signal
 import sys
 import time
 import traceback
+import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -213,15 +214,20 @@ def _simulations(groups: Sequence[Sequence[Scenario]]) -> Iterator[_Simulated]:
             continue
         for scenario in firsts:
             started = time.perf_counter()
-            try:
-                recording = next(runs)
-            except Exception:
-                recording = None
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                try:
+                    recording = next(runs)
+                except Exception:
+                    recording = None
             i += 1
             if recording is None:
-                # outside the handler: the row's traceback is the run's own, unchained
+                # alone, it warns again and fails as it does alone; outside the handler,
+                # its traceback is its own, unchained
                 yield _simulate_alone(scenario)
                 break  # the iteration ended with the error: start again after it
+            for warning in caught:
+                warnings.warn(warning.message, warning.category, stacklevel=2)
             yield recording, None, time.perf_counter() - started
 
 
@@ -504,13 +510,11 @@ def _keep_freed_memory() -> bool:
     then trimmed and faulted in again. Elsewhere than glibc nothing is changed.
     """
     import ctypes
-    import ctypes.util
 
     if not sys.platform.startswith("linux"):
         return False
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
+        mallopt = ctypes.CDLL(None).mallopt  # the process's own C library
     except (OSError, AttributeError):  # another C library: its own defaults
         return False
     return all(mallopt(parameter, value) == 1 for parameter, value in _MALLOPT.values())
@@ -588,7 +592,8 @@ def _run_with_ray(
             address=os.environ.get("RAY_ADDRESS"), ignore_reinit_error=True, log_to_driver=False
         )
     # tasks of whole seeds, as the process pool's, cut for the cluster's cores
-    cores = max(1, int(ray.cluster_resources().get("CPU", 1)))
+    # a cluster that lists no CPU yet (an autoscaler's head) gets a task per group
+    cores = int(ray.cluster_resources().get("CPU", 0)) or len(groups)
     remote = ray.remote(_run_chunk)
     pending = [remote.remote(chunk, out) for chunk in _chunks(groups, cores)]
     while pending:
@@ -695,16 +700,18 @@ _CHUNKS_PER_WORKER = 8
 
 
 def _chunks(groups: Sequence[Sequence[Scenario]], workers: int) -> list[list[Sequence[Scenario]]]:
-    """The pool's tasks: each a pilot's Monte Carlo runs of one or more whole seeds.
+    """The pool's tasks: a pilot's Monte Carlo runs, seed by seed.
 
-    A seed's runs (every realisation of the batch with that seed) are never split: a
-    task of ``k`` seeds of ``R`` realisations steps each of its loops ``R + k`` times
-    instead of ``2 k R`` (see :func:`~manualcontrol.pilots.simulate_many`). Seeds are added to a
-    task until it holds about ``1 / (8 workers)`` of the groups, so the workers end
-    the suite about together. Results do not depend on the cutting: each row is stored
-    under its own key and the table keeps the suite's order.
+    A task holds about ``1 / (8 workers)`` of the groups, so the workers end the suite
+    about together (and progress is reported a task at a time). Seeds are added to it
+    whole, every realisation of each: a task of ``k`` seeds and ``R`` realisations steps
+    each of its loops ``R + k`` times instead of ``2 k R`` (see
+    :func:`~manualcontrol.pilots.simulate_many`). A seed with more realisations than a
+    task holds is cut into tasks of its realisations, each stepping that seed's
+    remnant once. Results do not depend on the cutting: each row is stored under its
+    own key and the table keeps the suite's order.
     """
-    families: dict[Any, dict[int, list[Sequence[Scenario]]]] = {}
+    families: dict[Any, dict[Any, list[Sequence[Scenario]]]] = {}
     for index, group in enumerate(groups):
         key = _monte_carlo_key(group[0])
         seeds = families.setdefault(("alone", index) if key is None else key, {})
@@ -713,8 +720,15 @@ def _chunks(groups: Sequence[Sequence[Scenario]], workers: int) -> list[list[Seq
     tasks: list[list[Sequence[Scenario]]] = []
     for seeds in families.values():
         task: list[Sequence[Scenario]] = []
-        for seed in sorted(seeds):
-            task.extend(sorted(seeds[seed], key=lambda group: group[0].realisation))
+        for seed_groups in seeds.values():  # as the suite lists them
+            if len(seed_groups) > size:
+                # as few tasks as the size allows, of about equal size
+                step = math.ceil(len(seed_groups) / math.ceil(len(seed_groups) / size))
+                tasks.extend(
+                    seed_groups[start : start + step] for start in range(0, len(seed_groups), step)
+                )
+                continue
+            task.extend(seed_groups)
             if len(task) >= size:
                 tasks.append(task)
                 task = []
