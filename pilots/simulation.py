@@ -565,9 +565,9 @@ class _SharedWork:
         _warn_again(caught)
         return value
 
-    def forget(self, *suffix: Hashable) -> None:
-        """Drop what no later run needs: the entries whose key ends with ``suffix``."""
-        for key in [key for key in self._kept if key[1][-len(suffix) :] == suffix]:
+    def forget(self, owner: tuple[str, Hashable]) -> None:
+        """Drop what no later run needs: the entries of ``owner`` (a :func:`_owner_key`)."""
+        for key in [key for key in self._kept if key[1][-1] == owner]:
             del self._kept[key]
 
 
@@ -601,15 +601,26 @@ def _keys(
         noise = _seed_key(seed)
     return {
         "loop": grid,
-        "forced": (*grid, "realisation", realisation),
+        "forced": (*grid, _owner_key("realisation", realisation)),
         "remnant": None if noise is None else (*grid, noise),
     }
 
 
-def _seed_key(seed: Any) -> Hashable | None:
+def _owner_key(kind: str, value: Any) -> tuple[str, Hashable]:
+    """What ends the key of a realisation's or a seed's shared runs.
+
+    An integer as a Python int, so that ``np.int64(2)`` and ``2`` own the same runs and
+    keys compare as plain tuples.
+    """
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        return kind, int(value)
+    return kind, value
+
+
+def _seed_key(seed: Any) -> tuple[str, Hashable] | None:
     """What keys a seed's remnant run: an int seed's value; None for fresh noise."""
     if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
-        return ("seed", int(seed))
+        return _owner_key("seed", seed)
     return None
 
 
@@ -922,7 +933,9 @@ def _simulations(
 ) -> Iterator[Recording]:
     work = _SharedWork()
     # the last run that needs each realisation's forced run and each seed's remnant run
-    last_of_realisation = {realisation: i for i, (realisation, _) in enumerate(pairs)}
+    last_of_realisation = {
+        _owner_key("realisation", realisation): i for i, (realisation, _) in enumerate(pairs)
+    }
     last_of_seed = {_seed_key(seed): i for i, (_, seed) in enumerate(pairs)}
     for i, (realisation, seed) in enumerate(pairs):
         # shared only while this call's own simulate runs: whatever the caller does
@@ -940,8 +953,8 @@ def _simulations(
             # iterates (the caller of next())
             for warning in caught:
                 warnings.warn(warning.message, warning.category, stacklevel=2)
-        if last_of_realisation[realisation] == i:
-            work.forget("realisation", realisation)
+        if last_of_realisation[owner := _owner_key("realisation", realisation)] == i:
+            work.forget(owner)
         if seed_key := _seed_key(seed):
             if last_of_seed[seed_key] == i:
                 work.forget(seed_key)
