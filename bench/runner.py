@@ -42,6 +42,7 @@ resumed; an empty or absent folder, or one holding no results, is used as it is.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import math
 import multiprocessing
@@ -198,8 +199,13 @@ def _simulations(groups: Sequence[Sequence[Scenario]]) -> Iterator[_Simulated]:
         runs = None
         if len(firsts) > 1:
             try:
+                # the pilot is built once here and once per run alone: its warnings
+                # (a parameter outside the human range) are given to every run
+                with warnings.catch_warnings(record=True) as built:
+                    warnings.simplefilter("always")
+                    pilot = first.build_pilot()
                 runs = simulate_many(
-                    first.build_pilot(),
+                    pilot,
                     first.element,
                     first.forcing,
                     runs=[(scenario.realisation, scenario.remnant_seed) for scenario in firsts],
@@ -226,7 +232,7 @@ def _simulations(groups: Sequence[Sequence[Scenario]]) -> Iterator[_Simulated]:
                 # its traceback is its own, unchained
                 yield _simulate_alone(scenario)
                 break  # the iteration ended with the error: start again after it
-            for warning in caught:
+            for warning in [*built, *caught]:
                 warnings.warn(warning.message, warning.category, stacklevel=2)
             yield recording, None, time.perf_counter() - started
 
@@ -593,7 +599,7 @@ def _run_with_ray(
         )
     # tasks of whole seeds, as the process pool's, cut for the cluster's cores
     # a cluster that lists no CPU yet (an autoscaler's head) gets a task per group
-    cores = int(ray.cluster_resources().get("CPU", 0)) or len(groups)
+    cores = int(ray.cluster_resources().get("CPU", 0)) or max(1, len(groups))
     remote = ray.remote(_run_chunk)
     pending = [remote.remote(chunk, out) for chunk in _chunks(groups, cores)]
     while pending:
@@ -722,11 +728,10 @@ def _chunks(groups: Sequence[Sequence[Scenario]], workers: int) -> list[list[Seq
         task: list[Sequence[Scenario]] = []
         for seed_groups in seeds.values():  # as the suite lists them
             if len(seed_groups) > size:
-                # as few tasks as the size allows, of about equal size
-                step = math.ceil(len(seed_groups) / math.ceil(len(seed_groups) / size))
-                tasks.extend(
-                    seed_groups[start : start + step] for start in range(0, len(seed_groups), step)
-                )
+                # as few tasks as the size allows, their sizes differing by one at most
+                count, pieces = len(seed_groups), math.ceil(len(seed_groups) / size)
+                cuts = [count * j // pieces for j in range(pieces + 1)]
+                tasks.extend(seed_groups[a:b] for a, b in itertools.pairwise(cuts))
                 continue
             task.extend(seed_groups)
             if len(task) >= size:

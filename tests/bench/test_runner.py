@@ -387,7 +387,7 @@ def test_a_monte_carlo_that_cannot_be_set_up_together_runs_each_run_alone(tmp_pa
     ("per_worker", "workers", "sizes"),
     [
         (2, 1, [9, 3, 1]),  # tasks of about 7 groups: whole seeds of 3 realisations
-        (8, 1, [2, 1] * 4 + [1]),  # of about 2: each seed's 3 realisations cut in two
+        (8, 1, [1, 2] * 4 + [1]),  # of about 2: each seed's 3 realisations cut in two
         (8, 16, [1] * 13),
     ],
 )
@@ -444,18 +444,28 @@ def test_a_pool_worker_keeps_the_memory_it_frees_for_its_next_run():
     assert int(default) > 20000 and int(kept) < 200, (default, kept)
 
 
-def test_a_failing_monte_carlo_warns_as_its_runs_do_alone(tmp_path):
-    # a gain far above the human range warns, and the loop it closes is unstable
-    # (a suite file refuses such a pilot; a list of scenarios is not checked)
-    gain = {"parameters": {"K_p": 30.0}}
+@pytest.mark.parametrize(
+    ("parameters", "status"),
+    [
+        # a gain far above the human range: warned by the run, whose loop is unstable
+        ({"K_p": 30.0}, "failed"),
+        # a delay below the human range: warned as the pilot is built, the run is fine
+        ({"tau_v": 0.05}, "ok"),
+    ],
+)
+def test_a_monte_carlo_warns_as_its_runs_do_alone(tmp_path, parameters, status):
+    # (a suite file refuses the unstable pilot; a list of scenarios is not checked)
     scenarios = parse_suite(MONTE_CARLO).scenarios()
-    groups = runner._groups([dataclasses.replace(s, pilot={**s.pilot, **gain}) for s in scenarios])
+    changed = {"parameters": parameters}
+    groups = runner._groups(
+        [dataclasses.replace(s, pilot={**s.pilot, **changed}) for s in scenarios]
+    )
 
     def said(run):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             rows = run()
-        assert [row["status"] for row in rows] == ["failed"] * len(groups)
+        assert [row["status"] for row in rows] == [status] * len(groups)
         return [(w.category.__name__, str(w.message)) for w in caught]
 
     together = said(lambda: [r for rows in runner.run_scenario_groups(groups) for r in rows])
