@@ -20,12 +20,13 @@ batch's realisations and seeds) are simulated together where a worker gets sever
 (:func:`run_scenario_groups`, :func:`~manualcontrol.pilots.simulate_many`): the loop is
 discretised once, the forced run stepped once per realisation and the remnant's once
 per seed; the process pool and Ray hand each worker a batch's runs one or more seeds
-at a time. Each scenario is seeded by its own settings only, so the numbers are identical
-whatever the backend, the number of workers and what was simulated together. Every
-finished run is stored at once under ``<out>/runs/<key>.json`` (its row) and
-``<key>.npz`` (the estimator's traces); a suite run again skips those (resume), and a
-failing scenario is recorded as failed with its error while the batch goes on. At the
-end the rows are written to ``results.csv`` and ``results.parquet``.
+at a time (a seed with more realisations than a task holds is cut). Each scenario is
+seeded by its own settings only, so the numbers are identical whatever the backend, the
+number of workers and what was simulated together. Every finished run is stored at
+once under ``<out>/runs/<key>.json`` (its row) and ``<key>.npz`` (the estimator's
+traces); a suite run again skips those (resume), and a failing scenario is recorded as
+failed with its error while the batch goes on. At the end the rows are written to
+``results.csv`` and ``results.parquet``.
 
 Ctrl-C stops a run cleanly: the pool's workers ignore it (no traceback from them), the
 main process cancels what has not started, stops the workers and raises
